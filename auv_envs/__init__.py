@@ -1,0 +1,35 @@
+"""auv_envs: Gymnasium + MuJoCo environments for AUV recovery.
+
+Importing the package registers every environment::
+
+    import gymnasium as gym
+    import auv_envs  # noqa: F401
+    env = gym.make("auv_envs/DockingStation-v0", obs_mode="features")
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+# MuJoCo picks its GL backend when first imported: default to headless EGL on
+# Linux without a display, unless the user chose one already.
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+from gymnasium.envs.registration import register, registry  # noqa: E402
+
+__version__ = "0.1.0"
+
+#: Every environment id this package registers, with its entry point.
+ENVIRONMENTS = {
+    "auv_envs/DockingStation-v0": "auv_envs.tasks.docking:DockingStationEnv",
+    "auv_envs/LampArrayDocking-v0": "auv_envs.tasks.docking:LampArrayDockingEnv",
+}
+
+for _env_id, _entry_point in ENVIRONMENTS.items():
+    if _env_id not in registry:
+        # Time limits are handled inside each env so that the episode summary
+        # in ``info`` is written on truncation too.
+        register(id=_env_id, entry_point=_entry_point, disable_env_checker=False)

@@ -1,0 +1,1 @@
+"""Shared simulation parts: frames, vehicles, hydrodynamics, camera, rendering."""

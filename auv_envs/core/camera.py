@@ -1,0 +1,110 @@
+"""Pinhole camera model: intrinsics, extrinsics, projection, visibility, pixel noise.
+
+Pixel coordinates are continuous with the origin at the top-left *corner* of
+the image: pixel ``(i, j)`` (column, row) covers ``[i, i+1) x [j, j+1)``, so
+its centre is at ``(i + 0.5, j + 0.5)``. This matches MuJoCo's renderer, whose
+principal point is the image centre ``(W/2, H/2)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from auv_envs.core.frames import R_MJCAM_TO_CV
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraIntrinsics:
+    """Ideal pinhole intrinsics (no distortion), square pixels."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @classmethod
+    def from_fovy(cls, width: int, height: int, fovy_deg: float) -> CameraIntrinsics:
+        """Intrinsics of a MuJoCo camera with vertical field of view ``fovy_deg``."""
+        if width <= 0 or height <= 0:
+            raise ValueError(f"image size must be positive, got {width}x{height}")
+        f = 0.5 * height / math.tan(math.radians(fovy_deg) / 2.0)
+        return cls(width, height, f, f, width / 2.0, height / 2.0)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraExtrinsics:
+    """Pose of the camera in the body frame.
+
+    Attributes:
+        position: camera centre in the body frame, m.
+        rotation: rotation from the OpenCV camera frame to the body frame.
+    """
+
+    position: tuple[float, float, float]
+    rotation: tuple[tuple[float, float, float], ...]
+
+    @classmethod
+    def from_mujoco(cls, pos: np.ndarray, mat: np.ndarray) -> CameraExtrinsics:
+        """From MuJoCo's ``cam_pos`` and the camera frame's body-relative rotation."""
+        rot = np.asarray(mat).reshape(3, 3) @ R_MJCAM_TO_CV
+        return cls(tuple(float(x) for x in pos), tuple(tuple(float(x) for x in r) for r in rot))
+
+    @property
+    def rotation_matrix(self) -> np.ndarray:
+        return np.array(self.rotation)
+
+
+def points_in_camera(points_world, cam_position_world, cam_rotation_world) -> np.ndarray:
+    """World points expressed in the (OpenCV) camera frame.
+
+    Args:
+        points_world: (N, 3).
+        cam_position_world: camera centre in the world, (3,).
+        cam_rotation_world: rotation from the OpenCV camera frame to the world.
+    """
+    return (np.asarray(points_world) - cam_position_world) @ np.asarray(cam_rotation_world)
+
+
+def project(intrinsics: CameraIntrinsics, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project camera-frame points; returns ``(pixels (N, 2), in_front (N,))``.
+
+    Points behind the camera get NaN pixels.
+    """
+    pts = np.asarray(points_cam, dtype=float)
+    z = pts[:, 2]
+    in_front = z > 1e-6
+    pixels = pts[:, :2] / np.maximum(z, 1e-6)[:, None]
+    pixels *= (intrinsics.fx, intrinsics.fy)
+    pixels += (intrinsics.cx, intrinsics.cy)
+    if not in_front.all():
+        pixels[~in_front] = np.nan
+    return pixels, in_front
+
+
+def inside_image(intrinsics: CameraIntrinsics, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    """Which pixels fall inside the image (optionally shrunk by ``margin``)."""
+    u, v = pixels[:, 0], pixels[:, 1]
+    # NaN (behind the camera) compares False: not inside.
+    return (
+        (u >= margin)
+        & (u < intrinsics.width - margin)
+        & (v >= margin)
+        & (v < intrinsics.height - margin)
+    )
+
+
+def add_pixel_noise(pixels: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Zero-mean Gaussian pixel noise drawn from the episode's generator."""
+    if std <= 0.0:
+        return pixels.copy()
+    return pixels + rng.normal(0.0, std, size=pixels.shape)

@@ -1,0 +1,68 @@
+"""Small helpers every environment shares: argument checks, action validation, pickling.
+
+Deliberately functions and one mixin rather than a base class of empty hooks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+from gymnasium import spaces
+
+
+def check_choice(name: str, value, valid: Iterable) -> None:
+    """Raise ``ValueError`` naming the valid values when ``value`` is not one of them."""
+    valid = tuple(valid)
+    if value not in valid:
+        raise ValueError(f"unknown {name} {value!r}; valid values: {', '.join(map(repr, valid))}")
+
+
+def reject_unknown_kwargs(unknown: dict, valid: Iterable[str], env_name: str) -> None:
+    """Raise ``TypeError`` listing the valid keywords when unknown ones were passed."""
+    if unknown:
+        raise TypeError(
+            f"{env_name} got unknown argument(s) {', '.join(sorted(unknown))}; "
+            f"valid arguments: {', '.join(sorted(valid))}"
+        )
+
+
+def validate_action(action, space: spaces.Box) -> np.ndarray:
+    """Check and clip an action to a Box space.
+
+    Non-finite entries raise ``ValueError``; finite out-of-range entries are
+    clipped to the bounds (documented behaviour of every ``auv_envs`` env).
+    """
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != space.shape:
+        raise ValueError(f"action has shape {a.shape}, expected {space.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"action must be finite, got {a.tolist()}")
+    return np.clip(a, space.low, space.high)
+
+
+class ReconstructingPickleMixin:
+    """Pickle an env as its constructor arguments plus its explicit run-time state.
+
+    The class must set ``self._init_kwargs`` in ``__init__`` and implement
+    ``_get_runtime_state()`` / ``_set_runtime_state(state)``. MuJoCo models,
+    data and renderers are rebuilt rather than pickled.
+    """
+
+    def __getstate__(self):
+        rng = getattr(self, "_np_random", None)
+        return {
+            "init_kwargs": dict(self._init_kwargs),
+            "rng_state": None if rng is None else rng.bit_generator.state,
+            "rng_seed": getattr(self, "_np_random_seed", None),
+            "runtime": self._get_runtime_state(),
+        }
+
+    def __setstate__(self, state):
+        self.__init__(**state["init_kwargs"])
+        if state["rng_state"] is not None:
+            rng = np.random.Generator(np.random.PCG64())
+            rng.bit_generator.state = state["rng_state"]
+            self._np_random = rng
+            self._np_random_seed = state["rng_seed"]
+        self._set_runtime_state(state["runtime"])

@@ -1,0 +1,101 @@
+"""The one place for frame conventions.
+
+Conventions used everywhere in ``auv_envs``:
+
+* **World** frame: right-handed, z up (MuJoCo's convention). For the docking
+  tasks the world frame *is* the docking-station (DS) frame: origin at the
+  centre of the entrance plane, x along the docking axis (pointing into the
+  station), y to the left, z up.
+* **Body** frame: forward-left-up (FLU): x to the bow, y to port, z up. The
+  body origin is the centre of gravity (CG).
+* **Euler angles**: roll, pitch, yaw about body x, y, z, composed ZYX
+  (``R = Rz(yaw) Ry(pitch) Rx(roll)``, body -> world). Yaw is counter-clockwise
+  seen from above; yaw = 0 points along world +x.
+* **Camera** frame: OpenCV's (x right, y down, z along the optical axis).
+  MuJoCo cameras look along their -z with y up; :data:`R_MJCAM_TO_CV` maps one
+  to the other.
+
+Fossen's textbook equations use NED / forward-right-down frames. The equations
+of motion keep their form in any right-handed pair of frames, so parameters
+carry over unchanged; only vectors need converting, which
+:func:`ned_to_enu` and :func:`frd_to_flu` do.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Rotation from MuJoCo's camera frame (-z forward, y up) to OpenCV's
+#: (z forward, y down). Its own inverse.
+R_MJCAM_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+#: Standard gravity (m/s^2).
+GRAVITY = 9.81
+
+
+def rotation_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Body-to-world rotation matrix for ZYX Euler angles (radians)."""
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles ``(roll, pitch, yaw)`` of a body-to-world rotation."""
+    r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
+    pitch = -math.asin(min(1.0, max(-1.0, r[2][0])))
+    roll = math.atan2(r[2][1], r[2][2])
+    yaw = math.atan2(r[1][0], r[0][0])
+    return np.array([roll, pitch, yaw])
+
+
+def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Unit quaternion ``(w, x, y, z)`` (MuJoCo order) for ZYX Euler angles."""
+    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
+    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
+    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
+    return np.array(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ]
+    )
+
+
+def wrap_angle(angle):
+    """Wrap an angle (or array of angles) to ``[-pi, pi)``."""
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def ned_to_enu(vector) -> np.ndarray:
+    """North-east-down vector to the z-up world frame (x east, y north, z up)."""
+    v = np.asarray(vector, dtype=float)
+    return np.array([v[1], v[0], -v[2]])
+
+
+def enu_to_ned(vector) -> np.ndarray:
+    """Inverse of :func:`ned_to_enu` (the map is an involution up to order)."""
+    v = np.asarray(vector, dtype=float)
+    return np.array([v[1], v[0], -v[2]])
+
+
+def frd_to_flu(vector) -> np.ndarray:
+    """Forward-right-down body vector to forward-left-up."""
+    v = np.asarray(vector, dtype=float)
+    return np.array([v[0], -v[1], -v[2]])
+
+
+def world_to_body(rotation: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """Express a world-frame vector in the body frame of ``rotation``."""
+    return np.asarray(rotation).T @ np.asarray(vector)

@@ -1,0 +1,724 @@
+"""Docking-station approach guided by lights (seeds 003 and 002).
+
+Two registered layouts share this file:
+
+* ``auv_envs/DockingStation-v0``: six lights symmetric around the entrance
+  (seed 003).
+* ``auv_envs/LampArrayDocking-v0``: asymmetric L-shaped array of four lamps
+  under a recovery fork (seed 002).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from gymnasium import spaces
+
+from auv_envs.core import frames
+from auv_envs.core.assets import asset_path
+from auv_envs.core.camera import (
+    CameraExtrinsics,
+    CameraIntrinsics,
+    add_pixel_noise,
+    inside_image,
+    points_in_camera,
+    project,
+)
+from auv_envs.core.env import (
+    ReconstructingPickleMixin,
+    check_choice,
+    reject_unknown_kwargs,
+    validate_action,
+)
+from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
+from auv_envs.core.rendering import CameraRenderer
+from auv_envs.core.vehicle import VehicleParams, hovering_auv, with_damping_mismatch
+
+OBS_MODES = ("state", "features", "image")
+SCENARIOS = ("mismatch", "current")
+
+#: Default nominal-model damping scale (surge, sway, heave, roll, pitch, yaw):
+#: the controller's D diagonals differ from the plant's as in seed 003's
+#: comparison of D between plant and prediction model.
+DEFAULT_DAMPING_MISMATCH = (0.7, 1.4, 1.3, 1.0, 1.0, 0.6)
+
+#: Seed 003 Scenario 2 current speed, m/s.
+SCENARIO_CURRENT_SPEED = 0.3
+#: Seed 003 Scenario 2 noise: 5 px on the light pixels, 0.02 m/s on velocities.
+SCENARIO_PIXEL_NOISE = 5.0
+SCENARIO_VELOCITY_NOISE = 0.02
+#: Yaw-rate and attitude noise in the noisy scenario (INS grade; our choice).
+SCENARIO_YAW_RATE_NOISE = 0.005
+SCENARIO_ATTITUDE_NOISE = math.radians(0.2)
+
+PHYSICS_TIMESTEP = 0.05
+FRAME_SKIP = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class StationLayout:
+    """A light layout: its asset, camera tilt and where episodes start."""
+
+    name: str
+    asset: str
+    light_labels: tuple[str, ...]
+    camera_pitch_deg: float
+    start_x: tuple[float, float]
+    start_y: tuple[float, float]
+    start_z: tuple[float, float]
+
+
+SIX_LIGHTS = StationLayout(
+    name="six-lights",
+    asset="docking/station_six_lights.xml",
+    light_labels=("L0", "L1", "L2", "L3", "L4", "L5"),
+    camera_pitch_deg=0.0,
+    start_x=(-12.0, -8.0),
+    start_y=(-1.5, 1.5),
+    start_z=(-0.8, 0.8),
+)
+
+LAMP_ARRAY = StationLayout(
+    name="lamp-array",
+    asset="docking/station_lamp_array.xml",
+    light_labels=("A", "B", "C", "D"),
+    camera_pitch_deg=20.0,
+    start_x=(-12.0, -8.0),
+    start_y=(-1.5, 1.5),
+    start_z=(-0.2, 0.9),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class DockingTolerances:
+    """Allowable deviations at the entrance (success), our documented defaults.
+
+    The nose must be within ``longitudinal`` of the entrance plane, within
+    ``lateral`` / ``vertical`` of the docking axis, and the heading within
+    ``heading_deg`` of the station's axis.
+    """
+
+    lateral: float = 0.2
+    vertical: float = 0.2
+    heading_deg: float = 10.0
+    longitudinal: float = 0.15
+
+
+@dataclasses.dataclass(frozen=True)
+class DockingCalibration:
+    """What a classical agent may know (read-only; arrays are not writeable).
+
+    Attributes:
+        intrinsics: camera intrinsics at the observation image size.
+        extrinsics: camera pose in the body frame (OpenCV camera axes).
+        light_positions: (n, 3) light positions in the DS (= world) frame.
+        light_labels: names of the lights in observation order.
+        nominal_params: parameters of the nominal (controller) model.
+        nominal_model: 4-DOF prediction model built from ``nominal_params``.
+        control_period: seconds per env step.
+        thrust_limits: (X, Y, Z, N) limits that scale the normalised action.
+        nose_offset: CG-to-nose distance along body x, m.
+        target_position: CG position at the docking point (nose at the
+            entrance centre, heading 0), DS frame.
+        tolerances: success tolerances.
+        seabed_z: seabed height in the DS frame, m.
+        pixel_noise_std, velocity_noise_std, yaw_rate_noise_std,
+        attitude_noise_std: sensor noise of the scenario.
+    """
+
+    intrinsics: CameraIntrinsics
+    extrinsics: CameraExtrinsics
+    light_positions: np.ndarray
+    light_labels: tuple[str, ...]
+    nominal_params: VehicleParams
+    nominal_model: NominalModel
+    control_period: float
+    thrust_limits: tuple[float, float, float, float]
+    nose_offset: float
+    target_position: np.ndarray
+    tolerances: DockingTolerances
+    seabed_z: float
+    pixel_noise_std: float
+    velocity_noise_std: float
+    yaw_rate_noise_std: float
+    attitude_noise_std: float
+
+
+def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.MjModel:
+    """Compose arena + station + vehicle from ``assets/`` with dm_control's mjcf."""
+    arena = mjcf.from_path(str(asset_path("docking/arena.xml")))
+    station = mjcf.from_path(str(asset_path(layout.asset)))
+    vehicle = mjcf.from_path(str(asset_path("vehicles/hovering_auv.xml")))
+    station.model = "station"  # fixed name prefix whatever the layout
+
+    hull = vehicle.find("body", "hull")
+    hull.inertial.mass = params.mass
+    hull.inertial.diaginertia = list(params.inertia)
+    a, b = params.length / 2.0, params.diameter / 2.0
+    vehicle.find("geom", "hull").size = [a, b, b]
+    nose = [a, 0.0, 0.0]
+    vehicle.find("site", "nose").pos = nose
+    pitch = math.radians(layout.camera_pitch_deg)
+    camera = vehicle.find("camera", "nose_camera")
+    camera.pos = nose
+    # MuJoCo camera x = -body y; camera y (image up) tilted down by pitch.
+    camera.xyaxes = [0.0, -1.0, 0.0, math.sin(pitch), 0.0, math.cos(pitch)]
+
+    arena.worldbody.attach(station)
+    arena.worldbody.attach(vehicle).add("freejoint")
+    xml = arena.to_xml_string()
+    return mujoco.MjModel.from_xml_string(xml, assets=arena.get_assets())
+
+
+class _Physics:
+    """Named accessors into one MuJoCo model/data pair; ids resolved once."""
+
+    def __init__(self, model: mujoco.MjModel, n_lights: int):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.hull_body = model.body("hovering_auv/hull").id
+        # The free joint sits on the attachment frame that carries the hull.
+        joint = model.joint(model.body_jntadr[model.body_parentid[self.hull_body]])
+        self.qpos_adr = joint.qposadr[0]
+        self.qvel_adr = joint.dofadr[0]
+        cam = model.camera("hovering_auv/nose_camera")
+        self.camera_name = cam.name
+        self.camera_pos_body = model.cam_pos[cam.id].copy()
+        cam_mat = np.zeros(9)
+        mujoco.mju_quat2Mat(cam_mat, model.cam_quat[cam.id])
+        self.camera_mat_body = cam_mat.reshape(3, 3)
+        mujoco.mj_forward(model, self.data)
+        self.light_positions = np.array(
+            [self.data.site(f"station/light_{i}").xpos for i in range(n_lights)]
+        )
+        self.seabed_z = float(self.data.geom("seabed").xpos[2])
+        # Rays see the scenery (geom groups 0-1); lamp geoms are group 2.
+        self.ray_groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
+        self._ray_dist = np.zeros(n_lights)
+        self._ray_geom = np.zeros(n_lights, dtype=np.int32)
+
+    def position(self) -> np.ndarray:
+        return self.data.qpos[self.qpos_adr : self.qpos_adr + 3].copy()
+
+    def rotation(self) -> np.ndarray:
+        mat = np.empty(9)
+        mujoco.mju_quat2Mat(mat, self.data.qpos[self.qpos_adr + 3 : self.qpos_adr + 7])
+        return mat.reshape(3, 3)
+
+    def body_velocity(self, rotation: np.ndarray) -> np.ndarray:
+        """(u, v, w, p, q, r) in the body frame."""
+        qvel = self.data.qvel[self.qvel_adr : self.qvel_adr + 6]
+        out = qvel.copy()
+        out[0:3] = qvel[0:3] @ rotation
+        return out
+
+    def set_state(self, position, euler, body_velocity) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        adr = self.qpos_adr
+        self.data.qpos[adr : adr + 3] = position
+        self.data.qpos[adr + 3 : adr + 7] = frames.quat_from_euler(*euler)
+        rot = frames.rotation_from_euler(*euler)
+        self.data.qvel[self.qvel_adr : self.qvel_adr + 3] = rot @ np.asarray(body_velocity[0:3])
+        self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
+        mujoco.mj_forward(self.model, self.data)
+
+    def occluded(self, cam_pos: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Whether static scenery blocks the line of sight to each target."""
+        n = len(targets)
+        dist, geomid = self._ray_dist[:n], self._ray_geom[:n]
+        mujoco.mj_multiRay(
+            self.model, self.data, cam_pos, (targets - cam_pos).ravel(), self.ray_groups, 1,
+            self.hull_body, geomid, dist, None, n, mujoco.mjMAXVAL,
+        )
+        return (dist >= 0.0) & (dist < 1.0 - 1e-6)
+
+
+@dataclasses.dataclass
+class _EpisodeState:
+    """Everything that changes during an episode besides MuJoCo's state."""
+
+    steps: int = 0
+    current: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    lost_time: float = 0.0
+    prev_potential: float = 0.0
+    done: bool = False
+    success: bool = False
+    failure_reason: str = ""
+    docking_time: float = float("nan")
+    fov_violations: int = 0
+    control_effort: float = 0.0
+    min_lights_visible: int = 0
+
+    def copy(self) -> _EpisodeState:
+        return dataclasses.replace(self, current=self.current.copy())
+
+
+class DockingEnv(ReconstructingPickleMixin, gym.Env):
+    """AUV approach to a light-guided docking station (seed 003 / seed 002).
+
+    **Description.** A fully actuated hovering AUV (6-DOF MuJoCo rigid body
+    with Fossen hydrodynamics: added mass including the acceleration term,
+    Coriolis, linear + quadratic damping, restoring forces with 10 N net
+    positive buoyancy and a righting moment, and an ocean current through the
+    relative velocity) must reach the entrance of a docking station (DS) on
+    the seabed, guided by lights seen by a forward camera. Roll and pitch are
+    passively stable (CB 0.15 m above CG). The world frame is the DS frame:
+    origin at the entrance centre, x into the station, z up.
+
+    **Action space.** ``Box(-1, 1, (4,))``: normalised body-frame generalized
+    force (X surge, Y sway, Z heave, N yaw) multiplied by
+    ``calibration.thrust_limits`` (80 N, 80 N, 80 N, 40 N m). Finite values
+    outside [-1, 1] are clipped; NaN or inf raise ``ValueError``.
+
+    **Observation space** (``obs_mode``):
+
+    * ``"state"`` (privileged), ``Box((16,), float32)``: CG position in the DS
+      frame (3), roll, pitch, cos(yaw), sin(yaw) (4), body velocities
+      u, v, w, p, q, r (6), current velocity in the DS frame (3).
+    * ``"features"``, ``Dict``: ``pixels`` (n, 2) light pixel coordinates
+      (zero where not visible, noisy in the ``current`` scenario),
+      ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w, r) from DVL/INS,
+      ``attitude`` (roll, pitch, yaw) from the INS.
+    * ``"image"``, ``Dict``: ``image`` (H, W, 3) uint8 rendering of the
+      forward camera (dark attenuating water, bright lamps) plus ``velocity``
+      and ``attitude`` as above.
+
+    **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
+    ``progress`` (decrease of the potential distance + 0.5 |heading error|),
+    ``control`` (-0.001 |a|^2), ``visibility`` (-0.01 per step with fewer than
+    ``min_visible_lights`` lights in view), ``success`` (+10 once),
+    ``failure`` (-10 once).
+
+    **Starting state.** CG at x in [-12, -8] m, y in [-1.5, 1.5] m, z in the
+    layout's range, heading towards the entrance +-10 deg, surge 0-0.3 m/s.
+    In the ``current`` scenario a 0.3 m/s horizontal current flows towards
+    ``current_direction`` (degrees, DS frame; drawn uniformly when None).
+
+    **Episode end.** Success (terminated): nose within the tolerances of the
+    entrance (``DockingTolerances``: 0.2 m lateral, 0.2 m vertical, 10 deg
+    heading, 0.15 m longitudinal). Failure (terminated): nose more than the
+    longitudinal tolerance behind the entrance plane without success
+    (``behind_entrance``), hull touching the seabed (``seabed``), fewer than
+    ``min_visible_lights`` lights in view for longer than
+    ``lights_lost_timeout`` seconds (``lights_lost``), or more than 30 m from
+    the entrance (``out_of_bounds``). Truncation after ``time_limit`` seconds.
+
+    **Info.** Every step: ``distance_to_entrance``, ``lateral_error``,
+    ``vertical_error``, ``longitudinal_error``, ``heading_error``,
+    ``docked``, ``lights_visible``, ``violation_fov``,
+    ``violation_behind_entrance``, ``violation_seabed``, ``is_success``, the
+    reward terms and ground truth for metrics only (``true_position``,
+    ``true_euler``, ``true_velocity``, ``true_pixels``, ``true_visible``,
+    ``current``). At episode end also ``episode_metrics`` (a dict).
+
+    **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: seed 003
+    Scenario 1, model mismatch only; ``"current"``: Scenario 2),
+    ``current_direction``, ``image_size`` (W, H; default 640x480, also the
+    pixel frame of ``features``), ``model_mismatch`` (False: nominal model =
+    plant), ``damping_mismatch`` (scale of the nominal D diagonals),
+    ``tolerances``, ``time_limit`` (s, default 100), ``lights_lost_timeout``
+    (s, default 5), ``min_visible_lights`` (default 3), ``render_mode``
+    (``"rgb_array"``: the forward camera).
+
+    **Version history.** v0: initial release.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": int(1 / (PHYSICS_TIMESTEP * FRAME_SKIP))}
+
+    layout: StationLayout = SIX_LIGHTS
+
+    def __init__(
+        self,
+        obs_mode: str = "state",
+        scenario: str = "mismatch",
+        current_direction: float | None = None,
+        image_size: tuple[int, int] = (640, 480),
+        model_mismatch: bool = True,
+        damping_mismatch: tuple[float, ...] = DEFAULT_DAMPING_MISMATCH,
+        tolerances: DockingTolerances | None = None,
+        time_limit: float = 100.0,
+        lights_lost_timeout: float = 5.0,
+        min_visible_lights: int = 3,
+        render_mode: str | None = None,
+        **unknown,
+    ):
+        self._init_kwargs = dict(
+            obs_mode=obs_mode, scenario=scenario, current_direction=current_direction,
+            image_size=tuple(image_size), model_mismatch=model_mismatch,
+            damping_mismatch=tuple(damping_mismatch), tolerances=tolerances,
+            time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
+            min_visible_lights=min_visible_lights, render_mode=render_mode,
+        )
+        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
+        check_choice("obs_mode", obs_mode, OBS_MODES)
+        check_choice("scenario", scenario, SCENARIOS)
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        width, height = (int(s) for s in image_size)
+        if time_limit <= 0 or lights_lost_timeout <= 0:
+            raise ValueError("time_limit and lights_lost_timeout must be positive")
+        if current_direction is not None and not math.isfinite(current_direction):
+            raise ValueError(f"current_direction must be finite, got {current_direction}")
+
+        self.obs_mode = obs_mode
+        self.scenario = scenario
+        self.render_mode = render_mode
+        self._current_direction = current_direction
+        self._time_limit = float(time_limit)
+        self._lost_timeout = float(lights_lost_timeout)
+        self._min_visible = int(min_visible_lights)
+        self._params = hovering_auv()
+        n_lights = len(self.layout.light_labels)
+        if not 1 <= self._min_visible <= n_lights:
+            raise ValueError(f"min_visible_lights must be in [1, {n_lights}]")
+
+        model = build_docking_model(self.layout, self._params)
+        self._physics = _Physics(model, n_lights)
+        self._hull = HullForceModel(self._params, self._physics.hull_body, self._physics.qvel_adr)
+        self._dt = model.opt.timestep * FRAME_SKIP
+
+        noisy = scenario == "current"
+        nominal = (
+            with_damping_mismatch(self._params, tuple(damping_mismatch))
+            if model_mismatch
+            else self._params
+        )
+        light_positions = self._physics.light_positions.copy()
+        light_positions.setflags(write=False)
+        nose = self._params.length / 2.0
+        target = np.array([-nose, 0.0, 0.0])
+        target.setflags(write=False)
+        self.calibration = DockingCalibration(
+            intrinsics=CameraIntrinsics.from_fovy(width, height, float(model.cam_fovy[0])),
+            extrinsics=CameraExtrinsics.from_mujoco(
+                self._physics.camera_pos_body, self._physics.camera_mat_body
+            ),
+            light_positions=light_positions,
+            light_labels=self.layout.light_labels,
+            nominal_params=nominal,
+            nominal_model=NominalModel(nominal),
+            control_period=self._dt,
+            thrust_limits=self._params.thrust_limits,
+            nose_offset=nose,
+            target_position=target,
+            tolerances=tolerances or DockingTolerances(),
+            seabed_z=self._physics.seabed_z,
+            pixel_noise_std=SCENARIO_PIXEL_NOISE if noisy else 0.0,
+            velocity_noise_std=SCENARIO_VELOCITY_NOISE if noisy else 0.0,
+            yaw_rate_noise_std=SCENARIO_YAW_RATE_NOISE if noisy else 0.0,
+            attitude_noise_std=SCENARIO_ATTITUDE_NOISE if noisy else 0.0,
+        )
+        self._thrust = np.array(self._params.thrust_limits)
+        self._cam_rot_body = self.calibration.extrinsics.rotation_matrix
+        self._cam_pos_body = np.array(self.calibration.extrinsics.position)
+        self._hull_axes = np.array([nose, self._params.diameter / 2, self._params.diameter / 2])
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.observation_space = self._make_observation_space(n_lights, width, height)
+        self._renderer: CameraRenderer | None = None
+        if obs_mode == "image" or render_mode == "rgb_array":
+            self._renderer = CameraRenderer(model, (self._physics.camera_name,), width, height)
+        self._episode = _EpisodeState()
+        self._last_obs_parts: dict | None = None
+
+    # ------------------------------------------------------------------ spaces
+    def _make_observation_space(self, n: int, width: int, height: int) -> spaces.Space:
+        if self.obs_mode == "state":
+            return spaces.Box(-np.inf, np.inf, shape=(16,), dtype=np.float32)
+        sensors = {
+            "velocity": spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float32),
+            "attitude": spaces.Box(-np.pi - 1.0, np.pi + 1.0, shape=(3,), dtype=np.float32),
+        }
+        if self.obs_mode == "features":
+            bound = np.array([width, height], dtype=np.float32)
+            return spaces.Dict(
+                {
+                    "pixels": spaces.Box(
+                        np.broadcast_to(-bound, (n, 2)).copy(),
+                        np.broadcast_to(2 * bound, (n, 2)).copy(),
+                        dtype=np.float32,
+                    ),
+                    "visible": spaces.MultiBinary(n),
+                    **sensors,
+                }
+            )
+        return spaces.Dict(
+            {"image": spaces.Box(0, 255, shape=(height, width, 3), dtype=np.uint8), **sensors}
+        )
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        lay = self.layout
+        x = rng.uniform(*lay.start_x)
+        y = rng.uniform(*lay.start_y)
+        z = rng.uniform(*lay.start_z)
+        yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(10.0)
+        surge = rng.uniform(0.0, 0.3)
+        if self.scenario == "current":
+            direction = (
+                math.radians(self._current_direction)
+                if self._current_direction is not None
+                else rng.uniform(0.0, 2.0 * math.pi)
+            )
+            current = SCENARIO_CURRENT_SPEED * np.array(
+                [math.cos(direction), math.sin(direction), 0.0]
+            )
+        else:
+            current = np.zeros(3)
+        self._physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
+        self._episode = _EpisodeState(current=current)
+        truth = self._truth()
+        self._episode.prev_potential = self._potential(truth)
+        self._episode.min_lights_visible = int(truth["visible"].sum())
+        obs = self._observation(truth)
+        info = self._info(truth, {name: 0.0 for name in _REWARD_TERMS})
+        return obs, info
+
+    def step(self, action):
+        a = validate_action(action, self.action_space)
+        ep = self._episode
+        if ep.done:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        force = a * self._thrust
+        x, y, z, n = force.tolist()
+        tau = (x, y, z, 0.0, 0.0, n)
+        current = ep.current.tolist()
+        model, data = self._physics.model, self._physics.data
+        for _ in range(FRAME_SKIP):
+            mujoco.mj_step1(model, data)
+            self._hull.apply(model, data, tau, current)
+            mujoco.mj_step2(model, data)
+        ep.steps += 1
+        truth = self._truth()
+        tol = self.calibration.tolerances
+
+        n_visible = int(truth["visible"].sum())
+        ep.min_lights_visible = min(ep.min_lights_visible, n_visible)
+        fov_violation = n_visible < self._min_visible
+        ep.lost_time = ep.lost_time + self._dt if fov_violation else 0.0
+        ep.fov_violations += int(fov_violation)
+        ep.control_effort += float(force @ force) * self._dt
+
+        docked = self._docked(truth, tol)
+        behind = truth["longitudinal"] > tol.longitudinal and not docked
+        seabed = truth["seabed_clearance"] <= 0.0
+        failure = ""
+        if behind:
+            failure = "behind_entrance"
+        elif seabed:
+            failure = "seabed"
+        elif ep.lost_time > self._lost_timeout:
+            failure = "lights_lost"
+        elif truth["distance"] > 30.0:
+            failure = "out_of_bounds"
+
+        potential = self._potential(truth)
+        terms = {
+            "progress": ep.prev_potential - potential,
+            "control": -0.001 * float(np.dot(a, a)),
+            "visibility": -0.01 if fov_violation else 0.0,
+            "success": 10.0 if docked else 0.0,
+            "failure": -10.0 if failure else 0.0,
+        }
+        ep.prev_potential = potential
+        reward = float(sum(terms.values()))
+        terminated = docked or bool(failure)
+        truncated = (not terminated) and ep.steps * self._dt >= self._time_limit - 1e-9
+        if docked:
+            ep.success = True
+            ep.docking_time = ep.steps * self._dt
+        ep.failure_reason = failure
+        ep.done = terminated or truncated
+
+        obs = self._observation(truth)
+        info = self._info(truth, terms)
+        info["violation_behind_entrance"] = behind
+        info["violation_seabed"] = seabed
+        info["violation_fov"] = fov_violation
+        if ep.done:
+            info["episode_metrics"] = self._episode_metrics(truth)
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self._render_camera()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ internals
+    def _truth(self) -> dict:
+        """Ground truth after a step, computed once and shared by obs, reward and info."""
+        phys = self._physics
+        pos = phys.position()
+        rot = phys.rotation()
+        vel = phys.body_velocity(rot)
+        cam_pos = pos + rot @ self._cam_pos_body
+        lights = self.calibration.light_positions
+        pixels, in_front = project(
+            self.calibration.intrinsics, (lights - cam_pos) @ (rot @ self._cam_rot_body)
+        )
+        visible = in_front & inside_image(self.calibration.intrinsics, pixels)
+        if visible.any():
+            visible &= ~phys.occluded(cam_pos, lights)
+        r = rot.tolist()
+        euler = frames.euler_from_rotation(r)
+        offset = self.calibration.nose_offset
+        nose = (pos[0] + r[0][0] * offset, pos[1] + r[1][0] * offset, pos[2] + r[2][0] * offset)
+        ax, ay, az = self._hull_axes
+        half_height = math.sqrt((ax * r[2][0]) ** 2 + (ay * r[2][1]) ** 2 + (az * r[2][2]) ** 2)
+        return {
+            "position": pos,
+            "euler": euler,
+            "velocity": vel,
+            "pixels": pixels,
+            "visible": visible,
+            "longitudinal": nose[0],
+            "lateral": nose[1],
+            "vertical": nose[2],
+            "heading": float(euler[2]),
+            "distance": math.sqrt(nose[0] ** 2 + nose[1] ** 2 + nose[2] ** 2),
+            "seabed_clearance": float(pos[2]) - half_height - phys.seabed_z,
+        }
+
+    @staticmethod
+    def _potential(truth: dict) -> float:
+        return truth["distance"] + 0.5 * abs(truth["heading"])
+
+    @staticmethod
+    def _docked(truth: dict, tol: DockingTolerances) -> bool:
+        return (
+            abs(truth["longitudinal"]) <= tol.longitudinal
+            and abs(truth["lateral"]) <= tol.lateral
+            and abs(truth["vertical"]) <= tol.vertical
+            and abs(truth["heading"]) <= math.radians(tol.heading_deg)
+        )
+
+    def _sensors(self, truth: dict) -> dict:
+        rng = self.np_random
+        cal = self.calibration
+        vel = truth["velocity"][[0, 1, 2, 5]].copy()
+        euler = truth["euler"].copy()
+        if cal.velocity_noise_std > 0:
+            vel[:3] += rng.normal(0.0, cal.velocity_noise_std, size=3)
+            vel[3] += rng.normal(0.0, cal.yaw_rate_noise_std)
+            euler += rng.normal(0.0, cal.attitude_noise_std, size=3)
+        euler[2] = frames.wrap_angle(euler[2])
+        return {"velocity": vel.astype(np.float32), "attitude": euler.astype(np.float32)}
+
+    def _observation(self, truth: dict):
+        if self.obs_mode == "state":
+            yaw = truth["euler"][2]
+            return np.concatenate(
+                [
+                    truth["position"],
+                    truth["euler"][:2],
+                    [math.cos(yaw), math.sin(yaw)],
+                    truth["velocity"],
+                    self._episode.current,
+                ]
+            ).astype(np.float32)
+        sensors = self._sensors(truth)
+        if self.obs_mode == "features":
+            visible = truth["visible"]
+            noisy = add_pixel_noise(
+                truth["pixels"], self.calibration.pixel_noise_std, self.np_random
+            )
+            pixels = np.where(visible[:, None], noisy, 0.0)
+            space = self.observation_space["pixels"]
+            pixels = np.clip(pixels, space.low, space.high).astype(np.float32)
+            return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
+        return {"image": self._render_camera(), **sensors}
+
+    def _render_camera(self) -> np.ndarray:
+        mujoco.mj_forward(self._physics.model, self._physics.data)
+        return self._renderer.render(self._physics.data)
+
+    def _info(self, truth: dict, terms: dict) -> dict:
+        ep = self._episode
+        info = {
+            "distance_to_entrance": truth["distance"],
+            "longitudinal_error": truth["longitudinal"],
+            "lateral_error": truth["lateral"],
+            "vertical_error": truth["vertical"],
+            "heading_error": truth["heading"],
+            "docked": ep.success,
+            "is_success": ep.success,
+            "lights_visible": int(truth["visible"].sum()),
+            "violation_fov": False,
+            "violation_behind_entrance": False,
+            "violation_seabed": False,
+            "failure_reason": ep.failure_reason,
+            "time": ep.steps * self._dt,
+            "true_position": truth["position"],
+            "true_euler": truth["euler"],
+            "true_velocity": truth["velocity"],
+            "true_pixels": np.where(truth["visible"][:, None], truth["pixels"], np.nan),
+            "true_visible": truth["visible"].copy(),
+            "current": ep.current.copy(),
+        }
+        for name in _REWARD_TERMS:
+            info[f"reward_{name}"] = float(terms[name])
+        return info
+
+    def _episode_metrics(self, truth: dict) -> dict:
+        ep = self._episode
+        return {
+            "success": ep.success,
+            "failure_reason": ep.failure_reason or ("" if ep.success else "time_limit"),
+            "docking_time": ep.docking_time,
+            "steps": ep.steps,
+            "final_distance": truth["distance"],
+            "final_lateral_error": truth["lateral"],
+            "final_vertical_error": truth["vertical"],
+            "final_heading_error_deg": math.degrees(truth["heading"]),
+            "fov_violation_steps": ep.fov_violations,
+            "min_lights_visible": ep.min_lights_visible,
+            "control_effort": ep.control_effort,
+        }
+
+    # ------------------------------------------------------------------ pickling
+    def _get_runtime_state(self) -> dict:
+        data = self._physics.data
+        return {
+            "qpos": data.qpos.copy(),
+            "qvel": data.qvel.copy(),
+            "time": float(data.time),
+            "episode": self._episode.copy(),
+        }
+
+    def _set_runtime_state(self, state: dict) -> None:
+        data = self._physics.data
+        data.qpos[:] = state["qpos"]
+        data.qvel[:] = state["qvel"]
+        data.time = state["time"]
+        mujoco.mj_forward(self._physics.model, data)
+        self._episode = state["episode"].copy()
+
+
+_REWARD_TERMS = ("progress", "control", "visibility", "success", "failure")
+
+
+class DockingStationEnv(DockingEnv):
+    __doc__ = DockingEnv.__doc__.replace(
+        "**Version history.**", "Layout: six lights around the entrance (seed 003).\n\n    **Version history.**"
+    )
+    layout = SIX_LIGHTS
+
+
+class LampArrayDockingEnv(DockingEnv):
+    __doc__ = DockingEnv.__doc__.replace(
+        "**Version history.**",
+        "Layout: L-shaped four-lamp array A, B, C, D (seed 002); camera tilted 20 deg down."
+        "\n\n    **Version history.**",
+    )
+    layout = LAMP_ARRAY
