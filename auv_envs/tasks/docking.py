@@ -249,7 +249,7 @@ class _EpisodeState:
     done: bool = False
     success: bool = False
     failure_reason: str = ""
-    docking_time: float = float("nan")
+    docking_time: float | None = None
     fov_violations: int = 0
     control_effort: float = 0.0
     min_lights_visible: int = 0
@@ -314,7 +314,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     ``violation_behind_entrance``, ``violation_seabed``, ``is_success``, the
     reward terms and ground truth for metrics only (``true_position``,
     ``true_euler``, ``true_velocity``, ``true_pixels``, ``true_visible``,
-    ``current``). At episode end also ``episode_metrics`` (a dict).
+    ``current``; ``true_pixels`` is zero where ``true_visible`` is False, the
+    same convention as the observation). At episode end also
+    ``episode_metrics`` (a dict; ``docking_time`` is None without success).
 
     **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: seed 003
     Scenario 1, model mismatch only; ``"current"``: Scenario 2),
@@ -662,7 +664,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "true_position": truth["position"],
             "true_euler": truth["euler"],
             "true_velocity": truth["velocity"],
-            "true_pixels": np.where(truth["visible"][:, None], truth["pixels"], np.nan),
+            "true_pixels": np.where(truth["visible"][:, None], truth["pixels"], 0.0),
             "true_visible": truth["visible"].copy(),
             "current": ep.current.copy(),
         }
