@@ -91,7 +91,9 @@ def project(intrinsics: CameraIntrinsics, points_cam: np.ndarray) -> tuple[np.nd
     return pixels, in_front
 
 
-def inside_image(intrinsics: CameraIntrinsics, pixels: np.ndarray, margin: float = 0.0) -> np.ndarray:
+def inside_image(
+    intrinsics: CameraIntrinsics, pixels: np.ndarray, margin: float = 0.0
+) -> np.ndarray:
     """Which pixels fall inside the image (optionally shrunk by ``margin``)."""
     u, v = pixels[:, 0], pixels[:, 1]
     # NaN (behind the camera) compares False: not inside.

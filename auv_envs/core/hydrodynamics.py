@@ -110,7 +110,9 @@ class HullForceModel:
         self._m_lin = [params.mass + a for a in params.added_mass[:3]]
         self._m_ang = [i + a for i, a in zip(params.inertia, params.added_mass[3:], strict=True)]
 
-    def wrench(self, rotation: Sequence, qvel6: Sequence, tau_body: Sequence, current_world) -> list:
+    def wrench(
+        self, rotation: Sequence, qvel6: Sequence, tau_body: Sequence, current_world: Sequence
+    ) -> list:
         """Total body-frame wrench (thrust + hydrodynamics incl. acceleration term).
 
         Pure-Python float arithmetic: at this size it is several times faster

@@ -26,7 +26,6 @@ from auv_envs.core.camera import (
     CameraIntrinsics,
     add_pixel_noise,
     inside_image,
-    points_in_camera,
     project,
 )
 from auv_envs.core.env import (
@@ -330,7 +329,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     **Version history.** v0: initial release.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": int(1 / (PHYSICS_TIMESTEP * FRAME_SKIP))}
+    metadata = {
+        "render_modes": ["rgb_array"],
+        "render_fps": int(1 / (PHYSICS_TIMESTEP * FRAME_SKIP)),
+    }
 
     layout: StationLayout = SIX_LIGHTS
 
@@ -712,7 +714,8 @@ _REWARD_TERMS = ("progress", "control", "visibility", "success", "failure")
 
 class DockingStationEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
-        "**Version history.**", "Layout: six lights around the entrance (seed 003).\n\n    **Version history.**"
+        "**Version history.**",
+        "Layout: six lights around the entrance (seed 003).\n\n    **Version history.**",
     )
     layout = SIX_LIGHTS
 
