@@ -479,7 +479,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._episode = _EpisodeState(current=current)
         truth = self._truth()
         self._episode.prev_potential = self._potential(truth)
-        self._episode.min_lights_visible = int(truth["visible"].sum())
+        self._episode.min_lights_visible = truth["n_visible"]
         obs = self._observation(truth)
         info = self._info(truth, {name: 0.0 for name in _REWARD_TERMS})
         return obs, info
@@ -502,7 +502,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         truth = self._truth()
         tol = self.calibration.tolerances
 
-        n_visible = int(truth["visible"].sum())
+        n_visible = truth["n_visible"]
         ep.min_lights_visible = min(ep.min_lights_visible, n_visible)
         fov_violation = n_visible < self._min_visible
         ep.lost_time = ep.lost_time + self._dt if fov_violation else 0.0
@@ -586,6 +586,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "velocity": vel,
             "pixels": pixels,
             "visible": visible,
+            "n_visible": int(np.count_nonzero(visible)),
             "longitudinal": nose[0],
             "lateral": nose[1],
             "vertical": nose[2],
@@ -657,7 +658,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "heading_error": truth["heading"],
             "docked": ep.success,
             "is_success": ep.success,
-            "lights_visible": int(truth["visible"].sum()),
+            "lights_visible": truth["n_visible"],
             "violation_fov": False,
             "violation_behind_entrance": False,
             "violation_seabed": False,
@@ -667,7 +668,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "true_euler": truth["euler"],
             "true_velocity": truth["velocity"],
             "true_pixels": np.where(truth["visible"][:, None], truth["pixels"], 0.0),
-            "true_visible": truth["visible"].copy(),
+            "true_visible": truth["visible"],
             "current": ep.current.copy(),
         }
         for name in _REWARD_TERMS:
