@@ -95,14 +95,9 @@ def inside_image(
     intrinsics: CameraIntrinsics, pixels: np.ndarray, margin: float = 0.0
 ) -> np.ndarray:
     """Which pixels fall inside the image (optionally shrunk by ``margin``)."""
-    u, v = pixels[:, 0], pixels[:, 1]
     # NaN (behind the camera) compares False: not inside.
-    return (
-        (u >= margin)
-        & (u < intrinsics.width - margin)
-        & (v >= margin)
-        & (v < intrinsics.height - margin)
-    )
+    upper = (intrinsics.width - margin, intrinsics.height - margin)
+    return ((pixels >= margin) & (pixels < upper)).all(axis=1)
 
 
 def add_pixel_noise(pixels: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:

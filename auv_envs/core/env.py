@@ -5,6 +5,7 @@ Deliberately functions and one mixin rather than a base class of empty hooks.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 import numpy as np
@@ -33,12 +34,15 @@ def validate_action(action, space: spaces.Box) -> np.ndarray:
     Non-finite entries raise ``ValueError``; finite out-of-range entries are
     clipped to the bounds (documented behaviour of every ``auv_envs`` env).
     """
-    a = np.asarray(action, dtype=np.float64)
+    a = np.array(action, dtype=np.float64)  # always a copy: never alias the caller's array
     if a.shape != space.shape:
         raise ValueError(f"action has shape {a.shape}, expected {space.shape}")
-    if not np.all(np.isfinite(a)):
+    # min/max propagate NaN, and are finite only if every entry is.
+    if not (math.isfinite(a.min()) and math.isfinite(a.max())):
         raise ValueError(f"action must be finite, got {a.tolist()}")
-    return np.clip(a, space.low, space.high)
+    if (a < space.low).any() or (a > space.high).any():
+        np.clip(a, space.low, space.high, out=a)
+    return a
 
 
 class ReconstructingPickleMixin:

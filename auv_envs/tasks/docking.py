@@ -419,7 +419,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._thrust = np.array(self._params.thrust_limits)
         self._cam_rot_body = self.calibration.extrinsics.rotation_matrix
         self._cam_pos_body = np.array(self.calibration.extrinsics.position)
-        self._hull_axes = np.array([nose, self._params.diameter / 2, self._params.diameter / 2])
+        self._hull_axes = (nose, self._params.diameter / 2, self._params.diameter / 2)
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.observation_space = self._make_observation_space(n_lights, width, height)
