@@ -26,6 +26,7 @@ from auv_envs.core.camera import (
     CameraIntrinsics,
     add_pixel_noise,
     inside_image,
+    points_in_camera,
     project,
 )
 from auv_envs.core.env import (
@@ -568,9 +569,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         vel = phys.body_velocity(rot)
         cam_pos = pos + rot @ self._cam_pos_body
         lights = self.calibration.light_positions
-        pixels, in_front = project(
-            self.calibration.intrinsics, (lights - cam_pos) @ (rot @ self._cam_rot_body)
-        )
+        points_cam = points_in_camera(lights, cam_pos, rot @ self._cam_rot_body)
+        pixels, in_front = project(self.calibration.intrinsics, points_cam)
         visible = in_front & inside_image(self.calibration.intrinsics, pixels)
         if visible.any():
             visible &= ~phys.occluded(cam_pos, lights)
