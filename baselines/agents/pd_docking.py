@@ -16,9 +16,16 @@ import math
 
 import numpy as np
 
+import auv_envs
+from auv_envs.core.frames import rotation_from_euler
 from baselines.registry import AgentSpec, register_agent
 
-DOCKING_ENV_IDS = ("auv_envs/DockingStation-v0", "auv_envs/LampArrayDocking-v0")
+#: Every registered id served by the docking task module.
+DOCKING_ENV_IDS = tuple(
+    env_id
+    for env_id, entry_point in auv_envs.ENVIRONMENTS.items()
+    if entry_point.startswith("auv_envs.tasks.docking:")
+)
 
 
 class DockingPDAgent:
@@ -47,19 +54,18 @@ class DockingPDAgent:
         kp, kd, kp_yaw, kd_yaw, max_axial = self._gains
         obs = np.asarray(observation, dtype=float)
         pos, yaw = obs[0:3], math.atan2(obs[6], obs[5])
-        u, v, w, r = obs[7], obs[8], obs[9], obs[12]
-        c, s = math.cos(yaw), math.sin(yaw)
+        r = obs[12]
+        # Heading-only rotation: the guidance treats the vehicle as level.
+        rotation = rotation_from_euler(0.0, 0.0, yaw)
         err = self._target - pos
         off_axis = math.hypot(err[1], err[2])
         # Approach along the axis more slowly while far off it.
         axial_limit = max_axial * max(0.15, 1.0 - 2.0 * off_axis)
         err[0] = float(np.clip(err[0], -axial_limit, axial_limit))
-        vel_world = np.array([u * c - v * s, u * s + v * c, w])
+        vel_world = rotation @ obs[7:10]
         force_world = kp * err - kd * vel_world
-        # World -> body (level vehicle): rotate by -yaw.
-        fx = c * force_world[0] + s * force_world[1]
-        fy = -s * force_world[0] + c * force_world[1]
-        fz = force_world[2] - self._buoyancy
+        fx, fy, fz = rotation.T @ force_world
+        fz -= self._buoyancy
         yaw_err = -yaw
         torque = kp_yaw * yaw_err - kd_yaw * r
         action = np.array([fx, fy, fz, torque]) / self._limits
