@@ -60,6 +60,11 @@ class CameraRenderer:
         self._option = mujoco.MjvOption()
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)
+        self._viewports = [
+            mujoco.MjrRect(k * self._width, 0, self._width, self._height)
+            for k in range(len(cameras))
+        ]
+        self._full = mujoco.MjrRect(0, 0, total_width, self._height)
         _LIVE.add(self)
         if not _HOOKED:
             atexit.register(_close_all)
@@ -79,15 +84,13 @@ class CameraRenderer:
     def _draw(self, data: mujoco.MjData) -> None:
         self._gl.make_current()
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
-        for k, cam in enumerate(self._cams):
+        for cam, viewport in zip(self._cams, self._viewports, strict=True):
             mujoco.mjv_updateScene(
                 self._model, data, self._option, self._perturb, cam,
                 mujoco.mjtCatBit.mjCAT_ALL, self._scene,
             )
-            rect = mujoco.MjrRect(k * self._width, 0, self._width, self._height)
-            mujoco.mjr_render(rect, self._scene, self._ctx)
-        full = mujoco.MjrRect(0, 0, self._buffer.shape[1], self._height)
-        mujoco.mjr_readPixels(self._buffer, None, full, self._ctx)
+            mujoco.mjr_render(viewport, self._scene, self._ctx)
+        mujoco.mjr_readPixels(self._buffer, None, self._full, self._ctx)
 
     def close(self) -> None:
         if self._gl is not None:

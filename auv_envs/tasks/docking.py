@@ -421,6 +421,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._cam_rot_body = self.calibration.extrinsics.rotation_matrix
         self._cam_pos_body = np.array(self.calibration.extrinsics.position)
         self._hull_axes = (nose, self._params.diameter / 2, self._params.diameter / 2)
+        self._heading_tolerance = math.radians(self.calibration.tolerances.heading_deg)
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.observation_space = self._make_observation_space(n_lights, width, height)
@@ -482,7 +483,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
         obs = self._observation(truth)
-        info = self._info(truth, {name: 0.0 for name in _REWARD_TERMS})
+        info = self._info(truth, {name: 0.0 for name in _REWARD_TERMS}, _NO_VIOLATIONS)
         return obs, info
 
     def step(self, action):
@@ -542,10 +543,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         ep.done = terminated or truncated
 
         obs = self._observation(truth)
-        info = self._info(truth, terms)
-        info["violation_behind_entrance"] = behind
-        info["violation_seabed"] = seabed
-        info["violation_fov"] = fov_violation
+        violations = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
+        info = self._info(truth, terms, violations)
         if ep.done:
             info["episode_metrics"] = self._episode_metrics(truth)
         return obs, reward, terminated, truncated, info
@@ -599,13 +598,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     def _potential(truth: dict) -> float:
         return truth["distance"] + 0.5 * abs(truth["heading"])
 
-    @staticmethod
-    def _docked(truth: dict, tol: DockingTolerances) -> bool:
+    def _docked(self, truth: dict, tol: DockingTolerances) -> bool:
         return (
             abs(truth["longitudinal"]) <= tol.longitudinal
             and abs(truth["lateral"]) <= tol.lateral
             and abs(truth["vertical"]) <= tol.vertical
-            and abs(truth["heading"]) <= math.radians(tol.heading_deg)
+            and abs(truth["heading"]) <= self._heading_tolerance
         )
 
     def _sensors(self, truth: dict) -> dict:
@@ -648,7 +646,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         mujoco.mj_forward(self._physics.model, self._physics.data)
         return self._renderer.render(self._physics.data)
 
-    def _info(self, truth: dict, terms: dict) -> dict:
+    def _info(self, truth: dict, terms: dict, violations: dict) -> dict:
         ep = self._episode
         info = {
             "distance_to_entrance": truth["distance"],
@@ -659,9 +657,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "docked": ep.success,
             "is_success": ep.success,
             "lights_visible": truth["n_visible"],
-            "violation_fov": False,
-            "violation_behind_entrance": False,
-            "violation_seabed": False,
+            "violation_fov": violations["fov"],
+            "violation_behind_entrance": violations["behind_entrance"],
+            "violation_seabed": violations["seabed"],
             "failure_reason": ep.failure_reason,
             "time": ep.steps * self._dt,
             "true_position": truth["position"],
@@ -711,6 +709,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
 
 _REWARD_TERMS = ("progress", "control", "visibility", "success", "failure")
+_NO_VIOLATIONS = {"fov": False, "behind_entrance": False, "seabed": False}
 
 
 class DockingStationEnv(DockingEnv):
