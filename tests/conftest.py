@@ -1,4 +1,9 @@
-"""Shared fixtures: the registry drives the generic tests."""
+"""Shared fixtures: the registry drives the generic tests.
+
+Every registered environment class declares the contract these tests read:
+``obs_modes``, ``reward_terms`` and ``metric_keys`` (class attributes), a
+privileged ``info["true_position"]``, and its MuJoCo data at ``_physics.data``.
+"""
 
 from __future__ import annotations
 
@@ -12,29 +17,48 @@ import pytest  # noqa: E402
 import auv_envs  # noqa: E402
 
 ENV_IDS = tuple(auv_envs.ENVIRONMENTS)
+DOCKING_IDS = ("auv_envs/DockingStation-v0", "auv_envs/LampArrayDocking-v0")
+#: Observation modes that render images; the tests shrink them.
+IMAGE_MODES = ("image", "stereo")
 #: Small images keep the image-mode tests fast; the pipeline is the same.
 SMALL_IMAGE = (64, 48)
 
 
-def obs_modes(env_id: str) -> tuple[str, ...]:
-    env = gym.make(env_id)
-    try:
-        from auv_envs.tasks import docking
+def env_class(env_id: str) -> type:
+    entry_point = gym.spec(env_id).entry_point
+    if isinstance(entry_point, str):
+        return gym.envs.registration.load_env_creator(entry_point)
+    return entry_point
 
-        if isinstance(env.unwrapped, docking.DockingEnv):
-            return docking.OBS_MODES
-        raise AssertionError(f"no obs-mode list known for {env_id}")
-    finally:
-        env.close()
+
+def obs_modes(env_id: str) -> tuple[str, ...]:
+    modes = getattr(env_class(env_id), "obs_modes", None)
+    if not modes:
+        raise AssertionError(f"{env_id} does not declare its obs_modes")
+    return tuple(modes)
 
 
 ENV_MODE_PAIRS = [(e, m) for e in ENV_IDS for m in obs_modes(e)]
 
 
 def make_env(env_id: str, obs_mode: str, **kwargs) -> gym.Env:
-    if obs_mode == "image":
+    if obs_mode in IMAGE_MODES:
         kwargs.setdefault("image_size", SMALL_IMAGE)
     return gym.make(env_id, obs_mode=obs_mode, **kwargs)
+
+
+def leaves(obs):
+    """The arrays of a (possibly nested ``Dict``) observation."""
+    if isinstance(obs, dict):
+        for value in obs.values():
+            yield from leaves(value)
+    else:
+        yield obs
+
+
+def fast_mode(env_id: str) -> str:
+    """The first non-image observation mode of an environment."""
+    return next(m for m in obs_modes(env_id) if m not in IMAGE_MODES and m != "state")
 
 
 @pytest.fixture(params=ENV_MODE_PAIRS, ids=[f"{e.split('/')[1]}-{m}" for e, m in ENV_MODE_PAIRS])

@@ -7,7 +7,7 @@ import pytest
 
 from baselines.evaluation import run_episode
 from baselines.registry import agent_names, agent_spec, make_agent
-from tests.conftest import ENV_IDS, make_env
+from tests.conftest import DOCKING_IDS, make_env
 
 
 def test_registry_lists_builtin_agents():
@@ -19,7 +19,7 @@ def test_unknown_agent_lists_registered_names():
         agent_spec("no-such-agent")
 
 
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
 @pytest.mark.parametrize("seed", [100_000, 100_001, 100_002])
 def test_pd_reference_controller_docks_in_mismatch_scenario(env_id, seed):
     env = make_env(env_id, "state", scenario="mismatch")
@@ -36,7 +36,7 @@ def test_pd_reference_controller_docks_in_mismatch_scenario(env_id, seed):
 
 
 def test_pd_agent_rejects_non_state_observations():
-    env = make_env(ENV_IDS[0], "features")
+    env = make_env(DOCKING_IDS[0], "features")
     try:
         with pytest.raises(ValueError, match="state"):
             make_agent("pd-state", env)
@@ -45,7 +45,7 @@ def test_pd_agent_rejects_non_state_observations():
 
 
 def test_random_agent_is_seeded_and_in_bounds():
-    env = make_env(ENV_IDS[0], "state")
+    env = make_env(DOCKING_IDS[0], "state")
     try:
         a, b = make_agent("random", env), make_agent("random", env)
         a.reset(5)
@@ -61,9 +61,9 @@ def test_random_agent_is_seeded_and_in_bounds():
 
 
 def test_random_agent_does_not_dock():
-    env = make_env(ENV_IDS[0], "state")
+    env = make_env(DOCKING_IDS[0], "state")
     try:
-        rows = [run_episode(env, make_agent("random", env), s, ENV_IDS[0], "random")
+        rows = [run_episode(env, make_agent("random", env), s, DOCKING_IDS[0], "random")
                 for s in (1, 2)]
     finally:
         env.close()

@@ -9,7 +9,7 @@ import pytest
 
 from auv_envs.core.assets import asset_path
 from auv_envs.tasks import docking
-from tests.conftest import ENV_IDS, make_env
+from tests.conftest import DOCKING_IDS, ENV_IDS, leaves, make_env
 
 
 @pytest.fixture(params=ENV_IDS)
@@ -23,13 +23,15 @@ def env(request):
 def test_non_finite_action_raises(env, bad):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
-        env.step(np.array([0.0, bad, 0.0, 0.0], dtype=np.float32))
+        action = env.action_space.sample()
+        action[-1] = bad
+        env.step(action)
 
 
 def test_wrong_action_shape_raises(env):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="shape"):
-        env.unwrapped.step(np.zeros(3))
+        env.unwrapped.step(np.zeros(env.action_space.shape[0] + 1))
 
 
 def test_out_of_range_action_is_clipped(env):
@@ -37,10 +39,14 @@ def test_out_of_range_action_is_clipped(env):
     try:
         env.reset(seed=3)
         other.reset(seed=3)
-        big = np.array([5.0, -7.0, 2.0, -1.5])
+        space = env.action_space
+        span = space.high - space.low
+        big = np.where(np.arange(space.shape[0]) % 2 == 0, space.high + 3 * span,
+                       space.low - 2 * span).astype(np.float64)
         o1, r1, *_ = env.unwrapped.step(big)
-        o2, r2, *_ = other.unwrapped.step(np.clip(big, -1, 1))
-        np.testing.assert_array_equal(o1, o2)
+        o2, r2, *_ = other.unwrapped.step(np.clip(big, space.low, space.high))
+        for leaf1, leaf2 in zip(leaves(o1), leaves(o2), strict=True):
+            np.testing.assert_array_equal(leaf1, leaf2)
         assert r1 == r2
     finally:
         other.close()
@@ -55,7 +61,7 @@ def test_out_of_range_action_is_clipped(env):
     ],
 )
 def test_unknown_arguments_list_valid_values(kwargs, exc, listed):
-    for env_id in ENV_IDS:
+    for env_id in DOCKING_IDS:
         args = dict(kwargs)
         with pytest.raises(exc, match=listed):
             make_env(env_id, args.pop("obs_mode", "state"), **args)
@@ -80,21 +86,49 @@ def test_missing_layout_asset_fails_at_construction(monkeypatch):
         docking.DockingStationEnv()
 
 
+def test_unknown_argument_is_a_type_error_naming_valid_ones(env):
+    with pytest.raises(TypeError, match="obs_mode"):
+        make_env(env.spec.id, "state", colour="red")
+
+
+def test_unknown_obs_mode_lists_valid_values(env):
+    with pytest.raises(ValueError, match="'state'"):
+        make_env(env.spec.id, "no-such-mode")
+
+
 def test_step_after_episode_end_raises(env):
     env.reset(seed=0)
     unwrapped = env.unwrapped
-    terminated = truncated = False
-    while not (terminated or truncated):
-        _, _, terminated, truncated, _ = unwrapped.step(np.array([1.0, 1.0, 1.0, 1.0]))
+    action = env.action_space.high.copy()
+    for _ in range(100_000):
+        _, _, terminated, truncated, _ = unwrapped.step(action)
+        if terminated or truncated:
+            break
+    assert terminated or truncated
     with pytest.raises(RuntimeError, match="reset"):
-        unwrapped.step(np.zeros(4))
+        unwrapped.step(action)
 
 
-def test_calibration_is_read_only(env):
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_docking_calibration_is_read_only(env_id):
+    env = make_env(env_id, "state")
     cal = env.unwrapped.calibration
+    env.close()
     with pytest.raises(dataclasses.FrozenInstanceError):
         cal.control_period = 1.0
     with pytest.raises(ValueError):
         cal.light_positions[0, 0] = 1.0
     with pytest.raises(ValueError):
         cal.target_position[0] = 1.0
+
+
+def test_calibration_is_a_frozen_dataclass_with_read_only_arrays(env):
+    cal = env.unwrapped.calibration
+    assert dataclasses.is_dataclass(cal)
+    field = dataclasses.fields(cal)[0].name
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        setattr(cal, field, None)
+    for f in dataclasses.fields(cal):
+        value = getattr(cal, f.name)
+        if isinstance(value, np.ndarray):
+            assert not value.flags.writeable, f.name

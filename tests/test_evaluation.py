@@ -17,7 +17,7 @@ from baselines.evaluation import (
 from baselines.evaluation import (
     evaluate as run_evaluation,
 )
-from tests.conftest import ENV_IDS
+from tests.conftest import DOCKING_IDS
 
 
 def test_parse_seeds():
@@ -37,8 +37,8 @@ def test_default_seeds_are_disjoint_from_training_range():
 
 
 def test_evaluate_is_deterministic_and_summarises():
-    rows1 = run_evaluation([ENV_IDS[0]], ["pd-state", "random"], [10, 11])
-    rows2 = run_evaluation([ENV_IDS[0]], ["pd-state", "random"], [10, 11])
+    rows1 = run_evaluation([DOCKING_IDS[0]], ["pd-state", "random"], [10, 11])
+    rows2 = run_evaluation([DOCKING_IDS[0]], ["pd-state", "random"], [10, 11])
     assert [r.episode_return for r in rows1] == [r.episode_return for r in rows2]
     summary = {s["agent"]: s for s in summarise(rows1)}
     assert summary["pd-state"]["success_rate"] == 1.0
@@ -55,13 +55,13 @@ def test_evaluate_rejects_unknown_env():
 
 def test_cli_writes_json_rows(tmp_path, capsys):
     out = tmp_path / "res"
-    code = evaluate.main(["--envs", ENV_IDS[1], "--agents", "pd-state", "random",
+    code = evaluate.main(["--envs", DOCKING_IDS[1], "--agents", "pd-state", "random",
                           "--seeds", "20-21", "--out", str(out)])
     assert code == 0
     rows = json.loads((out / "rows.json").read_text())
     assert len(rows) == 4
     assert {r["agent"] for r in rows} == {"pd-state", "random"}
-    assert all(r["env_id"] == ENV_IDS[1] for r in rows)
+    assert all(r["env_id"] == DOCKING_IDS[1] for r in rows)
     summary = json.loads((out / "summary.json").read_text())
     assert {s["agent"] for s in summary} == {"pd-state", "random"}
     assert "| env | agent |" in capsys.readouterr().out

@@ -8,19 +8,19 @@ import textwrap
 
 import numpy as np
 
-from tests.conftest import ENV_IDS, make_env
+from tests.conftest import DOCKING_IDS, make_env
 
 
 def test_closing_one_renderer_leaves_another_intact():
     # Regression: freeing one MuJoCo render context while another was current
     # deleted the other's framebuffers, which then rendered black.
-    reference = make_env(ENV_IDS[1], "image")
+    reference = make_env(DOCKING_IDS[1], "image")
     expected, _ = reference.reset(seed=1)
     reference.close()
 
-    first = make_env(ENV_IDS[0], "image")
+    first = make_env(DOCKING_IDS[0], "image")
     first.reset(seed=1)
-    second = make_env(ENV_IDS[1], "image")
+    second = make_env(DOCKING_IDS[1], "image")
     first.close()
     obs, _ = second.reset(seed=1)
     second.close()
@@ -28,7 +28,7 @@ def test_closing_one_renderer_leaves_another_intact():
 
 
 def test_image_is_dark_water_with_bright_lamps():
-    env = make_env(ENV_IDS[0], "image", image_size=(160, 120))
+    env = make_env(DOCKING_IDS[0], "image", image_size=(160, 120))
     try:
         obs, info = env.reset(seed=0)
         image = obs["image"].astype(float)
@@ -41,7 +41,7 @@ def test_image_is_dark_water_with_bright_lamps():
 
 
 def test_render_mode_rgb_array_matches_image_observation():
-    env = make_env(ENV_IDS[0], "image", render_mode="rgb_array")
+    env = make_env(DOCKING_IDS[0], "image", render_mode="rgb_array")
     try:
         obs, _ = env.reset(seed=2)
         np.testing.assert_array_equal(env.render(), obs["image"])
@@ -53,9 +53,9 @@ def test_interpreter_exit_without_close_prints_no_egl_traceback():
     script = textwrap.dedent(
         f"""
         import gymnasium as gym, auv_envs
-        env = gym.make({ENV_IDS[0]!r}, obs_mode="image", image_size=(64, 48))
+        env = gym.make({DOCKING_IDS[0]!r}, obs_mode="image", image_size=(64, 48))
         env.reset(seed=0)
-        other = gym.make({ENV_IDS[1]!r}, obs_mode="image", image_size=(64, 48))
+        other = gym.make({DOCKING_IDS[1]!r}, obs_mode="image", image_size=(64, 48))
         other.reset(seed=0)
         print("rendered")
         """

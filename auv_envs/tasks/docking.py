@@ -337,6 +337,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
     layout: StationLayout = SIX_LIGHTS
 
+    #: The contract the registry-driven tests read (see tests/conftest.py).
+    obs_modes = OBS_MODES
+    reward_terms = ("progress", "control", "visibility", "success", "failure")
+    metric_keys = (
+        "distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
+        "heading_error", "docked", "lights_visible", "violation_fov",
+        "violation_behind_entrance", "violation_seabed", "is_success",
+    )
+
     def __init__(
         self,
         obs_mode: str = "state",
@@ -483,7 +492,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
         obs = self._observation(truth)
-        info = self._info(truth, {name: 0.0 for name in _REWARD_TERMS}, _NO_VIOLATIONS)
+        info = self._info(truth, {name: 0.0 for name in self.reward_terms}, _NO_VIOLATIONS)
         return obs, info
 
     def step(self, action):
@@ -669,7 +678,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "true_visible": truth["visible"],
             "current": ep.current.copy(),
         }
-        for name in _REWARD_TERMS:
+        for name in self.reward_terms:
             info[f"reward_{name}"] = float(terms[name])
         return info
 
@@ -708,7 +717,6 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._episode = state["episode"].copy()
 
 
-_REWARD_TERMS = ("progress", "control", "visibility", "success", "failure")
 _NO_VIOLATIONS = {"fov": False, "behind_entrance": False, "seabed": False}
 
 
