@@ -26,6 +26,7 @@ __version__ = "0.1.0"
 ENVIRONMENTS = {
     "auv_envs/DockingStation-v0": "auv_envs.tasks.docking:DockingStationEnv",
     "auv_envs/LampArrayDocking-v0": "auv_envs.tasks.docking:LampArrayDockingEnv",
+    "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic:AcousticTrackingEnv",
 }
 
 for _env_id, _entry_point in ENVIRONMENTS.items():

@@ -1,0 +1,365 @@
+"""Passive acoustic measurements of a broadband source by a hydrophone array (seed 004).
+
+The source (an end effector) emits a broadband signal that every node of an
+array of ``N`` hydrophones receives. The signal is split into ``Q`` frequency
+sub-bands; per band and sample period (``1 / fs``) the array reports a *set*
+of detections. A detection is the vector
+
+* ``tdoa`` (N-1,): time differences of arrival against node 1,
+  ``tau_1i = t_i - t_1`` (seed 004 §1.1: ``c * tau_1i = D_i - D_1``), seconds;
+* ``azimuth`` (N,): ``alpha_i = atan2(y - y_i, x - x_i)`` in (-pi, pi];
+* ``elevation`` (N,): seed 004 §1.2's angle ``theta_i`` with
+  ``tan(theta_i) = hypot(x - x_i, y - y_i) / (z - z_i)``, i.e. the angle
+  between the upward vertical through node ``i`` and the line to the source,
+  in [0, pi].
+
+The measurement model (all in :class:`AcousticConfig`; the symbols below are
+its fields):
+
+* **Transmission loss** (spherical spreading plus absorption; Urick,
+  *Principles of Underwater Sound*, ch. 5):
+  ``TL = 20 log10(max(R, 1 m)) + a(f) R / 1000`` dB, with Thorp's absorption
+  ``a(f)`` in dB/km (f in kHz)
+  ``0.11 f^2/(1 + f^2) + 44 f^2/(4100 + f^2) + 2.75e-4 f^2 + 0.003``.
+  Absorption grows with frequency, so high bands fade faster with range.
+* **Ambient noise** spectrum level (dB re 1 uPa^2/Hz): wind/shipping noise
+  ``50 - 18 log10 f`` (Coates' approximation to the Wenz curves) plus
+  thermal noise ``-15 + 20 log10 f``, summed in power; the band noise level
+  adds ``10 log10(B)``.
+* **SNR** per band and node: ``SL - TL - NL_band + PG`` with the processing
+  gain of correlating over one sample period ``PG = 10 log10(B / fs)``.
+* **Arrival-time noise** per node (the Cramer-Rao bound of a delay estimate
+  for a flat band of width ``B``, rms bandwidth ``beta = B / sqrt(12)``, plus
+  a hardware floor): ``sigma_t = noise_scale * hypot(timing_floor,
+  1 / (2 pi beta sqrt(2 snr)))``, ``snr`` linear. TDOA noise is the difference
+  of two arrival-time noises: ``std(tau_1i) = hypot(sigma_t_i, sigma_t_1)``
+  and the TDOAs of one detection are correlated through node 1.
+* **Angle noise** per node (a two-element interferometer of aperture ``d``
+  at wavelength ``lambda = c / f``): ``sigma_theta = noise_scale *
+  hypot(angle_floor, lambda / (2 pi d sqrt(2 snr)))``; the azimuth's is
+  ``sigma_theta / max(sin(theta), 0.05)`` (azimuth is ill defined
+  straight above or below a node). Noisy azimuths are wrapped to (-pi, pi]
+  and elevations clipped to [0, pi].
+* **Clock offsets**: each node's clock is offset from node 1's by a constant
+  per episode (``clock_offset_std``, node 1 is the reference), biasing every
+  TDOA of that node.
+* **Detection probability** per band and path: a logistic function of the
+  *array SNR* (the mean over nodes of the per-node SNR in dB),
+  ``p_D = 1 / (1 + exp(-(SNR_array - snr50) / snr_slope))``.
+* **Multipath ghosts** (image method): the surface reflection is a source at
+  the mirror image above the surface ``(x, y, 2 z_s - z)`` and the bottom
+  reflection one below the bottom ``(x, y, 2 z_b - z)``; their paths are
+  longer and lose ``surface_loss`` / ``bottom_loss`` dB at the boundary, so
+  they are weaker and noisier. A ghost detection is the full measurement of
+  its image source.
+* **False alarms**: Poisson(``clutter_rate``) per band and period, each a
+  vector uniform over the measurement space (TDOAs within the physically
+  possible range ``|h_i - h_1| / c``, azimuth over (-pi, pi], elevation over
+  [0, pi]).
+
+Each band's detections are shuffled and at most ``max_detections`` kept (the
+excess, if any, is dropped at random and counted). Everything is vectorised
+over bands x paths x nodes: one step draws a fixed number of random numbers
+whatever happens, so seeded runs are bit-identical.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+#: Codes of ``Measurements.origin``: where each detection came from.
+ORIGIN_EMPTY, ORIGIN_TARGET, ORIGIN_SURFACE, ORIGIN_BOTTOM, ORIGIN_CLUTTER = -1, 0, 1, 2, 3
+
+
+def thorp_absorption(frequency_hz) -> np.ndarray:
+    """Thorp's seawater absorption coefficient in dB/km (frequency in Hz)."""
+    f2 = (np.asarray(frequency_hz, dtype=np.float64) / 1000.0) ** 2
+    return 0.11 * f2 / (1.0 + f2) + 44.0 * f2 / (4100.0 + f2) + 2.75e-4 * f2 + 0.003
+
+
+def ambient_noise_level(frequency_hz) -> np.ndarray:
+    """Ambient noise spectrum level, dB re 1 uPa^2/Hz: wind/shipping plus thermal."""
+    log_f = np.log10(np.asarray(frequency_hz, dtype=np.float64) / 1000.0)
+    wind = 50.0 - 18.0 * log_f
+    thermal = -15.0 + 20.0 * log_f
+    return 10.0 * np.log10(10.0 ** (wind / 10.0) + 10.0 ** (thermal / 10.0))
+
+
+@dataclasses.dataclass(frozen=True)
+class AcousticConfig:
+    """Parameters of the measurement model (see the module docstring).
+
+    Defaults: ten 8-kHz bands centred at 20, 30, ..., 110 kHz, fs = 100 Hz and
+    Q = 10 as in seed 004's experiments; c = 1500 m/s. The source level,
+    aperture, floors, clock offsets and clutter rate are our choices, set so
+    that detections fade and get noisier with range in the high bands.
+    """
+
+    sound_speed: float = 1500.0
+    sample_rate: float = 100.0
+    band_centres: tuple[float, ...] = tuple(20_000.0 + 10_000.0 * q for q in range(10))
+    bandwidth: float = 8_000.0
+    source_level: float = 120.0
+    surface_loss: float = 4.0
+    bottom_loss: float = 10.0
+    aperture: float = 0.1
+    timing_floor: float = 2e-6
+    angle_floor: float = math.radians(0.05)
+    noise_scale: float = 1.0
+    clock_offset_std: float = 20e-6
+    snr50: float = 10.0
+    snr_slope: float = 2.0
+    clutter_rate: float = 1.0
+    multipath: bool = True
+    ideal_detection: bool = False
+    max_detections: int = 8
+
+    def __post_init__(self):
+        positive = ("sound_speed", "sample_rate", "bandwidth", "aperture", "snr_slope")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"AcousticConfig.{name} must be positive, got {value}")
+        non_negative = ("surface_loss", "bottom_loss", "timing_floor", "angle_floor",
+                        "noise_scale", "clock_offset_std", "clutter_rate")
+        for name in non_negative:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"AcousticConfig.{name} must be >= 0, got {value}")
+        if not self.band_centres or any(not f > 0 for f in self.band_centres):
+            raise ValueError("AcousticConfig.band_centres must be positive frequencies")
+        if self.max_detections < 1:
+            raise ValueError("AcousticConfig.max_detections must be at least 1")
+
+    @property
+    def n_bands(self) -> int:
+        return len(self.band_centres)
+
+    def noise_free(self) -> AcousticConfig:
+        """The same geometry with no noise, clock offsets, misses or clutter (ghosts stay)."""
+        return dataclasses.replace(self, noise_scale=0.0, clock_offset_std=0.0,
+                                   clutter_rate=0.0, ideal_detection=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class Measurements:
+    """One sample period's detections, padded to ``max_detections`` per band.
+
+    Arrays are (Q, K, ...) with ``mask`` (Q, K) marking real detections;
+    padded entries are zero. ``origin`` (ground truth, for metrics and tests
+    only) holds the ``ORIGIN_*`` code of each entry; ``dropped`` (Q,) counts
+    detections that did not fit.
+    """
+
+    tdoa: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    mask: np.ndarray
+    origin: np.ndarray
+    dropped: np.ndarray
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
+
+
+class HydrophoneArray:
+    """The array, the water column and the measurement model; read-only.
+
+    Args:
+      positions: (N, 3) node positions in the tank frame (z up, surface at
+        ``surface_z``); node 1 (index 0) is the TDOA reference.
+      surface_z, bottom_z: heights of the reflecting boundaries.
+      config: the :class:`AcousticConfig`.
+    """
+
+    def __init__(self, positions, surface_z: float, bottom_z: float, config: AcousticConfig):
+        h = np.array(positions, dtype=np.float64)
+        if h.ndim != 2 or h.shape[1] != 3 or len(h) < 4 or not np.all(np.isfinite(h)):
+            raise ValueError(f"need (N >= 4, 3) finite node positions, got shape {h.shape}")
+        if not bottom_z < surface_z:
+            raise ValueError("bottom_z must lie below surface_z")
+        h.setflags(write=False)
+        self.positions = h
+        self.surface_z = float(surface_z)
+        self.bottom_z = float(bottom_z)
+        self.config = config
+        c = config
+        f = np.array(c.band_centres)
+        self.band_centres = f
+        self.band_centres.setflags(write=False)
+        self._absorption = (thorp_absorption(f) / 1000.0)[:, None, None]  # dB/m
+        processing_gain = 10.0 * math.log10(c.bandwidth / c.sample_rate)
+        band_noise = ambient_noise_level(f) + 10.0 * math.log10(c.bandwidth)
+        self._snr_offset = (c.source_level - band_noise + processing_gain)[:, None, None]
+        self._path_loss = np.array([0.0, c.surface_loss, c.bottom_loss])[:, None]
+        # Noise-std constants with noise_scale and the sqrt(2 snr) factor folded in.
+        s2 = c.noise_scale / math.sqrt(2.0)
+        self._timing_floor = c.noise_scale * c.timing_floor
+        self._timing_k = s2 / (2.0 * math.pi * (c.bandwidth / math.sqrt(12.0)))
+        self._angle_floor = c.noise_scale * c.angle_floor
+        self._angle_k = (s2 * (c.sound_speed / f) / (2.0 * math.pi * c.aperture))[:, None, None]
+        baselines = np.linalg.norm(h[1:] - h[0], axis=1) / c.sound_speed
+        self.max_tdoa = baselines
+        self.max_tdoa.setflags(write=False)
+        self._n_paths = 3 if c.multipath else 1
+        k = c.max_detections
+        self._origin_template = np.concatenate(
+            [np.arange(self._n_paths), np.full(k, ORIGIN_CLUTTER)]
+        ).astype(np.int8)
+        self._clutter_slot = np.arange(k)
+        # Image sources as scale * p + shift: direct, surface mirror, bottom mirror.
+        self._mirror_scale = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, 1.0, -1.0]])[
+            : self._n_paths
+        ]
+        self._mirror_shift = np.array(
+            [[0.0, 0.0, 0.0], [0.0, 0.0, 2.0 * surface_z], [0.0, 0.0, 2.0 * bottom_z]]
+        )[: self._n_paths]
+        # Clutter: uniform over TDOA +-max, azimuth (-pi, pi], elevation [0, pi].
+        n = len(h)
+        self._clutter_scale = np.concatenate(
+            [2.0 * baselines, np.full(n, -2.0 * np.pi), np.full(n, np.pi)]
+        )
+        self._clutter_shift = np.concatenate([-baselines, np.full(n, np.pi), np.zeros(n)])
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.positions)
+
+    # ------------------------------------------------------------ geometry
+    def image_sources(self, position) -> np.ndarray:
+        """(3, 3): the source and its surface and bottom mirror images."""
+        p = np.asarray(position, dtype=np.float64)
+        return np.array([p, (p[0], p[1], 2.0 * self.surface_z - p[2]),
+                         (p[0], p[1], 2.0 * self.bottom_z - p[2])])
+
+    def geometry(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
+        d = np.asarray(sources, dtype=np.float64)[..., None, :] - self.positions
+        horizontal = np.hypot(d[..., 0], d[..., 1])
+        ranges = np.hypot(horizontal, d[..., 2])
+        return ranges, np.arctan2(d[..., 1], d[..., 0]), np.arctan2(horizontal, d[..., 2])
+
+    def noise_free(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact (tdoa (..., N-1), azimuth (..., N), elevation (..., N)) of sources (..., 3)."""
+        ranges, azimuth, elevation = self.geometry(sources)
+        tdoa = (ranges[..., 1:] - ranges[..., :1]) / self.config.sound_speed
+        return tdoa, azimuth, elevation
+
+    # ------------------------------------------------------------ noise model
+    def snr_db(self, ranges: np.ndarray, path_loss) -> np.ndarray:
+        """Per-band SNR (Q, P, N) in dB for path ranges (P, N) with boundary losses (P, 1)."""
+        spreading = 20.0 * np.log10(np.maximum(ranges, 1.0))
+        return self._snr_offset - spreading - self._absorption * ranges - path_loss
+
+    def noise_std(self, snr_db: np.ndarray, elevation: np.ndarray):
+        """Arrival-time, azimuth and elevation standard deviations for an SNR array."""
+        inv_root = 10.0 ** (snr_db * -0.05)  # 1 / sqrt(snr), snr linear
+        timing = np.hypot(self._timing_floor, self._timing_k * inv_root)
+        theta = np.hypot(self._angle_floor, self._angle_k * inv_root)
+        azimuth = theta / np.maximum(np.sin(elevation), 0.05)
+        return timing, azimuth, theta
+
+    def detection_probability(self, snr_db: np.ndarray) -> np.ndarray:
+        """Per band and path: logistic in the array SNR (mean over nodes, dB)."""
+        if self.config.ideal_detection:
+            return np.ones(snr_db.shape[:-1])
+        array_snr = snr_db.mean(axis=-1)
+        return 1.0 / (1.0 + np.exp(-(array_snr - self.config.snr50) / self.config.snr_slope))
+
+    def model(self, position) -> dict[str, np.ndarray]:
+        """The documented noise model at a source position, per band (for users and tests).
+
+        Returns ``snr_db`` (Q, N), ``arrival_std`` (Q, N), ``tdoa_std`` (Q, N-1),
+        ``azimuth_std`` (Q, N), ``elevation_std`` (Q, N) and
+        ``detection_probability`` (Q,) of the direct path, and
+        ``ghost_detection_probability`` (Q, 2) of the surface and bottom paths.
+        """
+        sources = self.image_sources(position)
+        ranges, _, elevation = self.geometry(sources)
+        snr = self.snr_db(ranges, self._path_loss)
+        timing, azimuth, theta = self.noise_std(snr, elevation)
+        pd = self.detection_probability(snr)
+        return {
+            "snr_db": snr[:, 0],
+            "arrival_std": timing[:, 0],
+            "tdoa_std": np.hypot(timing[:, 0, 1:], timing[:, 0, :1]),
+            "azimuth_std": azimuth[:, 0],
+            "elevation_std": theta[:, 0],
+            "detection_probability": pd[:, 0],
+            "ghost_detection_probability": pd[:, 1:],
+        }
+
+    def draw_clock_offsets(self, rng: np.random.Generator) -> np.ndarray:
+        """Per-episode clock offsets (N,), node 1's zero."""
+        offsets = rng.normal(0.0, 1.0, self.n_nodes) * self.config.clock_offset_std
+        offsets[0] = 0.0
+        return offsets
+
+    def measure(self, rng: np.random.Generator, positions, clock_offsets) -> Measurements:
+        """Draw the detection sets of ``B`` sample periods, vectorised over periods.
+
+        Args:
+          rng: the episode's generator (the only source of randomness).
+          positions: (B, 3) source positions, one per sample period (or (3,)
+            for a single period; the result then has no leading axis).
+          clock_offsets: (N,) clock offsets of the nodes (see
+            :meth:`draw_clock_offsets`).
+
+        Returns:
+          :class:`Measurements` with arrays (B, Q, K, ...). The number of
+          variates drawn depends only on B and the Poisson false-alarm
+          counts, so a seeded episode is reproducible.
+        """
+        positions = np.asarray(positions, dtype=np.float64)
+        single = positions.ndim == 1
+        positions = np.atleast_2d(positions)
+        if positions.shape[1:] != (3,) or not np.all(np.isfinite(positions)):
+            raise ValueError(f"positions must be finite (B, 3), got shape {positions.shape}")
+        n, p, k = self.n_nodes, self._n_paths, self.config.max_detections
+        q, b = self.config.n_bands, len(positions)
+        sources = positions[:, None, :] * self._mirror_scale + self._mirror_shift  # (B, P, 3)
+        ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
+        snr = self.snr_db(ranges[:, None], self._path_loss[:p])  # (B, Q, P, N)
+        timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
+        pd = self.detection_probability(snr)  # (B, Q, P)
+
+        noise = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
+        arrival = (ranges / self.config.sound_speed + clock_offsets)[:, None] + timing * noise[0]
+        candidates = np.empty((b, q, p + k, 3 * n - 1))
+        direct = candidates[:, :, :p]
+        np.subtract(arrival[..., 1:], arrival[..., :1], out=direct[..., : n - 1])
+        wrapped = np.subtract(np.pi, azimuth[:, None] + sigma_az * noise[1])
+        np.mod(wrapped, 2.0 * np.pi, out=wrapped)
+        np.subtract(np.pi, wrapped, out=direct[..., n - 1 : 2 * n - 1])
+        np.clip(elevation[:, None] + sigma_el * noise[2], 0.0, np.pi,
+                out=direct[..., 2 * n - 1 :])
+        detected = rng.random((b, q, p)) < pd
+
+        n_clutter = rng.poisson(self.config.clutter_rate, (b, q))
+        slots = self._clutter_slot < n_clutter[..., None]  # (B, Q, K)
+        clutter = candidates[:, :, p:]
+        clutter[...] = 0.0
+        clutter[slots] = rng.random((int(slots.sum()), 3 * n - 1)) * self._clutter_scale + \
+            self._clutter_shift
+        valid = np.concatenate([detected, slots], axis=-1)
+        keys = np.where(valid, rng.random(valid.shape), 2.0)
+        order = np.argsort(keys, axis=-1, kind="stable")[..., :k]
+        mask = np.take_along_axis(valid, order, axis=-1)
+        picked = np.take_along_axis(candidates, order[..., None], axis=-2)
+        picked *= mask[..., None]
+        result = Measurements(
+            tdoa=picked[..., : n - 1],
+            azimuth=picked[..., n - 1 : 2 * n - 1],
+            elevation=picked[..., 2 * n - 1 :],
+            mask=mask,
+            origin=np.where(mask, self._origin_template[order], ORIGIN_EMPTY).astype(np.int8),
+            dropped=valid.sum(axis=-1) - mask.sum(axis=-1),
+        )
+        if single:
+            return Measurements(*(getattr(result, f.name)[0]
+                                  for f in dataclasses.fields(Measurements)))
+        return result

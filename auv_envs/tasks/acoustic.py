@@ -1,0 +1,569 @@
+"""Acoustic tracking of an underwater manipulator's end effector (seed 004).
+
+``auv_envs/AcousticTracking-v0``: an acoustic source on the end effector of a
+6-DOF arm, carried through a 300 m x 300 m tank by a neutrally buoyant
+carrier and disturbed by the current, is heard by eight hydrophone nodes. The
+agent estimates the end effector's position from the multi-band detection
+sets (:mod:`auv_envs.core.acoustics`).
+
+The agent's estimates do not act on the physics, so the environment simulates
+the physics and draws the measurements in blocks of ``BLOCK`` sample periods,
+vectorised over the block, and serves them one period per step. The result is
+the same as stepping one period at a time (the blocks are a computational
+device, not a change of model) and many times faster.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from dm_control import mjcf
+from gymnasium import spaces
+
+from auv_envs import metrics
+from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray, Measurements
+from auv_envs.core.assets import asset_path
+from auv_envs.core.env import (
+    ReconstructingPickleMixin,
+    check_choice,
+    reject_unknown_kwargs,
+    validate_action,
+)
+
+OBS_MODES = ("state", "measurements")
+TRAJECTORIES = ("dynamic", "static")
+#: Current speed ranges in m/s (seed 004 §3.4's disturbance levels).
+DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
+#: Seed 004 Table 1: the five static end-effector positions (tank frame, m).
+STATIC_POINTS = (
+    (50.0, 102.0, -10.0),
+    (170.0, 234.0, -15.5),
+    (215.0, 236.0, -12.0),
+    (289.0, 245.0, -8.0),
+    (47.0, 251.0, -20.0),
+)
+#: Sample periods simulated and measured per block (0.5 s at 100 Hz).
+BLOCK = 50
+#: The arm's nominal joint posture (rad): the source about 3.5 m ahead of
+#: and 0.9 m below the carrier's centre.
+NOMINAL_POSTURE = (0.0, 0.6, -1.2, 0.0, 0.6, 0.0)
+#: Carrier route limits (m): keeps the end effector inside the work area
+#: x, y in [40, 295], z in [-25, -5].
+ROUTE_XY = (45.0, 285.0)
+ROUTE_Z = (-20.0, -8.0)
+CARRIER_SPEED = (0.2, 0.8)
+ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
+              "tool_roll")
+CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
+
+
+def build_tank_model() -> mujoco.MjModel:
+    """Compose the tank and the carrier + arm from ``assets/acoustic`` with mjcf."""
+    tank = mjcf.from_path(str(asset_path("acoustic/tank.xml")))
+    rig = mjcf.from_path(str(asset_path("acoustic/carrier_arm.xml")))
+    rig.model = "rig"
+    tank.worldbody.attach(rig)
+    return mujoco.MjModel.from_xml_string(tank.to_xml_string(), assets=tank.get_assets())
+
+
+@dataclasses.dataclass(frozen=True)
+class AcousticCalibration:
+    """What a tracker may know about the sensing system (read-only).
+
+    Attributes:
+      array: the :class:`~auv_envs.core.acoustics.HydrophoneArray`, with the
+        node positions, the noise model (``array.model(p)``) and the exact
+        measurement function (``array.noise_free(p)``).
+      hydrophone_positions: (8, 3) node positions in the tank frame (m);
+        index 0 is node 1, the TDOA reference.
+      sound_speed: m/s. sample_rate: fs in Hz. band_centres: (Q,) Hz.
+      bandwidth: Hz per band. config: the full
+        :class:`~auv_envs.core.acoustics.AcousticConfig`.
+      tank_size: (x, y) extent in m; tank_depth: m (surface z = 0).
+      work_area: ((x, y, z) low, (x, y, z) high) where the end effector moves.
+      max_detections: K, the padded detection-set size per band.
+    """
+
+    array: HydrophoneArray
+    hydrophone_positions: np.ndarray
+    sound_speed: float
+    sample_rate: float
+    band_centres: np.ndarray
+    bandwidth: float
+    config: AcousticConfig
+    tank_size: tuple[float, float]
+    tank_depth: float
+    work_area: tuple[tuple[float, float, float], tuple[float, float, float]]
+    max_detections: int
+
+
+@dataclasses.dataclass
+class _Episode:
+    """Everything an episode changes besides MuJoCo's state (deep-copied to pickle)."""
+
+    steps: int = 0
+    horizon: int = 0
+    done: bool = False
+    carrier_ref: np.ndarray | None = None  # (T+1, 4) x, y, z, yaw
+    carrier_vel: np.ndarray | None = None  # (T+1, 4)
+    arm_ref: np.ndarray | None = None  # (T+1, 6)
+    current: np.ndarray | None = None  # (T+1, 3)
+    clock_offsets: np.ndarray | None = None
+    block_start: int = 0
+    positions: np.ndarray | None = None  # (B, 3) of the current block
+    velocities: np.ndarray | None = None
+    measurements: Measurements | None = None
+    estimates: np.ndarray | None = None  # (T, 3)
+    truths: np.ndarray | None = None  # (T, 3)
+    squared_error_sum: float = 0.0
+    static_point: int | None = None
+
+
+def plan_route(rng: np.random.Generator, n: int, dt: float):
+    """A carrier route of ``n`` samples: straight segments, curves and pauses.
+
+    Segment kinds come from shuffled bags of two straights, two curves and
+    one pause, so every route mixes all three: straight (4-12 s), curve
+    (6-15 s, turning 30-120 deg), pause (1.5-5 s); speeds
+    uniform in ``CARRIER_SPEED`` and a slow climb or descent (|w| <= 0.05 m/s)
+    while moving. Near the route limits a segment heads back towards the
+    centre. Returns (reference (n, 4) of x, y, z, yaw and its rate (n, 4)).
+    """
+    lo, hi = ROUTE_XY
+    centre = 0.5 * (lo + hi)
+    speed = np.zeros(n)
+    turn = np.zeros(n)
+    climb = np.zeros(n)
+    heading0 = np.zeros(n)
+    position = np.array([rng.uniform(lo + 20, hi - 20), rng.uniform(lo + 20, hi - 20),
+                         rng.uniform(*ROUTE_Z)])
+    start = position.copy()
+    heading = rng.uniform(-math.pi, math.pi)
+    i = 0
+    bag: list[int] = []
+    while i < n:
+        if not bag:
+            bag = list(rng.permutation((0, 0, 1, 1, 2)))
+        kind = bag.pop()
+        duration = (rng.uniform(4, 12), rng.uniform(6, 15), rng.uniform(1.5, 5))[kind]
+        count = min(n - i, max(1, int(round(duration / dt))))
+        v = rng.uniform(*CARRIER_SPEED) if kind != 2 else 0.0
+        w = 0.0
+        home = math.atan2(centre - position[1], centre - position[0])
+        near_edge = np.any(position[:2] < lo + 25) or np.any(position[:2] > hi - 25)
+        if near_edge and math.cos(heading - home) < 0.5:
+            heading = home + rng.uniform(-0.5, 0.5)
+        if kind == 1:
+            sign = rng.choice((-1.0, 1.0))
+            w = sign * rng.uniform(math.pi / 6, 2 * math.pi / 3) / (count * dt)
+        vz = rng.uniform(-0.05, 0.05) if v > 0 else 0.0
+        if not ROUTE_Z[0] + 1 < position[2] < ROUTE_Z[1] - 1:
+            vz = math.copysign(abs(vz), 0.5 * sum(ROUTE_Z) - position[2])
+        speed[i : i + count], turn[i : i + count], climb[i : i + count] = v, w, vz
+        heading0[i : i + count] = heading + w * dt * np.arange(count)
+        heading += w * dt * count
+        travel = heading0[i : i + count]
+        position = position + dt * np.array(
+            [np.sum(v * np.cos(travel)), np.sum(v * np.sin(travel)), vz * count]
+        )
+        i += count
+    velocity = np.stack([speed * np.cos(heading0), speed * np.sin(heading0), climb, turn], 1)
+    reference = np.empty((n, 4))
+    reference[0, :3] = start
+    reference[1:, :3] = start + np.cumsum(velocity[:-1, :3] * dt, axis=0)
+    reference[:, 3] = heading0
+    reference[:, 0:2] = np.clip(reference[:, 0:2], lo, hi)
+    reference[:, 2] = np.clip(reference[:, 2], *ROUTE_Z)
+    return reference, velocity
+
+
+def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) -> np.ndarray:
+    """A horizontal current (n, 3): speed sweeping ``speed_range``, direction veering.
+
+    ``speed(t) = lo + (hi - lo) (1 + sin(2 pi t / T_s + phi)) / 2`` with
+    ``T_s`` uniform in 20-60 s, and direction ``theta0 + 0.3 sin(2 pi t / T_d
+    + psi)`` with ``T_d`` uniform in 30-90 s.
+    """
+    lo, hi = speed_range
+    t = dt * np.arange(n)
+    speed = lo + (hi - lo) * 0.5 * (1 + np.sin(2 * np.pi * t / rng.uniform(20, 60)
+                                               + rng.uniform(0, 2 * np.pi)))
+    direction = rng.uniform(-np.pi, np.pi) + 0.3 * np.sin(
+        2 * np.pi * t / rng.uniform(30, 90) + rng.uniform(0, 2 * np.pi)
+    )
+    return np.stack([speed * np.cos(direction), speed * np.sin(direction), np.zeros(n)], 1)
+
+
+class _Physics:
+    """The MuJoCo model/data pair with the ids this task needs, resolved once."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.source = model.site("rig/source").id
+        self.hydrophones = np.array(
+            [model.site_pos[model.site(f"hydrophone_{i}").id] for i in range(1, 9)]
+        )
+        self.carrier_qpos = np.array([model.joint(f"rig/{j}").qposadr[0] for j in CARRIER_JOINTS])
+        self.arm_qpos = np.array([model.joint(f"rig/{j}").qposadr[0] for j in ARM_JOINTS])
+        self.carrier_pos_act = np.array(
+            [model.actuator(f"rig/{j}_pos").id for j in CARRIER_JOINTS]
+        )
+        self.carrier_vel_act = np.array(
+            [model.actuator(f"rig/{j}_vel").id for j in CARRIER_JOINTS]
+        )
+        self.arm_act = np.array([model.actuator(f"rig/{j}").id for j in ARM_JOINTS])
+        self.tank_depth = -float(model.geom("bottom").pos[2])
+        self._jac = np.zeros((3, model.nv))
+
+    def source_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Source position and velocity at the current state (kinematics must be current)."""
+        model, data = self.model, self.data
+        mujoco.mj_comPos(model, data)
+        mujoco.mj_jacSite(model, data, self._jac, None, self.source)
+        return data.site_xpos[self.source].copy(), self._jac @ data.qvel
+
+    def source_offset(self, posture) -> np.ndarray:
+        """Source position relative to the carrier at yaw 0 in a given arm posture."""
+        data = mujoco.MjData(self.model)
+        data.qpos[self.arm_qpos] = posture
+        mujoco.mj_kinematics(self.model, data)
+        return data.site_xpos[self.source].copy()
+
+
+class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
+    """Track an underwater arm's end effector with an 8-node hydrophone array (seed 004).
+
+    **Description.** A 300 m x 300 m x 30 m tank (tank frame: origin at a
+    surface corner, z up) holds eight hydrophone nodes on its walls. A 6-DOF
+    manipulator rides a neutrally buoyant carrier that follows a route of
+    straight segments, curves and pauses; its joints sweep slowly about a
+    nominal posture, and the current (MuJoCo's fluid model, with the current
+    as ``wind``) pushes both. The acoustic source on the end effector is
+    heard in Q = 10 sub-bands at fs = 100 Hz; per band and period the array
+    reports a set of detections (TDOAs against node 1, per-node azimuth and
+    elevation) with band-dependent noise and misses, multipath ghosts from
+    the surface and the bottom, Poisson false alarms and clock offsets: see
+    :mod:`auv_envs.core.acoustics` for the documented model.
+
+    **Action space.** ``Box([0, 0, -30], [300, 300, 0], (3,), float32)``: the
+    agent's estimate of the end effector's position (tank frame, m) at the
+    time of the latest observation. Finite values outside the tank are
+    clipped; NaN or inf raise ``ValueError``.
+
+    **Observation space** (``obs_mode``):
+
+    * ``"state"`` (privileged), ``Box((9,), float32)``: end-effector position
+      (3) and velocity (3), current velocity (3).
+    * ``"measurements"``, ``Dict`` of float64 arrays padded to K =
+      ``max_detections`` per band: ``tdoa`` (Q, K, 7) s, ``azimuth``
+      (Q, K, 8) rad in [-pi, pi], ``elevation`` (Q, K, 8) rad in [0, pi] (seed
+      004's angle from the upward vertical), ``mask`` ``MultiBinary((Q, K))``
+      (1 where a detection is real; padded entries are zero). The order within
+      a band is random: which detection is the source is not observable.
+
+    **Rewards.** One term, ``estimate`` = ``-min(e, error_clip) / error_clip``
+    with ``e`` the Euclidean estimation error (m); in [-1, 0].
+
+    **Starting state.** ``trajectory="dynamic"``: the carrier starts at a
+    random point of its route area at rest (x, y in [65, 265] m, z in [-20,
+    -8] m) and follows a seeded route (:func:`plan_route`); the arm's joints
+    sweep sinusoidally about ``NOMINAL_POSTURE`` (amplitudes 0.1-0.35 rad for
+    the first three joints, 0.05-0.2 rad for the wrist, periods 12-40 s).
+    ``trajectory="static"``: the carrier holds the end effector at one of seed
+    004's five test points (``static_point``, 1-5; drawn per episode when
+    None) in the nominal posture. The current (:func:`current_profile`)
+    sweeps the ``disturbance`` level's speed range with a veering direction.
+
+    **Episode end.** No terminal state; truncation after ``time_limit``
+    seconds (``time_limit * 100`` steps).
+
+    **Info.** Every step: ``estimate_error`` (m; NaN at reset, before any
+    estimate), ``running_rmse`` (m, over the episode so far; NaN at reset),
+    ``tracked`` (error within ``track_gate``), ``is_success`` (running RMSE
+    within ``success_radius``), the reward term, and ground truth for metrics
+    only: ``true_position``, ``true_velocity``, ``current``,
+    ``detection_origin`` (Q, K; codes ``ORIGIN_*`` of
+    :mod:`auv_envs.core.acoustics`: -1 padding, 0 source, 1 surface ghost,
+    2 bottom ghost, 3 false alarm), ``time``. At episode end also
+    ``episode_metrics``: RMSE, maximum error, TFC, TCFE and mean OSPA of the
+    estimates (:mod:`auv_envs.metrics`) and ``success``.
+
+    **Arguments.** ``obs_mode``, ``disturbance`` (``"low"``, ``"medium"``,
+    ``"high"``), ``trajectory`` (``"dynamic"``, ``"static"``),
+    ``static_point`` (1-5 or None), ``time_limit`` (s, default 60),
+    ``acoustic`` (an ``AcousticConfig``; default the documented model),
+    ``error_clip`` (m, default 5), ``track_gate`` (m, default 1),
+    ``success_radius`` (m, default 0.5).
+
+    **Version history.** v0: initial release.
+    """
+
+    metadata = {"render_modes": [], "render_fps": 100}
+
+    #: The contract the registry-driven tests read (see tests/conftest.py).
+    obs_modes = OBS_MODES
+    reward_terms = ("estimate",)
+    metric_keys = ("estimate_error", "running_rmse", "tracked", "is_success")
+
+    def __init__(
+        self,
+        obs_mode: str = "measurements",
+        disturbance: str = "medium",
+        trajectory: str = "dynamic",
+        static_point: int | None = None,
+        time_limit: float = 60.0,
+        acoustic: AcousticConfig | None = None,
+        error_clip: float = 5.0,
+        track_gate: float = 1.0,
+        success_radius: float = 0.5,
+        render_mode: str | None = None,
+        **unknown,
+    ):
+        self._init_kwargs = dict(
+            obs_mode=obs_mode, disturbance=disturbance, trajectory=trajectory,
+            static_point=static_point, time_limit=time_limit, acoustic=acoustic,
+            error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
+            render_mode=render_mode,
+        )
+        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
+        check_choice("obs_mode", obs_mode, OBS_MODES)
+        check_choice("disturbance", disturbance, tuple(DISTURBANCES))
+        check_choice("trajectory", trajectory, TRAJECTORIES)
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        if static_point is not None:
+            check_choice("static_point", static_point, range(1, len(STATIC_POINTS) + 1))
+        for name in ("time_limit", "error_clip", "track_gate", "success_radius"):
+            value = self._init_kwargs[name]
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        config = acoustic if acoustic is not None else AcousticConfig()
+        if not isinstance(config, AcousticConfig):
+            raise TypeError(f"acoustic must be an AcousticConfig, got {type(config).__name__}")
+
+        self.obs_mode = obs_mode
+        self.render_mode = render_mode
+        self.disturbance = disturbance
+        self.trajectory = trajectory
+        self._static_point = static_point
+        self._physics = _Physics(build_tank_model())
+        self._dt = 1.0 / config.sample_rate
+        self._physics.model.opt.timestep = self._dt
+        self._horizon = int(round(time_limit * config.sample_rate))
+        self._error_clip = float(error_clip)
+        self._track_gate = float(track_gate)
+        self._success_radius = float(success_radius)
+        depth = self._physics.tank_depth
+        array = HydrophoneArray(self._physics.hydrophones, 0.0, -depth, config)
+        band_centres = array.band_centres
+        low = np.array([0.0, 0.0, -depth])
+        high = np.array([300.0, 300.0, 0.0])
+        self.calibration = AcousticCalibration(
+            array=array,
+            hydrophone_positions=array.positions,
+            sound_speed=config.sound_speed,
+            sample_rate=config.sample_rate,
+            band_centres=band_centres,
+            bandwidth=config.bandwidth,
+            config=config,
+            tank_size=(300.0, 300.0),
+            tank_depth=depth,
+            work_area=((40.0, 40.0, -25.0), (295.0, 295.0, -5.0)),
+            max_detections=config.max_detections,
+        )
+        self._source_offset = self._physics.source_offset(NOMINAL_POSTURE)
+        self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
+                                       dtype=np.float32)
+        self.observation_space = self._make_observation_space(array)
+        self._episode = _Episode()
+
+    def _make_observation_space(self, array: HydrophoneArray) -> spaces.Space:
+        if self.obs_mode == "state":
+            return spaces.Box(-np.inf, np.inf, shape=(9,), dtype=np.float32)
+        q, k, n = array.config.n_bands, array.config.max_detections, array.n_nodes
+        bound = np.broadcast_to(array.max_tdoa * 1.1 + 0.01, (q, k, n - 1))
+        return spaces.Dict(
+            {
+                "tdoa": spaces.Box(-bound, bound, dtype=np.float64),
+                "azimuth": spaces.Box(-np.pi, np.pi, shape=(q, k, n), dtype=np.float64),
+                "elevation": spaces.Box(0.0, np.pi, shape=(q, k, n), dtype=np.float64),
+                "mask": spaces.MultiBinary((q, k)),
+            }
+        )
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        n = self._horizon + 1
+        ep = _Episode(horizon=self._horizon)
+        if self.trajectory == "dynamic":
+            ep.carrier_ref, ep.carrier_vel = plan_route(rng, n, self._dt)
+            t = self._dt * np.arange(n)[:, None]
+            amplitude = np.concatenate([rng.uniform(0.1, 0.35, 3), rng.uniform(0.05, 0.2, 3)])
+            period = rng.uniform(12.0, 40.0, 6)
+            phase = rng.uniform(0, 2 * np.pi, 6)
+            ep.arm_ref = NOMINAL_POSTURE + amplitude * (
+                np.sin(2 * np.pi * t / period + phase) - np.sin(phase)
+            )
+        else:
+            point = self._static_point or int(rng.integers(1, len(STATIC_POINTS) + 1))
+            ep.static_point = point
+            ref = np.append(np.asarray(STATIC_POINTS[point - 1]) - self._source_offset, 0.0)
+            ep.carrier_ref = np.broadcast_to(ref, (n, 4)).copy()
+            ep.carrier_vel = np.zeros((n, 4))
+            ep.arm_ref = np.broadcast_to(NOMINAL_POSTURE, (n, 6)).copy()
+        ep.current = current_profile(rng, n, self._dt, DISTURBANCES[self.disturbance])
+        ep.clock_offsets = self.calibration.array.draw_clock_offsets(rng)
+        ep.estimates = np.full((self._horizon, 3), np.nan)
+        ep.truths = np.full((self._horizon, 3), np.nan)
+
+        physics = self._physics
+        model, data = physics.model, physics.data
+        mujoco.mj_resetData(model, data)
+        data.qpos[physics.carrier_qpos] = ep.carrier_ref[0]
+        data.qpos[physics.arm_qpos] = ep.arm_ref[0]
+        mujoco.mj_forward(model, data)
+        self._episode = ep
+        self._simulate_block(0)
+        return self._observation(0), self._info(0, float("nan"), 0.0)
+
+    def step(self, action):
+        a = validate_action(action, self.action_space)
+        ep = self._episode
+        if ep.done:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        k = ep.steps  # the estimate is scored against the truth at observation k
+        truth = ep.positions[k - ep.block_start]
+        error = float(np.linalg.norm(a - truth))
+        ep.estimates[k] = a
+        ep.truths[k] = truth
+        ep.squared_error_sum += error * error
+        reward = -min(error, self._error_clip) / self._error_clip
+        ep.steps = k + 1
+        truncated = ep.steps >= ep.horizon
+        ep.done = truncated
+        if ep.steps - ep.block_start >= BLOCK:
+            self._simulate_block(ep.steps)
+        obs = self._observation(ep.steps)
+        info = self._info(ep.steps, error, reward)
+        if truncated:
+            info["episode_metrics"] = self._episode_metrics()
+        return obs, reward, False, truncated, info
+
+    def render(self):
+        return None
+
+    def close(self):
+        pass
+
+    # ------------------------------------------------------------------ internals
+    def _simulate_block(self, start: int) -> None:
+        """Advance the physics over sample periods [start, start + BLOCK) and measure them."""
+        ep = self._episode
+        physics = self._physics
+        model, data = physics.model, physics.data
+        count = min(BLOCK, ep.horizon + 1 - start)
+        positions = np.empty((count, 3))
+        velocities = np.empty((count, 3))
+        wind = model.opt.wind
+        ctrl = data.ctrl
+        for j in range(count):
+            k = start + j
+            if k > 0:
+                ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
+                ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
+                ctrl[physics.arm_act] = ep.arm_ref[k]
+                wind[:] = ep.current[k - 1]
+                mujoco.mj_step(model, data)
+                mujoco.mj_kinematics(model, data)
+            positions[j], velocities[j] = physics.source_state()
+        ep.block_start = start
+        ep.positions = positions
+        ep.velocities = velocities
+        ep.measurements = self.calibration.array.measure(
+            self.np_random, positions, ep.clock_offsets
+        )
+
+    def _observation(self, k: int):
+        ep = self._episode
+        j = k - ep.block_start
+        if self.obs_mode == "state":
+            return np.concatenate([ep.positions[j], ep.velocities[j], ep.current[k]]).astype(
+                np.float32
+            )
+        m = ep.measurements
+        return {
+            "tdoa": m.tdoa[j].copy(),
+            "azimuth": m.azimuth[j].copy(),
+            "elevation": m.elevation[j].copy(),
+            "mask": m.mask[j].astype(np.int8),
+        }
+
+    def _info(self, k: int, error: float, reward: float) -> dict:
+        ep = self._episode
+        j = k - ep.block_start
+        rmse = math.sqrt(ep.squared_error_sum / k) if k else float("nan")
+        return {
+            "estimate_error": error,
+            "running_rmse": rmse,
+            "tracked": error <= self._track_gate,
+            "is_success": rmse <= self._success_radius,
+            "reward_estimate": reward,
+            "true_position": ep.positions[j].copy(),
+            "true_velocity": ep.velocities[j].copy(),
+            "current": ep.current[k].copy(),
+            "detection_origin": ep.measurements.origin[j].copy(),
+            "time": k * self._dt,
+        }
+
+    def _episode_metrics(self) -> dict:
+        ep = self._episode
+        est, truth = ep.estimates[: ep.steps], ep.truths[: ep.steps]
+        errors = metrics.position_errors(est, truth)
+        rmse = metrics.rmse(est, truth)
+        # One estimate per step: the track is "on" the source while within the
+        # gate (label 0) and lost otherwise; TFC counts the re-acquisitions.
+        labels = np.where(errors <= self._track_gate, 0, metrics.NO_TRACK)
+        out = {
+            "rmse": rmse,
+            "max_error": metrics.max_error(est, truth),
+            "tfc": metrics.track_fragmentation_count(labels),
+            "tcfe": metrics.tcfe(est),
+            # OSPA between singleton sets {estimate} and {truth} (p = 1, c =
+            # error_clip) is min(error, c) per step.
+            "mean_ospa": float(np.mean(np.minimum(errors, self._error_clip))),
+            "steps": ep.steps,
+            "success": bool(rmse <= self._success_radius),
+        }
+        if ep.static_point is not None:
+            out["static_point"] = ep.static_point
+        return out
+
+    # ------------------------------------------------------------------ pickling
+    def _get_runtime_state(self) -> dict:
+        data = self._physics.data
+        return {
+            "qpos": data.qpos.copy(),
+            "qvel": data.qvel.copy(),
+            "act": data.act.copy(),
+            "ctrl": data.ctrl.copy(),
+            "time": float(data.time),
+            "episode": copy.deepcopy(self._episode),
+        }
+
+    def _set_runtime_state(self, state: dict) -> None:
+        physics = self._physics
+        data = physics.data
+        data.qpos[:] = state["qpos"]
+        data.qvel[:] = state["qvel"]
+        data.act[:] = state["act"]
+        data.ctrl[:] = state["ctrl"]
+        data.time = state["time"]
+        mujoco.mj_forward(physics.model, data)
+        self._episode = copy.deepcopy(state["episode"])

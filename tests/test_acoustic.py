@@ -1,0 +1,345 @@
+"""The acoustic tracking environment: measurement model, noise statistics, scene."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from auv_envs import metrics
+from auv_envs.core.acoustics import (
+    ORIGIN_BOTTOM,
+    ORIGIN_CLUTTER,
+    ORIGIN_SURFACE,
+    ORIGIN_TARGET,
+    AcousticConfig,
+    ambient_noise_level,
+    thorp_absorption,
+)
+from auv_envs.tasks import acoustic
+
+ENV_ID = "auv_envs/AcousticTracking-v0"
+
+
+def make(**kwargs) -> gym.Env:
+    return gym.make(ENV_ID, **kwargs)
+
+
+def geometric(position, hydrophones, c):
+    """Independent reference: TDOA vs node 1, azimuth, seed 004's elevation angle."""
+    d = np.asarray(position) - hydrophones
+    ranges = np.sqrt((d**2).sum(axis=1))
+    tdoa = (ranges[1:] - ranges[0]) / c
+    azimuth = np.array([math.atan2(v[1], v[0]) for v in d])
+    elevation = np.array([math.atan2(math.hypot(v[0], v[1]), v[2]) for v in d])
+    return tdoa, azimuth, elevation
+
+
+def documented_model(config, hydrophones, position):
+    """The noise model exactly as documented in auv_envs.core.acoustics, coded independently.
+
+    Returns per band (Q, ...): TDOA std (N-1), azimuth std (N), elevation std (N), P_D.
+    """
+    tdoa_std, az_std, el_std, pd = [], [], [], []
+    b, fs = config.bandwidth, config.sample_rate
+    for f in config.band_centres:
+        fk = f / 1000.0
+        thorp = 0.11 * fk**2 / (1 + fk**2) + 44 * fk**2 / (4100 + fk**2) + 2.75e-4 * fk**2 + 0.003
+        wind, thermal = 50 - 18 * math.log10(fk), -15 + 20 * math.log10(fk)
+        noise = 10 * math.log10(10 ** (wind / 10) + 10 ** (thermal / 10)) + 10 * math.log10(b)
+        snrs, t_std, a_std, e_std = [], [], [], []
+        for h in hydrophones:
+            d = np.asarray(position) - h
+            r = math.sqrt(d @ d)
+            snr = (config.source_level - (20 * math.log10(max(r, 1.0)) + thorp * r / 1000)
+                   - noise + 10 * math.log10(b / fs))
+            lin = 10 ** (snr / 10)
+            beta = b / math.sqrt(12)
+            t_std.append(config.noise_scale * math.hypot(
+                config.timing_floor, 1 / (2 * math.pi * beta * math.sqrt(2 * lin))))
+            theta = config.noise_scale * math.hypot(
+                config.angle_floor,
+                (config.sound_speed / f) / (2 * math.pi * config.aperture * math.sqrt(2 * lin)))
+            polar = math.atan2(math.hypot(d[0], d[1]), d[2])
+            a_std.append(theta / max(math.sin(polar), 0.05))
+            e_std.append(theta)
+            snrs.append(snr)
+        tdoa_std.append([math.hypot(t, t_std[0]) for t in t_std[1:]])
+        az_std.append(a_std)
+        el_std.append(e_std)
+        pd.append(1 / (1 + math.exp(-(np.mean(snrs) - config.snr50) / config.snr_slope)))
+    return np.array(tdoa_std), np.array(az_std), np.array(el_std), np.array(pd)
+
+
+def detections(obs, info, origin):
+    """Per band, the detection with the given origin code (or None)."""
+    out = []
+    for q in range(obs["mask"].shape[0]):
+        slots = np.flatnonzero(info["detection_origin"][q] == origin)
+        assert len(slots) <= 1
+        if len(slots):
+            k = slots[0]
+            assert obs["mask"][q, k] == 1
+            out.append((obs["tdoa"][q, k], obs["azimuth"][q, k], obs["elevation"][q, k]))
+        else:
+            out.append(None)
+    return out
+
+
+@pytest.fixture(scope="module")
+def noise_free_rollout():
+    env = make(acoustic=AcousticConfig().noise_free(), time_limit=1.0)
+    obs, info = env.reset(seed=3)
+    steps = [(obs, info)]
+    for _ in range(60):  # crosses a simulation block boundary
+        obs, _, _, _, info = env.step(info["true_position"])
+        steps.append((obs, info))
+    cal = env.unwrapped.calibration
+    env.close()
+    return steps, cal
+
+
+def test_noise_free_tdoa_and_doa_equal_the_geometry(noise_free_rollout):
+    steps, cal = noise_free_rollout
+    h, c = cal.hydrophone_positions, cal.sound_speed
+    for obs, info in steps:
+        tdoa, azimuth, elevation = geometric(info["true_position"], h, c)
+        for found in detections(obs, info, ORIGIN_TARGET):
+            assert found is not None  # ideal detection: every band hears the source
+            np.testing.assert_allclose(found[0], tdoa, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(found[1], azimuth, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(found[2], elevation, rtol=0, atol=1e-12)
+
+
+def test_multipath_ghosts_sit_at_the_mirror_images(noise_free_rollout):
+    steps, cal = noise_free_rollout
+    h, c, depth = cal.hydrophone_positions, cal.sound_speed, cal.tank_depth
+    for obs, info in steps[::7]:
+        x, y, z = info["true_position"]
+        mirrors = {ORIGIN_SURFACE: (x, y, -z), ORIGIN_BOTTOM: (x, y, -2 * depth - z)}
+        for origin, image in mirrors.items():
+            tdoa, azimuth, elevation = geometric(image, h, c)
+            for found in detections(obs, info, origin):
+                assert found is not None
+                np.testing.assert_allclose(found[0], tdoa, atol=1e-9)
+                np.testing.assert_allclose(found[1], azimuth, atol=1e-12)
+                np.testing.assert_allclose(found[2], elevation, atol=1e-12)
+                # A surface ghost looks up at the mirror above the surface.
+                if origin == ORIGIN_SURFACE:
+                    assert np.all(found[2] < np.array(geometric((x, y, z), h, c)[2]) + 1e-12)
+
+
+def test_noise_free_config_has_no_clutter(noise_free_rollout):
+    steps, _ = noise_free_rollout
+    for _obs, info in steps:
+        assert not np.any(info["detection_origin"] == ORIGIN_CLUTTER)
+
+
+def test_noise_statistics_match_the_documented_model():
+    # Static source, P_D in mid-range (snr50 raised), clutter on: per band, the
+    # empirical TDOA / azimuth / elevation spreads, detection rate and
+    # false-alarm rate against the model of auv_envs.core.acoustics.
+    # Small floors so that the SNR-dependent terms dominate the spreads.
+    config = dataclasses.replace(AcousticConfig(), snr50=24.0, snr_slope=2.0, clutter_rate=0.7,
+                                 timing_floor=5e-7, angle_floor=math.radians(0.01))
+    env = make(acoustic=config, trajectory="static", static_point=4, disturbance="low",
+               time_limit=60.0)
+    obs, info = env.reset(seed=11)
+    cal = env.unwrapped.calibration
+    h, c = cal.hydrophone_positions, cal.sound_speed
+    q_bands = config.n_bands
+    residuals = {q: [] for q in range(q_bands)}
+    hits = np.zeros(q_bands)
+    clutter = np.zeros(q_bands)
+    n = 0
+    truncated = False
+    while not truncated:
+        tdoa, azimuth, elevation = geometric(info["true_position"], h, c)
+        for q, found in enumerate(detections(obs, info, ORIGIN_TARGET)):
+            if found is not None:
+                hits[q] += 1
+                d_az = (found[1] - azimuth + np.pi) % (2 * np.pi) - np.pi
+                residuals[q].append(np.concatenate([found[0] - tdoa, d_az, found[2] - elevation]))
+        clutter += (info["detection_origin"] == ORIGIN_CLUTTER).sum(axis=1)
+        n += 1
+        obs, _, _, truncated, info = env.step(info["true_position"])
+    tdoa_std, az_std, el_std, pd = documented_model(config, h, info["true_position"])
+    model = cal.array.model(info["true_position"])
+    env.close()
+    np.testing.assert_allclose(model["tdoa_std"], tdoa_std, rtol=1e-9)
+    np.testing.assert_allclose(model["azimuth_std"], az_std, rtol=1e-9)
+    np.testing.assert_allclose(model["elevation_std"], el_std, rtol=1e-9)
+    np.testing.assert_allclose(model["detection_probability"], pd, rtol=1e-9)
+
+    assert 0.05 < pd.min() and pd.max() < 0.99  # the check below is informative
+    se = np.sqrt(pd * (1 - pd) / n)
+    np.testing.assert_array_less(np.abs(hits / n - pd), 4.5 * se + 1e-3)
+    # Poisson false alarms (none dropped at this rate: K = 8 slots).
+    np.testing.assert_array_less(np.abs(clutter / n - 0.7), 4.5 * np.sqrt(0.7 / n))
+
+    nodes = len(h)
+    offsets = []
+    for q in range(q_bands):
+        r = np.array(residuals[q])
+        m = len(r)
+        expected = np.concatenate([tdoa_std[q], az_std[q], el_std[q]])
+        ratio = r.std(axis=0) / expected
+        # Std of a sample std is about sigma / sqrt(2 m); allow 5 of those per
+        # component, and 5 of the pooled error for each quantity's mean ratio.
+        assert np.all(np.abs(ratio - 1) < 5 / np.sqrt(2 * m)), (q, ratio)
+        for part in (ratio[: nodes - 1], ratio[nodes - 1 : 2 * nodes - 1], ratio[2 * nodes - 1 :]):
+            assert abs(part.mean() - 1) < 5 / np.sqrt(2 * m * len(part)), (q, part)
+        offsets.append(r[:, : nodes - 1].mean(axis=0))
+        assert np.all(np.abs(r[:, nodes - 1 :].mean(axis=0)) < 5 * expected[nodes - 1 :] /
+                      np.sqrt(m))
+    # Clock offsets: a per-node TDOA bias, the same in every band and not zero.
+    offsets = np.array(offsets)
+    spread = tdoa_std.max() / np.sqrt(min(len(residuals[q]) for q in residuals))
+    assert np.all(np.abs(offsets - offsets.mean(axis=0)) < 6 * spread)
+    assert np.abs(offsets.mean(axis=0)).max() > 10 * spread
+
+
+def test_band_physics_absorption_and_noise():
+    f = np.array(AcousticConfig().band_centres)
+    assert np.all(np.diff(thorp_absorption(f)) > 0)
+    # Thorp at 10 kHz is about 1.2 dB/km, at 100 kHz about 35 dB/km.
+    assert thorp_absorption(10_000.0) == pytest.approx(1.19, abs=0.05)
+    assert thorp_absorption(100_000.0) == pytest.approx(34.7, abs=1.0)
+    assert np.all(np.diff(ambient_noise_level([1e3, 1e4, 3e4])) < 0)  # wind noise falls
+    env = make()
+    array = env.unwrapped.calibration.array
+    env.close()
+    near, far = array.model((30.0, 30.0, -8.0)), array.model((280.0, 280.0, -10.0))
+    drop = near["snr_db"].mean(axis=1) - far["snr_db"].mean(axis=1)
+    assert np.all(np.diff(drop) > 0)  # high bands fade faster with range
+    assert np.all(far["tdoa_std"] > near["tdoa_std"])
+
+
+def test_hydrophone_geometry_is_well_conditioned_over_the_work_area():
+    env = make()
+    cal = env.unwrapped.calibration
+    env.close()
+    h = cal.hydrophone_positions
+    low, high = np.array(cal.work_area[0]), np.array(cal.work_area[1])
+    grid = np.stack(np.meshgrid(*[np.linspace(a, b, 9) for a, b in zip(low, high, strict=True)],
+                                indexing="ij"), -1).reshape(-1, 3)
+    worst = 0.0
+    for p in grid:
+        u = (p - h) / np.linalg.norm(p - h, axis=1)[:, None]
+        jac = u[1:] - u[0]  # d(range difference) / dp
+        worst = max(worst, math.sqrt(np.trace(np.linalg.inv(jac.T @ jac))))
+    # TDOA GDOP (position error per unit range-difference error); 8.95 measured.
+    assert worst < 10.0
+
+
+def test_static_points_and_disturbance_levels():
+    deviation = {}
+    for level, (lo, hi) in acoustic.DISTURBANCES.items():
+        env = make(obs_mode="state", trajectory="static", static_point=2, disturbance=level,
+                   time_limit=10.0)
+        _, info = env.reset(seed=1)
+        devs, speeds = [], []
+        truncated = False
+        while not truncated:
+            _, _, _, truncated, info = env.step(info["true_position"])
+            devs.append(np.linalg.norm(info["true_position"] - acoustic.STATIC_POINTS[1]))
+            speeds.append(np.linalg.norm(info["current"]))
+        env.close()
+        assert lo - 1e-9 <= min(speeds) and max(speeds) <= hi + 1e-9
+        deviation[level] = np.mean(devs)
+    assert deviation["low"] < 0.1
+    assert deviation["low"] < deviation["medium"] < deviation["high"] < 0.5
+
+
+@pytest.mark.parametrize("point", range(1, 6))
+def test_static_trajectory_holds_each_paper_point(point):
+    env = make(obs_mode="state", trajectory="static", static_point=point, disturbance="low",
+               time_limit=2.0)
+    _, info = env.reset(seed=0)
+    env.close()
+    assert np.linalg.norm(info["true_position"] - acoustic.STATIC_POINTS[point - 1]) < 0.1
+
+
+def test_routes_mix_straight_segments_curves_and_pauses():
+    dt = 0.01
+    for seed in range(20):
+        reference, velocity = acoustic.plan_route(np.random.default_rng(seed), 6001, dt)
+        speed = np.hypot(velocity[:, 0], velocity[:, 1])
+        assert np.all(reference[:, :2] >= acoustic.ROUTE_XY[0])
+        assert np.all(reference[:, :2] <= acoustic.ROUTE_XY[1])
+        assert np.all((reference[:, 2] >= acoustic.ROUTE_Z[0]) &
+                      (reference[:, 2] <= acoustic.ROUTE_Z[1]))
+        # Positions integrate the velocities (no jumps) away from the limits.
+        step = np.linalg.norm(np.diff(reference[:, :3], axis=0), axis=1)
+        assert step.max() <= acoustic.CARRIER_SPEED[1] * dt * 1.5
+        kinds = {"pause": speed == 0, "curve": (speed > 0) & (velocity[:, 3] != 0),
+                 "straight": (speed > 0) & (velocity[:, 3] == 0)}
+        for name, where in kinds.items():
+            assert where.mean() > 0.02, (seed, name)
+
+
+def test_oracle_and_biased_estimates_score_as_expected():
+    env = make(obs_mode="state", time_limit=2.0)
+    _, info = env.reset(seed=5)
+    offset = np.array([0.3, 0.0, 0.4])  # 0.5 m error
+    truncated = False
+    while not truncated:
+        _, reward, _, truncated, info = env.step(info["true_position"] + offset)
+        assert info["estimate_error"] == pytest.approx(0.5, abs=1e-5)
+        assert reward == pytest.approx(-0.5 / 5.0, abs=1e-5)
+    m = info["episode_metrics"]
+    env.close()
+    assert m["steps"] == 200
+    assert m["rmse"] == pytest.approx(0.5, abs=1e-5)
+    assert m["max_error"] == pytest.approx(0.5, abs=1e-5)
+    assert m["tfc"] == 0 and m["success"] is False
+    assert m["mean_ospa"] == pytest.approx(metrics.ospa([[0.0, 0.0, 0.0]], [offset], 5.0, 1.0),
+                                           abs=1e-5)
+
+
+def test_lost_and_reacquired_track_counts_one_fragmentation():
+    env = make(obs_mode="state", time_limit=1.0)
+    _, info = env.reset(seed=2)
+    truncated = False
+    k = 0
+    while not truncated:
+        lost = 30 <= k < 50
+        _, _, _, truncated, info = env.step(info["true_position"] + (3.0 if lost else 0.0))
+        assert info["tracked"] is (not lost)
+        k += 1
+    env.close()
+    assert info["episode_metrics"]["tfc"] == 1
+
+
+def test_measurement_observations_hide_which_detection_is_the_source():
+    env = make(time_limit=5.0)
+    obs, info = env.reset(seed=0)
+    slots = []
+    for _ in range(200):
+        for q in range(obs["mask"].shape[0]):
+            slots.extend(np.flatnonzero(info["detection_origin"][q] == ORIGIN_TARGET))
+        obs, _, _, _, info = env.step(info["true_position"])
+    env.close()
+    counts = np.bincount(slots, minlength=4)
+    assert np.count_nonzero(counts) >= 3  # the source appears in several slots
+
+
+def test_bad_acoustic_arguments():
+    with pytest.raises(ValueError, match="static_point"):
+        make(trajectory="static", static_point=6)
+    with pytest.raises(ValueError, match="'low', 'medium', 'high'"):
+        make(disturbance="storm")
+    with pytest.raises(TypeError, match="AcousticConfig"):
+        make(acoustic={"sound_speed": 1500})
+    with pytest.raises(ValueError, match="sound_speed"):
+        AcousticConfig(sound_speed=-1.0)
+    with pytest.raises(ValueError, match="time_limit"):
+        make(time_limit=float("nan"))
+    env = make()
+    with pytest.raises(ValueError, match="positions"):
+        env.unwrapped.calibration.array.measure(np.random.default_rng(0), [[np.nan, 0, 0]],
+                                                np.zeros(8))
+    env.close()
