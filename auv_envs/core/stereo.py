@@ -1,0 +1,70 @@
+"""Rectified binocular camera: calibration, projection and triangulation (seed 000, eq. 2).
+
+Both cameras share intrinsics and orientation; the right camera sits
+``baseline`` metres along the left camera's +x axis (OpenCV axes: x right,
+y down, z forward). The left camera frame is the stereo reference frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from auv_envs.core.camera import CameraIntrinsics
+
+
+@dataclasses.dataclass(frozen=True)
+class StereoRig:
+    """A rectified stereo pair.
+
+    Attributes:
+        left: intrinsics of the left camera (pixels).
+        right: intrinsics of the right camera (equal to ``left`` here).
+        baseline: distance between the optical centres along the left
+            camera's x axis, m.
+    """
+
+    left: CameraIntrinsics
+    right: CameraIntrinsics
+    baseline: float
+
+    def project(self, points_left: np.ndarray) -> np.ndarray:
+        """Pixels (2, N, 2) in the (left, right) images of left-camera-frame points (N, 3).
+
+        Points at or behind the image plane get NaN pixels.
+        """
+        pts = np.asarray(points_left, dtype=float)
+        z = pts[:, 2:3]
+        out = np.empty((2, len(pts), 2))
+        out[0] = pts[:, :2] / z
+        out[1] = out[0]
+        out[1, :, 0] -= self.baseline / z[:, 0]
+        out[..., 0] = out[..., 0] * self.left.fx + self.left.cx
+        out[..., 1] = out[..., 1] * self.left.fy + self.left.cy
+        out[:, z[:, 0] <= 1e-6] = np.nan
+        return out
+
+
+def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
+    """Left-camera-frame points (N, 3) from matched pixels (seed 000, eq. 2).
+
+    Eq. 2 with image coordinates measured from the principal point
+    (``x = u - cx``, ``y = v - cy``) and the disparity ``d = x_L - x_R``:
+    ``X = x_L B / d``, ``Y = y_L B fx / (fy d)``, ``Z = fx B / d``.
+
+    Raises:
+        ValueError: on mismatched shapes or non-positive disparity.
+    """
+    left = np.atleast_2d(np.asarray(left_pixels, dtype=float))
+    right = np.atleast_2d(np.asarray(right_pixels, dtype=float))
+    if left.shape != right.shape or left.shape[-1] != 2:
+        raise ValueError(f"pixel arrays must both be (N, 2), got {left.shape} and {right.shape}")
+    k = rig.left
+    x_left = left[:, 0] - k.cx
+    y_left = left[:, 1] - k.cy
+    disparity = x_left - (right[:, 0] - rig.right.cx)
+    if np.any(~(disparity > 0.0)):
+        raise ValueError("disparity must be positive (point in front of both cameras)")
+    scale = rig.baseline / disparity
+    return np.stack([x_left * scale, y_left * scale * k.fx / k.fy, k.fx * scale], axis=1)

@@ -1,0 +1,1 @@
+"""Labelled data sets rendered from seeded episodes (for trackers and detectors)."""

@@ -1,0 +1,834 @@
+"""Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision (seed 000).
+
+Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
+is described in :mod:`auv_envs.tasks.lars_scene`, the arm's kinematics and
+dynamics in :mod:`auv_envs.tasks.lars_arm`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from auv_envs.core import frames
+from auv_envs.core.camera import CameraIntrinsics
+from auv_envs.core.env import (
+    ReconstructingPickleMixin,
+    check_choice,
+    reject_unknown_kwargs,
+    validate_action,
+)
+from auv_envs.core.rendering import CameraRenderer
+from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
+from auv_envs.core.stereo import StereoRig
+from auv_envs.tasks.lars_arm import ArmModel
+from auv_envs.tasks.lars_scene import (
+    ANALOG_MARKER_BASE_X,
+    ANALOG_SCALE,
+    AUV_DIAMETER,
+    AUV_FREEBOARD,
+    AUV_LENGTH,
+    AUV_MASS,
+    CAPTURE_POINT_BODY,
+    MARKER_SIDES,
+    AUVMotion,
+    MarkerGeometry,
+    build_lars_model,
+    sample_motion,
+)
+
+OBS_MODES = ("state", "features", "stereo")
+SEA_STATES = ("calm", "severe")
+CONTROLS = ("torque", "position")
+
+PHYSICS_TIMESTEP = 0.01
+FRAME_SKIP = 4
+#: Seed 000, eq. 30: Kp = 160, Kd = 20, used by ``control="position"`` as the
+#: acceleration gains of a computed-torque inner loop (eqs. 29-30).
+POSITION_GAINS = (160.0, 20.0)
+#: Capture head geometry in the arm-end frame (x along the ship at q1 = 0,
+#: y outboard, z up): the capture device's tip hangs below the head centre,
+#: the stereo pair sits outboard of it looking straight down.
+CAPTURE_TIP_IN_END = (0.0, 0.0, -0.35)
+CAMERA_MOUNT_IN_END = (0.0, 0.25, -0.065)
+#: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
+#: image x along end x, image y down = end -y).
+R_END_CV = np.diag([1.0, -1.0, -1.0])
+#: Where the analogs wait while not in play (far below the opaque surface).
+PARKED = (0.0, 0.0, -50.0)
+DEFAULT_FOVY_DEG = 60.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CaptureTolerances:
+    """Success: the capture tip within ``position`` (m) of the AUV's capture
+    point with a relative speed below ``speed`` (m/s). The paper's final
+    capture error was about 28 mm (seed 000, §3)."""
+
+    position: float = 0.05
+    speed: float = 0.25
+
+
+@dataclasses.dataclass(frozen=True)
+class LARSCalibration:
+    """What a classical agent may know (read-only; arrays are not writeable).
+
+    Attributes:
+        stereo: the rectified stereo pair (intrinsics of both cameras, baseline).
+        left_in_end, right_in_end: (4, 4) hand-eye transforms: pose of each
+            camera (OpenCV axes) in the arm-end frame (seed 000, eq. 3's
+            ``t_c H``).
+        capture_tip_in_end: (3,) the capture device's tip in the arm-end frame.
+        arm: kinematics (forward, inverse, Jacobian) and dynamics M(q),
+            C(q, qd), G(q) of the arm (eq. 29).
+        control_period: seconds per env step.
+        torque_limits: (3,) N m that scale the normalised torque action.
+        joint_limits: (3, 2) rad.
+        position_gains: (Kp, Kd) of the ``position`` inner loop (eq. 30).
+        marker: the marker's geometry on the hull (corners in the AUV body
+            frame, ``D`` of eq. 4).
+        marker_sides: (0.15, 0.4, 0.4) m.
+        capture_point_body: (3,) the AUV's lifting eye in its body frame.
+        auv_length, auv_diameter, auv_mass: Explore-100-like AUV (Table 1).
+        tolerances: success tolerances.
+        workspace: (3, 2) box (world) the arm end must stay inside.
+        pixel_noise_std: std of the ``features`` pixel noise, px.
+    """
+
+    stereo: StereoRig
+    left_in_end: np.ndarray
+    right_in_end: np.ndarray
+    capture_tip_in_end: np.ndarray
+    arm: ArmModel
+    control_period: float
+    torque_limits: np.ndarray
+    joint_limits: np.ndarray
+    position_gains: tuple[float, float]
+    marker: MarkerGeometry
+    marker_sides: tuple[float, float, float]
+    capture_point_body: np.ndarray
+    auv_length: float
+    auv_diameter: float
+    auv_mass: float
+    tolerances: CaptureTolerances
+    workspace: np.ndarray
+    pixel_noise_std: float
+
+    def end_pose(self, q) -> np.ndarray:
+        """World pose (4, 4) of the levelled arm-end frame at joint angles ``q``."""
+        out = np.eye(4)
+        out[:3, :3] = self.arm.end_rotation(q)
+        out[:3, 3] = self.arm.forward_kinematics(q)
+        return out
+
+    def camera_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """World poses (4, 4) of the left and right cameras (OpenCV axes) at ``q``.
+
+        Forward kinematics composed with the hand-eye transforms (seed 000, eq. 3).
+        """
+        end = self.end_pose(q)
+        return end @ self.left_in_end, end @ self.right_in_end
+
+
+def _read_only(values) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    out.setflags(write=False)
+    return out
+
+
+def _pose(rotation: np.ndarray, translation) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3] = rotation
+    out[:3, 3] = translation
+    out.setflags(write=False)
+    return out
+
+
+class _Physics:
+    """Named accessors into the MuJoCo model/data pair; ids resolved once."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.mocap = {
+            name: int(model.body(name).mocapid[0])
+            for name in ("water", "crest", "head", "auv", "analog_0", "analog_1")
+        }
+
+    def reset(self, q) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[:] = q
+
+    def pose(self, name: str, position, quat) -> None:
+        i = self.mocap[name]
+        self.data.mocap_pos[i] = position
+        self.data.mocap_quat[i] = quat
+
+    def refresh_kinematics(self) -> None:
+        """Positions and cameras for rendering, without touching the solver's state."""
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+
+
+@dataclasses.dataclass
+class _EpisodeState:
+    """Everything that changes during an episode besides MuJoCo's state."""
+
+    motion: AUVMotion | None = None
+    wash: WashOver | None = None
+    analogs: tuple[FloatingAnalog, ...] = ()
+    steps: int = 0
+    prev_error: float = 0.0
+    done: bool = False
+    success: bool = False
+    failure_reason: str = ""
+    capture_time: float | None = None
+    min_error: float = math.inf
+    visible_steps: int = 0
+    occluded_steps: int = 0
+    distractor_steps: int = 0
+    control_effort: float = 0.0
+
+    def copy(self) -> _EpisodeState:
+        return dataclasses.replace(self)
+
+
+class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
+    """Capture of a surfaced AUV by a ship's launch-and-recovery arm (seed 000).
+
+    **Description.** The side of a mother ship carries a 3-DOF articulated
+    LARS arm (slew, shoulder, elbow; boom 2.2 m / 80 kg, jib 1.8 m / 45 kg,
+    a 20 kg capture head at the tip), simulated in MuJoCo with joint and
+    torque limits, so that M(q), C(q, qd) and G(q) of eq. 29 all matter. The
+    capture head is held level by a gimbal; it carries the capture device
+    (its tip 0.35 m below the head) and a binocular camera looking straight
+    down. A surfaced Explore-100-like AUV (1.8 m x 0.2 m, 47 kg; upper
+    surface 5 cm above the local water) floats beside the ship with the
+    isosceles-triangle marker (0.15, 0.4, 0.4 m) on its top. It moves as in
+    the paper's test case (§2.3): uniform surge along world x, fixed y,
+    sinusoidal heave of 0.2 m amplitude, riding the local wave, with
+    constant yaw and pitch offsets. The opaque sea surface hides what is
+    below it. In ``severe`` sea, crests wash over the AUV and hide the
+    marker for stretches of time, and two floating look-alikes ("analogs":
+    0.9 m hulls of the same paint with a 0.8x red triangle) drift in view.
+    World frame: x along the ship, y outboard, z up, calm water at z = 0.
+
+    **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"`` (default):
+    joint torques (slew, shoulder, elbow) as fractions of
+    ``calibration.torque_limits`` (1000, 4000, 1500 N m); gravity is *not*
+    compensated for the agent. ``control="position"``: joint-angle targets,
+    -1..1 mapped linearly onto the joint limits, tracked by a computed-torque
+    inner loop at the physics rate (eq. 30 gains Kp = 160, Kd = 20 through
+    eq. 29's model, torques saturated at the limits). Finite values outside
+    [-1, 1] are clipped; NaN or inf raise ``ValueError``.
+
+    **Observation space** (``obs_mode``):
+
+    * ``"state"`` (privileged), ``Box((24,), float32)``: joint angles (3)
+      and rates (3), arm-end position (3) and velocity (3), AUV CG minus
+      arm end (3), AUV velocity (3), capture point minus capture tip (3),
+      AUV pitch (nose up) and yaw (2), local water level (1).
+    * ``"features"``, ``Dict``: ``pixels`` (2, 3, 2) float32, the marker
+      corners A1 (port base), A2 (starboard base), A3 (apex) in the left
+      (index 0) and right (1) images, in the pixel frame of ``image_size``,
+      with Gaussian noise (``pixel_noise_std``) and zero where not visible;
+      ``visible`` ``MultiBinary((2, 3))`` (in front, inside the image, not
+      under a wash-over crest); ``joint_position`` (3) and
+      ``joint_velocity`` (3).
+    * ``"stereo"``, ``Dict``: ``left`` and ``right`` (H, W, 3) uint8 images
+      rendered in one pass into one buffer, plus ``joint_position`` and
+      ``joint_velocity``.
+
+    **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
+    ``progress`` (decrease of the capture error, m), ``control``
+    (-0.001 |a|^2), ``success`` (+10 once), ``failure`` (-10 once).
+
+    **Starting state.** AUV motion drawn from ``lars_scene.MOTION_RANGES``:
+    CG x0 in [-0.4, 0.4] m, y0 in [1.9, 2.2] m, surge 0.03-0.12 m/s, heave
+    amplitude 0.2 m, period 5-9 s, phase 0-2 pi, yaw -30..30 deg, pitch
+    -4..4 deg (``reset(options={"motion": {...}})`` pins any of them). The
+    arm starts at rest with its end 0.8 m above the AUV's top line and the
+    cameras over the AUV, offset up to 0.2 m along x and 0.1 m along y (the
+    arm end within 1 m of the AUV's CG).
+    Severe sea also draws the wash-over schedule (every 3-5 s for 1.2-2 s)
+    and the two analogs' offsets and drifts.
+
+    **Episode end.** Success (terminated): capture tip within 0.05 m of the
+    capture point (lifting eye, 0.45 m aft of the CG on the top line) with a
+    relative speed below 0.25 m/s (``CaptureTolerances``). Failure
+    (terminated): hard collision (``collision``: the capture tip enters the
+    hull without meeting the success condition) or the arm end leaving
+    ``calibration.workspace`` (``workspace``). Truncation after
+    ``time_limit`` seconds.
+
+    **Info.** Every step: ``capture_error`` (m), ``capture_offset`` (capture
+    point minus tip, 3), ``relative_position`` (AUV CG minus arm end, 3),
+    ``relative_speed`` (m/s), ``is_success``, ``collision``,
+    ``violation_workspace``, ``marker_visible`` (corners visible in both
+    images, 0-3), ``marker_occluded`` (a crest hides at least one corner),
+    ``distractors_in_view`` (analogs whose marker centre projects into the
+    left image), ``failure_reason``, ``time``, the reward terms, and ground
+    truth for metrics only: ``true_position`` / ``true_velocity`` (AUV CG),
+    ``true_pitch``, ``true_yaw``, ``true_corners`` (3, 3) world,
+    ``true_pixels`` (2, 3, 2) noise-free projections (NaN behind a camera),
+    ``true_visible`` (2, 3), ``end_position`` (arm end), ``water_level``.
+    At episode end also ``episode_metrics`` (a dict).
+
+    **Arguments.** ``obs_mode``, ``sea_state`` (``"calm"``: no
+    interference; ``"severe"``), ``control`` (``"torque"``/``"position"``),
+    ``image_size`` (W, H; default 640x480, also the pixel frame of
+    ``features``; the paper used 1280x960), ``baseline`` (m, default 0.12),
+    ``focal_length`` (px at ``image_size``; default: 60 deg vertical field
+    of view), ``pixel_noise_std`` (px, default 1.0), ``tolerances``,
+    ``time_limit`` (s, default 30), ``render_mode`` (``"rgb_array"``: the
+    stereo pair side by side).
+
+    **Version history.** v0: initial release.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+
+    obs_modes = OBS_MODES
+    reward_terms = ("progress", "control", "success", "failure")
+    metric_keys = (
+        "capture_error", "relative_position", "relative_speed", "is_success", "collision",
+        "violation_workspace", "marker_visible", "marker_occluded", "distractors_in_view",
+    )
+
+    def __init__(
+        self,
+        obs_mode: str = "state",
+        sea_state: str = "calm",
+        control: str = "torque",
+        image_size: tuple[int, int] = (640, 480),
+        baseline: float = 0.12,
+        focal_length: float | None = None,
+        pixel_noise_std: float = 1.0,
+        tolerances: CaptureTolerances | None = None,
+        time_limit: float = 30.0,
+        render_mode: str | None = None,
+        **unknown,
+    ):
+        self._init_kwargs = dict(
+            obs_mode=obs_mode, sea_state=sea_state, control=control,
+            image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
+            pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
+            render_mode=render_mode,
+        )
+        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
+        check_choice("obs_mode", obs_mode, OBS_MODES)
+        check_choice("sea_state", sea_state, SEA_STATES)
+        check_choice("control", control, CONTROLS)
+        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        if len(tuple(image_size)) != 2:
+            raise ValueError(f"image_size must be (width, height), got {image_size!r}")
+        width, height = (int(v) for v in image_size)
+        if width < 8 or height < 8:
+            raise ValueError(f"image_size must be at least 8x8 pixels, got {width}x{height}")
+        if not (math.isfinite(baseline) and 0.0 < baseline <= 1.0):
+            raise ValueError(f"baseline must be in (0, 1] m, got {baseline}")
+        if focal_length is None:
+            fovy = DEFAULT_FOVY_DEG
+        elif math.isfinite(focal_length) and focal_length > 0:
+            fovy = math.degrees(2.0 * math.atan(0.5 * height / focal_length))
+        else:
+            raise ValueError(f"focal_length must be positive (pixels), got {focal_length}")
+        if not (math.isfinite(pixel_noise_std) and pixel_noise_std >= 0):
+            raise ValueError(f"pixel_noise_std must be >= 0, got {pixel_noise_std}")
+        if not (math.isfinite(time_limit) and time_limit > 0):
+            raise ValueError(f"time_limit must be positive, got {time_limit}")
+
+        self.obs_mode = obs_mode
+        self.sea_state = sea_state
+        self.control = control
+        self.render_mode = render_mode
+        self._time_limit = float(time_limit)
+
+        marker = MarkerGeometry.on_cylinder()
+        analog_marker = MarkerGeometry.on_cylinder(
+            tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
+        )
+        model = build_lars_model(float(baseline), fovy, marker, analog_marker)
+        self._physics = _Physics(model)
+        arm = ArmModel(model)
+        self._arm = arm
+        self._dt = PHYSICS_TIMESTEP * FRAME_SKIP
+        if abs(model.opt.timestep - PHYSICS_TIMESTEP) > 1e-12:
+            raise ValueError("assets/lars/scene.xml timestep differs from PHYSICS_TIMESTEP")
+
+        intr = CameraIntrinsics.from_fovy(width, height, fovy)
+        mount = np.array(CAMERA_MOUNT_IN_END)
+        left_t = mount + (-baseline / 2.0, 0.0, 0.0)
+        right_t = mount + (baseline / 2.0, 0.0, 0.0)
+        self.calibration = LARSCalibration(
+            stereo=StereoRig(intr, intr, float(baseline)),
+            left_in_end=_pose(R_END_CV, left_t),
+            right_in_end=_pose(R_END_CV, right_t),
+            capture_tip_in_end=_read_only(CAPTURE_TIP_IN_END),
+            arm=arm,
+            control_period=self._dt,
+            torque_limits=arm.torque_limits,
+            joint_limits=arm.joint_limits,
+            position_gains=POSITION_GAINS,
+            marker=marker,
+            marker_sides=MARKER_SIDES,
+            capture_point_body=_read_only(CAPTURE_POINT_BODY),
+            auv_length=AUV_LENGTH,
+            auv_diameter=AUV_DIAMETER,
+            auv_mass=AUV_MASS,
+            tolerances=tolerances or CaptureTolerances(),
+            workspace=_read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
+            pixel_noise_std=float(pixel_noise_std),
+        )
+        # Constants of the per-step geometry, precomputed once.
+        self._left_in_end = tuple(left_t.tolist())
+        self._tip_z = CAPTURE_TIP_IN_END[2]
+        self._intrinsics = (intr.fx, intr.fy, intr.cx, intr.cy)
+        # The features pixel space: [-W, 2W] x [-H, 2H] (noise can leave the image).
+        self._pixel_bounds = (-float(width), -float(height), 2.0 * width, 2.0 * height)
+        self._baseline = float(baseline)
+        self._q_mid = arm.joint_limits.mean(axis=1)
+        self._q_half = 0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0])
+        self._ws_lo = tuple(self.calibration.workspace[:, 0].tolist())
+        self._ws_hi = tuple(self.calibration.workspace[:, 1].tolist())
+        self._kp, self._kd = POSITION_GAINS
+        self._tau = np.zeros(3)
+        self._hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
+        self._analog_centre = float(
+            analog_marker.corners[:, 0].mean()
+        ), float(analog_marker.corners[:, 2].mean())
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.observation_space = self._make_observation_space(width, height)
+        self._width, self._height = width, height
+        self._renderer: CameraRenderer | None = None
+        if obs_mode == "stereo" or render_mode == "rgb_array":
+            self._renderer = CameraRenderer(model, ("left", "right"), width, height)
+        self._episode = _EpisodeState()
+        self._geom: dict = {}
+
+    # ------------------------------------------------------------------ spaces
+    def _make_observation_space(self, width: int, height: int) -> spaces.Space:
+        if self.obs_mode == "state":
+            return spaces.Box(-np.inf, np.inf, shape=(24,), dtype=np.float32)
+        lim = self._arm.joint_limits
+        joints = {
+            "joint_position": spaces.Box(
+                lim[:, 0].astype(np.float32) - 0.5, lim[:, 1].astype(np.float32) + 0.5,
+                dtype=np.float32,
+            ),
+            "joint_velocity": spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float32),
+        }
+        if self.obs_mode == "features":
+            bound = np.array([width, height], dtype=np.float32)
+            return spaces.Dict(
+                {
+                    "pixels": spaces.Box(
+                        np.broadcast_to(-bound, (2, 3, 2)).copy(),
+                        np.broadcast_to(2 * bound, (2, 3, 2)).copy(),
+                        dtype=np.float32,
+                    ),
+                    "visible": spaces.MultiBinary((2, 3)),
+                    **joints,
+                }
+            )
+        image = spaces.Box(0, 255, shape=(height, width, 3), dtype=np.uint8)
+        return spaces.Dict({"left": image, "right": image, **joints})
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        options = dict(options or {})
+        unknown = set(options) - {"motion"}
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['motion']")
+        motion = sample_motion(rng, options.get("motion"))
+        wash, analogs = None, ()
+        if self.sea_state == "severe":
+            wash = WashOver.sample(rng)
+            side = 1.0 if rng.uniform() < 0.5 else -1.0
+            analogs = (FloatingAnalog.sample(rng, side), FloatingAnalog.sample(rng, -side))
+        self._episode = _EpisodeState(motion=motion, wash=wash, analogs=analogs)
+        self._prepare_episode_constants(motion)
+
+        # The arm end 0.8 m above the AUV's top (seed 000 tracks at about
+        # 0.8 m), the cameras over the AUV: within 1 m of the AUV's CG.
+        top = self._auv_position(0.0)[2] + AUV_DIAMETER / 2.0
+        offset = (rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1))
+        end = np.array(
+            [motion.x0 + offset[0], motion.y0 - CAMERA_MOUNT_IN_END[1] + offset[1], top + 0.8]
+        )
+        self._physics.reset(self._arm.inverse_kinematics(end))
+        truth = self._truth()
+        self._episode.prev_error = truth["capture_error"]
+        self._episode.min_error = truth["capture_error"]
+        obs = self._observation(truth)
+        info = self._info(truth, dict.fromkeys(self.reward_terms, 0.0), False, False)
+        return obs, info
+
+    def step(self, action):
+        a = validate_action(action, self.action_space)
+        ep = self._episode
+        if ep.done:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        model, data = self._physics.model, self._physics.data
+        if self.control == "torque":
+            data.ctrl[:] = a
+            mujoco.mj_step(model, data, FRAME_SKIP)
+            ep.control_effort += float(a @ a) * self._dt
+        else:
+            self._track_position(self._q_mid + a * self._q_half)
+        ep.steps += 1
+        truth = self._truth()
+        tol = self.calibration.tolerances
+
+        error = truth["capture_error"]
+        captured = error <= tol.position and truth["relative_speed"] <= tol.speed
+        collision = (not captured) and truth["tip_in_hull"]
+        workspace = not all(
+            lo <= v <= hi for v, lo, hi in zip(truth["end"], self._ws_lo, self._ws_hi, strict=True)
+        )
+        failure = "collision" if collision else ("workspace" if workspace else "")
+
+        terms = {
+            "progress": ep.prev_error - error,
+            "control": -0.001 * float(a @ a),
+            "success": 10.0 if captured else 0.0,
+            "failure": -10.0 if failure else 0.0,
+        }
+        ep.prev_error = error
+        ep.min_error = min(ep.min_error, error)
+        reward = terms["progress"] + terms["control"] + terms["success"] + terms["failure"]
+        terminated = captured or bool(failure)
+        truncated = (not terminated) and ep.steps * self._dt >= self._time_limit - 1e-9
+        if captured:
+            ep.success = True
+            ep.capture_time = ep.steps * self._dt
+        ep.failure_reason = failure
+        ep.done = terminated or truncated
+        ep.visible_steps += truth["n_visible"] == 3
+        ep.occluded_steps += truth["occluded"]
+        ep.distractor_steps += truth["distractors"] > 0
+
+        obs = self._observation(truth)
+        info = self._info(truth, terms, collision, workspace)
+        if ep.done:
+            info["episode_metrics"] = self._episode_metrics(truth)
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self._render_pair()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ internals
+    def _prepare_episode_constants(self, motion: AUVMotion) -> None:
+        rot = motion.rotation()
+        marker = self.calibration.marker
+        cp = np.asarray(CAPTURE_POINT_BODY)
+        self._geom = {
+            "rotation": rot,
+            "quat": frames.quat_from_euler(0.0, -motion.pitch, motion.yaw),
+            "corners": [tuple(v) for v in (marker.corners @ rot.T).tolist()],  # world axes
+            "capture": tuple((rot @ cp).tolist()),
+            "axis": tuple(rot[:, 0].tolist()),
+            "z_centre": AUV_FREEBOARD - AUV_DIAMETER / 2.0,
+        }
+
+    def _auv_position(self, t: float) -> tuple[float, float, float]:
+        """AUV CG position at time ``t`` (seed 000 motion model)."""
+        m = self._episode.motion
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
+        return (m.x0 + m.surge * t, m.y0, level + self._geom["z_centre"])
+
+    def _track_position(self, q_target: np.ndarray) -> None:
+        """Computed-torque PD (eqs. 29-30) at the physics rate, torque-limited."""
+        model, data = self._physics.model, self._physics.data
+        limits = self.calibration.torque_limits
+        tau = self._tau
+        for _ in range(FRAME_SKIP):
+            mujoco.mj_step1(model, data)
+            accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
+            mujoco.mj_mulM(model, data, tau, accel)
+            tau += data.qfrc_bias
+            np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
+            self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
+            mujoco.mj_step2(model, data)
+
+    def _truth(self) -> dict:
+        """Ground truth after a step, computed once and shared by obs, reward and info.
+
+        Plain-float arithmetic on purpose: three corners in two cameras cost
+        less as scalars than as many tiny numpy operations.
+        """
+        data = self._physics.data
+        ep = self._episode
+        g = self._geom
+        t = ep.steps * self._dt
+        q = data.qpos.tolist()
+        qd = data.qvel.tolist()
+        ex, ey, ez, evx, evy, evz = self._arm.end_state(q, qd)
+        c, s = math.cos(q[0]), math.sin(q[0])
+        m = ep.motion
+        level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase)
+        px, py, pz = m.x0 + m.surge * t, m.y0, level + g["z_centre"]
+        lx, ly, lz = self._left_in_end
+        camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
+
+        # World -> left camera (OpenCV axes): x = c dx + s dy, y = s dx - c dy, z = -dz.
+        fx, fy, cx, cy = self._intrinsics
+        width, height = self._width, self._height
+        fb = fx * self._baseline
+        corners, left, right, vis_left, vis_right = [], [], [], [], []
+        for ox, oy, oz in g["corners"]:
+            wx, wy, wz = px + ox, py + oy, pz + oz
+            corners.append((wx, wy, wz))
+            rx, ry, depth = wx - camx, wy - camy, camz - wz
+            if depth > 1e-6:
+                inv = 1.0 / depth
+                u = fx * (c * rx + s * ry) * inv + cx
+                v = fy * (s * rx - c * ry) * inv + cy
+                ur = u - fb * inv
+                row = 0.0 <= v < height
+                vis_left.append(row and 0.0 <= u < width)
+                vis_right.append(row and 0.0 <= ur < width)
+            else:
+                u = v = ur = math.nan
+                vis_left.append(False)
+                vis_right.append(False)
+            left.append((u, v))
+            right.append((ur, v))
+        visible = [vis_left, vis_right]
+
+        occluded = False
+        distractors = 0
+        if ep.wash is not None:
+            crest = self._crest_centre(t, (px, py, pz), level)
+            if crest is not None and (any(vis_left) or any(vis_right)):
+                cams = np.array([[camx, camy, camz],
+                                 [camx + self._baseline * c, camy + self._baseline * s, camz]])
+                hidden = segments_cross_box(
+                    cams[:, None, :], np.array(corners)[None], crest, ep.wash.half_size
+                ).tolist()
+                occluded = any(hidden[0]) or any(hidden[1])
+                visible = [[v and not h for v, h in zip(vv, hh, strict=True)]
+                           for vv, hh in zip(visible, hidden, strict=True)]
+            distractors = self._count_distractors(t, (px, py, pz), (camx, camy, camz), c, s)
+
+        # Capture tip vs the AUV: capture point offset and hull penetration.
+        tx, ty, tz = ex, ey, ez + self._tip_z
+        kx, ky, kz = g["capture"]
+        offset = (px + kx - tx, py + ky - ty, pz + kz - tz)
+        dx, dy, dz = tx - px, ty - py, tz - pz
+        ax, ay, az = g["axis"]
+        half = self._hull_half
+        along = max(-half, min(half, dx * ax + dy * ay + dz * az))
+        radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
+        dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
+        return {
+            "q": q,
+            "qd": qd,
+            "end": (ex, ey, ez),
+            "end_vel": (evx, evy, evz),
+            "position": (px, py, pz),
+            "velocity": (m.surge, 0.0, rate),
+            "level": level,
+            "corners": corners,
+            "pixels": [left, right],
+            "visible": visible,
+            "n_visible": sum(a and b for a, b in zip(*visible, strict=True)),
+            "occluded": occluded,
+            "distractors": distractors,
+            "offset": offset,
+            "capture_error": math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
+            "relative_speed": math.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
+            "tip_in_hull": radial2 < (AUV_DIAMETER / 2.0) ** 2,
+        }
+
+    def _crest_centre(self, t: float, pos: np.ndarray, level: float):
+        shift = self._episode.wash.offset(t)
+        if shift is None:
+            return None
+        wash = self._episode.wash
+        top = level + AUV_FREEBOARD + wash.overtop
+        return (pos[0] + shift, pos[1], top - wash.half_size[2])
+
+    def _analog_pose(self, analog: FloatingAnalog, t: float, pos: np.ndarray):
+        m = self._episode.motion
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
+        centre = (pos[0] + analog.dx0 + analog.drift * t, pos[1] + analog.dy,
+                  level + self._geom["z_centre"])
+        return centre, analog.yaw
+
+    def _count_distractors(self, t, pos, cam, c, s) -> int:
+        """Analogs whose marker centre projects into the left image."""
+        count = 0
+        mx, mz = self._analog_centre
+        fx, fy, cx, cy = self._intrinsics
+        for analog in self._episode.analogs:
+            (ax, ay, az), yaw = self._analog_pose(analog, t, pos)
+            rx = ax + mx * math.cos(yaw) - cam[0]
+            ry = ay + mx * math.sin(yaw) - cam[1]
+            depth = cam[2] - az - mz
+            if depth <= 1e-6:
+                continue
+            u = fx * (c * rx + s * ry) / depth + cx
+            v = fy * (s * rx - c * ry) / depth + cy
+            count += 0.0 <= u < self._width and 0.0 <= v < self._height
+        return count
+
+    def _joints(self, truth: dict) -> dict:
+        return {
+            "joint_position": np.array(truth["q"], dtype=np.float32),
+            "joint_velocity": np.array(truth["qd"], dtype=np.float32),
+        }
+
+    def _observation(self, truth: dict):
+        if self.obs_mode == "state":
+            m = self._episode.motion
+            (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
+            return np.array(
+                [*truth["q"], *truth["qd"], ex, ey, ez, *truth["end_vel"],
+                 px - ex, py - ey, pz - ez, *truth["velocity"], *truth["offset"],
+                 m.pitch, m.yaw, truth["level"]],
+                dtype=np.float32,
+            )
+        if self.obs_mode == "features":
+            visible = truth["visible"]
+            std = self.calibration.pixel_noise_std
+            noise = iter(self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12)
+            lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
+            pixels = []
+            for cam_pixels, cam_visible in zip(truth["pixels"], visible, strict=True):
+                for (u, v), seen in zip(cam_pixels, cam_visible, strict=True):
+                    nu, nv = next(noise), next(noise)  # drawn always: same stream
+                    if seen:
+                        pixels.append(min(hi_u, max(lo_u, u + nu)))
+                        pixels.append(min(hi_v, max(lo_v, v + nv)))
+                    else:
+                        pixels += (0.0, 0.0)
+            return {
+                "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
+                "visible": np.array(visible, dtype=np.int8),
+                **self._joints(truth),
+            }
+        pair = self._render_pair()
+        w = self._width
+        return {
+            "left": np.ascontiguousarray(pair[:, :w]),
+            "right": np.ascontiguousarray(pair[:, w:]),
+            **self._joints(truth),
+        }
+
+    def _pose_scene(self) -> None:
+        """Pose the kinematic bodies (AUV, sea, head, analogs) for rendering.
+
+        The physics never reads them; they are posed only before a render.
+        """
+        phys = self._physics
+        ep = self._episode
+        t = ep.steps * self._dt
+        pos = self._auv_position(t)
+        level = pos[2] - self._geom["z_centre"]
+        q = phys.data.qpos
+        phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
+        phys.pose("auv", pos, self._geom["quat"])
+        half = 0.5 * float(q[0])
+        phys.pose(
+            "head", self._arm.forward_kinematics(q), (math.cos(half), 0.0, 0.0, math.sin(half))
+        )
+        crest = self._crest_centre(t, pos, level) if ep.wash is not None else None
+        phys.pose("crest", PARKED if crest is None else crest, (1.0, 0.0, 0.0, 0.0))
+        for k in range(2):
+            if k < len(ep.analogs):
+                centre, yaw = self._analog_pose(ep.analogs[k], t, pos)
+                quat = (math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0))
+            else:
+                centre, quat = PARKED, (1.0, 0.0, 0.0, 0.0)
+            phys.pose(f"analog_{k}", centre, quat)
+        phys.refresh_kinematics()
+
+    def _render_pair(self) -> np.ndarray:
+        """Left and right images side by side, (H, 2 W, 3), one rendering pass."""
+        self._pose_scene()
+        return self._renderer.render(self._physics.data)
+
+    def _info(self, truth: dict, terms: dict, collision: bool, workspace: bool) -> dict:
+        ep = self._episode
+        m = ep.motion
+        (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
+        info = {
+            "capture_error": truth["capture_error"],
+            "capture_offset": np.array(truth["offset"]),
+            "relative_position": np.array((px - ex, py - ey, pz - ez)),
+            "relative_speed": truth["relative_speed"],
+            "is_success": ep.success,
+            "collision": collision,
+            "violation_workspace": workspace,
+            "marker_visible": truth["n_visible"],
+            "marker_occluded": truth["occluded"],
+            "distractors_in_view": truth["distractors"],
+            "failure_reason": ep.failure_reason,
+            "time": ep.steps * self._dt,
+            "true_position": np.array(truth["position"]),
+            "true_velocity": np.array(truth["velocity"]),
+            "true_pitch": m.pitch,
+            "true_yaw": m.yaw,
+            "true_corners": np.array(truth["corners"]),
+            "true_pixels": np.array(truth["pixels"]),
+            "true_visible": np.array(truth["visible"]),
+            "end_position": np.array(truth["end"]),
+            "water_level": truth["level"],
+        }
+        for name in self.reward_terms:
+            info[f"reward_{name}"] = float(terms[name])
+        return info
+
+    def _episode_metrics(self, truth: dict) -> dict:
+        ep = self._episode
+        steps = max(ep.steps, 1)
+        return {
+            "success": ep.success,
+            "failure_reason": ep.failure_reason or ("" if ep.success else "time_limit"),
+            "capture_time": ep.capture_time,
+            "steps": ep.steps,
+            "final_capture_error": truth["capture_error"],
+            "min_capture_error": ep.min_error,
+            "final_relative_speed": truth["relative_speed"],
+            "marker_visible_fraction": ep.visible_steps / steps,
+            "occluded_fraction": ep.occluded_steps / steps,
+            "distractor_fraction": ep.distractor_steps / steps,
+            "control_effort": ep.control_effort,
+        }
+
+    # ------------------------------------------------------------------ pickling
+    def _get_runtime_state(self) -> dict:
+        data = self._physics.data
+        return {
+            "qpos": data.qpos.copy(),
+            "qvel": data.qvel.copy(),
+            "qacc_warmstart": data.qacc_warmstart.copy(),
+            "time": float(data.time),
+            "episode": self._episode.copy(),
+        }
+
+    def _set_runtime_state(self, state: dict) -> None:
+        data = self._physics.data
+        data.qpos[:] = state["qpos"]
+        data.qvel[:] = state["qvel"]
+        data.qacc_warmstart[:] = state["qacc_warmstart"]
+        data.time = state["time"]
+        self._episode = state["episode"].copy()
+        if self._episode.motion is not None:
+            self._prepare_episode_constants(self._episode.motion)
