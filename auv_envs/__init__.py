@@ -27,6 +27,7 @@ ENVIRONMENTS = {
     "auv_envs/DockingStation-v0": "auv_envs.tasks.docking:DockingStationEnv",
     "auv_envs/LampArrayDocking-v0": "auv_envs.tasks.docking:LampArrayDockingEnv",
     "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic:AcousticTrackingEnv",
+    "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars:LARSCaptureEnv",
 }
 
 for _env_id, _entry_point in ENVIRONMENTS.items():

@@ -1,0 +1,96 @@
+"""LARS capture speed: stereo vs mono render cost, stereo and features env steps/s.
+
+Measured in one run (these machines are noisy, so only same-run ratios mean
+much). Targets (issue 3): a stereo pair <= 1.3x a single view of the same
+size; ``stereo`` at 640x480 >= 50 env steps/s; ``features`` >= 0.5x
+Gymnasium ``HalfCheetah-v5`` env steps/s.
+
+    python benchmarks/lars_speed.py [--steps N] [--repeats R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+
+import auv_envs  # noqa: E402, F401
+from auv_envs.core.rendering import CameraRenderer  # noqa: E402
+from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
+
+
+def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
+    """Best of ``repeats`` timed runs of ``n_steps`` steps with random actions."""
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, size=(n_steps, *env.action_space.shape)).astype(np.float32)
+    best = 0.0
+    env.reset(seed=0)
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for action in actions:
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+        best = max(best, n_steps / (time.perf_counter() - start))
+    return best
+
+
+def render_seconds(env: LARSCaptureEnv, cameras: tuple[str, ...], size, n: int, repeats: int):
+    """Best mean seconds per render of ``cameras`` at ``size`` on the env's scene."""
+    renderer = CameraRenderer(env._physics.model, cameras, *size)
+    try:
+        env._pose_scene()
+        data = env._physics.data
+        renderer.render(data)
+        best = float("inf")
+        for _ in range(repeats):
+            start = time.perf_counter()
+            for _ in range(n):
+                renderer.render(data)
+            best = min(best, (time.perf_counter() - start) / n)
+        return best
+    finally:
+        renderer.close()
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=5000)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    size = (640, 480)
+
+    reference_env = gym.make("HalfCheetah-v5")
+    reference = steps_per_second(reference_env, args.steps, args.repeats)
+    reference_env.close()
+    features_env = gym.make("auv_envs/LARSCapture-v0", obs_mode="features")
+    features = steps_per_second(features_env, args.steps, args.repeats)
+    features_env.close()
+
+    env = LARSCaptureEnv(obs_mode="stereo", image_size=size)
+    env.reset(seed=0)
+    mono = render_seconds(env, ("left",), size, 60, args.repeats)
+    pair = render_seconds(env, ("left", "right"), size, 60, args.repeats)
+    stereo = steps_per_second(env, 200, args.repeats)
+    env.close()
+
+    ratio = pair / mono
+    print(f"HalfCheetah-v5 reference: {reference:,.0f} steps/s\n")
+    print("| measure | value | target | met |")
+    print("|---|---|---|---|")
+    print(f"| single view 640x480 | {mono * 1e3:.2f} ms | | |")
+    print(f"| stereo pair 640x480 (one buffer) | {pair * 1e3:.2f} ms | | |")
+    print(f"| stereo / single | {ratio:.2f}x | <= 1.3x | {'yes' if ratio <= 1.3 else 'NO'} |")
+    print(f"| stereo env 640x480 | {stereo:,.0f} steps/s | >= 50 | "
+          f"{'yes' if stereo >= 50 else 'NO'} |")
+    print(f"| features env | {features:,.0f} steps/s ({features / reference:.2f}x) | >= 0.5x | "
+          f"{'yes' if features >= 0.5 * reference else 'NO'} |")
+
+
+if __name__ == "__main__":
+    main()
