@@ -1,0 +1,250 @@
+"""Per-detection least-squares positioning from TDOA and DOA (seed 004 §1.1-1.3).
+
+Unknowns ``omega = (x, y, z, D_1)`` with ``D_1`` the range to node 1. All
+coordinates are taken relative to the array centroid ``h_bar`` (conditioning
+only: the equations are translation invariant).
+
+* **TDOA** (§1.1): with ``d_i = c tau_1i`` the measured range difference,
+  ``|p - h_i|^2 = (D_1 + d_i)^2``; subtracting node 1's equation
+  ``|p - h_1|^2 = D_1^2`` gives, for i = 2..n, the linear row
+
+      2 (h_i - h_1)^T p + 2 d_i D_1 = |h_i|^2 - |h_1|^2 - d_i^2      (R omega = E)
+
+  which is exact (no linearisation error) for noise-free data.
+* **DOA** (§1.2): ``tan alpha_i = (y - y_i)/(x - x_i)`` and
+  ``tan theta_i = hypot(x - x_i, y - y_i)/(z - z_i)`` become, per node, the
+  two unit-norm rows
+
+      sin(a_i) (x - x_i) - cos(a_i) (y - y_i) = 0
+      cos(t_i) [cos(a_i) (x - x_i) + sin(a_i) (y - y_i)] - sin(t_i) (z - z_i) = 0
+
+  (``I p = N``); their residuals are lateral offsets in metres.
+* **Fused** (§1.3): ``I~ = [I, 0]`` (a zero column for ``D_1``) and
+  ``N~ = N`` put the DOA rows on the TDOA unknowns; the stacked system is
+  solved by one normal-equation solve
+  ``omega = (R^T R + I~^T I~)^{-1} (R^T E + I~^T N~)``.
+
+**Weighting** (our choice, documented): the paper solves the stacked system
+unweighted (``weighting="none"`` reproduces that), but its TDOA rows are in
+m^2 and its DOA rows in m, so unweighted the TDOA rows swamp the angles. With
+``weighting="noise"`` (the default) a first unweighted solve gives the node
+ranges ``D_i``, and every row is divided by its first-order residual standard
+deviation under the documented noise model of the calibration
+(``array.model`` at the work-area centre, per band): ``2 D_i sigma_d`` for a
+TDOA row (``sigma_d = c hypot(std(tau_1i), clock_offset_std)``),
+``rho_i sigma_alpha`` for an azimuth row (``rho_i`` the horizontal range) and
+``D_i sigma_theta`` for an elevation row; then the same normal equations are
+solved again with the weighted rows. The weighted chi-square of the residuals
+gates each fix, and fixes outside the tank (multipath mirror images lie above
+the surface or below the bottom) are marked invalid.
+
+Everything is vectorised over arbitrary leading axes (bands x detections).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+METHODS = ("fused", "tdoa", "doa")
+WEIGHTINGS = ("noise", "none")
+
+
+@dataclasses.dataclass(frozen=True)
+class PositionFixes:
+    """Position fixes of a batch of detections (leading axes ``...``).
+
+    Attributes:
+      position: (..., 3) estimated positions in the tank frame (m).
+      covariance: (..., 3, 3) position covariance of the weighted solve
+        (``(A^T W A)^{-1}``; meaningful only with ``weighting="noise"``).
+      chi2: (...,) weighted residual sum of squares (``weighting="noise"``)
+        or the plain residual sum of squares.
+      dof: residual degrees of freedom (rows - unknowns).
+      valid: (...,) real detection, finite, inside the tank and, when
+        gating is on, ``chi2 / dof <= gate``.
+    """
+
+    position: np.ndarray
+    covariance: np.ndarray
+    chi2: np.ndarray
+    dof: int
+    valid: np.ndarray
+
+
+def tdoa_rows(tdoa: np.ndarray, nodes: np.ndarray, sound_speed: float):
+    """The linearised TDOA system ``R omega = E`` (seed 004 §1.1).
+
+    Args:
+      tdoa: (..., N-1) time differences ``t_i - t_1`` (s).
+      nodes: (N, 3) node positions (any origin; the result uses the same).
+      sound_speed: c in m/s.
+
+    Returns:
+      ``R`` (..., N-1, 4) over ``(x, y, z, D_1)`` and ``E`` (..., N-1).
+    """
+    d = np.asarray(tdoa, dtype=np.float64) * sound_speed
+    h = np.asarray(nodes, dtype=np.float64)
+    geo = 2.0 * (h[1:] - h[0])  # (N-1, 3)
+    R = np.empty(d.shape + (4,))
+    R[..., :3] = geo
+    R[..., 3] = 2.0 * d
+    E = (np.sum(h[1:] ** 2, axis=1) - np.sum(h[0] ** 2)) - d * d
+    return R, E
+
+
+def doa_rows(azimuth: np.ndarray, elevation: np.ndarray, nodes: np.ndarray):
+    """The DOA system ``I p = N`` (seed 004 §1.2), two unit-norm rows per node.
+
+    Args:
+      azimuth, elevation: (..., N) angles (rad; elevation from the upward vertical).
+      nodes: (N, 3) node positions.
+
+    Returns:
+      ``I`` (..., 2N, 3) and ``N`` (..., 2N): rows ``0..N-1`` azimuth, ``N..2N-1`` elevation.
+    """
+    a = np.asarray(azimuth, dtype=np.float64)
+    t = np.asarray(elevation, dtype=np.float64)
+    h = np.asarray(nodes, dtype=np.float64)
+    n = h.shape[0]
+    sa, ca, st, ct = np.sin(a), np.cos(a), np.sin(t), np.cos(t)
+    I_ = np.zeros(a.shape[:-1] + (2 * n, 3))
+    I_[..., :n, 0] = sa
+    I_[..., :n, 1] = -ca
+    I_[..., n:, 0] = ct * ca
+    I_[..., n:, 1] = ct * sa
+    I_[..., n:, 2] = -st
+    N_ = np.einsum("...rk,...rk->...r", I_, np.concatenate([h, h], axis=0))
+    return I_, N_
+
+
+def _solve_normal(A: np.ndarray, b: np.ndarray):
+    """Batched normal-equation least squares; returns (x, (A^T A)^{-1}, rss)."""
+    AtA = np.einsum("...ri,...rj->...ij", A, A)
+    Atb = np.einsum("...ri,...r->...i", A, b)
+    # A relative ridge of 1e-12 keeps degenerate (clutter) systems solvable
+    # without moving well-posed solutions beyond round-off.
+    scale = np.trace(AtA, axis1=-2, axis2=-1)[..., None, None]
+    AtA = AtA + 1e-12 * scale * np.eye(A.shape[-1]) + 1e-300
+    inv = np.linalg.inv(AtA)
+    x = np.einsum("...ij,...j->...i", inv, Atb)
+    r = np.einsum("...ri,...i->...r", A, x) - b
+    return x, inv, np.einsum("...r,...r->...", r, r)
+
+
+class LeastSquaresPositioner:
+    """Fused TDOA-DOA (or TDOA-only / DOA-only) least-squares fixes per detection.
+
+    Args:
+      calibration: the environment's ``AcousticCalibration`` (node positions,
+        sound speed, noise model, tank extent).
+      method: ``"fused"`` (§1.3), ``"tdoa"`` (§1.1) or ``"doa"`` (§1.2).
+      weighting: ``"noise"`` (rows scaled by the documented noise model, see
+        the module docstring) or ``"none"`` (the paper's plain stacking).
+      gate: maximum ``chi2 / dof`` of a valid fix (``None``: no residual gate).
+        Only meaningful with ``weighting="noise"``.
+      margin: metres by which a fix may lie outside the tank and stay valid.
+    """
+
+    def __init__(self, calibration, method: str = "fused", weighting: str = "noise",
+                 gate: float | None = 6.0, margin: float = 1.0):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
+        if gate is not None and not gate > 0:
+            raise ValueError(f"gate must be positive or None, got {gate}")
+        self.method = method
+        self.weighting = weighting
+        self.gate = gate
+        h = np.asarray(calibration.hydrophone_positions, dtype=np.float64)
+        self._centre = h.mean(axis=0)
+        self._nodes = h - self._centre
+        self._c = float(calibration.sound_speed)
+        self._n = len(h)
+        sx, sy = calibration.tank_size
+        self._low = np.array([-margin, -margin, -calibration.tank_depth - margin])
+        self._high = np.array([sx + margin, sy + margin, margin])
+        # Per-band noise stds at the work-area centre (calibration, not state).
+        lo, hi = (np.asarray(v, dtype=np.float64) for v in calibration.work_area)
+        model = calibration.array.model(0.5 * (lo + hi))
+        clock = calibration.config.clock_offset_std
+        self.range_diff_std = self._c * np.hypot(model["tdoa_std"], clock)  # (Q, N-1) m
+        self.azimuth_std = model["azimuth_std"]  # (Q, N)
+        self.elevation_std = model["elevation_std"]  # (Q, N)
+        self.n_unknowns = 3 if method == "doa" else 4
+        rows = {"fused": 3 * self._n - 1, "tdoa": self._n - 1, "doa": 2 * self._n}[method]
+        self.dof = rows - self.n_unknowns
+
+    # ------------------------------------------------------------------ systems
+    def _system(self, tdoa, azimuth, elevation):
+        parts_A, parts_b = [], []
+        if self.method in ("fused", "tdoa"):
+            R, E = tdoa_rows(tdoa, self._nodes, self._c)
+            parts_A.append(R)
+            parts_b.append(E)
+        if self.method in ("fused", "doa"):
+            I_, N_ = doa_rows(azimuth, elevation, self._nodes)
+            if self.method == "fused":  # I~ = [I, 0]: D_1 does not enter the DOA rows
+                I_ = np.concatenate([I_, np.zeros(I_.shape[:-1] + (1,))], axis=-1)
+            parts_A.append(I_)
+            parts_b.append(N_)
+        return np.concatenate(parts_A, axis=-2), np.concatenate(parts_b, axis=-1)
+
+    def _row_std(self, p: np.ndarray, band_axis_shape) -> np.ndarray:
+        """First-order residual stds (..., rows) of each row at positions p (..., 3)."""
+        diff = p[..., None, :] - self._nodes  # (..., N, 3)
+        horizontal = np.maximum(np.hypot(diff[..., 0], diff[..., 1]), 1.0)
+        ranges = np.maximum(np.hypot(horizontal, diff[..., 2]), 1.0)
+        # Broadcast the per-band stds (Q, .) over the detection axis.
+        extra = (1,) * (p.ndim - 1 - len(band_axis_shape))
+        rd = self.range_diff_std.reshape(band_axis_shape + extra + (-1,))
+        az = self.azimuth_std.reshape(band_axis_shape + extra + (-1,))
+        el = self.elevation_std.reshape(band_axis_shape + extra + (-1,))
+        parts = []
+        if self.method in ("fused", "tdoa"):
+            parts.append(2.0 * ranges[..., 1:] * rd)
+        if self.method in ("fused", "doa"):
+            parts.append(horizontal * az)
+            parts.append(ranges * el)
+        return np.concatenate(parts, axis=-1)
+
+    def solve(self, tdoa, azimuth, elevation, mask=None) -> PositionFixes:
+        """Fix every detection of a measurement set.
+
+        Args:
+          tdoa: (Q, K, N-1) s; azimuth, elevation: (Q, K, N) rad. The leading
+            axis must be the band axis (its noise model is per band); any
+            number of leading axes ``(Q, ...)`` works.
+          mask: (Q, K) real-detection flags (default: all real).
+
+        Returns:
+          :class:`PositionFixes` over the leading axes.
+        """
+        tdoa = np.asarray(tdoa, dtype=np.float64)
+        azimuth = np.asarray(azimuth, dtype=np.float64)
+        elevation = np.asarray(elevation, dtype=np.float64)
+        lead = azimuth.shape[:-1]
+        if (tdoa.shape != lead + (self._n - 1,) or azimuth.shape[-1] != self._n
+                or elevation.shape != azimuth.shape):
+            raise ValueError(
+                f"expected tdoa (..., {self._n - 1}) and azimuth/elevation (..., {self._n}) "
+                f"with equal leading axes, got {tdoa.shape}, {azimuth.shape}, {elevation.shape}"
+            )
+        if lead[:1] != (len(self.range_diff_std),):
+            raise ValueError(f"the leading axis must be the {len(self.range_diff_std)} bands, "
+                             f"got shape {lead}")
+        mask = np.ones(lead, bool) if mask is None else np.asarray(mask).astype(bool)
+        A, b = self._system(tdoa, azimuth, elevation)
+        x, inv, rss = _solve_normal(A, b)
+        if self.weighting == "noise":
+            w = 1.0 / self._row_std(x[..., :3], lead[:1])  # x is centred
+            x, inv, rss = _solve_normal(A * w[..., None], b * w)
+        position = x[..., :3] + self._centre
+        covariance = inv[..., :3, :3]
+        valid = mask & np.all(np.isfinite(position), axis=-1)
+        valid &= np.all((position >= self._low) & (position <= self._high), axis=-1)
+        if self.gate is not None and self.dof > 0:
+            valid &= rss <= self.gate * self.dof
+        return PositionFixes(position, covariance, rss, self.dof, valid)

@@ -1,0 +1,88 @@
+"""Least-squares TDOA / DOA / fused positioning (seed 004 §1.1-1.3)."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from auv_envs.tasks.acoustic import STATIC_POINTS, AcousticTrackingEnv
+from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
+
+
+@pytest.fixture(scope="module")
+def calibration():
+    env = AcousticTrackingEnv(obs_mode="measurements")
+    return env.calibration
+
+
+def _exact(cal, points):
+    """Noise-free measurements of points (Q, M, 3), band-major like the env."""
+    tdoa, az, el = cal.array.noise_free(points)
+    return tdoa, az, el
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("weighting", ["noise", "none"])
+def test_noise_free_recovers_exact_position(calibration, method, weighting):
+    rng = np.random.default_rng(3)
+    lo, hi = (np.asarray(v) for v in calibration.work_area)
+    q = len(calibration.band_centres)
+    points = rng.uniform(lo, hi, (q, 6, 3))
+    points[0, :5] = STATIC_POINTS
+    fixes = LeastSquaresPositioner(calibration, method, weighting).solve(
+        *_exact(calibration, points)
+    )
+    np.testing.assert_allclose(fixes.position, points, atol=1e-6)
+    assert fixes.valid.all()
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_unbiased_over_noisy_draws(calibration, method):
+    """Mean error over seeded draws (no clock offsets) is zero within its standard error."""
+    array = calibration.array
+    cfg = dataclasses.replace(array.config, clock_offset_std=0.0, clutter_rate=0.0,
+                              multipath=False, ideal_detection=True)
+    from auv_envs.core.acoustics import HydrophoneArray
+
+    noisy = HydrophoneArray(array.positions, array.surface_z, array.bottom_z, cfg)
+    rng = np.random.default_rng(11)
+    truth = np.array(STATIC_POINTS[1])
+    m = noisy.measure(rng, np.broadcast_to(truth, (400, 3)), np.zeros(8))
+    # (B, Q, K, .) -> band-major (Q, B*K, .)
+    def band_major(a):
+        return np.moveaxis(a, 1, 0).reshape(a.shape[1], -1, *a.shape[3:])
+
+    solver = LeastSquaresPositioner(calibration, method)
+    fixes = solver.solve(band_major(m.tdoa), band_major(m.azimuth), band_major(m.elevation),
+                         band_major(m.mask))
+    err = fixes.position[fixes.valid] - truth
+    assert len(err) > 3000
+    se = err.std(axis=0) / np.sqrt(len(err))
+    assert np.all(np.abs(err.mean(axis=0)) < 4 * se + 2e-3), (err.mean(0), se)
+    assert np.sqrt(np.mean(np.sum(err**2, 1))) < 0.5
+
+
+def test_rejects_ghosts_and_clutter(calibration):
+    cfg = dataclasses.replace(calibration.config, clutter_rate=4.0)
+    from auv_envs.core.acoustics import HydrophoneArray
+
+    a = calibration.array
+    arr = HydrophoneArray(a.positions, a.surface_z, a.bottom_z, cfg)
+    m = arr.measure(np.random.default_rng(5), np.broadcast_to(STATIC_POINTS[2], (50, 3)),
+                    arr.draw_clock_offsets(np.random.default_rng(6)))
+    solver = LeastSquaresPositioner(calibration)
+    fixes = [solver.solve(m.tdoa[i], m.azimuth[i], m.elevation[i], m.mask[i])
+             for i in range(50)]
+    valid = np.stack([f.valid for f in fixes])
+    assert not valid[m.origin > 0].any()  # surface/bottom ghosts and false alarms
+    assert valid[m.origin == 0].mean() > 0.95
+
+
+def test_bad_input(calibration):
+    with pytest.raises(ValueError, match="method"):
+        LeastSquaresPositioner(calibration, "tdoa-doa")
+    with pytest.raises(ValueError, match="weighting"):
+        LeastSquaresPositioner(calibration, weighting="optimal")
+    solver = LeastSquaresPositioner(calibration)
+    with pytest.raises(ValueError, match="expected tdoa"):
+        solver.solve(np.zeros((10, 8, 8)), np.zeros((10, 8, 8)), np.zeros((10, 8, 8)))
