@@ -139,16 +139,37 @@ def evaluate(
     return rows
 
 
+#: Per-task headline metrics shown in the table (means over episodes), in order.
+HEADLINE_METRICS = {
+    "docking_time": ("docking time s", ".1f"),
+    "final_distance": ("final distance m", ".2f"),
+    "final_capture_error": ("capture error m", ".3f"),
+    "rmse": ("RMSE m", ".3f"),
+    "max_error": ("max error m", ".3f"),
+    "tfc": ("TFC", ".1f"),
+    "tcfe": ("TCFE", ".3f"),
+}
+
+
 def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
-    """Aggregate rows per (env, agent): success rate, return, docking time, final distance."""
+    """Aggregate rows per (env, agent): success rate, return, length and metric means.
+
+    ``metrics`` maps every numeric episode metric to its mean over the
+    episodes that report it (``docking_time`` only exists on success, so its
+    mean is over successful episodes).
+    """
     groups: dict[tuple[str, str], list[EpisodeRow]] = {}
     for row in rows:
         groups.setdefault((row.env_id, row.agent), []).append(row)
     summary = []
     for (env_id, agent), items in groups.items():
-        times = [r.metrics.get("docking_time") for r in items if r.success]
-        finals = [r.metrics.get("final_distance") for r in items]
-        finals = [f for f in finals if f is not None]
+        values: dict[str, list[float]] = {}
+        for r in items:
+            for key, value in r.metrics.items():
+                if isinstance(value, bool) or not isinstance(value, int | float):
+                    continue
+                if math.isfinite(value):
+                    values.setdefault(key, []).append(float(value))
         summary.append(
             {
                 "env_id": env_id,
@@ -157,31 +178,29 @@ def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
                 "success_rate": float(np.mean([r.success for r in items])),
                 "mean_return": float(np.mean([r.episode_return for r in items])),
                 "std_return": float(np.std([r.episode_return for r in items])),
-                "mean_docking_time_s": float(np.mean(times)) if times else None,
-                "mean_final_distance_m": float(np.mean(finals)) if finals else None,
                 "mean_length": float(np.mean([r.length for r in items])),
+                "metrics": {k: float(np.mean(v)) for k, v in values.items()},
             }
         )
     return summary
 
 
 def format_table(summary: Sequence[dict]) -> str:
-    """A Markdown table of :func:`summarise` output."""
-    header = (
-        "| env | agent | episodes | success | return (mean ± std) | docking time s "
-        "| final distance m | steps |"
-    )
-    lines = [header, "|" + "---|" * 8]
-
-    def fmt(x, spec=".2f"):
-        return "–" if x is None else format(x, spec)
-
+    """A Markdown table of :func:`summarise` output with each task's headline metrics."""
+    lines = [
+        "| env | agent | episodes | success | return (mean ± std) | steps | headline metrics |",
+        "|" + "---|" * 7,
+    ]
     for s in summary:
+        shown = [
+            f"{label} {format(s['metrics'][key], spec)}"
+            for key, (label, spec) in HEADLINE_METRICS.items()
+            if key in s["metrics"]
+        ]
         lines.append(
             f"| {s['env_id']} | {s['agent']} | {s['episodes']} | {s['success_rate']:.0%} "
-            f"| {s['mean_return']:.2f} ± {s['std_return']:.2f} "
-            f"| {fmt(s['mean_docking_time_s'], '.1f')} | {fmt(s['mean_final_distance_m'])} "
-            f"| {s['mean_length']:.0f} |"
+            f"| {s['mean_return']:.2f} ± {s['std_return']:.2f} | {s['mean_length']:.0f} "
+            f"| {'; '.join(shown) or '–'} |"
         )
     return "\n".join(lines)
 

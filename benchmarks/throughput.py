@@ -2,10 +2,12 @@
 
 Prints each figure beside Gymnasium's ``HalfCheetah-v5`` measured in the same
 run (these machines are noisy, so only the ratio means much). Targets
-(issue 2): ``state``/``features`` >= 0.5x HalfCheetah-v5 per env step;
-``image`` at 320x240 >= 100 steps/s.
+(issues 2 and 4): every non-image mode (``state``, ``features``,
+``measurements``) >= 0.5x HalfCheetah-v5 per env step; docking ``image`` at
+320x240 >= 100 steps/s. Stereo rendering has its own benchmark
+(``benchmarks/lars_speed.py``); here it is reported at 320x240 without a target.
 
-    python benchmarks/throughput.py [--steps N] [--repeats R]
+    python benchmarks/throughput.py [--steps N] [--repeats R] [--envs ID ...]
 """
 
 from __future__ import annotations
@@ -17,16 +19,24 @@ import time
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402
-from auv_envs.tasks.docking import OBS_MODES  # noqa: E402
+
+IMAGE_MODES = ("image", "stereo")
+
+
+def declared_obs_modes(env_id: str) -> tuple[str, ...]:
+    """The observation modes an environment class declares (its ``obs_modes``)."""
+    entry_point = gym.spec(env_id).entry_point
+    if isinstance(entry_point, str):
+        entry_point = gym.envs.registration.load_env_creator(entry_point)
+    return tuple(entry_point.obs_modes)
 
 
 def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
     """Best of ``repeats`` timed runs of ``n_steps`` steps with random actions."""
-    rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, size=(n_steps, *env.action_space.shape)).astype(np.float32)
+    env.action_space.seed(0)
+    actions = [env.action_space.sample() for _ in range(n_steps)]
     best = 0.0
     env.reset(seed=0)
     for _ in range(repeats):
@@ -43,6 +53,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--envs", nargs="+", default=list(auv_envs.ENVIRONMENTS),
+                        choices=list(auv_envs.ENVIRONMENTS), metavar="ID")
     args = parser.parse_args(argv)
 
     reference_env = gym.make("HalfCheetah-v5")
@@ -51,20 +63,23 @@ def main(argv=None) -> None:
     print(f"HalfCheetah-v5 reference: {reference:,.0f} steps/s\n")
     print("| env | obs_mode | steps/s | ratio to HalfCheetah-v5 | target | met |")
     print("|---|---|---|---|---|---|")
-    for env_id in auv_envs.ENVIRONMENTS:
-        for mode in OBS_MODES:
-            kwargs = {"image_size": (320, 240)} if mode == "image" else {}
-            n = max(200, args.steps // 10) if mode == "image" else args.steps
+    for env_id in args.envs:
+        for mode in declared_obs_modes(env_id):
+            image = mode in IMAGE_MODES
+            kwargs = {"image_size": (320, 240)} if image else {}
+            n = max(200, args.steps // 10) if image else args.steps
             env = gym.make(env_id, obs_mode=mode, **kwargs)
             rate = steps_per_second(env, n, args.repeats)
             env.close()
             ratio = rate / reference
-            if mode == "image":
+            if mode == "stereo":
+                target, met = "see lars_speed.py", None
+            elif mode == "image":
                 target, met = "100 steps/s @320x240", rate >= 100
             else:
                 target, met = "0.5x", ratio >= 0.5
             print(f"| {env_id} | {mode} | {rate:,.0f} | {ratio:.2f} | {target} "
-                  f"| {'yes' if met else 'NO'} |")
+                  f"| {'-' if met is None else 'yes' if met else 'NO'} |")
 
 
 if __name__ == "__main__":

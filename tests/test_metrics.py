@@ -380,6 +380,15 @@ def test_tcfe_hand_worked_bins():
     )
 
 
+def test_tcfe_default_bins_have_no_upper_limit():
+    # Jumps of tens of metres scatter over many 1 cm bins: an erratic track
+    # must not look smooth because its steps exceed a last, open-ended bin.
+    rng = np.random.default_rng(3)
+    jumps = rng.uniform(0.0, 300.0, (500, 3))
+    assert metrics.tcfe(jumps) > math.log(400)
+    assert metrics.tcfe(jumps, num_bins=50) == 0.0  # every step in the overflow bin
+
+
 def test_tcfe_defaults_small_for_smooth_large_for_erratic():
     # 100 steps of 5 mm (0.5 m/s at 100 Hz) with 1 % of steps jumping 2.5 cm:
     # -(0.99 ln 0.99 + 0.01 ln 0.01) = 0.056, the size of seed 004's values.
