@@ -71,4 +71,5 @@ def make_agent(name: str, env: gym.Env) -> Agent:
 
 def _load_builtin() -> None:
     # Importing the agent modules registers them.
+    from baselines.acoustic import agents as _acoustic_agents  # noqa: F401
     from baselines.agents import pd_docking, random_agent  # noqa: F401

@@ -1,0 +1,302 @@
+"""Gaussian-mixture PHD filters, one per sub-band, with DBSCAN adaptive birth (seed 004 §2).
+
+The state is ``x = (x, y, z, vx, vy, vz)`` under the constant-velocity model
+of seed 004 §2.1 applied per axis (``F = [[1, T], [0, 1]]``,
+``Q = sigma_q^2 [[T^4/4, T^3/2], [T^3/2, T^2]]``), and the measurement is a
+position fix ``z = H x + v`` with ``H = [I_3, 0]`` and the fix's own
+covariance ``R`` (from :mod:`~baselines.acoustic.positioning`).
+
+The recursion is the GM-PHD filter of Vo & Ma (IEEE TSP 54(11), 2006), Table I
+(prediction, update) and Table II (pruning and merging), with seed 004 §2.2's
+adaptive birth: the valid fixes of all bands not already explained by a
+confident component are clustered with DBSCAN, and each cluster gives one
+birth component at its centroid with weight proportional to its size.
+
+The bank keeps the Q mixtures padded to a common number of slots (weight 0
+marks an empty slot) so that prediction and update run once for all bands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from sklearn.cluster import DBSCAN
+
+STATE_DIM = 6
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+@dataclasses.dataclass
+class GaussianMixture:
+    """A Gaussian mixture intensity with one label per component.
+
+    Attributes: ``weights`` (J,), ``means`` (J, 6), ``covariances`` (J, 6, 6),
+    ``labels`` (J,) int.
+    """
+
+    weights: np.ndarray
+    means: np.ndarray
+    covariances: np.ndarray
+    labels: np.ndarray
+
+    @classmethod
+    def empty(cls, dim: int = STATE_DIM) -> GaussianMixture:
+        return cls(np.zeros(0), np.zeros((0, dim)), np.zeros((0, dim, dim)),
+                   np.zeros(0, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return len(self.weights)
+
+    def select(self, index) -> GaussianMixture:
+        return GaussianMixture(self.weights[index], self.means[index],
+                               self.covariances[index], self.labels[index])
+
+
+class ConstantVelocityModel:
+    """Seed 004 §2.1's constant-velocity model on each of the three axes.
+
+    Args:
+      dt: sampling interval T (s).
+      accel_std: sigma_q, the white-acceleration standard deviation (m/s^2).
+    """
+
+    def __init__(self, dt: float, accel_std: float):
+        if not (dt > 0 and accel_std >= 0):
+            raise ValueError(f"need dt > 0 and accel_std >= 0, got {dt}, {accel_std}")
+        f = np.array([[1.0, dt], [0.0, 1.0]])
+        q = accel_std**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+        eye = np.eye(3)
+        # State order (x, y, z, vx, vy, vz): kron over (position/velocity, axis).
+        self.F = np.kron(f, eye)
+        self.Q = np.kron(q, eye)
+
+    def predict(self, means: np.ndarray, covariances: np.ndarray):
+        """``m' = F m``, ``P' = F P F^T + Q`` over any leading axes."""
+        F = self.F
+        return means @ F.T, F @ covariances @ F.T + self.Q
+
+
+class AdaptiveBirth:
+    """Measurement-driven birth from DBSCAN clusters (seed 004 §2.2).
+
+    Args:
+      eps: DBSCAN neighbourhood radius (m).
+      min_samples: DBSCAN core-point size (fixes, pooled over bands).
+      weight: birth weight of a cluster holding ``n_sources`` fixes; a
+        cluster of size s gets ``weight * s / n_sources`` (proportional to size).
+      n_sources: the normaliser (the number of bands).
+      position_std, velocity_std: the predefined birth covariance P_gamma.
+      exclusion_radius: fixes within this distance (m) of a component with
+        weight >= ``confirmed_weight`` are explained and do not seed births.
+    """
+
+    def __init__(self, eps: float = 1.0, min_samples: int = 3, weight: float = 0.1,
+                 n_sources: int = 10, position_std: float = 0.5, velocity_std: float = 1.0,
+                 exclusion_radius: float = 3.0, confirmed_weight: float = 0.5):
+        if not (eps > 0 and min_samples >= 1 and weight > 0 and n_sources >= 1):
+            raise ValueError("AdaptiveBirth needs eps > 0, min_samples >= 1, weight > 0, "
+                             "n_sources >= 1")
+        self.eps, self.min_samples = float(eps), int(min_samples)
+        self.weight, self.n_sources = float(weight), int(n_sources)
+        self.covariance = np.diag([position_std**2] * 3 + [velocity_std**2] * 3)
+        self.exclusion_radius = float(exclusion_radius)
+        self.confirmed_weight = float(confirmed_weight)
+        self._dbscan = DBSCAN(eps=self.eps, min_samples=self.min_samples)
+
+    def __call__(self, fixes: np.ndarray, confirmed: np.ndarray | None = None):
+        """Birth components (weights (B,), means (B, 6), covariances (B, 6, 6)).
+
+        Args:
+          fixes: (M, 3) valid position fixes pooled over the bands.
+          confirmed: (C, 3) positions of confirmed components (may be None).
+        """
+        z = np.asarray(fixes, dtype=np.float64).reshape(-1, 3)
+        if confirmed is not None and len(confirmed) and len(z):
+            d2 = np.sum((z[:, None] - confirmed[None]) ** 2, axis=-1)
+            z = z[d2.min(axis=1) > self.exclusion_radius**2]
+        if len(z) < self.min_samples:
+            return np.zeros(0), np.zeros((0, STATE_DIM)), np.zeros((0, STATE_DIM, STATE_DIM))
+        cluster = self._dbscan.fit_predict(z)
+        ids = np.unique(cluster[cluster >= 0])
+        sizes = np.array([(cluster == i).sum() for i in ids], dtype=np.float64)
+        means = np.zeros((len(ids), STATE_DIM))
+        for row, i in enumerate(ids):
+            means[row, :3] = z[cluster == i].mean(axis=0)
+        weights = self.weight * sizes / self.n_sources
+        return weights, means, np.broadcast_to(self.covariance, (len(ids), 6, 6)).copy()
+
+
+def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_density):
+    """The GM-PHD corrector (Vo & Ma 2006, Table I, steps 3-4), batched over bands.
+
+    Args:
+      weights: (Q, J) predicted weights (0 for empty slots).
+      means: (Q, J, 6); covariances: (Q, J, 6, 6).
+      z: (Q, K, 3) position fixes; R: (Q, K, 3, 3) their covariances;
+      valid: (Q, K) which fixes are real.
+      p_detect: (Q,) or scalar detection probability; clutter_density: kappa(z),
+        a scalar (uniform clutter intensity).
+
+    Returns:
+      (weights (Q, J (K+1)), means, covariances, source (J (K+1),)): the
+      missed-detection terms first (J), then detection k of component j at
+      ``J + j K + k``; ``source`` is the predicted component each came from.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    q_, j_ = w.shape
+    k_ = z.shape[1]
+    pd = np.broadcast_to(np.asarray(p_detect, dtype=np.float64), (q_,))[:, None]
+    HP = covariances[..., :3, :]  # (Q, J, 3, 6)
+    S = covariances[:, :, None, :3, :3] + R[:, None]  # (Q, J, K, 3, 3)
+    S_inv = np.linalg.inv(S)
+    nu = z[:, None] - means[:, :, None, :3]  # (Q, J, K, 3)
+    maha = np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
+    _, logdet = np.linalg.slogdet(S)
+    log_q = -0.5 * (maha + logdet + 3 * LOG_2PI)
+    gain = np.einsum("qjai,qjkab->qjkib", HP, S_inv)  # P H^T S^-1: (Q, J, K, 6, 3)
+    m_upd = means[:, :, None] + np.einsum("qjkib,qjkb->qjki", gain, nu)
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T: equal to P - K H P in exact
+    # arithmetic, but stays positive definite when P's position-velocity block is
+    # nearly singular (tiny process noise over 10 ms steps).
+    IKH = np.broadcast_to(np.eye(STATE_DIM), gain.shape[:3] + (STATE_DIM, STATE_DIM)).copy()
+    IKH[..., :3] -= gain
+    P_upd = IKH @ covariances[:, :, None] @ np.swapaxes(IKH, -1, -2) \
+        + gain @ R[:, None] @ np.swapaxes(gain, -1, -2)
+    num = (pd * w)[:, :, None] * np.exp(log_q)  # (Q, J, K)
+    num = np.where(valid[:, None, :], num, 0.0)
+    w_upd = num / (clutter_density + num.sum(axis=1, keepdims=True))
+    out_w = np.concatenate([(1.0 - pd) * w, w_upd.reshape(q_, j_ * k_)], axis=1)
+    out_m = np.concatenate([means, m_upd.reshape(q_, j_ * k_, STATE_DIM)], axis=1)
+    out_P = np.concatenate([covariances, P_upd.reshape(q_, j_ * k_, STATE_DIM, STATE_DIM)],
+                           axis=1)
+    source = np.concatenate([np.arange(j_), np.repeat(np.arange(j_), k_)])
+    return out_w, out_m, out_P, source
+
+
+class MixtureReducer:
+    """Pruning, merging and capping (Vo & Ma 2006, Table II).
+
+    Args:
+      prune_threshold: T (seed 004: 1e-5); components at or below it are dropped.
+      merge_threshold: U, squared Mahalanobis distance for merging.
+      max_components: J_max, the cap (the heaviest are kept).
+    """
+
+    def __init__(self, prune_threshold: float = 1e-5, merge_threshold: float = 4.0,
+                 max_components: int = 12):
+        if not (prune_threshold >= 0 and merge_threshold >= 0 and max_components >= 1):
+            raise ValueError("need prune_threshold >= 0, merge_threshold >= 0, "
+                             "max_components >= 1")
+        self.prune_threshold = float(prune_threshold)
+        self.merge_threshold = float(merge_threshold)
+        self.max_components = int(max_components)
+
+    def __call__(self, mixture: GaussianMixture) -> GaussianMixture:
+        keep = mixture.weights > self.prune_threshold
+        if not keep.any():
+            return GaussianMixture.empty(mixture.means.shape[-1])
+        mix = mixture.select(keep)
+        order = np.argsort(-mix.weights, kind="stable")
+        w, m, P, lab = mix.weights[order], mix.means[order], mix.covariances[order], \
+            mix.labels[order]
+        P_inv = np.linalg.inv(P)
+        left = np.ones(len(w), bool)
+        out_w, out_m, out_P, out_l = [], [], [], []
+        while left.any() and len(out_w) < self.max_components:
+            j = int(np.argmax(left))  # heaviest remaining (sorted order)
+            idx = np.flatnonzero(left)
+            d = m[idx] - m[j]
+            close = idx[np.einsum("ni,nij,nj->n", d, P_inv[idx], d) <= self.merge_threshold]
+            wl = w[close]
+            total = wl.sum()
+            mean = wl @ m[close] / total
+            dm = m[close] - mean
+            cov = np.einsum("n,nij->ij", wl, P[close] + dm[:, :, None] * dm[:, None, :]) / total
+            out_w.append(total)
+            out_m.append(mean)
+            out_P.append(cov)
+            out_l.append(lab[j])
+            left[close] = False
+        return GaussianMixture(np.array(out_w), np.array(out_m), np.array(out_P),
+                               np.array(out_l, dtype=np.int64))
+
+
+class GaussianMixturePHDBank:
+    """Q independent GM-PHD filters (one per sub-band) sharing the adaptive birth.
+
+    Args:
+      n_bands: Q.
+      motion: the :class:`ConstantVelocityModel`.
+      birth: the :class:`AdaptiveBirth`.
+      reducer: the :class:`MixtureReducer`.
+      p_survival: p_S (seed 004: 0.99).
+      p_detect: (Q,) or scalar detection probability of a valid fix.
+      clutter_density: kappa, the uniform clutter intensity of fixes (per m^3).
+    """
+
+    def __init__(self, n_bands: int, motion: ConstantVelocityModel, birth: AdaptiveBirth,
+                 reducer: MixtureReducer, p_survival: float = 0.99, p_detect=0.9,
+                 clutter_density: float = 1e-6):
+        if not (0 < p_survival <= 1):
+            raise ValueError(f"p_survival must be in (0, 1], got {p_survival}")
+        pd = np.broadcast_to(np.asarray(p_detect, dtype=np.float64), (n_bands,)).copy()
+        if not np.all((pd > 0) & (pd < 1)):
+            raise ValueError("p_detect must lie in (0, 1)")
+        self.n_bands = int(n_bands)
+        self.motion, self.birth, self.reducer = motion, birth, reducer
+        self.p_survival, self.p_detect = float(p_survival), pd
+        self.clutter_density = float(clutter_density)
+        self.reset()
+
+    def reset(self) -> None:
+        self.mixtures = [GaussianMixture.empty() for _ in range(self.n_bands)]
+        self._next_label = 0
+
+    def _padded(self, extra_w, extra_m, extra_P):
+        """Predicted mixtures plus the birth components, padded to one slot count."""
+        q = self.n_bands
+        sizes = [len(mix) for mix in self.mixtures]
+        b = len(extra_w)
+        j = max(sizes) + b if (max(sizes) + b) else 1
+        w = np.zeros((q, j))
+        m = np.zeros((q, j, STATE_DIM))
+        P = np.broadcast_to(np.eye(STATE_DIM), (q, j, STATE_DIM, STATE_DIM)).copy()
+        labels = np.full((q, j), -1, dtype=np.int64)
+        birth_labels = np.arange(self._next_label, self._next_label + q * b).reshape(q, b)
+        self._next_label += q * b
+        for i, mix in enumerate(self.mixtures):
+            n = len(mix)
+            if n:
+                pm, pP = self.motion.predict(mix.means, mix.covariances)
+                w[i, :n], m[i, :n], P[i, :n] = self.p_survival * mix.weights, pm, pP
+                labels[i, :n] = mix.labels
+            w[i, n:n + b], m[i, n:n + b], P[i, n:n + b] = extra_w, extra_m, extra_P
+            labels[i, n:n + b] = birth_labels[i]
+        return w, m, P, labels
+
+    def step(self, z: np.ndarray, R: np.ndarray, valid: np.ndarray) -> list[GaussianMixture]:
+        """Predict, add the adaptive birth, update with each band's fixes, reduce.
+
+        Args:
+          z: (Q, K, 3) position fixes, R: (Q, K, 3, 3), valid: (Q, K).
+
+        Returns:
+          The Q updated mixtures (also kept in ``self.mixtures``).
+        """
+        confirmed = [mix.means[mix.weights >= self.birth.confirmed_weight, :3]
+                     for mix in self.mixtures]
+        # Last step's positions: the motion over one 10 ms period is far below
+        # the exclusion radius.
+        confirmed = np.concatenate(confirmed)
+        bw, bm, bP = self.birth(z[valid], confirmed)
+        w, m, P, labels = self._padded(bw, bm, bP)
+        uw, um, uP, source = gmphd_update(w, m, P, z, R, valid, self.p_detect,
+                                          self.clutter_density)
+        ulabels = labels[:, source]
+        self.mixtures = [
+            self.reducer(GaussianMixture(uw[i], um[i], uP[i], ulabels[i]))
+            for i in range(self.n_bands)
+        ]
+        return self.mixtures
