@@ -553,6 +553,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             "qvel": data.qvel.copy(),
             "act": data.act.copy(),
             "ctrl": data.ctrl.copy(),
+            "qacc_warmstart": data.qacc_warmstart.copy(),
             "time": float(data.time),
             "episode": copy.deepcopy(self._episode),
         }
@@ -566,4 +567,5 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         data.ctrl[:] = state["ctrl"]
         data.time = state["time"]
         mujoco.mj_forward(physics.model, data)
+        data.qacc_warmstart[:] = state["qacc_warmstart"]
         self._episode = copy.deepcopy(state["episode"])
