@@ -8,8 +8,13 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+import mujoco
 import numpy as np
 from gymnasium import spaces
+
+#: Everything mj_step reads that is not derived: time, qpos, qvel, act,
+#: qacc_warmstart, ctrl, applied forces, mocap poses, equality flags, userdata.
+_INTEGRATION_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 def check_choice(name: str, value, valid: Iterable) -> None:
@@ -43,6 +48,19 @@ def validate_action(action, space: spaces.Box) -> np.ndarray:
     if (a < space.low).any() or (a > space.high).any():
         np.clip(a, space.low, space.high, out=a)
     return a
+
+
+def get_physics_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """A copy of the full integration state of ``data`` (``mj_getState``)."""
+    state = np.empty(mujoco.mj_stateSize(model, _INTEGRATION_STATE))
+    mujoco.mj_getState(model, data, state, _INTEGRATION_STATE)
+    return state
+
+
+def set_physics_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndarray) -> None:
+    """Restore a :func:`get_physics_state` copy and recompute the derived quantities."""
+    mujoco.mj_setState(model, data, state, _INTEGRATION_STATE)
+    mujoco.mj_forward(model, data)  # leaves the integration state (warm start too) unchanged
 
 
 class ReconstructingPickleMixin:

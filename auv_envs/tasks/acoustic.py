@@ -31,7 +31,9 @@ from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
+    get_physics_state,
     reject_unknown_kwargs,
+    set_physics_state,
     validate_action,
 )
 
@@ -547,25 +549,13 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ pickling
     def _get_runtime_state(self) -> dict:
-        data = self._physics.data
+        physics = self._physics
         return {
-            "qpos": data.qpos.copy(),
-            "qvel": data.qvel.copy(),
-            "act": data.act.copy(),
-            "ctrl": data.ctrl.copy(),
-            "qacc_warmstart": data.qacc_warmstart.copy(),
-            "time": float(data.time),
+            "physics": get_physics_state(physics.model, physics.data),
             "episode": copy.deepcopy(self._episode),
         }
 
     def _set_runtime_state(self, state: dict) -> None:
         physics = self._physics
-        data = physics.data
-        data.qpos[:] = state["qpos"]
-        data.qvel[:] = state["qvel"]
-        data.act[:] = state["act"]
-        data.ctrl[:] = state["ctrl"]
-        data.time = state["time"]
-        mujoco.mj_forward(physics.model, data)
-        data.qacc_warmstart[:] = state["qacc_warmstart"]
+        set_physics_state(physics.model, physics.data, state["physics"])
         self._episode = copy.deepcopy(state["episode"])

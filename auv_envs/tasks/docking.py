@@ -32,7 +32,9 @@ from auv_envs.core.camera import (
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
+    get_physics_state,
     reject_unknown_kwargs,
+    set_physics_state,
     validate_action,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
@@ -700,20 +702,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ pickling
     def _get_runtime_state(self) -> dict:
-        data = self._physics.data
+        physics = self._physics
         return {
-            "qpos": data.qpos.copy(),
-            "qvel": data.qvel.copy(),
-            "time": float(data.time),
+            "physics": get_physics_state(physics.model, physics.data),
             "episode": self._episode.copy(),
         }
 
     def _set_runtime_state(self, state: dict) -> None:
-        data = self._physics.data
-        data.qpos[:] = state["qpos"]
-        data.qvel[:] = state["qvel"]
-        data.time = state["time"]
-        mujoco.mj_forward(self._physics.model, data)
+        physics = self._physics
+        set_physics_state(physics.model, physics.data, state["physics"])
         self._episode = state["episode"].copy()
 
 

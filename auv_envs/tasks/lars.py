@@ -20,7 +20,9 @@ from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
+    get_physics_state,
     reject_unknown_kwargs,
+    set_physics_state,
     validate_action,
 )
 from auv_envs.core.rendering import CameraRenderer
@@ -814,21 +816,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ pickling
     def _get_runtime_state(self) -> dict:
-        data = self._physics.data
+        physics = self._physics
         return {
-            "qpos": data.qpos.copy(),
-            "qvel": data.qvel.copy(),
-            "qacc_warmstart": data.qacc_warmstart.copy(),
-            "time": float(data.time),
+            "physics": get_physics_state(physics.model, physics.data),
             "episode": self._episode.copy(),
         }
 
     def _set_runtime_state(self, state: dict) -> None:
-        data = self._physics.data
-        data.qpos[:] = state["qpos"]
-        data.qvel[:] = state["qvel"]
-        data.qacc_warmstart[:] = state["qacc_warmstart"]
-        data.time = state["time"]
+        physics = self._physics
+        set_physics_state(physics.model, physics.data, state["physics"])
         self._episode = state["episode"].copy()
         if self._episode.motion is not None:
             self._prepare_episode_constants(self._episode.motion)
