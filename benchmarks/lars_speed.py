@@ -17,27 +17,11 @@ import time
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
+from throughput import steps_per_second  # noqa: E402  (benchmarks/ is the script's path)
 
 import auv_envs  # noqa: E402, F401
 from auv_envs.core.rendering import CameraRenderer  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
-
-
-def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
-    """Best of ``repeats`` timed runs of ``n_steps`` steps with random actions."""
-    rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, size=(n_steps, *env.action_space.shape)).astype(np.float32)
-    best = 0.0
-    env.reset(seed=0)
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for action in actions:
-            _, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
-                env.reset()
-        best = max(best, n_steps / (time.perf_counter() - start))
-    return best
 
 
 def render_seconds(env: LARSCaptureEnv, cameras: tuple[str, ...], size, n: int, repeats: int):

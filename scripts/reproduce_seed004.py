@@ -19,6 +19,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
+from baselines.evaluation import run_episode
 from baselines.registry import make_agent
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
@@ -50,13 +51,10 @@ def static_errors(steps: int = 200, seed: int = 0) -> dict[str, list[float]]:
 
 def episode(name: str, seed: int, disturbance: str, time_limit: float) -> dict:
     env = gym.make(ENV_ID, disturbance=disturbance, time_limit=time_limit)
-    agent = make_agent(name, env)
-    obs, info = env.reset(seed=seed)
-    agent.reset(seed)
-    while True:
-        obs, _, _, truncated, info = env.step(agent.act(obs, info))
-        if truncated:
-            return info["episode_metrics"]
+    try:
+        return run_episode(env, make_agent(name, env), seed, ENV_ID, name).metrics
+    finally:
+        env.close()
 
 
 def main() -> None:

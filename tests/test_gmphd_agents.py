@@ -8,20 +8,19 @@ import pytest
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
+from baselines.evaluation import run_episode
 from baselines.registry import agent_names, make_agent
 
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 
 
-def run_episode(name, seed, **kwargs):
-    env = gym.make("auv_envs/AcousticTracking-v0", **kwargs)
-    agent = make_agent(name, env)
-    obs, info = env.reset(seed=seed)
-    agent.reset(seed)
-    while True:
-        obs, _, _, truncated, info = env.step(agent.act(obs, info))
-        if truncated:
-            return info["episode_metrics"]
+def episode_metrics(name, seed, **kwargs):
+    env_id = "auv_envs/AcousticTracking-v0"
+    env = gym.make(env_id, **kwargs)
+    try:
+        return run_episode(env, make_agent(name, env), seed, env_id, name).metrics
+    finally:
+        env.close()
 
 
 def test_registered():
@@ -50,14 +49,14 @@ HIGH_CLUTTER = dataclasses.replace(AcousticConfig(), clutter_rate=4.0, noise_sca
 
 def test_gmphd_gci_beats_ls_kf_in_high_clutter():
     kw = dict(time_limit=10.0, disturbance="high", acoustic=HIGH_CLUTTER)
-    gci = run_episode("gmphd-gci", 7, **kw)
-    lskf = run_episode("ls-kf", 7, **kw)
+    gci = episode_metrics("gmphd-gci", 7, **kw)
+    lskf = episode_metrics("ls-kf", 7, **kw)
     assert gci["rmse"] < lskf["rmse"], (gci, lskf)
     assert gci["tfc"] <= lskf["tfc"], (gci, lskf)
     assert gci["rmse"] < 0.5
 
 
 def test_agents_deterministic():
-    a = run_episode("gmphd-gci", 3, time_limit=1.0)
-    b = run_episode("gmphd-gci", 3, time_limit=1.0)
+    a = episode_metrics("gmphd-gci", 3, time_limit=1.0)
+    b = episode_metrics("gmphd-gci", 3, time_limit=1.0)
     assert a == b

@@ -49,6 +49,13 @@ def _check_env(env, name: str):
     return env.calibration
 
 
+def _estimate_bounds(env, cal):
+    """The fallback estimate (work-area centre) and the env's action bounds (the tank)."""
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in cal.work_area)
+    space = env.action_space
+    return 0.5 * (lo + hi), space.low.astype(np.float64), space.high.astype(np.float64)
+
+
 def _check_observation(observation) -> None:
     if not isinstance(observation, dict) or any(k not in observation for k in OBS_KEYS):
         raise ValueError(f"expected the 'measurements' observation dict with keys {OBS_KEYS}")
@@ -113,10 +120,7 @@ class GMPHDGCIAgent:
         weights = np.full(q, 1.0 / q) if gci_weights is None else gci_weights
         self.fusion = GeneralizedCovarianceIntersection(weights, max_components=max_components)
         self.extractor = LabelledExtractor(prune_threshold)
-        lo, hi = (np.asarray(v, dtype=np.float64) for v in cal.work_area)
-        self._default = 0.5 * (lo + hi)
-        self._low = np.array([0.0, 0.0, -cal.tank_depth])
-        self._high = np.array([cal.tank_size[0], cal.tank_size[1], 0.0])
+        self._default, self._low, self._high = _estimate_bounds(env, cal)
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
@@ -158,10 +162,7 @@ class LSKalmanAgent:
         self._fixes = _FixSource(cal, range(len(cal.band_centres)))
         self._motion = ConstantVelocityModel(1.0 / cal.sample_rate, accel_std)
         self.gate, self.max_misses = float(gate), int(max_misses)
-        lo, hi = (np.asarray(v, dtype=np.float64) for v in cal.work_area)
-        self._default = 0.5 * (lo + hi)
-        self._low = np.array([0.0, 0.0, -cal.tank_depth])
-        self._high = np.array([cal.tank_size[0], cal.tank_size[1], 0.0])
+        self._default, self._low, self._high = _estimate_bounds(env, cal)
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
