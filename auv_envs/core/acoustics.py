@@ -212,12 +212,10 @@ class HydrophoneArray:
         ).astype(np.int8)
         self._clutter_slot = np.arange(k)
         # Image sources as scale * p + shift: direct, surface mirror, bottom mirror.
-        self._mirror_scale = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, 1.0, -1.0]])[
-            : self._n_paths
-        ]
+        self._mirror_scale = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, 1.0, -1.0]])
         self._mirror_shift = np.array(
             [[0.0, 0.0, 0.0], [0.0, 0.0, 2.0 * surface_z], [0.0, 0.0, 2.0 * bottom_z]]
-        )[: self._n_paths]
+        )
         # Clutter: uniform over TDOA +-max, azimuth (-pi, pi], elevation [0, pi].
         n = len(h)
         self._clutter_scale = np.concatenate(
@@ -231,10 +229,8 @@ class HydrophoneArray:
 
     # ------------------------------------------------------------ geometry
     def image_sources(self, position) -> np.ndarray:
-        """(3, 3): the source and its surface and bottom mirror images."""
-        p = np.asarray(position, dtype=np.float64)
-        return np.array([p, (p[0], p[1], 2.0 * self.surface_z - p[2]),
-                         (p[0], p[1], 2.0 * self.bottom_z - p[2])])
+        """The source and its surface and bottom mirror images: (..., 3, 3) for (..., 3)."""
+        return np.asarray(position, dtype=np.float64) * self._mirror_scale + self._mirror_shift
 
     def geometry(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
@@ -321,7 +317,7 @@ class HydrophoneArray:
             raise ValueError(f"positions must be finite (B, 3), got shape {positions.shape}")
         n, p, k = self.n_nodes, self._n_paths, self.config.max_detections
         q, b = self.config.n_bands, len(positions)
-        sources = positions[:, None, :] * self._mirror_scale + self._mirror_shift  # (B, P, 3)
+        sources = self.image_sources(positions[:, None, :])[:, :p]  # (B, P, 3)
         ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p])  # (B, Q, P, N)
         timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])

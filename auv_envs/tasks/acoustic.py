@@ -220,7 +220,10 @@ class _Physics:
             [model.actuator(f"rig/{j}_vel").id for j in CARRIER_JOINTS]
         )
         self.arm_act = np.array([model.actuator(f"rig/{j}").id for j in ARM_JOINTS])
-        self.tank_depth = -float(model.geom("bottom").pos[2])
+        # The tank as assets/acoustic/tank.xml draws it: the bottom plane spans it.
+        bottom = model.geom("bottom")
+        self.tank_depth = -float(bottom.pos[2])
+        self.tank_size = (2.0 * float(bottom.size[0]), 2.0 * float(bottom.size[1]))
         self._jac = np.zeros((3, model.nv))
 
     def source_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -363,8 +366,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         depth = self._physics.tank_depth
         array = HydrophoneArray(self._physics.hydrophones, 0.0, -depth, config)
         band_centres = array.band_centres
+        tank_size = self._physics.tank_size
         low = np.array([0.0, 0.0, -depth])
-        high = np.array([300.0, 300.0, 0.0])
+        high = np.array([*tank_size, 0.0])
         self.calibration = AcousticCalibration(
             array=array,
             hydrophone_positions=array.positions,
@@ -373,7 +377,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             band_centres=band_centres,
             bandwidth=config.bandwidth,
             config=config,
-            tank_size=(300.0, 300.0),
+            tank_size=tank_size,
             tank_depth=depth,
             work_area=((40.0, 40.0, -25.0), (295.0, 295.0, -5.0)),
             max_detections=config.max_detections,
