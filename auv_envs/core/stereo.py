@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 
-from auv_envs.core.camera import CameraIntrinsics
+from auv_envs.core.camera import CameraIntrinsics, project
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,15 +35,8 @@ class StereoRig:
         Points at or behind the image plane get NaN pixels.
         """
         pts = np.asarray(points_left, dtype=float)
-        z = pts[:, 2:3]
-        out = np.empty((2, len(pts), 2))
-        out[0] = pts[:, :2] / z
-        out[1] = out[0]
-        out[1, :, 0] -= self.baseline / z[:, 0]
-        out[..., 0] = out[..., 0] * self.left.fx + self.left.cx
-        out[..., 1] = out[..., 1] * self.left.fy + self.left.cy
-        out[:, z[:, 0] <= 1e-6] = np.nan
-        return out
+        right = pts - (self.baseline, 0.0, 0.0)  # the right camera sits at +baseline along x
+        return np.stack([project(self.left, pts)[0], project(self.right, right)[0]])
 
 
 def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:

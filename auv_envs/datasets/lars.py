@@ -46,6 +46,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from auv_envs.core import frames  # noqa: E402
+from auv_envs.core.camera import points_in_camera, project  # noqa: E402
 from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, LARSCaptureEnv  # noqa: E402
 
 FORMAT_VERSION = 1
@@ -80,12 +82,10 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
     k = cal.stereo.left
     out = np.full((2, 4), np.nan)
     for i, pose in enumerate(cal.camera_poses(q)):
-        pts = (world - pose[:3, 3]) @ pose[:3, :3]
-        if np.any(pts[:, 2] <= 1e-6):
+        pixels, in_front = project(k, points_in_camera(world, pose[:3, 3], pose[:3, :3]))
+        if not in_front.all():
             continue
-        u = k.fx * pts[:, 0] / pts[:, 2] + k.cx
-        v = k.fy * pts[:, 1] / pts[:, 2] + k.cy
-        box = np.array([u.min(), v.min(), u.max(), v.max()])
+        box = np.array([*pixels.min(axis=0), *pixels.max(axis=0)])
         box[[0, 2]] = np.clip(box[[0, 2]], 0.0, k.width)
         box[[1, 3]] = np.clip(box[[1, 3]], 0.0, k.height)
         if box[2] > box[0] and box[3] > box[1]:
@@ -94,8 +94,6 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
 
 
 def _auv_rotation(info: dict) -> np.ndarray:
-    from auv_envs.core import frames
-
     return frames.rotation_from_euler(0.0, -info["true_pitch"], info["true_yaw"])
 
 
