@@ -8,6 +8,7 @@ can read the documented calibration, never MuJoCo internals.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from collections.abc import Callable
 from typing import Protocol
 
@@ -69,7 +70,14 @@ def make_agent(name: str, env: gym.Env) -> Agent:
     return agent_spec(name).factory(env.unwrapped)
 
 
+#: Modules whose import registers the built-in agents (one line per module).
+BUILTIN_AGENT_MODULES = (
+    "baselines.agents.random_agent",
+    "baselines.agents.pd_docking",
+    "baselines.acoustic.agents",
+)
+
+
 def _load_builtin() -> None:
-    # Importing the agent modules registers them.
-    from baselines.acoustic import agents as _acoustic_agents  # noqa: F401
-    from baselines.agents import pd_docking, random_agent  # noqa: F401
+    for module in BUILTIN_AGENT_MODULES:
+        importlib.import_module(module)

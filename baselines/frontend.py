@@ -1,0 +1,67 @@
+"""Agents on image observations: a perception front end feeding a features agent.
+
+A *front end* turns each image observation (``image`` or ``stereo`` obs mode)
+into the ``features`` observation of the same environment; the inner agent
+acts on that. This is how the classical pipelines split perception from
+estimation and control (seed 002's lamp tracker in front of seed 003's
+OFNMPC; seed 000's LTAT in front of its CKF + PD).
+
+A front end keeps the protocol::
+
+    front_end.reset(seed)                    # new episode
+    features = front_end(observation, info)  # one step; features obs layout
+
+and may expose ``stats()`` (a dict of numbers) which the wrapper merges into
+its own ``stats()`` for logging.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import gymnasium as gym
+import numpy as np
+
+from baselines.registry import AgentSpec, agent_spec, register_agent
+
+
+class FrontEndAgent:
+    """``inner.act(front_end(observation, info), info)``."""
+
+    def __init__(self, front_end, inner):
+        self.front_end = front_end
+        self.inner = inner
+
+    def reset(self, seed: int | None = None) -> None:
+        self.front_end.reset(seed)
+        self.inner.reset(seed)
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        return self.inner.act(self.front_end(observation, info), info)
+
+    def stats(self) -> dict:
+        out = {}
+        for part in (self.front_end, self.inner):
+            if hasattr(part, "stats"):
+                out.update(part.stats())
+        return out
+
+
+def register_front_end_agent(
+    name: str,
+    inner: str,
+    front_end_factory: Callable[[gym.Env], object],
+    obs_mode: str,
+    env_ids: tuple[str, ...],
+    description: str,
+) -> None:
+    """Register ``name``: front end ``front_end_factory(env)`` before agent ``inner``.
+
+    The inner agent is looked up when the agent is built, so the two may be
+    registered in either order.
+    """
+
+    def factory(env: gym.Env) -> FrontEndAgent:
+        return FrontEndAgent(front_end_factory(env), agent_spec(inner).factory(env))
+
+    register_agent(AgentSpec(name, factory, obs_mode, env_ids, description))
