@@ -3,14 +3,25 @@
 Every agent keeps one protocol: ``reset(seed)`` then ``act(observation, info)
 -> action``. A factory takes the (unwrapped) environment it will act in, so it
 can read the documented calibration, never MuJoCo internals.
+
+An :class:`AgentSpec` declares where its agent applies: the environment ids
+(``env_ids``) and the observation modes it can act on (``obs_mode`` first,
+then any others in ``obs_modes``). :meth:`AgentSpec.skip_reason` tells the
+leaderboard why a pair is skipped; it reads the environment's declared
+``obs_modes`` class attribute (the contract of every ``auv_envs`` task).
+
+Optional agent methods that the evaluation reads (see
+``baselines.evaluation.run_episode``): ``position_estimate()`` -> a (3,)
+world-frame estimate of the target or ``None``, and ``stats()`` -> a dict of
+numbers for the episode.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable
-from typing import Protocol
+from collections.abc import Callable, Mapping
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -29,9 +40,13 @@ class AgentSpec:
     Attributes:
         name: registry key.
         factory: ``factory(env) -> Agent`` with ``env`` the unwrapped env.
-        obs_mode: the observation mode the agent needs.
+        obs_mode: the observation mode the agent uses by default.
         env_ids: environment ids it applies to (``None``: all).
         description: one line for tables and ``--help``.
+        obs_modes: every observation mode the agent can act on; ``obs_mode``
+            is put first and added when missing (default: ``obs_mode`` only).
+        env_kwargs: constructor arguments the agent's environment must be
+            built with (e.g. ``{"control": "position"}``); default none.
     """
 
     name: str
@@ -39,9 +54,67 @@ class AgentSpec:
     obs_mode: str
     env_ids: tuple[str, ...] | None
     description: str
+    obs_modes: tuple[str, ...] = ()
+    env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict, hash=False)
+
+    def __post_init__(self):
+        modes = (self.obs_mode, *self.obs_modes)
+        if not all(isinstance(m, str) and m for m in modes):
+            raise ValueError(f"agent {self.name!r}: obs modes must be non-empty strings, "
+                             f"got {modes!r}")
+        if self.env_ids is not None:
+            if isinstance(self.env_ids, str) or not all(isinstance(e, str) for e in self.env_ids):
+                raise ValueError(f"agent {self.name!r}: env_ids must be a tuple of ids or None, "
+                                 f"got {self.env_ids!r}")
+            object.__setattr__(self, "env_ids", tuple(self.env_ids))
+        # Frozen: normalise once (default mode first, no repeats; a private kwargs copy).
+        object.__setattr__(self, "obs_modes", tuple(dict.fromkeys(modes)))
+        object.__setattr__(self, "env_kwargs", dict(self.env_kwargs))
+
+    def skip_reason(self, env_id: str, obs_mode: str | None = None) -> str | None:
+        """Why the agent does not apply to ``env_id`` (in ``obs_mode``); ``None`` if it does.
+
+        Args:
+            env_id: a registered environment id.
+            obs_mode: one mode to ask about (default: any mode the agent supports).
+        """
+        if self.env_ids is not None and env_id not in self.env_ids:
+            return f"supports only {', '.join(self.env_ids) or 'no environment'}"
+        if obs_mode is not None and obs_mode not in self.obs_modes:
+            return f"acts on obs mode(s) {', '.join(self.obs_modes)}, not {obs_mode}"
+        offered = env_obs_modes(env_id)
+        if offered is not None and not any(m in offered for m in self.obs_modes):
+            return (f"needs obs mode(s) {', '.join(self.obs_modes)}; "
+                    f"{env_id} offers {', '.join(offered)}")
+        if obs_mode is not None and offered is not None and obs_mode not in offered:
+            return f"{env_id} does not offer obs mode {obs_mode}"
+        return None
+
+    def modes_for(self, env_id: str) -> tuple[str, ...]:
+        """The agent's modes that ``env_id`` offers, default first (empty if it does not apply)."""
+        if self.env_ids is not None and env_id not in self.env_ids:
+            return ()
+        offered = env_obs_modes(env_id)
+        return tuple(m for m in self.obs_modes if offered is None or m in offered)
 
     def applies_to(self, env_id: str) -> bool:
-        return self.env_ids is None or env_id in self.env_ids
+        return self.skip_reason(env_id) is None
+
+
+def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
+    """The observation modes environment ``env_id`` declares (``None``: not declared).
+
+    Raises:
+        KeyError: ``env_id`` is not registered with Gymnasium.
+    """
+    try:
+        entry_point = gym.spec(env_id).entry_point
+    except gym.error.Error as exc:
+        raise KeyError(f"unknown environment {env_id!r}") from exc
+    if isinstance(entry_point, str):
+        entry_point = gym.envs.registration.load_env_creator(entry_point)
+    modes = getattr(entry_point, "obs_modes", None)
+    return tuple(modes) if modes else None
 
 
 _REGISTRY: dict[str, AgentSpec] = {}
