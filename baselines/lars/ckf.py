@@ -1,0 +1,372 @@
+"""Cubature Kalman filter and the AUV motion model of seed 000 (§2.3, eqs. 7-8, 13-28).
+
+* :class:`CubatureKalmanFilter`: the third-degree spherical-radial CKF
+  (Arasaratnam and Haykin 2009), generic over a process function ``f`` and a
+  measurement function ``h`` with additive Gaussian noise. Its ``2n`` cubature
+  points are ``x + S xi_i`` with ``P = S S^T`` and ``xi_i = sqrt(n) (+-e_i)``,
+  weights ``1 / 2n`` (eqs. 13-16); :meth:`~CubatureKalmanFilter.predict` is
+  eqs. 17-19 and :meth:`~CubatureKalmanFilter.update` eqs. 20-28.
+* :class:`HeaveSurgeModel`: eq. 8's motion on the state of eq. 7,
+  ``(x, y, z, vx, vy, vz)``: uniform surge along x, y held, and a sinusoidal
+  heave of angular frequency ``C`` along z about the mean level ``z_mean``.
+* :func:`fit_heave`: least-squares sinusoid fit of measured heights, which
+  gives eq. 8's ``C`` ("determined by the sine wave period") and the mean
+  level when the agent does not know them.
+* :func:`position_measurement`: eq. 9, ``Z = H X`` with ``H = [I 0]``.
+
+Every function takes and returns plain numpy arrays; the filters vectorise the
+``2n`` points as the rows of one ``(2n, n)`` array.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+#: ``f(points (k, n)) -> (k, n)``, ``h(points (k, n)) -> (k, m)``.
+PointFunction = Callable[[np.ndarray], np.ndarray]
+
+
+def covariance_root(covariance: np.ndarray) -> np.ndarray:
+    """A square root ``S`` with ``S S^T = P`` (eq. 15).
+
+    Cholesky when ``P`` is positive definite. Round-off can leave a
+    covariance with a tiny negative eigenvalue (a state the measurements
+    pinned down exactly); then the symmetric part's eigen-decomposition with
+    negative eigenvalues clipped to zero is used, which is the nearest
+    positive semi-definite root.
+
+    Raises:
+        ValueError: if ``P`` is not finite.
+    """
+    p = np.asarray(covariance, dtype=float)
+    if not np.all(np.isfinite(p)):
+        raise ValueError("covariance has non-finite entries")
+    try:
+        return np.linalg.cholesky(p)
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(0.5 * (p + p.T))
+        return v * np.sqrt(np.clip(w, 0.0, None))
+
+
+def cubature_points(mean: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """The ``2n`` cubature points (rows) of ``N(mean, covariance)`` (eqs. 13, 15-16)."""
+    n = mean.shape[0]
+    spread = math.sqrt(n) * covariance_root(covariance).T  # row i: sqrt(n) S e_i
+    return np.concatenate((mean + spread, mean - spread))
+
+
+class CubatureKalmanFilter:
+    """Third-degree spherical-radial cubature Kalman filter (seed 000, eqs. 13-28).
+
+    Args:
+        transition: ``f``, maps an ``(k, n)`` array of states to the next states.
+        measurement: ``h``, maps an ``(k, n)`` array of states to ``(k, m)``
+            predicted measurements.
+        process_noise: ``Q`` (n, n), additive.
+        measurement_noise: default ``R`` (m, m), additive; :meth:`update` may
+            pass its own per measurement.
+
+    Attributes:
+        mean, covariance: the current estimate (``None`` before
+            :meth:`initialise`).
+        last_nis: normalised innovation squared of the last :meth:`update`.
+    """
+
+    def __init__(
+        self,
+        transition: PointFunction,
+        measurement: PointFunction,
+        process_noise: np.ndarray,
+        measurement_noise: np.ndarray,
+    ):
+        self.transition = transition
+        self.measurement = measurement
+        self.process_noise = _square("process_noise", process_noise)
+        self.measurement_noise = _square("measurement_noise", measurement_noise)
+        self.mean: np.ndarray | None = None
+        self.covariance: np.ndarray | None = None
+        self.last_nis = math.nan
+
+    @property
+    def initialised(self) -> bool:
+        return self.mean is not None
+
+    def initialise(self, mean, covariance) -> None:
+        """Start from ``N(mean, covariance)``.
+
+        Raises:
+            ValueError: on shapes that do not match ``Q`` or non-finite values.
+        """
+        n = self.process_noise.shape[0]
+        mean = np.array(mean, dtype=float)
+        covariance = _square("covariance", covariance)
+        if mean.shape != (n,) or covariance.shape != (n, n):
+            raise ValueError(f"expected a ({n},) mean and ({n}, {n}) covariance, "
+                             f"got {mean.shape} and {covariance.shape}")
+        if not np.all(np.isfinite(mean)):
+            raise ValueError("initial mean has non-finite entries")
+        self.mean, self.covariance = mean, covariance
+        self.last_nis = math.nan
+
+    def predict(self) -> None:
+        """Time update, eqs. 15-19.
+
+        Eq. 19's ``sum w X X^T - x x^T`` is evaluated about the mean
+        (``sum w (X - x)(X - x)^T``): algebraically identical, without the
+        cancellation of two large terms.
+        """
+        self._require_state()
+        points = self.transition(cubature_points(self.mean, self.covariance))  # eq. 17
+        mean = points.mean(axis=0)  # eq. 18
+        dev = points - mean
+        cov = dev.T @ dev / points.shape[0] + self.process_noise  # eq. 19
+        self._set(mean, cov)
+
+    def update(self, z, noise: np.ndarray | None = None, gate: float | None = None) -> bool:
+        """Measurement update with ``z``, eqs. 20-28.
+
+        Args:
+            z: the measurement (m,).
+            noise: ``R`` for this measurement (default: the constructor's).
+            gate: if given, reject the measurement when its normalised
+                innovation squared ``nu^T Pz^-1 nu`` exceeds it (a chi-square
+                gate against outliers); the estimate is then unchanged.
+
+        Returns:
+            Whether the measurement was used.
+
+        Raises:
+            ValueError: on a non-finite measurement or noise of the wrong shape.
+        """
+        self._require_state()
+        z = np.asarray(z, dtype=float)
+        r = self.measurement_noise if noise is None else np.asarray(noise, dtype=float)
+        if not np.all(np.isfinite(z)):
+            raise ValueError("measurement has non-finite entries")
+        if r.shape != (z.shape[0], z.shape[0]):
+            raise ValueError(f"measurement noise must be ({z.shape[0]}, {z.shape[0]}), "
+                             f"got {r.shape}")
+        points = cubature_points(self.mean, self.covariance)  # eqs. 20-21
+        z_points = self.measurement(points)  # eq. 22
+        z_hat = z_points.mean(axis=0)  # eq. 23
+        dz = z_points - z_hat
+        k = points.shape[0]
+        pz = dz.T @ dz / k + r  # eq. 24
+        pxz = (points - self.mean).T @ dz / k  # eq. 25
+        innovation = z - z_hat
+        solved = np.linalg.solve(pz, np.column_stack((innovation, pxz.T)))
+        self.last_nis = float(innovation @ solved[:, 0])
+        if gate is not None and not self.last_nis <= gate:
+            return False
+        gain = solved[:, 1:].T  # eq. 26: Pxz Pz^-1 (Pz symmetric)
+        mean = self.mean + gain @ innovation  # eq. 27
+        cov = self.covariance - gain @ pz @ gain.T  # eq. 28
+        self._set(mean, cov)
+        return True
+
+    def _set(self, mean: np.ndarray, cov: np.ndarray) -> None:
+        cov = 0.5 * (cov + cov.T)
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+            raise FloatingPointError("the cubature Kalman filter diverged (non-finite estimate)")
+        self.mean, self.covariance = mean, cov
+
+    def _require_state(self) -> None:
+        if self.mean is None:
+            raise RuntimeError("call initialise() before predict() or update()")
+
+
+def _square(name: str, matrix) -> np.ndarray:
+    m = np.array(matrix, dtype=float)
+    if m.ndim != 2 or m.shape[0] != m.shape[1]:
+        raise ValueError(f"{name} must be a square matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f"{name} has non-finite entries")
+    return m
+
+
+# ---------------------------------------------------------------- motion model (eq. 8)
+STATE_SIZE = 6
+DISCRETISATIONS = ("exact", "euler")
+
+
+@dataclasses.dataclass(frozen=True)
+class HeaveSurgeModel:
+    """Seed 000's AUV motion (eq. 8) on the state ``(x, y, z, vx, vy, vz)`` of eq. 7.
+
+    Uniform surge along x (``x += T vx``), y held (``y += T vy`` with ``vy``
+    a slow drift the process noise keeps near zero), and a sinusoidal heave:
+    ``z`` oscillates about ``z_mean`` with angular frequency ``C = omega``.
+    Velocities are in m/s as eq. 7 defines them.
+
+    ``discretisation="exact"`` (default) advances the heave pair by the exact
+    solution of ``z'' = -C^2 (z - z_mean)`` over one step, a rotation by
+    ``C T``. ``"euler"`` is its first-order form ``z + T vz``,
+    ``vz - C^2 T (z - z_mean)``: eq. 8 as printed (``z + C T vz``,
+    ``vz - C T z``) with its velocity read as the scaled rate ``z'/C``. The
+    first-order form inflates the amplitude by ``sqrt(1 + (C T)^2)`` per
+    step, which a filter bridging a lost marker would carry along.
+
+    Args:
+        dt: sampling interval ``T``, s.
+        omega: ``C``, rad/s (``2 pi / heave period``).
+        z_mean: the level the heave oscillates about, m.
+        discretisation: ``"exact"`` or ``"euler"``.
+    """
+
+    dt: float
+    omega: float
+    z_mean: float = 0.0
+    discretisation: str = "exact"
+    matrix: np.ndarray = dataclasses.field(init=False, repr=False, compare=False)
+    _offset: np.ndarray = dataclasses.field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        for name in ("dt", "omega"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+        if not math.isfinite(self.z_mean):
+            raise ValueError(f"z_mean must be finite, got {self.z_mean}")
+        if self.discretisation not in DISCRETISATIONS:
+            raise ValueError(f"discretisation must be one of {DISCRETISATIONS}, "
+                             f"got {self.discretisation!r}")
+        t, c = self.dt, self.omega
+        f = np.eye(STATE_SIZE)
+        f[0, 3] = f[1, 4] = t
+        if self.discretisation == "exact":
+            co, si = math.cos(c * t), math.sin(c * t)
+            f[2, 2], f[2, 5], f[5, 2], f[5, 5] = co, si / c, -c * si, co
+        else:
+            f[2, 5], f[5, 2] = t, -c * c * t
+        f.setflags(write=False)
+        level = np.zeros(STATE_SIZE)
+        level[2] = self.z_mean
+        offset = level - f @ level  # the oscillation is about z_mean, not 0
+        offset.setflags(write=False)
+        object.__setattr__(self, "matrix", f)
+        object.__setattr__(self, "_offset", offset)
+
+    def __call__(self, states: np.ndarray) -> np.ndarray:
+        """Next states of the rows of ``states`` (k, 6) (or of one state (6,))."""
+        return states @ self.matrix.T + self._offset
+
+    def kinematics(self, state, horizon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration (3 each) ``horizon`` s after ``state``.
+
+        The continuous-time solution of the model (no process noise), used to
+        plan the arm's trajectory towards where the AUV will be.
+        """
+        s = np.asarray(state, dtype=float)
+        c, h = self.omega, float(horizon)
+        co, si = math.cos(c * h), math.sin(c * h)
+        dz, vz = s[2] - self.z_mean, s[5]
+        z_dev = co * dz + si / c * vz
+        pos = np.array([s[0] + h * s[3], s[1] + h * s[4], self.z_mean + z_dev])
+        vel = np.array([s[3], s[4], -c * si * dz + co * vz])
+        acc = np.array([0.0, 0.0, -c * c * z_dev])
+        return pos, vel, acc
+
+    def with_heave(self, omega: float, z_mean: float) -> HeaveSurgeModel:
+        """The same model with a new heave frequency and mean level."""
+        return dataclasses.replace(self, omega=omega, z_mean=z_mean)
+
+
+def position_measurement(states: np.ndarray) -> np.ndarray:
+    """Eq. 9: the measured position ``H X`` of each state row (``H = [I 0]``)."""
+    return states[..., :3]
+
+
+def white_acceleration_noise(dt: float, accel_std) -> np.ndarray:
+    """``Q`` (6, 6) for white acceleration noise of std ``accel_std`` (3,) m/s^2 per axis.
+
+    The discrete white-noise-acceleration covariance of each position/velocity
+    pair, ``q [[T^3/3, T^2/2], [T^2/2, T]]`` with ``q = std^2`` read as a
+    spectral density (m^2/s^3) over one step; for the heave pair it is the
+    same to first order in ``C T``.
+    """
+    std = np.broadcast_to(np.asarray(accel_std, dtype=float), (3,))
+    if not (dt > 0 and np.all(np.isfinite(std)) and np.all(std >= 0)):
+        raise ValueError(f"dt must be positive and accel_std finite and >= 0, got {dt}, {std}")
+    q = np.zeros((STATE_SIZE, STATE_SIZE))
+    for axis, s2 in enumerate(std**2):
+        q[axis, axis] = s2 * dt**3 / 3.0
+        q[axis, axis + 3] = q[axis + 3, axis] = s2 * dt**2 / 2.0
+        q[axis + 3, axis + 3] = s2 * dt
+    return q
+
+
+# ---------------------------------------------------------------- heave frequency (eq. 8's C)
+@dataclasses.dataclass(frozen=True)
+class HeaveFit:
+    """``z(t) ~ mean + amplitude sin(omega t + phase)`` fitted by least squares.
+
+    Attributes:
+        omega: rad/s. mean, amplitude: m. phase: rad, at the first sample's time.
+        rms: root-mean-square residual, m.
+        samples: number of heights used; span: time they cover, s.
+    """
+
+    omega: float
+    mean: float
+    amplitude: float
+    phase: float
+    rms: float
+    samples: int
+    span: float
+
+
+def _sinusoid_residuals(times: np.ndarray, z: np.ndarray, omegas: np.ndarray):
+    """Least-squares ``(sin, cos, 1)`` coefficients (G, 3) and residual RMS (G,) per omega."""
+    wt = omegas[:, None] * times[None, :]
+    basis = np.stack((np.sin(wt), np.cos(wt), np.ones_like(wt)), axis=-1)  # (G, N, 3)
+    normal = np.einsum("gni,gnj->gij", basis, basis)
+    rhs = np.einsum("gni,n->gi", basis, z)
+    coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    resid = z[None, :] - np.einsum("gni,gi->gn", basis, coef)
+    return coef, np.sqrt(np.mean(resid**2, axis=1))
+
+
+def fit_heave(times, z, omega_bounds=(0.5, 1.6), grid: int = 48) -> HeaveFit:
+    """Fit a sinusoid of unknown frequency to heights ``z`` at ``times``.
+
+    For a fixed ``omega`` the model is linear in ``(a, b, mean)`` of
+    ``a sin(omega t) + b cos(omega t) + mean``; the frequency minimising the
+    residual is found on a grid over ``omega_bounds`` and refined with a
+    bounded scalar search (scipy) around the best grid point.
+
+    Raises:
+        ValueError: with fewer than 4 heights, mismatched or non-finite
+            inputs, or bounds that are not ``0 < lo < hi``.
+    """
+    t = np.asarray(times, dtype=float)
+    z = np.asarray(z, dtype=float)
+    lo, hi = (float(b) for b in omega_bounds)
+    if t.shape != z.shape or t.ndim != 1 or t.size < 4:
+        raise ValueError(f"need matching 1-D times and heights (>= 4), got {t.shape}, {z.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(z))):
+        raise ValueError("times and heights must be finite")
+    if not 0.0 < lo < hi:
+        raise ValueError(f"omega_bounds must satisfy 0 < lo < hi, got {omega_bounds}")
+    t = t - t[0]  # conditioning: the basis stays O(1)
+    omegas = np.linspace(lo, hi, grid)
+    _, rms = _sinusoid_residuals(t, z, omegas)
+    best = int(np.argmin(rms))
+    step = omegas[1] - omegas[0]
+    result = minimize_scalar(
+        lambda w: float(_sinusoid_residuals(t, z, np.array([w]))[1][0]),
+        bounds=(max(lo, omegas[best] - step), min(hi, omegas[best] + step)),
+        method="bounded", options={"xatol": 1e-5},
+    )
+    omega = float(result.x)
+    coef, rms_best = _sinusoid_residuals(t, z, np.array([omega]))
+    a, b, mean = coef[0]
+    return HeaveFit(
+        omega=omega, mean=float(mean), amplitude=math.hypot(a, b),
+        phase=math.atan2(b, a), rms=float(rms_best[0]), samples=int(t.size),
+        span=float(t[-1]),
+    )
