@@ -1,0 +1,207 @@
+"""The AUV's position and attitude from the triangle marker seen by the stereo pair.
+
+Seed 000, §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the
+left and right images are triangulated in the left camera frame (eq. 2,
+through :func:`auv_envs.core.stereo.triangulate`), carried to the arm base
+(world) frame by the hand-eye transform composed with the arm's forward
+kinematics (eq. 3, ``LARSCalibration.camera_poses``), and give the AUV's pitch
+and yaw (eqs. 4-6, :func:`auv_envs.tasks.lars_scene.marker_pitch_yaw`). With
+the attitude, the marker's known place on the hull turns the corners into the
+AUV's centre of gravity and its capture point (lifting eye).
+
+Eq. 4 adds the marker's offset ``D`` (base midpoint below the hull's top
+line) along the world vertical; on a pitched hull it lies along the body's
+vertical instead. :func:`marker_attitude` starts from eq. 4 as printed and,
+with ``refine=True``, re-applies ``D`` along the body axis of the current
+estimate (a fixed point reached in two or three passes).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from auv_envs.core.frames import rotation_from_euler
+from auv_envs.core.stereo import StereoRig, triangulate
+from auv_envs.tasks.lars_scene import marker_pitch_yaw
+
+#: Floor on the pixel noise the measurement covariance assumes (px): detectors
+#: are never better than sub-pixel, and a zero covariance would make the
+#: filter trust one fix absolutely.
+MIN_PIXEL_STD = 0.3
+#: Corners with a smaller disparity (px) are treated as mismatched: 1 px at
+#: the default rig is 50 m away.
+MIN_DISPARITY = 1.0
+
+
+def auv_rotation(pitch: float, yaw: float) -> np.ndarray:
+    """Body-to-world rotation of a level-rolled AUV with nose-up ``pitch`` and ``yaw``."""
+    return rotation_from_euler(0.0, -pitch, yaw)
+
+
+def marker_attitude(corners, depth_offset: float, refine: bool = True,
+                    passes: int = 3) -> tuple[float, float]:
+    """AUV pitch (nose up) and yaw (from world +x, counter-clockwise) from A1, A2, A3.
+
+    Args:
+        corners: (3, 3) world-frame corners A1, A2, A3 (z up).
+        depth_offset: ``D`` of eq. 4, m.
+        refine: apply ``D`` along the body vertical (see the module docstring);
+            ``False`` is eqs. 4-6 as printed.
+        passes: refinement passes.
+    """
+    a = np.asarray(corners, dtype=float)
+    swap = [1, 0, 2]  # eq. 6 measures yaw from the y axis; the world's heading is +x
+    pitch, yaw = marker_pitch_yaw(a[:, swap], depth_offset)
+    if refine:
+        for _ in range(passes):
+            # shift the base so that eq. 4's "+ D z" lands at "+ D body_z"
+            shift = depth_offset * (auv_rotation(pitch, yaw)[:, 2] - (0.0, 0.0, 1.0))
+            moved = a.copy()
+            moved[:2] += shift
+            pitch, yaw = marker_pitch_yaw(moved[:, swap], depth_offset)
+    return pitch, yaw
+
+
+def triangulation_jacobian(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
+    """d(X, Y, Z) / d(u_left, v_left, u_right) of eq. 2 at each matched pair, (N, 3, 3).
+
+    Eq. 2 reads only the left row coordinate, so ``v_right`` has no column.
+    """
+    left = np.atleast_2d(np.asarray(left_pixels, dtype=float))
+    right = np.atleast_2d(np.asarray(right_pixels, dtype=float))
+    k = rig.left
+    x = left[:, 0] - k.cx
+    y = left[:, 1] - k.cy
+    d = x - (right[:, 0] - rig.right.cx)
+    s = rig.baseline / d
+    ratio = k.fx / k.fy
+    jac = np.zeros((left.shape[0], 3, 3))
+    jac[:, 0, 0] = s * (1.0 - x / d)
+    jac[:, 0, 2] = s * x / d
+    jac[:, 1, 0] = -y * s * ratio / d
+    jac[:, 1, 1] = s * ratio
+    jac[:, 1, 2] = y * s * ratio / d
+    jac[:, 2, 0] = -k.fx * s / d
+    jac[:, 2, 2] = k.fx * s / d
+    return jac
+
+
+@dataclasses.dataclass(frozen=True)
+class MarkerFix:
+    """The marker in one stereo observation.
+
+    Attributes:
+        corners: (3, 3) world-frame A1, A2, A3, NaN where not triangulated.
+        covariances: (3, 3, 3) world-frame covariance of each corner (NaN
+            where not triangulated), from the pixel noise through eq. 2.
+        valid: (3,) which corners were triangulated (seen in both images with
+            a positive disparity).
+        rejected: corners seen in both images but dropped (disparity below
+            :data:`MIN_DISPARITY`: a mismatch).
+        pitch, yaw: attitude from eqs. 4-6 when all three corners are valid,
+            else ``None``.
+    """
+
+    corners: np.ndarray
+    covariances: np.ndarray
+    valid: np.ndarray
+    rejected: int
+    pitch: float | None
+    yaw: float | None
+
+    @property
+    def count(self) -> int:
+        return int(self.valid.sum())
+
+
+class MarkerLocaliser:
+    """Marker corners, attitude and AUV points from a ``features`` observation.
+
+    Args:
+        calibration: the env's ``LARSCalibration`` (stereo rig, hand-eye
+            transforms, arm kinematics, marker geometry).
+        pixel_std: pixel noise (px) the covariances assume (default: the
+            calibration's, floored at :data:`MIN_PIXEL_STD`).
+        refine_attitude: see :func:`marker_attitude`.
+    """
+
+    def __init__(self, calibration, pixel_std: float | None = None,
+                 refine_attitude: bool = True):
+        std = calibration.pixel_noise_std if pixel_std is None else float(pixel_std)
+        if not np.isfinite(std) or std < 0:
+            raise ValueError(f"pixel_std must be finite and >= 0, got {pixel_std}")
+        self.calibration = calibration
+        self.pixel_std = max(std, MIN_PIXEL_STD)
+        self.refine_attitude = refine_attitude
+        marker = calibration.marker
+        self._body = np.asarray(marker.corners, dtype=float)
+        self._depth_offset = float(marker.depth_offset)
+        self._capture_body = np.asarray(calibration.capture_point_body, dtype=float)
+
+    def locate(self, pixels, visible, joint_position) -> MarkerFix:
+        """Triangulate the corners seen in both images and express them in the world.
+
+        Args:
+            pixels: (2, 3, 2) corner pixels (left, right) x (A1, A2, A3).
+            visible: (2, 3) which are valid.
+            joint_position: (3,) arm joint angles at the time of the images.
+
+        Raises:
+            ValueError: on wrong shapes or non-finite pixels of visible corners.
+        """
+        px = np.asarray(pixels, dtype=float)
+        vis = np.asarray(visible).astype(bool)
+        q = np.asarray(joint_position, dtype=float)
+        if px.shape != (2, 3, 2) or vis.shape != (2, 3) or q.shape != (3,):
+            raise ValueError("expected pixels (2, 3, 2), visible (2, 3) and joint_position (3,), "
+                             f"got {px.shape}, {vis.shape}, {q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise ValueError("joint_position has non-finite entries")
+        both = vis[0] & vis[1]
+        if not np.all(np.isfinite(px[:, both])):
+            raise ValueError("pixels of visible corners must be finite")
+        rig = self.calibration.stereo
+        disparity = (px[0, :, 0] - rig.left.cx) - (px[1, :, 0] - rig.right.cx)
+        valid = both & (disparity > MIN_DISPARITY)
+        corners = np.full((3, 3), np.nan)
+        covs = np.full((3, 3, 3), np.nan)
+        pitch = yaw = None
+        if valid.any():
+            left, right = px[0, valid], px[1, valid]
+            cam = triangulate(rig, left, right)  # eq. 2, left camera frame
+            pose = self.calibration.camera_poses(q)[0]  # eq. 3: world <- left camera
+            rot = pose[:3, :3]
+            corners[valid] = cam @ rot.T + pose[:3, 3]
+            jac = rot @ triangulation_jacobian(rig, left, right)
+            covs[valid] = self.pixel_std**2 * jac @ jac.transpose(0, 2, 1)
+            if valid.all():
+                pitch, yaw = marker_attitude(corners, self._depth_offset, self.refine_attitude)
+        return MarkerFix(corners, covs, valid, int((both & ~valid).sum()), pitch, yaw)
+
+    def auv_position(self, fix: MarkerFix, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The AUV's CG (3,) and its covariance (3, 3) from the valid corners of ``fix``.
+
+        Each valid corner gives ``A_i - R a_i`` (``a_i`` the corner on the
+        hull); the estimate is their mean, its covariance the mean of the
+        corner covariances over ``n`` (independent corners; the attitude's
+        own uncertainty is left out).
+
+        Raises:
+            ValueError: if ``fix`` has no valid corner.
+        """
+        if not fix.valid.any():
+            raise ValueError("the fix has no triangulated corner")
+        n = fix.count
+        cg = (fix.corners[fix.valid] - self._body[fix.valid] @ rotation.T).mean(axis=0)
+        cov = fix.covariances[fix.valid].sum(axis=0) / n**2
+        return cg, cov
+
+    def capture_point(self, cg, rotation: np.ndarray) -> np.ndarray:
+        """The capture point (lifting eye) in the world for CG ``cg`` and attitude ``rotation``."""
+        return np.asarray(cg, dtype=float) + rotation @ self._capture_body
+
+    def marker_centre(self, cg, rotation: np.ndarray) -> np.ndarray:
+        """The centroid of the three corners in the world."""
+        return np.asarray(cg, dtype=float) + rotation @ self._body.mean(axis=0)
