@@ -148,6 +148,7 @@ BUILTIN_AGENT_MODULES = (
     "baselines.agents.random_agent",
     "baselines.agents.pd_docking",
     "baselines.acoustic.agents",
+    "baselines.lars.agents",
 )
 
 
