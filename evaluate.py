@@ -1,57 +1,152 @@
-"""Evaluate every applicable agent on every registered environment over fixed seeds.
+"""Rank every applicable agent on every environment over frozen evaluation seeds.
 
-    python evaluate.py [--envs ID ...] [--agents NAME ...] [--episodes N]
-                       [--seeds A-B] [--out DIR] [--scenario NAME]
+    python evaluate.py [--envs ID ...] [--agents NAME ...] [--obs-modes MODE ...]
+                       [--episodes N] [--seeds A-B] [--env-kwargs [ENV:]KEY=VALUE ...]
+                       [--out DIR] [--backend local|ray] [--ray-address ADDR] [--workers N]
 
-Prints a Markdown table of the metrics and writes the per-episode rows and the
-summary as JSON under ``--out``.
+Writes ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json``
+and ``episodes.json`` under ``--out`` and prints the Markdown tables.
+Finished episodes are cached under ``--out``/episodes (one file each), so a
+rerun, or a run after an interruption, only runs what is missing.
+
+Default run (the README's main command): every environment, every
+registered agent in its default obs mode, 3 episodes on the frozen seeds
+100000-100002, each environment's default arguments except the acoustic
+episodes, shortened to 30 s (``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local
+worker processes.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import shlex
 import sys
 
 import auv_envs
+from baselines import leaderboard
 from baselines.evaluation import (
+    BACKENDS,
+    EVAL_SEED_BASE,
+    check_names,
     default_seeds,
-    evaluate,
-    format_table,
+    evaluate_all,
+    import_agent_modules,
     parse_seeds,
+    resolve_env_kwargs,
     summarise,
-    write_results,
 )
-from baselines.registry import agent_names
+
+#: Environment arguments of the default run; ``--env-kwargs`` overrides them
+#: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
+#: makes the GM-PHD trackers the bulk of the run; 30 s keeps the default run
+#: to a few minutes on 2 cores.
+DEFAULT_ENV_KWARGS = {"auv_envs/AcousticTracking-v0": {"time_limit": 30.0}}
+
+
+def default_workers() -> int:
+    return max(1, min(4, os.cpu_count() or 1))
+
+
+def resolve_env_ids(names) -> list[str]:
+    """Full ids for names given as ids or as the part after ``auv_envs/``."""
+    short = {env_id.split("/", 1)[-1]: env_id for env_id in auv_envs.ENVIRONMENTS}
+    return [short.get(name, name) for name in names]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n\n".join(__doc__.split("\n\n")[2:]),
+    )
+    parser.add_argument("--envs", nargs="+", default=None, metavar="ID",
+                        help="environment ids, or their names without 'auv_envs/' (default: all)")
+    parser.add_argument("--agents", nargs="+", default=None, metavar="NAME",
+                        help="agent names (default: all registered)")
+    parser.add_argument("--obs-modes", nargs="+", default=None, metavar="MODE",
+                        help="evaluate each agent in these of its obs modes "
+                             "(default: the agent's default mode)")
+    parser.add_argument("--episodes", type=int, default=3,
+                        help="episodes per pair on the frozen seeds from "
+                             f"{EVAL_SEED_BASE} (default 3)")
+    parser.add_argument("--seeds", type=str, default=None,
+                        help="'A-B' or 'A,B,C': override the frozen evaluation seeds")
+    parser.add_argument("--env-kwargs", nargs="+", action="append", default=None,
+                        metavar="[ENV:]KEY=VALUE",
+                        help="environment arguments (Python literals or bare strings); KEY=VALUE "
+                             "goes to every env that takes KEY. Repeat the option to evaluate "
+                             "several scenarios. Default run: "
+                             + ", ".join(f"{e.split('/')[-1]}:{k}={v}"
+                                         for e, kw in DEFAULT_ENV_KWARGS.items()
+                                         for k, v in kw.items()))
+    parser.add_argument("--scenario", type=str, default=None,
+                        help="shorthand for adding scenario=NAME to the environment arguments")
+    parser.add_argument("--out", type=str, default="results/leaderboard",
+                        help="output directory (default results/leaderboard)")
+    parser.add_argument("--cache-dir", type=str, default=None,
+                        help="episode cache (default OUT/episodes)")
+    parser.add_argument("--no-cache", action="store_true",
+                        help="run every episode again (the cache is still refreshed)")
+    parser.add_argument("--backend", choices=BACKENDS, default="local",
+                        help="local processes (default) or Ray tasks")
+    parser.add_argument("--ray-address", type=str, default=None,
+                        help="address of an existing Ray cluster (default: start a local Ray)")
+    parser.add_argument("--workers", type=int, default=default_workers(),
+                        help="local worker processes, 1 = in this process; with a local Ray, "
+                             f"its CPUs (default {default_workers()})")
+    parser.add_argument("--agent-module", nargs="+", default=[], metavar="MODULE",
+                        help="modules to import first (and in every worker) that register agents")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--envs", nargs="+", default=list(auv_envs.ENVIRONMENTS),
-                        help="environment ids (default: all registered)")
-    parser.add_argument("--agents", nargs="+", default=None,
-                        help=f"agent names (default: all of {', '.join(agent_names())})")
-    parser.add_argument("--episodes", type=int, default=3,
-                        help="episodes per (env, agent) when --seeds is not given (default 3)")
-    parser.add_argument("--seeds", type=str, default=None,
-                        help="evaluation seeds 'A-B' or 'A,B,C' (default: N from 100000)")
-    parser.add_argument("--scenario", type=str, default=None,
-                        help="scenario passed to every env (default: the env's own default)")
-    parser.add_argument("--out", type=str, default="results/evaluate",
-                        help="directory for rows.json and summary.json")
+    parser = build_parser()
     args = parser.parse_args(argv)
-
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
+        if args.workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {args.workers}")
+        import_agent_modules(args.agent_module)
+        env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
+        check_names(env_ids, args.agents or ())
         seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
-        env_kwargs = {"scenario": args.scenario} if args.scenario else None
-        rows = evaluate(args.envs, args.agents, seeds, env_kwargs)
-    except (ValueError, KeyError) as exc:
-        parser.error(str(exc))
-    if not rows:
+        groups = args.env_kwargs or [[]]
+        if args.scenario:
+            groups = [[*group, f"scenario={args.scenario}"] for group in groups]
+        defaults = {e: kw for e, kw in DEFAULT_ENV_KWARGS.items() if e in env_ids}
+        variants = [resolve_env_kwargs(env_ids, group, defaults) for group in groups]
+        run = evaluate_all(
+            env_ids, args.agents, seeds, args.obs_modes, variants,
+            cache_dir=args.cache_dir or os.path.join(args.out, "episodes"),
+            refresh=args.no_cache, backend=args.backend, workers=args.workers,
+            ray_address=args.ray_address, agent_modules=args.agent_module,
+            progress=not args.no_progress,
+        )
+    except (ValueError, KeyError, RuntimeError) as exc:
+        parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
+    if any(s < EVAL_SEED_BASE for s in seeds):
+        print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
+              file=sys.stderr)
+    for skip in run.skipped:
+        print(f"skipped {skip['agent']} on {skip['env_id']}: {skip['reason']}", file=sys.stderr)
+    if not run.rows:
         print("no (env, agent) pair applies; nothing evaluated", file=sys.stderr)
         return 1
-    print(format_table(summarise(rows)))
-    out = write_results(rows, args.out)
-    print(f"\nwrote {len(rows)} episode rows to {out}/rows.json and summary.json")
+    summary = summarise(run.rows)
+    meta = {
+        "command": "python evaluate.py " + shlex.join(argv),
+        "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
+        else ",".join(map(str, seeds)),
+        "auv_envs version": auv_envs.__version__,
+    }
+    paths = leaderboard.write(args.out, summary, run.skipped, run.rows, meta)
+    print(leaderboard.markdown(summary, run.skipped))
+    stats = run.stats
+    print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache, "
+          f"{stats.failed} failed; wrote {paths['leaderboard.html']} and "
+          f"{len(paths) - 1} more files under {args.out}", file=sys.stderr)
     return 0
 
 

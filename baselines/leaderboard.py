@@ -1,0 +1,337 @@
+"""Leaderboard writers: Markdown, CSV, JSON, PNG plots and a static sortable HTML page.
+
+Input is :func:`baselines.evaluation.summarise` output (one row per env, obs
+mode, scenario and agent, with ``metrics``: name -> ``{mean, std, n}``) and
+the pairs the plan skipped. Each environment gets its own table: its
+*headline* metrics are the ones of :data:`HEADLINE_METRICS` (and every
+``violation_*_steps`` count) that its rows report, so each task shows its own
+measures (SPEC §4; docking: success, time, final deviations, constraint
+violations, energy; LARS: capture, position-estimate error; acoustic: RMSE,
+maximum error, TFC, TCFE, OSPA). Every file is written atomically; the HTML
+page loads nothing from the network (inline CSS and script, plots as files
+next to it).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from baselines.evaluation import _jsonable, atomic_write_bytes, atomic_write_text, row_to_dict
+
+#: Metrics shown in the tables and plots when an environment reports them:
+#: key -> (label, format, which way is better). The final deviations are
+#: signed (as the environments report them): closer to 0 is better.
+HEADLINE_METRICS: dict[str, tuple[str, str, str]] = {
+    "success": ("success", ".0%", "higher"),
+    "return": ("return", ".2f", "higher"),
+    "docking_time": ("docking time s", ".1f", "lower"),
+    "capture_time": ("capture time s", ".1f", "lower"),
+    "final_lateral_error": ("final lateral m", ".3f", "closer to 0"),
+    "final_vertical_error": ("final vertical m", ".3f", "closer to 0"),
+    "final_heading_error_deg": ("final heading deg", ".1f", "closer to 0"),
+    "final_capture_error": ("capture error m", ".3f", "lower"),
+    "estimate_error_mean": ("estimate error mean m", ".3f", "lower"),
+    "estimate_error_max": ("estimate error max m", ".3f", "lower"),
+    "rmse": ("RMSE m", ".3f", "lower"),
+    "max_error": ("max error m", ".3f", "lower"),
+    "tfc": ("TFC", ".1f", "lower"),
+    "tcfe": ("TCFE", ".3f", "lower"),
+    "mean_ospa": ("OSPA m", ".3f", "lower"),
+    "control_effort": ("energy (control effort)", ".1f", "lower"),
+}
+
+OUTPUT_FILES = ("leaderboard.md", "leaderboard.csv", "leaderboard.json", "leaderboard.html",
+                "skipped.json", "episodes.json")
+
+
+def _violation_label(key: str) -> str:
+    return key.removeprefix("violation_").removesuffix("_steps").replace("_", " ") + \
+        " violation steps"
+
+
+def headline_keys(rows: Sequence[Mapping]) -> list[str]:
+    """The headline metrics that at least one of ``rows`` reports, in display order."""
+    present = {k for r in rows for k in r["metrics"]}
+    keys = [k for k in HEADLINE_METRICS if k in present]
+    violations = sorted(k for k in present if k.startswith("violation_") and k.endswith("_steps"))
+    # Constraint violations go before energy (the last column when present).
+    at = keys.index("control_effort") if "control_effort" in keys else len(keys)
+    return keys[:at] + violations + keys[at:]
+
+
+def metric_label(key: str) -> str:
+    if key in HEADLINE_METRICS:
+        return HEADLINE_METRICS[key][0]
+    if key.startswith("violation_") and key.endswith("_steps"):
+        return _violation_label(key)
+    return key
+
+
+def _format(key: str, value: float) -> str:
+    spec = HEADLINE_METRICS.get(key, ("", ".3g", "lower"))[1]
+    return format(value, spec)
+
+
+def cell_text(row: Mapping, key: str) -> str:
+    """``mean ± std`` of ``row``'s metric ``key`` (``–`` when not reported)."""
+    stat = row["metrics"].get(key)
+    if stat is None:
+        return "–"
+    if key == "success":
+        return f"{stat['mean']:.0%} ({round(stat['mean'] * stat['n'])}/{stat['n']})"
+    if stat["n"] == 1:
+        return _format(key, stat["mean"])
+    return f"{_format(key, stat['mean'])} ± {_format(key, stat['std'])}"
+
+
+def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
+    """Rows grouped per environment (first-seen order), best first.
+
+    Best: higher success rate, then higher mean return; failed rows last.
+    """
+    groups: dict[str, list[Mapping]] = {}
+    for row in summary:
+        groups.setdefault(row["env_id"], []).append(row)
+
+    def rank(row):
+        metrics = row["metrics"]
+        ret = metrics.get("return", {}).get("mean", -math.inf)
+        return (row["status"] == "failed", -metrics["success"]["mean"], -ret, row["agent"])
+
+    return {env_id: sorted(rows, key=rank) for env_id, rows in groups.items()}
+
+
+def _short(env_id: str) -> str:
+    return env_id.split("/", 1)[-1]
+
+
+def _row_name(row: Mapping, rows: Sequence[Mapping]) -> str:
+    """The agent's name, with the obs mode / scenario where an env's rows differ in them."""
+    parts = [row["agent"]]
+    for field in ("obs_mode", "scenario"):
+        if len({r[field] for r in rows}) > 1:
+            parts.append(row[field])
+    return parts[0] if len(parts) == 1 else f"{parts[0]} [{', '.join(parts[1:])}]"
+
+
+# ------------------------------------------------------------------ markdown
+def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
+             plots: Mapping[str, str] | None = None, meta: Mapping | None = None) -> str:
+    """The leaderboard as Markdown: one table per environment, then the skipped pairs."""
+    lines = ["# Leaderboard", ""]
+    if meta:
+        lines += [f"- {k}: `{v}`" for k, v in meta.items()] + [""]
+    for env_id, rows in by_env(summary).items():
+        keys = headline_keys(rows)
+        lines += [f"## {env_id}", ""]
+        header = ["agent", "obs mode", "scenario", "episodes"] + [metric_label(k) for k in keys]
+        lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for row in rows:
+            cells = [row["agent"], row["obs_mode"], row["scenario"], str(row["episodes"])]
+            cells += [cell_text(row, k) for k in keys]
+            lines.append("| " + " | ".join(cells) + " |")
+        failed = [r for r in rows if r["failed"]]
+        if failed:
+            lines.append("")
+            for row in failed:
+                lines.append(f"- **{row['agent']}** ({row['obs_mode']}, {row['scenario']}): "
+                             f"{row['failed']}/{row['episodes']} episodes failed: "
+                             + "; ".join(row["errors"]))
+        if plots and env_id in plots:
+            lines += ["", f"![{env_id}]({plots[env_id]})"]
+        lines.append("")
+    if skipped:
+        lines += ["## Skipped (agent does not apply)", "",
+                  "| env | agent | scenario | reason |", "|---|---|---|---|"]
+        lines += [f"| {s['env_id']} | {s['agent']} | {s['scenario']} | {s['reason']} |"
+                  for s in skipped]
+        lines.append("")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------- csv
+def csv_text(summary: Sequence[Mapping]) -> str:
+    """One line per leaderboard row; ``<metric>_mean`` / ``<metric>_std`` for every metric."""
+    keys = headline_keys(summary)
+    keys += sorted({k for r in summary for k in r["metrics"]} - set(keys))
+    fields = ["env_id", "obs_mode", "scenario", "agent", "episodes", "failed", "status", "errors"]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(fields + [f"{k}_{s}" for k in keys for s in ("mean", "std")])
+    for row in summary:
+        values = [row[f] for f in fields[:-1]] + ["; ".join(row["errors"])]
+        for key in keys:
+            stat = row["metrics"].get(key)
+            values += [repr(stat["mean"]), repr(stat["std"])] if stat else ["", ""]
+        writer.writerow(values)
+    return buffer.getvalue()
+
+
+# --------------------------------------------------------------------- plots
+def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
+    """PNG: one horizontal bar chart (mean ± std over episodes) per headline metric."""
+    keys = [k for k in headline_keys(rows) if any(k in r["metrics"] for r in rows)]
+    ncols = min(3, len(keys))
+    nrows = math.ceil(len(keys) / ncols)
+    names = [_row_name(r, rows) for r in rows]
+    # Fixed margins in inches instead of a layout engine (several times faster):
+    # room for the longest bar label left of every axis.
+    label_in = 0.07 * max(len(n) for n in names) + 0.25
+    axis_in, bar_in = 3.0, 0.3
+    width = ncols * (label_in + axis_in) + 0.3
+    height_row = bar_in * len(rows) + 0.9
+    height = nrows * height_row + 0.5
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    fig.subplots_adjust(left=label_in / width, right=1 - 0.3 / width, bottom=0.35 / height,
+                        top=1 - 0.5 / height, wspace=label_in / axis_in,
+                        hspace=0.75 / (height_row - 0.75))
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax, key in zip(axes, keys, strict=False):
+        means = [r["metrics"][key]["mean"] if key in r["metrics"] else math.nan for r in rows]
+        stds = [r["metrics"][key]["std"] if key in r["metrics"] else 0.0 for r in rows]
+        positions = list(range(len(rows)))
+        ax.barh(positions, means, xerr=stds, color="#4477aa", ecolor="#222222", capsize=3)
+        ax.set_yticks(positions, names, fontsize=8)
+        ax.invert_yaxis()
+        better = HEADLINE_METRICS.get(key, ("", "", "lower"))[2]
+        ax.set_title(f"{metric_label(key)} ({better} is better)", fontsize=9)
+        ax.tick_params(axis="x", labelsize=8)
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
+        ax.grid(axis="x", alpha=0.3)
+    for ax in axes[len(keys):]:
+        ax.set_visible(False)
+    fig.suptitle(env_id, fontsize=11)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=90)
+    return buffer.getvalue()
+
+
+# ---------------------------------------------------------------------- html
+_STYLE = """
+body { font-family: system-ui, sans-serif; margin: 1.5rem; color: #222; }
+table.leaderboard { border-collapse: collapse; margin: 0.5rem 0 1rem; font-size: 0.9rem; }
+table.leaderboard th, table.leaderboard td { border: 1px solid #ccc; padding: 0.25rem 0.5rem; }
+table.leaderboard th { background: #eef; cursor: pointer; user-select: none; }
+table.leaderboard th[aria-sort="ascending"]::after { content: " \\25B2"; }
+table.leaderboard th[aria-sort="descending"]::after { content: " \\25BC"; }
+tr.failed td { background: #fee; }
+td.num { text-align: right; font-variant-numeric: tabular-nums; }
+img.plot { max-width: 100%; border: 1px solid #ddd; }
+code { background: #f4f4f4; padding: 0 0.2rem; }
+"""
+
+# Click a header to sort by that column (toggling ascending/descending). Cells
+# sort by their data-value (a number) when they have one, else by their text;
+# cells without a value always go last.
+_SCRIPT = """
+document.querySelectorAll("table.leaderboard").forEach(function (table) {
+  var headers = table.querySelectorAll("thead th");
+  headers.forEach(function (th, column) {
+    th.addEventListener("click", function () {
+      var order = th.getAttribute("aria-sort") === "ascending" ? "descending" : "ascending";
+      headers.forEach(function (h) { h.removeAttribute("aria-sort"); });
+      th.setAttribute("aria-sort", order);
+      var sign = order === "ascending" ? 1 : -1;
+      var body = table.tBodies[0];
+      var key = function (row) {
+        var cell = row.cells[column];
+        if (cell.dataset.value === undefined) { return cell.textContent.trim(); }
+        return cell.dataset.value === "" ? null : parseFloat(cell.dataset.value);
+      };
+      Array.from(body.rows).sort(function (a, b) {
+        var x = key(a), y = key(b);
+        if (x === null || y === null) { return (x === null) - (y === null); }
+        if (typeof x === "number") { return sign * (x - y); }
+        return sign * x.localeCompare(y);
+      }).forEach(function (row) { body.appendChild(row); });
+    });
+  });
+});
+"""
+
+
+def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
+         plots: Mapping[str, str] | None = None, meta: Mapping | None = None) -> str:
+    """A self-contained HTML page: per environment a sortable table and its plot."""
+    esc = html.escape
+    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           "<title>auv_envs leaderboard</title>", f"<style>{_STYLE}</style></head><body>",
+           "<h1>auv_envs leaderboard</h1>"]
+    if meta:
+        out.append("<ul>" + "".join(f"<li>{esc(str(k))}: <code>{esc(str(v))}</code></li>"
+                                    for k, v in meta.items()) + "</ul>")
+    out.append("<p>Mean ± standard deviation over the evaluation episodes; click a column "
+               "header to sort.</p>")
+    for env_id, rows in by_env(summary).items():
+        keys = headline_keys(rows)
+        out.append(f"<h2>{esc(env_id)}</h2>")
+        out.append(f'<table class="leaderboard" data-env="{esc(env_id)}"><thead><tr>')
+        header = ["agent", "obs mode", "scenario", "episodes", "failed"]
+        header += [metric_label(k) for k in keys] + ["errors"]
+        out.append("".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>")
+        for row in rows:
+            cls = ' class="failed"' if row["failed"] else ""
+            cells = [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
+            cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
+                      for f in ("episodes", "failed")]
+            for key in keys:
+                stat = row["metrics"].get(key)
+                value = "" if stat is None else repr(stat["mean"])
+                cells.append(f'<td class="num" data-value="{value}">'
+                             f"{esc(cell_text(row, key))}</td>")
+            cells.append(f"<td>{esc('; '.join(row['errors']))}</td>")
+            out.append(f"<tr{cls}>" + "".join(cells) + "</tr>")
+        out.append("</tbody></table>")
+        if plots and env_id in plots:
+            out.append(f'<img class="plot" src="{esc(plots[env_id])}" '
+                       f'alt="metrics of {esc(env_id)}">')
+    if skipped:
+        out.append("<h2>Skipped (agent does not apply)</h2>")
+        out.append('<table class="skipped"><thead><tr><th>env</th><th>agent</th>'
+                   "<th>scenario</th><th>reason</th></tr></thead><tbody>")
+        out += [f"<tr><td>{esc(s['env_id'])}</td><td>{esc(s['agent'])}</td>"
+                f"<td>{esc(s['scenario'])}</td><td>{esc(s['reason'])}</td></tr>" for s in skipped]
+        out.append("</tbody></table>")
+    out.append(f"<script>{_SCRIPT}</script></body></html>")
+    return "\n".join(out)
+
+
+# --------------------------------------------------------------------- write
+def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
+          episodes: Sequence = (), meta: Mapping | None = None) -> dict[str, Path]:
+    """Write every leaderboard output under ``out_dir``; returns name -> path.
+
+    Files: ``leaderboard.{md,csv,json,html}``, ``skipped.json``,
+    ``episodes.json`` (the per-episode rows) and ``plots/<env>.png``.
+    """
+    out = Path(out_dir)
+    paths: dict[str, Path] = {}
+    plots: dict[str, str] = {}
+    for env_id, rows in by_env(summary).items():
+        rel = f"plots/{_short(env_id)}.png"
+        atomic_write_bytes(out / rel, plot_env(env_id, rows))
+        plots[env_id] = rel
+        paths[rel] = out / rel
+    texts = {
+        "leaderboard.md": markdown(summary, skipped, plots, meta),
+        "leaderboard.csv": csv_text(summary),
+        "leaderboard.json": json.dumps(_jsonable(list(summary)), indent=1),
+        "leaderboard.html": page(summary, skipped, plots, meta),
+        "skipped.json": json.dumps(list(skipped), indent=1),
+        "episodes.json": json.dumps([row_to_dict(r) for r in episodes], indent=1),
+    }
+    for name, text in texts.items():
+        atomic_write_text(out / name, text)
+        paths[name] = out / name
+    return paths
