@@ -25,6 +25,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+from scipy.linalg import lapack
 from scipy.optimize import minimize_scalar
 
 #: ``f(points (k, n)) -> (k, n)``, ``h(points (k, n)) -> (k, m)``.
@@ -46,17 +47,37 @@ def covariance_root(covariance: np.ndarray) -> np.ndarray:
     p = np.asarray(covariance, dtype=float)
     if not np.all(np.isfinite(p)):
         raise ValueError("covariance has non-finite entries")
+    return _root(p)
+
+
+def _root(p: np.ndarray) -> np.ndarray:
+    # LAPACK's potrf directly: numpy's cholesky wrapper costs 4x more on 6 x 6
+    root, info = lapack.dpotrf(p, lower=1, clean=1)
+    if info == 0:
+        return root
+    w, v = np.linalg.eigh(0.5 * (p + p.T))
+    return v * np.sqrt(np.clip(w, 0.0, None))
+
+
+def _solve_spd(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 b`` for a symmetric positive definite ``a`` (LAPACK posv; LU if not PD)."""
+    _, x, info = lapack.dposv(a, b, lower=1)
+    if info == 0:
+        return x
     try:
-        return np.linalg.cholesky(p)
-    except np.linalg.LinAlgError:
-        w, v = np.linalg.eigh(0.5 * (p + p.T))
-        return v * np.sqrt(np.clip(w, 0.0, None))
+        return np.linalg.solve(a, b)
+    except np.linalg.LinAlgError as exc:
+        raise FloatingPointError("innovation covariance is singular") from exc
 
 
 def cubature_points(mean: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """The ``2n`` cubature points (rows) of ``N(mean, covariance)`` (eqs. 13, 15-16)."""
-    n = mean.shape[0]
-    spread = math.sqrt(n) * covariance_root(covariance).T  # row i: sqrt(n) S e_i
+    mean = np.asarray(mean, dtype=float)
+    return _points(mean, covariance_root(covariance))
+
+
+def _points(mean: np.ndarray, root: np.ndarray) -> np.ndarray:
+    spread = math.sqrt(mean.shape[0]) * root.T  # row i: sqrt(n) S e_i
     return np.concatenate((mean + spread, mean - spread))
 
 
@@ -121,11 +142,13 @@ class CubatureKalmanFilter:
         cancellation of two large terms.
         """
         self._require_state()
-        points = self.transition(cubature_points(self.mean, self.covariance))  # eq. 17
-        mean = points.mean(axis=0)  # eq. 18
+        # the filter keeps its covariance finite (_set), so no re-check here
+        points = self.transition(_points(self.mean, _root(self.covariance)))  # eq. 17
+        weight = 1.0 / points.shape[0]  # eq. 14
+        mean = np.add.reduce(points) * weight  # eq. 18
         dev = points - mean
-        cov = dev.T @ dev / points.shape[0] + self.process_noise  # eq. 19
-        self._set(mean, cov)
+        cov = (dev.T @ dev) * weight + self.process_noise  # eq. 19 (symmetric: syrk)
+        self._set(mean, cov, symmetrise=False)
 
     def update(self, z, noise: np.ndarray | None = None, gate: float | None = None) -> bool:
         """Measurement update with ``z``, eqs. 20-28.
@@ -146,32 +169,33 @@ class CubatureKalmanFilter:
         self._require_state()
         z = np.asarray(z, dtype=float)
         r = self.measurement_noise if noise is None else np.asarray(noise, dtype=float)
-        if not np.all(np.isfinite(z)):
-            raise ValueError("measurement has non-finite entries")
+        if not math.isfinite(np.add.reduce(z) + np.add.reduce(r, None)):
+            raise ValueError("measurement or its noise has non-finite entries")
         if r.shape != (z.shape[0], z.shape[0]):
             raise ValueError(f"measurement noise must be ({z.shape[0]}, {z.shape[0]}), "
                              f"got {r.shape}")
-        points = cubature_points(self.mean, self.covariance)  # eqs. 20-21
+        points = _points(self.mean, _root(self.covariance))  # eqs. 20-21
         z_points = self.measurement(points)  # eq. 22
-        z_hat = z_points.mean(axis=0)  # eq. 23
+        weight = 1.0 / points.shape[0]
+        z_hat = np.add.reduce(z_points) * weight  # eq. 23
         dz = z_points - z_hat
-        k = points.shape[0]
-        pz = dz.T @ dz / k + r  # eq. 24
-        pxz = (points - self.mean).T @ dz / k  # eq. 25
+        pz = (dz.T @ dz) * weight + r  # eq. 24
+        pxz = ((points - self.mean).T @ dz) * weight  # eq. 25
         innovation = z - z_hat
-        solved = np.linalg.solve(pz, np.column_stack((innovation, pxz.T)))
+        solved = _solve_spd(pz, np.concatenate((innovation[:, None], pxz.T), axis=1))
         self.last_nis = float(innovation @ solved[:, 0])
         if gate is not None and not self.last_nis <= gate:
             return False
         gain = solved[:, 1:].T  # eq. 26: Pxz Pz^-1 (Pz symmetric)
         mean = self.mean + gain @ innovation  # eq. 27
-        cov = self.covariance - gain @ pz @ gain.T  # eq. 28
+        cov = self.covariance - gain @ pxz.T  # eq. 28: K Pz K^T = K Pxz^T
         self._set(mean, cov)
         return True
 
-    def _set(self, mean: np.ndarray, cov: np.ndarray) -> None:
-        cov = 0.5 * (cov + cov.T)
-        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(cov))):
+    def _set(self, mean: np.ndarray, cov: np.ndarray, symmetrise: bool = True) -> None:
+        if symmetrise:
+            cov = 0.5 * (cov + cov.T)
+        if not math.isfinite(np.add.reduce(mean) + np.add.reduce(cov, None)):  # NaN/inf propagate
             raise FloatingPointError("the cubature Kalman filter diverged (non-finite estimate)")
         self.mean, self.covariance = mean, cov
 
