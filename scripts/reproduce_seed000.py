@@ -1,0 +1,303 @@
+"""Reproduce seed 000's estimation and control results with the shipped agents.
+
+    PYTHONPATH=. python scripts/reproduce_seed000.py --out results/seed000 \\
+        [--estimation-episodes 10] [--capture-episodes 20] [--agents ckf-pd,ltat-ckf-pd]
+
+1. **Position error per axis, measured vs CKF** (paper Figs. 9-12): ``ckf-pd``
+   tracks the AUV (no strike) for ``--track-time`` s per episode in calm and
+   severe sea. "Measured" is the AUV centre triangulated from the marker in
+   that frame (frames with a fix); "CKF" is the filter's estimate in every
+   frame after the first ``--warmup`` s (also the frames it bridges). Both
+   are compared with ``info["true_position"]`` of the same frame. Reported:
+   mean and max of the absolute error per axis, and the paper's Fig. 10
+   statistic (the largest mean of 25 consecutive errors), with the range
+   (AUV centre to arm end) the errors were taken at.
+2. **Pitch and yaw at set angles** (Tables 2-3): the AUV pinned at pitch
+   15/20/30 deg (yaw 0) and yaw -30/0/30 deg (pitch 0); per-frame estimates
+   from the noisy features through eqs. 4-6 as printed and with ``D`` along
+   the body axis, and the agent's running mean at the end.
+3. **Capture** over ``--capture-episodes`` seeded episodes per sea state for
+   each agent in ``--agents`` that is registered (``ltat-ckf-pd`` runs on
+   ``stereo`` images): success rate, final capture error (at the step the
+   env declares the capture), failures.
+
+Everything printed is also written to ``OUT/seed000.json``; plots go to
+``OUT/*.png``. The agents never read ``info``; the script does, to score them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym  # noqa: E402
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import auv_envs  # noqa: E402, F401
+from baselines.evaluation import run_episode  # noqa: E402
+from baselines.lars.agents import CKFPDAgent  # noqa: E402
+from baselines.lars.marker import MarkerLocaliser, marker_attitude  # noqa: E402
+from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
+
+ENV_ID = "auv_envs/LARSCapture-v0"
+SEAS = ("calm", "severe")
+AXES = ("x", "y", "z")
+PITCHES = (15.0, 20.0, 30.0)
+YAWS = (-30.0, 0.0, 30.0)
+#: Seed bases: each experiment draws its own episodes.
+ESTIMATION_SEED, ATTITUDE_SEED, CAPTURE_SEED = 1000, 2000, 3000
+
+
+def block_max(errors: np.ndarray, block: int = 25) -> np.ndarray:
+    """Largest mean of ``block`` consecutive absolute errors per axis (paper Fig. 10)."""
+    n = (len(errors) // block) * block
+    if n == 0:
+        return np.full(errors.shape[1], np.nan)
+    return np.abs(errors[:n]).reshape(-1, block, errors.shape[1]).mean(axis=1).max(axis=0)
+
+
+def track_episode(sea: str, seed: int, track_time: float) -> dict:
+    """One tracking-only ``ckf-pd`` episode: per-frame truth, measurement and estimate."""
+    env = gym.make(ENV_ID, obs_mode="features", sea_state=sea, time_limit=track_time)
+    try:
+        agent = CKFPDAgent(env.unwrapped, strike=False)
+        obs, info = env.reset(seed=seed)
+        agent.reset(seed)
+        rows = {k: [] for k in ("time", "truth", "measured", "estimate", "range", "hidden")}
+        done = False
+        while not done:
+            action = agent.act(obs, info)
+            est = agent.position_estimate()
+            meas = agent.last_measurement
+            rows["time"].append(info["time"])
+            rows["truth"].append(info["true_position"])
+            rows["measured"].append(np.full(3, np.nan) if meas is None else meas)
+            rows["estimate"].append(np.full(3, np.nan) if est is None else est)
+            rows["range"].append(np.linalg.norm(info["true_position"] - info["end_position"]))
+            rows["hidden"].append(meas is None)
+            obs, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+        out = {k: np.array(v) for k, v in rows.items()}
+        out["stats"] = agent.stats()
+        return out
+    finally:
+        env.close()
+
+
+def estimation(sea: str, episodes: int, track_time: float, warmup: float) -> tuple[dict, list]:
+    runs = [track_episode(sea, ESTIMATION_SEED + i, track_time) for i in range(episodes)]
+    meas_err, est_err, blocks_m, blocks_e, ranges = [], [], [], [], []
+    bridged = frames = 0
+    for run in runs:
+        keep = run["time"] >= warmup
+        m = run["measured"][keep] - run["truth"][keep]
+        e = run["estimate"][keep] - run["truth"][keep]
+        m = m[np.all(np.isfinite(m), axis=1)]
+        meas_err.append(m)
+        est_err.append(e)
+        blocks_m.append(block_max(m))
+        blocks_e.append(block_max(e))
+        ranges.append(run["range"][keep].max())
+        bridged += int(run["hidden"][keep].sum())
+        frames += int(keep.sum())
+    m, e = np.abs(np.concatenate(meas_err)), np.abs(np.concatenate(est_err))
+    summary = {
+        "episodes": episodes, "frames": frames, "bridged_frames": bridged,
+        "max_range_m": float(max(ranges)),
+        "measured_mean_mm": (1e3 * m.mean(axis=0)).tolist(),
+        "measured_max_mm": (1e3 * m.max(axis=0)).tolist(),
+        "measured_block25_max_mm": (1e3 * np.nanmax(blocks_m, axis=0)).tolist(),
+        "ckf_mean_mm": (1e3 * e.mean(axis=0)).tolist(),
+        "ckf_max_mm": (1e3 * e.max(axis=0)).tolist(),
+        "ckf_block25_max_mm": (1e3 * np.nanmax(blocks_e, axis=0)).tolist(),
+    }
+    return summary, runs
+
+
+def attitude(pitch_deg: float, yaw_deg: float, seed: int, steps: int) -> dict:
+    """Pitch/yaw estimates with the AUV pinned at the set angles."""
+    env = gym.make(ENV_ID, obs_mode="features", time_limit=steps * 0.04 + 1)
+    try:
+        cal = env.unwrapped.calibration
+        literal_loc = MarkerLocaliser(cal, refine_attitude=False)
+        agent = CKFPDAgent(env.unwrapped, strike=False)
+        options = {"motion": {"pitch": math.radians(pitch_deg), "yaw": math.radians(yaw_deg)}}
+        obs, info = env.reset(seed=seed, options=options)
+        agent.reset(seed)
+        literal, refined = [], []
+        for _ in range(steps):
+            fix = literal_loc.locate(obs["pixels"], obs["visible"], obs["joint_position"])
+            if fix.pitch is not None:
+                literal.append((fix.pitch, fix.yaw))
+                refined.append(marker_attitude(fix.corners, cal.marker.depth_offset))
+            obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+            if terminated or truncated:
+                break
+        final = agent.attitude_estimate()
+    finally:
+        env.close()
+    literal, refined = np.degrees(literal), np.degrees(refined)
+    return {
+        "set_pitch": pitch_deg, "set_yaw": yaw_deg, "frames": len(literal),
+        "literal_mean": literal.mean(axis=0).tolist(),
+        "literal_max_abs_error": np.abs(literal - (pitch_deg, yaw_deg)).max(axis=0).tolist(),
+        "refined_mean": refined.mean(axis=0).tolist(),
+        "refined_max_abs_error": np.abs(refined - (pitch_deg, yaw_deg)).max(axis=0).tolist(),
+        "agent_final": np.degrees(final).tolist() if final is not None else None,
+    }
+
+
+def capture(agent_name: str, sea: str, episodes: int) -> dict:
+    spec = agent_spec(agent_name)
+    env = gym.make(ENV_ID, obs_mode=spec.obs_mode, sea_state=sea)
+    rows = []
+    try:
+        agent = make_agent(agent_name, env)
+        for i in range(episodes):
+            rows.append(run_episode(env, agent, CAPTURE_SEED + i, ENV_ID, agent_name))
+    finally:
+        env.close()
+    ok = [r for r in rows if r.success]
+    final = np.array([r.metrics["final_capture_error"] for r in ok])
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if not r.success:
+            reasons[r.failure_reason] = reasons.get(r.failure_reason, 0) + 1
+    return {
+        "agent": agent_name, "sea": sea, "episodes": episodes,
+        "success_rate": len(ok) / episodes,
+        "final_error_mean_mm": float(1e3 * final.mean()) if len(ok) else None,
+        "final_error_max_mm": float(1e3 * final.max()) if len(ok) else None,
+        "final_error_le_28mm": float(np.mean(final <= 0.028)) if len(ok) else None,
+        "capture_time_mean_s": float(np.mean([r.metrics["capture_time"] for r in ok]))
+        if ok else None,
+        "failures": reasons,
+        "seconds_per_episode": float(np.mean([r.wall_time_s for r in rows])),
+    }
+
+
+# ---------------------------------------------------------------- plots
+def plot_trajectories(run: dict, sea: str, path: Path) -> None:
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    for k, ax in enumerate(axes):
+        ax.plot(run["time"], run["measured"][:, k], ".", ms=2, color="tab:orange",
+                label="measured")
+        ax.plot(run["time"], run["truth"][:, k], "-", lw=1.2, color="k", label="true")
+        ax.plot(run["time"], run["estimate"][:, k], "-", lw=1.0, color="tab:blue", label="CKF")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"{AXES[k]} (m)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"AUV position, {sea} sea: measured, true and CKF (seed 000 Figs. 9/11)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_errors(runs: list, sea: str, warmup: float, path: Path) -> None:
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    run = runs[0]
+    keep = run["time"] >= warmup
+    for k, ax in enumerate(axes):
+        for key, colour in (("measured", "tab:orange"), ("estimate", "tab:blue")):
+            err = np.abs(run[key][keep, k] - run["truth"][keep, k])
+            n = (len(err) // 25) * 25
+            blocks = np.nanmean(err[:n].reshape(-1, 25), axis=1) * 1e3
+            offset = -0.2 if key == "measured" else 0.2
+            ax.bar(np.arange(len(blocks)) + offset, blocks, width=0.4, color=colour,
+                   label="measured" if key == "measured" else "CKF")
+        ax.set_xlabel("block of 25 frames")
+        ax.set_ylabel(f"|error| {AXES[k]} (mm)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Mean position error per 25 frames, {sea} sea (seed 000 Figs. 10/12)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------- report
+def _fmt(values, spec=".1f") -> str:
+    return " / ".join(format(v, spec) for v in values)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="results/seed000")
+    parser.add_argument("--estimation-episodes", type=int, default=10)
+    parser.add_argument("--track-time", type=float, default=20.0)
+    parser.add_argument("--warmup", type=float, default=1.0)
+    parser.add_argument("--attitude-steps", type=int, default=100)
+    parser.add_argument("--capture-episodes", type=int, default=20)
+    parser.add_argument("--agents", default="ckf-pd,ltat-ckf-pd",
+                        help="capture agents (comma-separated; unregistered ones are skipped)")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict = {"arguments": vars(args)}
+
+    print("## Position error per axis x / y / z (mm), tracking at 0.8 m (Figs. 9-12)\n")
+    print("| sea | frames (bridged) | max range m | measured mean | measured max "
+          "| CKF mean | CKF max | 25-frame max measured | 25-frame max CKF |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    results["estimation"] = {}
+    for sea in SEAS:
+        summary, runs = estimation(sea, args.estimation_episodes, args.track_time, args.warmup)
+        results["estimation"][sea] = summary
+        print(f"| {sea} | {summary['frames']} ({summary['bridged_frames']}) "
+              f"| {summary['max_range_m']:.2f} | {_fmt(summary['measured_mean_mm'])} "
+              f"| {_fmt(summary['measured_max_mm'])} | {_fmt(summary['ckf_mean_mm'])} "
+              f"| {_fmt(summary['ckf_max_mm'])} | {_fmt(summary['measured_block25_max_mm'])} "
+              f"| {_fmt(summary['ckf_block25_max_mm'])} |")
+        plot_trajectories(runs[0], sea, out / f"trajectory_{sea}.png")
+        plot_errors(runs, sea, args.warmup, out / f"errors_{sea}.png")
+
+    print("\n## Pitch and yaw at set angles, deg (Tables 2-3)\n")
+    print("| set pitch, yaw | frames | eqs. 4-6 mean | eqs. 4-6 max error | refined mean "
+          "| refined max error | agent (running mean) |")
+    print("|---|---|---|---|---|---|---|")
+    results["attitude"] = []
+    cases = [(p, 0.0) for p in PITCHES] + [(0.0, y) for y in YAWS]
+    for i, (p, y) in enumerate(cases):
+        r = attitude(p, y, ATTITUDE_SEED + i, args.attitude_steps)
+        results["attitude"].append(r)
+        final = _fmt(r["agent_final"], ".2f") if r["agent_final"] else "-"
+        print(f"| {p:g}, {y:g} | {r['frames']} | {_fmt(r['literal_mean'], '.2f')} "
+              f"| {_fmt(r['literal_max_abs_error'], '.2f')} | {_fmt(r['refined_mean'], '.2f')} "
+              f"| {_fmt(r['refined_max_abs_error'], '.2f')} | {final} |")
+
+    print("\n## Capture\n")
+    print("| agent | sea | episodes | success | final error mean / max mm | <= 28 mm "
+          "| capture time s | failures | s/episode |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    results["capture"] = []
+    registered = set(agent_names())
+    for name in [a.strip() for a in args.agents.split(",") if a.strip()]:
+        if name not in registered:
+            print(f"| {name} | - | - | not registered: skipped | | | | | |")
+            continue
+        for sea in SEAS:
+            r = capture(name, sea, args.capture_episodes)
+            results["capture"].append(r)
+            err = (f"{r['final_error_mean_mm']:.1f} / {r['final_error_max_mm']:.1f}"
+                   if r["final_error_mean_mm"] is not None else "-")
+            within = f"{r['final_error_le_28mm']:.0%}" if r["final_error_le_28mm"] is not None \
+                else "-"
+            when = f"{r['capture_time_mean_s']:.1f}" if r["capture_time_mean_s"] else "-"
+            print(f"| {name} | {sea} | {r['episodes']} | {r['success_rate']:.0%} | {err} "
+                  f"| {within} | {when} | {r['failures'] or '-'} "
+                  f"| {r['seconds_per_episode']:.1f} |")
+
+    (out / "seed000.json").write_text(json.dumps(results, indent=2, default=float))
+    print(f"\nwrote {out / 'seed000.json'} and plots to {out}/")
+
+
+if __name__ == "__main__":
+    main()
