@@ -1,0 +1,100 @@
+"""The environment stack between an ``auv_envs`` environment and a Stable-Baselines3 learner.
+
+Training and the policy agent build the *same* Gymnasium wrappers through
+:func:`wrap_env`, so an action the learner outputs maps back to the
+environment's action exactly as it did in training:
+
+* ``RescaleAction(-1, 1)`` when the action space is a Box with other bounds
+  (``AcousticTracking-v0`` acts with a position in the tank);
+* ``FlattenObservation`` when the config asks for it (a ``Dict``
+  observation becomes one vector for an ``MlpPolicy``).
+
+Training adds SB3's ``Monitor`` (episode returns), a ``DummyVecEnv`` and,
+optionally, ``VecNormalize`` over the non-image ``Box`` observation keys.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.wrappers import FlattenObservation, RescaleAction
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
+
+import auv_envs  # noqa: F401  (registers the ids)
+from baselines.rl.config import ConfigError, TrainConfig
+
+
+def has_image(space: spaces.Space) -> bool:
+    """Whether ``space`` (or one of its ``Dict`` entries) is an image."""
+    if isinstance(space, spaces.Dict):
+        return any(has_image(s) for s in space.spaces.values())
+    return is_image_space(space, check_channels=False)
+
+
+def needs_rescale(space: spaces.Space) -> bool:
+    return isinstance(space, spaces.Box) and not (
+        np.all(space.low == -1.0) and np.all(space.high == 1.0)
+    )
+
+
+def wrap_env(env: gym.Env, flatten_obs: bool = False) -> gym.Env:
+    """The wrappers every learner and policy agent sees around ``env``."""
+    if needs_rescale(env.action_space):
+        env = RescaleAction(env, np.float32(-1.0), np.float32(1.0))
+    if flatten_obs:
+        if has_image(env.observation_space):
+            raise ConfigError("flatten_obs cannot flatten image observations; use policy=auto")
+        env = FlattenObservation(env)
+    return env
+
+
+def make_env(config: TrainConfig) -> gym.Env:
+    """One wrapped training environment (no seeding: the vector env seeds it)."""
+    env = gym.make(config.env_id, obs_mode=config.run["obs_mode"], **config.run["env_kwargs"])
+    return Monitor(wrap_env(env, config.run["flatten_obs"]))
+
+
+def normalize_arguments(config: TrainConfig, observation_space: spaces.Space) -> dict | None:
+    """``VecNormalize`` keyword arguments, or None when the config does not normalise.
+
+    ``normalize: true`` uses SB3's defaults; a mapping passes its keys through
+    (``norm_reward``, ``clip_obs``, ``gamma`` ...). For ``Dict`` observations
+    only the non-image ``Box`` keys are normalised unless ``norm_obs_keys`` is set.
+    """
+    setting = config.run["normalize"]
+    if setting is False:
+        return None
+    kwargs = {} if setting is True else dict(setting)
+    valid = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon",
+             "norm_obs_keys"}
+    unknown = set(kwargs) - valid
+    if unknown:
+        raise ConfigError(
+            f"unknown normalize setting(s) {sorted(unknown)}; valid: {', '.join(sorted(valid))}"
+        )
+    if isinstance(observation_space, spaces.Dict) and "norm_obs_keys" not in kwargs:
+        kwargs["norm_obs_keys"] = [
+            key for key, space in observation_space.spaces.items()
+            if isinstance(space, spaces.Box) and not is_image_space(space, check_channels=False)
+        ]
+    elif has_image(observation_space):
+        kwargs.setdefault("norm_obs", False)
+    return kwargs
+
+
+def make_vec_env(config: TrainConfig, envs: list[gym.Env] | None = None) -> VecEnv:
+    """``DummyVecEnv`` of ``n_envs`` wrapped environments (or of ``envs``), normalised if asked.
+
+    On 2 cores ``SubprocVecEnv`` is slower than stepping in-process
+    (FACTS.md), and in-process envs can be checkpointed by pickling them.
+    """
+    if envs is None:
+        envs = [make_env(config) for _ in range(config.run["n_envs"])]
+    vec_env = DummyVecEnv([(lambda e=e: e) for e in envs])
+    kwargs = normalize_arguments(config, vec_env.observation_space)
+    if kwargs is not None:
+        vec_env = VecNormalize(vec_env, **kwargs)
+    return vec_env

@@ -1,0 +1,126 @@
+"""Ship a finished training run as a named policy under ``assets/policies/<name>/``.
+
+A shipped policy directory holds what :class:`baselines.rl.policy.PolicyAgent`
+loads (``model.zip``, ``vecnormalize.pkl`` when training normalised) and what a
+reader needs to trust it: the resolved ``config.yml``, the held-out evaluation
+curve and the training episodes (CSV), a plot of both (``curve.png``) and
+``policy.json`` (command, seed, budget in steps, wall time, package versions,
+SHA-256 of every file the agent loads).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import shutil
+from pathlib import Path
+
+from auv_envs.core.assets import asset_root
+from baselines.rl.policy import MANIFEST_FILE, read_manifest, verify_files
+from baselines.rl.training import RunDirectory
+
+NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
+
+
+def policies_root() -> Path:
+    """``assets/policies`` (the shipped policies)."""
+    return asset_root() / "policies"
+
+
+def _read_csv(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
+    """Held-out evaluation return (mean ± std) and success, and the training episodes' return."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    evals = _read_csv(run.eval_curve)
+    episodes = _read_csv(run.train_episodes)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    if episodes:
+        step = np.array([float(r["step"]) for r in episodes])
+        ret = np.array([float(r["return"]) for r in episodes])
+        top.plot(step, ret, ".", ms=2, alpha=0.3, color="tab:gray", label="training episodes")
+        window = max(1, len(ret) // 30)
+        smooth = np.convolve(ret, np.ones(window) / window, mode="valid")
+        top.plot(step[window - 1:], smooth, color="tab:gray", label=f"mean of {window}")
+    if evals:
+        step = np.array([float(r["step"]) for r in evals])
+        mean = np.array([float(r["mean_return"]) for r in evals])
+        std = np.array([float(r["std_return"]) for r in evals])
+        top.plot(step, mean, "o-", color="tab:blue", label="held-out evaluation")
+        top.fill_between(step, mean - std, mean + std, color="tab:blue", alpha=0.2)
+        bottom.plot(step, [float(r["success_rate"]) for r in evals], "o-", color="tab:green")
+    top.set_ylabel("episode return")
+    top.legend(loc="best", fontsize=8)
+    top.set_title(title)
+    bottom.set_ylabel("held-out success rate")
+    bottom.set_ylim(-0.05, 1.05)
+    bottom.set_xlabel("environment steps")
+    fig.tight_layout()
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+
+
+def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None = None) -> Path:
+    """Copy a finished run's final policy and records to ``dest_root/name``.
+
+    Args:
+        run_dir: a finished run directory (with ``final/``).
+        name: the agent name, e.g. ``ppo-docking-state`` (lower case, digits, ``.-_``).
+        dest_root: where policies live (default: :func:`policies_root`).
+
+    Returns:
+        The policy directory.
+    """
+    if not NAME.match(name):
+        raise ValueError(f"policy name {name!r} must match {NAME.pattern}")
+    run = RunDirectory(run_dir)
+    manifest = read_manifest(run.final)
+    verify_files(run.final, manifest["files"])
+    info = json.loads(run.info.read_text())
+    if info.get("status") != "finished":
+        raise ValueError(f"{run.path} has not finished (status {info.get('status')!r})")
+    dest = Path(dest_root or policies_root()) / name
+    tmp = dest.with_name(f".{name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for file in manifest["files"]:
+        shutil.copy2(run.final / file, tmp / file)
+    shutil.copy2(run.config, tmp / "config.yml")
+    for source in (run.eval_curve, run.train_episodes):
+        if source.is_file():
+            shutil.copy2(source, tmp / source.name)
+    evals = _read_csv(run.eval_curve)
+    plot_curve(run, tmp / "curve.png", f"{name} ({manifest['env_id']}, {manifest['obs_mode']})")
+    policy = {
+        **manifest,
+        "name": name,
+        "command": info["command"],
+        "seed": info["seed"],
+        "budget_steps": info["n_timesteps"],
+        "steps": info["steps"],
+        "wall_time_s": info["wall_time_s"],
+        "segments": len(info["segments"]),
+        "package_version": info["package_version"],
+        "versions": {k: info[k] for k in ("stable_baselines3", "torch", "gymnasium", "python")},
+        "final_heldout_eval": evals[-1] if evals else None,
+        "description": (
+            f"{manifest['algo'].upper()} on {manifest['obs_mode']} observations, "
+            f"{info['steps']} steps"
+        ),
+    }
+    (tmp / MANIFEST_FILE).write_text(json.dumps(policy, indent=2))
+    if dest.exists():
+        shutil.rmtree(dest)
+    tmp.replace(dest)
+    return dest

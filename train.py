@@ -1,0 +1,119 @@
+"""Train a Stable-Baselines3 agent on an ``auv_envs`` environment.
+
+    python train.py --algo ppo --env DockingStation-v0 [--obs-mode state] [--seed 0]
+                    [--n-envs N] [--n-timesteps N] [--set KEY=VALUE ...]
+                    [--run-dir DIR] [--no-progress-bar] [--export-policy NAME]
+    python train.py --resume RUN_DIR [--n-timesteps N]
+    python train.py --export RUN_DIR --export-policy NAME
+
+Hyperparameters come from ``baselines/rl/hyperparams/<algo>.yml`` (the env's
+entry over ``default``); ``--set`` overrides any key (dotted keys reach into
+mappings, e.g. ``--set policy_kwargs.net_arch=[64,64]``). Ctrl-C or SIGTERM
+writes a checkpoint at the next safe point and exits with 128 + the signal
+number; ``--resume`` continues exactly where it stopped. ``--export-policy``
+copies the finished run to ``assets/policies/NAME`` as a registered agent.
+See :mod:`baselines.rl.training` for the run directory layout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from baselines.rl.checkpoint import CheckpointError
+from baselines.rl.config import ALGORITHMS, ConfigError, parse_overrides, resolve_config
+
+
+def _env_id(name: str) -> str:
+    return name if "/" in name else f"auv_envs/{name}"
+
+
+def _default_run_dir(algo: str, env_id: str, obs_mode: str, seed: int) -> Path:
+    base = Path("runs") / f"{algo}-{env_id.split('/')[-1]}-{obs_mode}-s{seed}"
+    path, n = base, 1
+    while path.exists():
+        n += 1
+        path = base.with_name(f"{base.name}-{n}")
+    return path
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--algo", choices=sorted(ALGORITHMS))
+    parser.add_argument("--env", help="environment id (the auv_envs/ prefix is optional)")
+    parser.add_argument("--obs-mode", help="observation mode (default: from the YAML file)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="training seed (training seeds stay below 90000)")
+    parser.add_argument("--n-envs", type=int, help="parallel environments (DummyVecEnv)")
+    parser.add_argument("--n-timesteps", type=int, help="training budget in env steps")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE", help="override a hyperparameter (repeatable)")
+    parser.add_argument("--hyperparams-dir", type=Path, help="directory of <algo>.yml files")
+    parser.add_argument("--run-dir", type=Path, help="default: runs/<algo>-<env>-<mode>-s<seed>")
+    parser.add_argument("--resume", type=Path, metavar="RUN_DIR",
+                        help="continue RUN_DIR from its latest checkpoint")
+    parser.add_argument("--export", type=Path, metavar="RUN_DIR",
+                        help="only export the finished RUN_DIR (with --export-policy)")
+    parser.add_argument("--export-policy", metavar="NAME",
+                        help="after training, ship the policy as assets/policies/NAME")
+    parser.add_argument("--policies-dir", type=Path, help="default: assets/policies")
+    parser.add_argument("--no-progress-bar", action="store_true")
+    args = parser.parse_args(argv)
+    if args.export is None and args.resume is None and (args.algo is None or args.env is None):
+        parser.error("--algo and --env are required (unless --resume or --export)")
+    if args.export is not None and args.export_policy is None:
+        parser.error("--export needs --export-policy NAME")
+    return args
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    args = parse_args(argv)
+    command = shlex.join(["python", "train.py", *argv])
+    from baselines.rl import export, training  # heavy imports after argument errors
+
+    try:
+        if args.export is not None:
+            path = export.export_policy(args.export, args.export_policy, args.policies_dir)
+            print(f"exported {args.export} -> {path}")
+            return 0
+        expected = None
+        if args.algo is not None and args.env is not None:
+            overrides = parse_overrides(args.overrides)
+            for key, value in (("obs_mode", args.obs_mode), ("n_envs", args.n_envs),
+                               ("n_timesteps", args.n_timesteps)):
+                if value is not None:
+                    overrides[key] = value
+            expected = resolve_config(args.algo, _env_id(args.env), args.seed, overrides,
+                                      args.hyperparams_dir)
+        elif args.overrides:
+            raise ConfigError("--set needs --algo and --env (a resumed run keeps its config)")
+        progress = not args.no_progress_bar
+        if args.resume is not None:
+            result = training.resume(args.resume, command, args.n_timesteps, expected,
+                                     progress_bar=progress)
+        else:
+            run_dir = args.run_dir or _default_run_dir(
+                expected.algo, expected.env_id, expected.run["obs_mode"], expected.seed)
+            print(f"run directory: {run_dir}", flush=True)
+            result = training.train(expected, run_dir, command, progress_bar=progress)
+    except (ConfigError, CheckpointError, ValueError, FileNotFoundError) as exc:
+        print(f"train.py: error: {exc}", file=sys.stderr)
+        return 2
+    if not result.finished:
+        print(f"stopped by {result.stopped_by} at step {result.steps}; checkpoint "
+              f"{result.checkpoint}; continue with: python train.py --resume {result.run_dir}")
+        import signal
+
+        return 128 + int(signal.Signals[result.stopped_by])
+    print(f"finished {result.steps} steps in {result.wall_time_s:.0f} s: {result.run_dir}")
+    if args.export_policy:
+        path = export.export_policy(result.run_dir, args.export_policy, args.policies_dir)
+        print(f"exported -> {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
