@@ -176,6 +176,29 @@ def test_outliers_from_a_front_end_are_gated():
     assert max(errors[40:]) < 0.03
 
 
+def test_assumed_pixel_noise_rises_to_the_measured_noise():
+    """Features noisier than the agent assumes (3 px vs 1 px): the rows reveal it."""
+    env = make(pixel_noise_std=3.0, time_limit=3.0)
+    errors = []
+
+    def check(agent, info):
+        errors.append(np.linalg.norm(agent.position_estimate() - info["true_position"]))
+
+    try:
+        agent = CKFPDAgent(env.unwrapped, pixel_std=1.0, strike=False)
+        run(agent, env, seed=6, check=check)
+        fixed = CKFPDAgent(env.unwrapped, pixel_std=1.0, strike=False, adapt_pixel_noise=False)
+        run(fixed, env, seed=6)
+    finally:
+        env.close()
+    assert agent.localiser.nominal_pixel_std == 1.0
+    assert 2.5 < agent.stats()["pixel_std"] < 3.5
+    assert agent.stats()["gated"] <= 2
+    assert max(errors[25:]) < 0.04
+    # without it the gate, tuned for 1 px, throws away a large share of the fixes
+    assert fixed.stats()["pixel_std"] == 1.0 and fixed.stats()["gated"] >= 10
+
+
 def test_mismatched_corner_is_dropped():
     env = make()
     try:

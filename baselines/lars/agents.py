@@ -37,7 +37,6 @@ from baselines.lars.ckf import (
 from baselines.lars.control import (
     FOLLOW,
     STRIKE,
-    TRACK,
     CaptureStrategy,
     ComputedTorquePD,
     SampledTrajectory,
@@ -82,7 +81,9 @@ class CKFPDAgent:
 
     Args:
         env: an unwrapped ``LARSCaptureEnv`` with ``control="torque"``.
-        pixel_std: pixel noise (px) the fixes assume (default: the calibration's).
+        pixel_std: pixel noise (px) the fixes assume at the start (default: the
+            calibration's; raised to the noise measured in the observations,
+            see :class:`~baselines.lars.marker.MarkerLocaliser`).
         accel_std: (3,) white-acceleration process noise of the CKF, m/s^2.
         gate: chi-square gate on the fixes' innovation (``None``: no gate).
         hover_height, strike_duration, follow_timeout: see
@@ -96,6 +97,10 @@ class CKFPDAgent:
         attitude_memory: fixes the pitch/yaw running mean spans.
         relock_after: s of consecutive gated fixes after which the filter
             restarts from the latest fix (it has lost lock, not the fixes).
+        settle_time: s of fixes a fresh filter takes in before the arm moves on
+            it (until then the arm holds still, so the marker stays in view).
+        adapt_pixel_noise: raise the assumed pixel noise to the one measured
+            in the observations (``MarkerLocaliser(adapt=...)``).
         strike: ``False`` tracks only (for estimation experiments).
         kp, kd: eq. 30's gains.
     """
@@ -106,7 +111,8 @@ class CKFPDAgent:
                  sample_period: float = 0.2, lookahead: float = 0.4,
                  heave_window: float = 15.0, heave_min_span: float = 3.0,
                  heave_omega_bounds=(0.5, 1.6), attitude_memory: int = 50,
-                 relock_after: float = 1.0, strike: bool = True,
+                 relock_after: float = 1.0, settle_time: float = 0.5,
+                 adapt_pixel_noise: bool = True, strike: bool = True,
                  kp: float = 160.0, kd: float = 20.0):
         cal = _check_env(env)
         self.calibration = cal
@@ -116,7 +122,7 @@ class CKFPDAgent:
                              f"{self.dt}, {sample_period}, {lookahead}")
         if attitude_memory < 1 or heave_min_span <= 0 or heave_window < heave_min_span:
             raise ValueError("need attitude_memory >= 1 and 0 < heave_min_span <= heave_window")
-        self.localiser = MarkerLocaliser(cal, pixel_std)
+        self.localiser = MarkerLocaliser(cal, pixel_std, adapt=adapt_pixel_noise)
         self.controller = ComputedTorquePD(cal.arm, cal.torque_limits, kp, kd)
         self.strategy = CaptureStrategy(hover_height, strike_duration, follow_timeout)
         self.trajectory = SampledTrajectory()
@@ -130,6 +136,7 @@ class CKFPDAgent:
         self._omega_bounds = tuple(float(b) for b in heave_omega_bounds)
         self._attitude_memory = int(attitude_memory)
         self._relock_after = max(1, round(relock_after / self.dt))
+        self._settle_fixes = max(1, round(settle_time / self.dt))
         # geometry (end frame, calibration): cameras' midpoint and capture tip
         self._camera_in_end = 0.5 * (cal.left_in_end[:3, 3] + cal.right_in_end[:3, 3])
         self._tip_in_end = np.asarray(cal.capture_tip_in_end, dtype=float)
@@ -145,6 +152,7 @@ class CKFPDAgent:
         self.filter = CubatureKalmanFilter(
             self.model, position_measurement, white_acceleration_noise(self.dt, self._accel_std),
             np.eye(3))
+        self.localiser.reset()
         self.strategy.reset()
         self.trajectory.reset()
         self._step = 0
@@ -154,7 +162,7 @@ class CKFPDAgent:
         self._rotation: np.ndarray | None = None
         self._heights: list[tuple[float, float]] = []
         self._heave = None
-        self._gated_run = 0
+        self._gated_run = self._settling = 0
         self._last_ref = None
         self.last_measurement: np.ndarray | None = None
         self._stats = dict.fromkeys(
@@ -166,11 +174,14 @@ class CKFPDAgent:
         pixels, visible, q, qd = _features(observation)
         t = self._step * self.dt
         self._step += 1
-        if self._hold is None:
-            self._hold = q.copy()
         self._estimate(t, pixels, visible, q)
-        if not self.filter.initialised:
+        if self._settling < self._settle_fixes:
+            # no (or a fresh) estimate: hold the arm where it is until the filter settles
+            if self._hold is None:
+                self._hold = q.copy()
+            self.trajectory.reset()
             return self.controller.action(q, qd, self._hold, np.zeros(3), np.zeros(3))
+        self._hold = None
         return self._control(t, q, qd)
 
     # ------------------------------------------------------------------ queries
@@ -197,6 +208,7 @@ class CKFPDAgent:
         ``mismatched_corners``: corners dropped for a non-positive disparity;
         ``ik_failures``: references out of reach (the last one held);
         ``heave_fits``; ``phase``, ``strikes``, ``heave_period`` (s),
+        ``pixel_std`` (px, the noise the fixes assume now),
         ``pitch_deg``, ``yaw_deg``.
         """
         out = dict(self._stats)
@@ -204,6 +216,7 @@ class CKFPDAgent:
             phase=self.strategy.phase,
             strikes=self.strategy.strikes,
             heave_period=(2.0 * math.pi / self._heave.omega) if self._heave else math.nan,
+            pixel_std=self.localiser.pixel_std,
             pitch_deg=math.degrees(self._pitch),
             yaw_deg=math.degrees(self._yaw),
         )
@@ -228,13 +241,16 @@ class CKFPDAgent:
             self._stats["reinitialised"] += self.filter.initialised
             p0 = np.diag(np.concatenate((np.diag(cov), np.full(3, 0.2**2))))
             self.filter.initialise(np.concatenate((cg, np.zeros(3))), p0)
-            self._gated_run = 0
-        elif not self.filter.update(cg, cov, self.gate):
+            self._gated_run = self._settling = 0
+        elif not self.filter.update(
+                cg, cov, self.gate if self._settling >= self._settle_fixes else None):
+            # (a settling filter has no basis yet to call a fix an outlier)
             self._stats["gated"] += 1
             self._gated_run += 1
             self._stats["bridged"] += 1
             return
         self._gated_run = 0
+        self._settling += 1
         self.last_measurement = cg
         self._stats["fixes" if fix.count == 3 else "partial_fixes"] += 1
         if fix.pitch is not None and not first_attitude:  # only from fixes that passed the gate
@@ -303,7 +319,6 @@ class CKFPDAgent:
         if phase in (STRIKE, FOLLOW):
             # the capture tip on the capture point (the tip hangs straight below the end)
             return self.localiser.capture_point(pos, rot) - self._tip_in_end, vel, acc
-        assert phase == TRACK
         top = pos[2] + self._radius
         marker = self.localiser.marker_centre(pos, rot)
         end = np.array([marker[0], marker[1], top + self.strategy.hover_height])

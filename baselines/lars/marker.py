@@ -19,6 +19,7 @@ estimate (a fixed point reached in two or three passes).
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -33,6 +34,8 @@ MIN_PIXEL_STD = 0.3
 #: Corners with a smaller disparity (px) are treated as mismatched: 1 px at
 #: the default rig is 50 m away.
 MIN_DISPARITY = 1.0
+#: Matched corners behind the measured pixel noise before it is trusted.
+ADAPT_MIN_CORNERS = 30
 
 
 def auv_rotation(pitch: float, yaw: float) -> np.ndarray:
@@ -119,26 +122,53 @@ class MarkerFix:
 class MarkerLocaliser:
     """Marker corners, attitude and AUV points from a ``features`` observation.
 
+    The pixel noise the covariances assume starts at ``pixel_std`` and, with
+    ``adapt=True``, rises to what the observations show: in a rectified pair
+    a corner's row is the same in both images, so ``v_left - v_right`` of
+    matched corners is pure detection noise with variance ``2 sigma^2``. The
+    running estimate is used once ``ADAPT_MIN_CORNERS`` corners back it, and
+    only when it exceeds ``pixel_std`` (a front end noisier than the
+    calibration's nominal features is taken at its measured noise).
+
     Args:
         calibration: the env's ``LARSCalibration`` (stereo rig, hand-eye
             transforms, arm kinematics, marker geometry).
-        pixel_std: pixel noise (px) the covariances assume (default: the
-            calibration's, floored at :data:`MIN_PIXEL_STD`).
+        pixel_std: pixel noise (px) assumed at the start (default: the
+            calibration's), floored at :data:`MIN_PIXEL_STD`.
         refine_attitude: see :func:`marker_attitude`.
+        adapt: raise the assumed noise to the measured row residuals.
     """
 
     def __init__(self, calibration, pixel_std: float | None = None,
-                 refine_attitude: bool = True):
+                 refine_attitude: bool = True, adapt: bool = True):
         std = calibration.pixel_noise_std if pixel_std is None else float(pixel_std)
         if not np.isfinite(std) or std < 0:
             raise ValueError(f"pixel_std must be finite and >= 0, got {pixel_std}")
         self.calibration = calibration
-        self.pixel_std = max(std, MIN_PIXEL_STD)
+        self.nominal_pixel_std = max(std, MIN_PIXEL_STD)
         self.refine_attitude = refine_attitude
+        self.adapt = adapt
+        self.reset()
         marker = calibration.marker
         self._body = np.asarray(marker.corners, dtype=float)
         self._depth_offset = float(marker.depth_offset)
         self._capture_body = np.asarray(calibration.capture_point_body, dtype=float)
+
+    def reset(self) -> None:
+        """Forget the measured row residuals (a new episode)."""
+        self._row_sq, self._rows = 0.0, 0
+
+    @property
+    def measured_pixel_std(self) -> float:
+        """Pixel noise measured from the rectified rows so far (NaN before any corner)."""
+        return math.sqrt(self._row_sq / (2.0 * self._rows)) if self._rows else math.nan
+
+    @property
+    def pixel_std(self) -> float:
+        """The pixel noise the covariances assume now."""
+        if self.adapt and self._rows >= ADAPT_MIN_CORNERS:
+            return max(self.nominal_pixel_std, self.measured_pixel_std)
+        return self.nominal_pixel_std
 
     def locate(self, pixels, visible, joint_position) -> MarkerFix:
         """Triangulate the corners seen in both images and express them in the world.
@@ -170,6 +200,9 @@ class MarkerLocaliser:
         pitch = yaw = None
         if valid.any():
             left, right = px[0, valid], px[1, valid]
+            rows = left[:, 1] - right[:, 1]
+            self._row_sq += float(rows @ rows)
+            self._rows += int(rows.size)
             cam = triangulate(rig, left, right)  # eq. 2, left camera frame
             pose = self.calibration.camera_poses(q)[0]  # eq. 3: world <- left camera
             rot = pose[:3, :3]
