@@ -93,6 +93,7 @@ class CKFPDAgent:
         heave_window: s of past heights the heave fit uses.
         heave_min_span: s of heights needed before the first fit (and before
             a strike).
+        heave_refit_period: s between heave fits.
         heave_omega_bounds: rad/s searched by the fit.
         attitude_memory: fixes the pitch/yaw running mean spans.
         relock_after: s of consecutive gated fixes after which the filter
@@ -110,6 +111,7 @@ class CKFPDAgent:
                  strike_duration: float = 1.5, follow_timeout: float = 2.0,
                  sample_period: float = 0.2, lookahead: float = 0.4,
                  heave_window: float = 15.0, heave_min_span: float = 3.0,
+                 heave_refit_period: float = 0.5,
                  heave_omega_bounds=(0.5, 1.6), attitude_memory: int = 50,
                  relock_after: float = 1.0, settle_time: float = 0.5,
                  adapt_pixel_noise: bool = True, strike: bool = True,
@@ -133,6 +135,7 @@ class CKFPDAgent:
         self._lookahead = float(lookahead)
         self._heave_window = float(heave_window)
         self._heave_min_span = float(heave_min_span)
+        self._refit_every = max(1, round(heave_refit_period / self.dt))
         self._omega_bounds = tuple(float(b) for b in heave_omega_bounds)
         self._attitude_memory = int(attitude_memory)
         self._relock_after = max(1, round(relock_after / self.dt))
@@ -256,7 +259,7 @@ class CKFPDAgent:
         if fix.pitch is not None and not first_attitude:  # only from fixes that passed the gate
             self._update_attitude(fix.pitch, fix.yaw)
         self._heights.append((t, float(cg[2])))
-        if self._step % self._replan_every == 0:
+        if self._step % self._refit_every == 0:
             self._refit_heave(t)
 
     def _update_attitude(self, pitch: float, yaw: float) -> None:
