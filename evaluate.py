@@ -30,12 +30,14 @@ from baselines.evaluation import (
     EVAL_SEED_BASE,
     check_names,
     default_seeds,
+    env_parameters,
     evaluate_all,
     import_agent_modules,
     parse_seeds,
     resolve_env_kwargs,
     summarise,
 )
+from baselines.registry import agent_names, agent_spec, env_obs_modes
 
 #: Environment arguments of the default run; ``--env-kwargs`` overrides them
 #: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
@@ -98,7 +100,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--agent-module", nargs="+", default=[], metavar="MODULE",
                         help="modules to import first (and in every worker) that register agents")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--list", action="store_true",
+                        help="list the environments and agents (where each applies) and exit")
     return parser
+
+
+def listing() -> str:
+    """The registered environments (obs modes, arguments) and agents (modes, environments)."""
+    lines = ["environments:"]
+    for env_id in auv_envs.ENVIRONMENTS:
+        lines.append(f"  {env_id}  obs modes: {', '.join(env_obs_modes(env_id) or ('?',))}; "
+                     f"arguments: {', '.join(env_parameters(env_id))}")
+    lines.append("agents:")
+    for name in agent_names():
+        spec = agent_spec(name)
+        where = ", ".join(spec.env_ids) if spec.env_ids is not None else "every environment"
+        needs = "".join(f"; needs {k}={v}" for k, v in spec.env_kwargs.items())
+        lines.append(f"  {name}  obs modes: {', '.join(spec.obs_modes)}; on {where}{needs}"
+                     f" -- {spec.description}")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
@@ -109,6 +129,9 @@ def main(argv=None) -> int:
         if args.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {args.workers}")
         import_agent_modules(args.agent_module)
+        if args.list:
+            print(listing())
+            return 0
         env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
         check_names(env_ids, args.agents or ())
         seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
@@ -129,8 +152,9 @@ def main(argv=None) -> int:
     if any(s < EVAL_SEED_BASE for s in seeds):
         print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
               file=sys.stderr)
-    for skip in run.skipped:
-        print(f"skipped {skip['agent']} on {skip['env_id']}: {skip['reason']}", file=sys.stderr)
+    if run.skipped:
+        print(f"skipped {len(run.skipped)} (env, agent) pairs that do not apply; reasons in "
+              f"{os.path.join(args.out, 'leaderboard.md')}", file=sys.stderr)
     if not run.rows:
         print("no (env, agent) pair applies; nothing evaluated", file=sys.stderr)
         return 1

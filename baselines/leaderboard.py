@@ -226,6 +226,7 @@ table.leaderboard th { background: #eef; cursor: pointer; user-select: none; }
 table.leaderboard th[aria-sort="ascending"]::after { content: " \\25B2"; }
 table.leaderboard th[aria-sort="descending"]::after { content: " \\25BC"; }
 tr.failed td { background: #fee; }
+table.leaderboard td { white-space: nowrap; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
 img.plot { max-width: 100%; border: 1px solid #ddd; }
 code { background: #f4f4f4; padding: 0 0.2rem; }

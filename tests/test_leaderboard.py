@@ -204,3 +204,11 @@ def test_ray_backend_gives_the_same_metrics_as_the_local_backend(tmp_path):
                 for s in summarise(rows)]
 
     assert metrics(remote.rows) == metrics(local.rows)
+
+
+def test_list_shows_environments_and_where_each_agent_applies(capsys):
+    assert evaluate.main(["--list"]) == 0
+    out = capsys.readouterr().out
+    assert f"{DOCK}  obs modes: state, features, image" in out
+    assert f"pd-state  obs modes: state; on {DOCK}" in out
+    assert "random  obs modes: state; on every environment" in out
