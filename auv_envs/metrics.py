@@ -16,6 +16,11 @@ Set metrics (any number of targets and estimates per step):
   García-Fernández & Svensson, "Generalized optimal sub-pattern assignment metric",
   FUSION 2017, arXiv:1601.05585, Definition 1 and Proposition 1).
 
+Multi-object tracking (seed 002 §3.2):
+
+* :func:`clear_mot` and :func:`clear_mot_labelled`: CLEAR MOT (Bernardin & Stiefelhagen,
+  EURASIP JIVP 2008): PRCN, RCLL, FP, FN, IDs, FM, MOTA, MOTP; py-motmetrics is its test oracle.
+
 Everything is plain numpy/scipy; the Stone Soup implementations serve as the test oracle.
 """
 
@@ -31,8 +36,11 @@ from scipy.spatial.distance import cdist
 
 __all__ = [
     "NO_TRACK",
+    "ClearMOT",
     "GOSPAResult",
     "assign_track_labels",
+    "clear_mot",
+    "clear_mot_labelled",
     "count_missing",
     "gospa",
     "max_error",
@@ -520,3 +528,203 @@ def gospa(X, Y, c: float, p: float, alpha: float = 2.0) -> GOSPAResult:
     missed, false = unit * num_missed, unit * num_false
     distance = (localisation + missed + false) ** (1.0 / p)
     return GOSPAResult(float(distance), localisation, missed, false, num_missed, num_false)
+
+
+# --------------------------------------------------------------------------- CLEAR MOT
+
+
+class ClearMOT(NamedTuple):
+    """CLEAR MOT summary (Bernardin & Stiefelhagen, EURASIP JIVP 2008, §2.1-2.2; seed 002 §3.2).
+
+    Ratios are fractions (multiply by 100 for percent); a ratio whose denominator is 0 is NaN.
+    """
+
+    prcn: float
+    """Precision: matches / (matches + false positives)."""
+    rcll: float
+    """Recall: matches / ground-truth objects."""
+    fp: int
+    """False positives: hypotheses not matched to any object."""
+    fn: int
+    """False negatives (misses): objects not matched to any hypothesis."""
+    ids: int
+    """Identity switches: an object matched to a hypothesis other than its previous one."""
+    fm: int
+    """Fragmentations: an object's tracked -> missed transitions followed by tracking again."""
+    mota: float
+    """1 - (FN + FP + IDs) / ground-truth objects."""
+    motp: float
+    """Mean distance of the matched pairs (in the units of the points, e.g. pixels)."""
+    num_objects: int
+    """Ground-truth object occurrences summed over frames."""
+    num_matches: int
+    """Matched pairs summed over frames (switches included)."""
+
+
+def _frame_set(ids, points, name: str, t: int) -> tuple[np.ndarray, np.ndarray]:
+    pts = _point_set(points, f"{name}_points[{t}]")
+    lab = np.asarray(ids)
+    if lab.size == 0:
+        lab = lab.reshape(0).astype(np.int64)
+    if lab.ndim != 1 or lab.shape[0] != pts.shape[0]:
+        raise ValueError(f"{name}_ids[{t}] must hold one id per point ({pts.shape[0]})")
+    if not np.issubdtype(lab.dtype, np.integer):
+        raise ValueError(f"{name}_ids[{t}] must be integers, got dtype {lab.dtype}")
+    if np.unique(lab).size != lab.size:
+        raise ValueError(f"{name}_ids[{t}] must be distinct")
+    return lab, pts
+
+
+def clear_mot(gt_ids: Sequence, gt_points: Sequence, hyp_ids: Sequence, hyp_points: Sequence,
+              threshold: float) -> ClearMOT:
+    """CLEAR MOT metrics of a multi-object tracker over a sequence of frames.
+
+    The correspondence rule of Bernardin & Stiefelhagen (2008) §2.1, frame by frame:
+
+    1. An object keeps the hypothesis it was last matched to (in any earlier frame) if that
+       hypothesis is present, not yet taken, and within ``threshold`` (distance <= threshold).
+       Objects are visited in the order given.
+    2. The remaining objects and hypotheses are matched by ``linear_sum_assignment`` on the
+       Euclidean distance; a pair beyond the threshold costs more than any set of valid pairs
+       (so the number of matches is maximised first) and is dropped afterwards. A match in
+       this step whose object was last matched to a different hypothesis is an ID switch.
+    3. Unmatched objects are misses (FN), unmatched hypotheses false positives (FP).
+
+    FM counts, per object and over the frames in which it is present, the runs of misses that
+    lie between two tracked frames. These are the rules of py-motmetrics 1.4's
+    ``MOTAccumulator`` (its default ``max_switch_time``), against which this is tested; give it
+    Euclidean distances (``norm2squared_matrix`` returns squared ones), and its MOTP is then the
+    mean distance reported here.
+
+    Args:
+        gt_ids: length-T sequence; element t holds the integer ids of the objects present in
+            frame t (distinct within a frame; may be empty).
+        gt_points: length-T sequence of (k_t, d) object positions.
+        hyp_ids: length-T sequence of the tracker's hypothesis ids per frame.
+        hyp_points: length-T sequence of (h_t, d) hypothesis positions.
+        threshold: largest distance of a match, > 0 (e.g. pixels).
+
+    Returns:
+        :class:`ClearMOT`.
+
+    Raises:
+        ValueError: sequences of different lengths, ids that do not match the points, repeated
+            or non-integer ids, non-finite points, different dimensions, bad threshold.
+    """
+    threshold = float(threshold)
+    if not (math.isfinite(threshold) and threshold > 0.0):
+        raise ValueError(f"threshold must be finite and > 0, got {threshold}")
+    n_frames = len(gt_ids)
+    if not (len(gt_points) == len(hyp_ids) == len(hyp_points) == n_frames):
+        raise ValueError(
+            f"gt_ids ({n_frames}), gt_points ({len(gt_points)}), hyp_ids ({len(hyp_ids)}) and "
+            f"hyp_points ({len(hyp_points)}) must have one entry per frame"
+        )
+    last: dict[int, int] = {}  # object -> hypothesis it was last matched to
+    tracked_runs: dict[int, list[bool]] = {}  # object -> tracked flag per frame present
+    n_objects = n_matches = n_fp = n_fn = n_switches = 0
+    total_distance = 0.0
+    dim = None
+    for t in range(n_frames):
+        oids, opts = _frame_set(gt_ids[t], gt_points[t], "gt", t)
+        hids, hpts = _frame_set(hyp_ids[t], hyp_points[t], "hyp", t)
+        for pts in (opts, hpts):
+            if pts.shape[0]:
+                dim = pts.shape[1] if dim is None else dim
+                if pts.shape[1] != dim:
+                    raise ValueError(f"frame {t}: points of dimension {pts.shape[1]}, not {dim}")
+        n_objects += oids.size
+        matched_hyp = np.full(oids.size, -1)
+        if oids.size and hids.size:
+            dist = cdist(opts, hpts)
+            valid = dist <= threshold
+            free_obj = np.ones(oids.size, dtype=bool)
+            free_hyp = np.ones(hids.size, dtype=bool)
+            # Rule 1: keep a still-valid earlier correspondence.
+            for i, o in enumerate(oids.tolist()):
+                if o not in last:
+                    continue
+                k = np.flatnonzero((hids == last[o]) & free_hyp)
+                if k.size and valid[i, k[0]]:
+                    matched_hyp[i] = k[0]
+                    free_obj[i] = free_hyp[k[0]] = False
+            # Rule 2: optimal matching of the rest; a changed hypothesis is a switch.
+            oi, hk = np.flatnonzero(free_obj), np.flatnonzero(free_hyp)
+            if oi.size and hk.size:
+                sub_valid = valid[np.ix_(oi, hk)]
+                big = threshold * (min(sub_valid.shape) + 1) + 1.0
+                cost = np.where(sub_valid, dist[np.ix_(oi, hk)], big)
+                rows, cols = linear_sum_assignment(cost)
+                keep = sub_valid[rows, cols]
+                for i, k in zip(oi[rows[keep]], hk[cols[keep]], strict=True):
+                    o = int(oids[i])
+                    n_switches += int(o in last and last[o] != hids[k])
+                    matched_hyp[i] = k
+        for i, o in enumerate(oids.tolist()):
+            k = matched_hyp[i]
+            tracked_runs.setdefault(o, []).append(k >= 0)
+            if k >= 0:
+                last[o] = int(hids[k])
+                total_distance += float(np.linalg.norm(opts[i] - hpts[k]))
+        n_match_frame = int((matched_hyp >= 0).sum())
+        n_matches += n_match_frame
+        n_fn += oids.size - n_match_frame
+        n_fp += hids.size - n_match_frame
+    n_fragments = 0
+    for flags in tracked_runs.values():
+        f = np.asarray(flags)
+        # A tracked -> missed step before the last tracked frame starts a fragment.
+        if f.any():
+            span = f[: int(np.flatnonzero(f)[-1]) + 1]
+            n_fragments += int(np.sum(span[:-1] & ~span[1:]))
+
+    def ratio(num: float, den: float) -> float:
+        return num / den if den else math.nan
+
+    return ClearMOT(
+        prcn=ratio(n_matches, n_matches + n_fp),
+        rcll=ratio(n_matches, n_objects),
+        fp=n_fp,
+        fn=n_fn,
+        ids=n_switches,
+        fm=n_fragments,
+        mota=1.0 - ratio(n_fn + n_fp + n_switches, n_objects) if n_objects else math.nan,
+        motp=ratio(total_distance, n_matches),
+        num_objects=n_objects,
+        num_matches=n_matches,
+    )
+
+
+def clear_mot_labelled(true_points, true_visible, est_points, est_visible,
+                       threshold: float) -> ClearMOT:
+    """:func:`clear_mot` for a fixed set of labelled objects, each with one labelled track.
+
+    The shape of the docking envs' ``info["true_pixels"]`` / ``info["true_visible"]`` and of a
+    ``features`` observation's ``pixels`` / ``visible``: object k and hypothesis k both carry id
+    k, so a hypothesis that lands on another object is an ID switch.
+
+    Args:
+        true_points: (T, n, d) object positions (ignored where not visible).
+        true_visible: (T, n) bool, whether object k is present in frame t.
+        est_points: (T, n, d) tracked positions (ignored where not reported).
+        est_visible: (T, n) bool, whether the tracker reports object k in frame t.
+        threshold: largest distance of a match, > 0.
+
+    Raises:
+        ValueError: shapes that differ or are not (T, n, d) / (T, n); non-finite values where
+            visible; see :func:`clear_mot`.
+    """
+    tp, ep = np.asarray(true_points, float), np.asarray(est_points, float)
+    tv, ev = np.asarray(true_visible), np.asarray(est_visible)
+    if tp.ndim != 3 or tp.shape != ep.shape or tv.shape != tp.shape[:2] or ev.shape != tv.shape:
+        raise ValueError(
+            f"need true/est points (T, n, d) and visibility (T, n) of equal shapes, got "
+            f"{tp.shape}, {ep.shape}, {tv.shape}, {ev.shape}"
+        )
+    tv, ev = tv.astype(bool), ev.astype(bool)
+    ids = np.arange(tp.shape[1])
+    return clear_mot(
+        [ids[m] for m in tv], [p[m] for p, m in zip(tp, tv, strict=True)],
+        [ids[m] for m in ev], [p[m] for p, m in zip(ep, ev, strict=True)],
+        threshold,
+    )
