@@ -149,6 +149,7 @@ BUILTIN_AGENT_MODULES = (
     "baselines.agents.pd_docking",
     "baselines.acoustic.agents",
     "baselines.lars.agents",
+    "baselines.rl.agents",
 )
 
 

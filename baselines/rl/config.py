@@ -22,6 +22,7 @@ the wrong type raise :class:`ConfigError` naming the valid choices.
 from __future__ import annotations
 
 import ast
+import contextlib
 import copy
 import dataclasses
 import hashlib
@@ -329,7 +330,13 @@ def schedule_initial_value(key: str, text: str) -> float:
     """The initial value of a ``"lin_<value>"`` schedule string."""
     prefix = "lin_"
     if not text.startswith(prefix):
-        raise ConfigError(f"{key} must be a number or 'lin_<initial value>', got {text!r}")
+        hint = ""
+        with contextlib.suppress(ValueError):
+            float(text)
+            hint = " (YAML reads 3e-4 as a string: write 3.0e-4)"
+        raise ConfigError(
+            f"{key} must be a number or 'lin_<initial value>', got {text!r}{hint}"
+        )
     try:
         return float(text[len(prefix):])
     except ValueError as exc:

@@ -16,16 +16,10 @@ import re
 import shutil
 from pathlib import Path
 
-from auv_envs.core.assets import asset_root
-from baselines.rl.policy import MANIFEST_FILE, read_manifest, verify_files
+from baselines.rl.policy import MANIFEST_FILE, policies_root, read_manifest, verify_files
 from baselines.rl.training import RunDirectory
 
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
-
-
-def policies_root() -> Path:
-    """``assets/policies`` (the shipped policies)."""
-    return asset_root() / "policies"
 
 
 def _read_csv(path: Path) -> list[dict]:

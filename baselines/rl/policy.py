@@ -24,6 +24,7 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import VecNormalize
 
+from auv_envs.core.assets import asset_root
 from baselines.rl.config import ALGORITHMS
 from baselines.rl.envs import wrap_env
 
@@ -34,6 +35,11 @@ MANIFEST_FILE = "policy.json"
 #: Objects an acting policy never needs; replacing them avoids unpickling the
 #: training schedules (and so works across Python versions, as rl-zoo does).
 _ACTING_ONLY = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
+
+
+def policies_root() -> Path:
+    """``assets/policies``: the shipped policies (``auv_envs/_assets/policies`` in a wheel)."""
+    return asset_root() / "policies"
 
 
 class PolicyFileError(RuntimeError):
