@@ -128,7 +128,9 @@ class MarkerLocaliser:
     matched corners is pure detection noise with variance ``2 sigma^2``. The
     running estimate is used once ``ADAPT_MIN_CORNERS`` corners back it, and
     only when it exceeds ``pixel_std`` (a front end noisier than the
-    calibration's nominal features is taken at its measured noise).
+    calibration's nominal features is taken at its measured noise). Each
+    residual is clipped at 4 sigma of the current assumption, so a few
+    mismatched corners cannot inflate it (the filter's gate deals with them).
 
     Args:
         calibration: the env's ``LARSCalibration`` (stereo rig, hand-eye
@@ -200,7 +202,9 @@ class MarkerLocaliser:
         pitch = yaw = None
         if valid.any():
             left, right = px[0, valid], px[1, valid]
-            rows = left[:, 1] - right[:, 1]
+            # clipped at 4 sigma of the difference: a mismatch is the gate's business
+            limit = 4.0 * math.sqrt(2.0) * self.pixel_std
+            rows = np.clip(left[:, 1] - right[:, 1], -limit, limit)
             self._row_sq += float(rows @ rows)
             self._rows += int(rows.size)
             cam = triangulate(rig, left, right)  # eq. 2, left camera frame
