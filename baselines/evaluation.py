@@ -387,6 +387,7 @@ def _run_local(tasks: Sequence[EpisodeTask], workers: int,
         max_workers=workers, mp_context=context, initializer=_init_worker,
         initargs=(tuple(agent_modules),),
     )
+    finished = False
     try:
         futures = {pool.submit(run_task, task, tuple(agent_modules)): task for task in tasks}
         for future in concurrent.futures.as_completed(futures):
@@ -396,8 +397,21 @@ def _run_local(tasks: Sequence[EpisodeTask], workers: int,
             except Exception as exc:  # a worker died (e.g. BrokenProcessPool)
                 row = failed_row(task, exc)
             yield task, row
+        finished = True
     finally:
+        if not finished:  # interrupted: drop the episodes in flight instead of waiting
+            _terminate_workers(pool)
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """Stop a pool's worker processes now (``terminate_workers`` from Python 3.14 on)."""
+    if hasattr(pool, "terminate_workers"):
+        pool.terminate_workers()
+        return
+    # Before 3.14 the executor keeps its processes in this private mapping.
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
 
 
 def _import_ray():
