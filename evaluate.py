@@ -156,6 +156,9 @@ def _main(argv=None) -> int:
         env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
         check_names(env_ids, args.agents or ())
         seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
+        if any(s < EVAL_SEED_BASE for s in seeds):
+            print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
+                  file=sys.stderr)
         groups = args.env_kwargs or [[]]
         if args.scenario:
             groups = [[*group, f"scenario={args.scenario}"] for group in groups]
@@ -170,15 +173,15 @@ def _main(argv=None) -> int:
         )
     except (ValueError, KeyError, RuntimeError) as exc:
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
-    if any(s < EVAL_SEED_BASE for s in seeds):
-        print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
-              file=sys.stderr)
+    if not run.rows:
+        for skip in run.skipped:
+            print(f"skipped {skip['agent']} on {skip['env_id']}: {skip['reason']}",
+                  file=sys.stderr)
+        print("no (env, agent) pair applies; nothing evaluated", file=sys.stderr)
+        return 1
     if run.skipped:
         print(f"skipped {len(run.skipped)} (env, agent) pairs that do not apply; reasons in "
               f"{os.path.join(args.out, 'leaderboard.md')}", file=sys.stderr)
-    if not run.rows:
-        print("no (env, agent) pair applies; nothing evaluated", file=sys.stderr)
-        return 1
     summary = summarise(run.rows)
     meta = {
         "command": "python evaluate.py " + shlex.join(argv),

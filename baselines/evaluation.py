@@ -32,6 +32,7 @@ import json
 import math
 import multiprocessing
 import os
+import socket
 import sys
 import tempfile
 import time
@@ -424,12 +425,27 @@ def _import_ray():
     return ray
 
 
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail fast on a ``host:port`` (or ``ray://host:port``) nobody listens on.
+
+    Ray itself retries an unreachable address for minutes.
+    """
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return  # "auto" and other forms Ray resolves itself
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise RuntimeError(f"cannot reach the Ray cluster at {address}: {exc}") from exc
+
+
 def _run_ray(tasks: Sequence[EpisodeTask], workers: int, address: str | None,
              agent_modules: Sequence[str]) -> Iterator[tuple[EpisodeTask, EpisodeRow]]:
     ray = _import_ray()
     started = False
     if not ray.is_initialized():
         if address:
+            _check_reachable(address)
             ray.init(address=address)
         else:
             ray.init(num_cpus=workers, include_dashboard=False)
@@ -684,8 +700,8 @@ def evaluate_all(
     Defaults: every registered environment and agent, 3 frozen seeds, no cache.
     """
     import_agent_modules(agent_modules)
-    env_ids = list(env_ids or auv_envs.ENVIRONMENTS)
-    agents = list(agents or agent_names())
+    env_ids = list(dict.fromkeys(env_ids or auv_envs.ENVIRONMENTS))
+    agents = list(dict.fromkeys(agents or agent_names()))
     seeds = list(seeds if seeds is not None else default_seeds(3))
     tasks, skipped = plan(env_ids, agents, seeds, obs_modes, env_kwargs)
     check_env_kwargs(tasks)

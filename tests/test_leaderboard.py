@@ -133,6 +133,15 @@ def test_missing_ray_is_a_clear_error(tmp_path, monkeypatch, capsys):
     assert "pip install" in capsys.readouterr().err
 
 
+def test_unreachable_ray_address_is_a_clear_error(tmp_path, capsys):
+    pytest.importorskip("ray")
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--envs", DOCK, "--agents", "random", "--seeds", "1", "--backend", "ray",
+                       "--ray-address", "127.0.0.1:1", "--no-progress", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+    assert "cannot reach the Ray cluster at 127.0.0.1:1" in capsys.readouterr().err
+
+
 def _chromium_page(url: str):
     """(console errors, page errors, failed requests, row texts, sort results) of ``url``."""
     from playwright.sync_api import sync_playwright
@@ -212,3 +221,12 @@ def test_list_shows_environments_and_where_each_agent_applies(capsys):
     assert f"{DOCK}  obs modes: state, features, image" in out
     assert f"pd-state  obs modes: state; on {DOCK}" in out
     assert "random  obs modes: state; on every environment" in out
+
+
+def test_a_run_where_nothing_applies_says_why(tmp_path, capsys):
+    code = evaluate.main(["--envs", "AcousticTracking-v0", "--agents", "pd-state", "--seeds", "1",
+                          "--no-progress", "--out", str(tmp_path)])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "skipped pd-state on auv_envs/AcousticTracking-v0: supports only" in err
+    assert "nothing evaluated" in err
