@@ -12,7 +12,9 @@ A front end keeps the protocol::
     features = front_end(observation, info)  # one step; features obs layout
 
 and may expose ``stats()`` (a dict of numbers) which the wrapper merges into
-its own ``stats()`` for logging.
+its own ``stats()`` for logging. The wrapper passes the inner agent's
+``position_estimate()`` through, so the evaluator scores it as it would the
+inner agent alone.
 """
 
 from __future__ import annotations
@@ -38,6 +40,11 @@ class FrontEndAgent:
 
     def act(self, observation, info: dict) -> np.ndarray:
         return self.inner.act(self.front_end(observation, info), info)
+
+    def position_estimate(self):
+        """The inner agent's target-position estimate, when it keeps one (else None)."""
+        estimate = getattr(self.inner, "position_estimate", None)
+        return estimate() if callable(estimate) else None
 
     def stats(self) -> dict:
         out = {}

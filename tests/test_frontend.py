@@ -40,3 +40,6 @@ def test_front_end_agent_feeds_inner_agent_and_resets_both():
     np.testing.assert_array_equal(action, [2.0, 4.0])
     assert front.seeds == [7] and inner.seeds == [7]
     assert agent.stats() == {"frames": 1}
+    assert agent.position_estimate() is None
+    inner.position_estimate = lambda: np.array([1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(agent.position_estimate(), [1.0, 2.0, 3.0])
