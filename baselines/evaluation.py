@@ -106,11 +106,12 @@ def default_seeds(episodes: int) -> list[int]:
 
 
 # ------------------------------------------------------------------ episodes
-def _jsonable(value):
+def jsonable(value):
+    """``value`` as JSON data: NumPy scalars and arrays to Python, NaN/inf to ``None``."""
     if isinstance(value, Mapping):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, bool | np.bool_):
         return bool(value)
     if isinstance(value, int | np.integer):
@@ -118,7 +119,7 @@ def _jsonable(value):
     if isinstance(value, float | np.floating):
         return None if not math.isfinite(float(value)) else float(value)
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     return value
 
 
@@ -177,7 +178,7 @@ def run_episode(env: gym.Env, agent, seed: int, env_id: str, agent_name: str,
             if key.startswith("violation_"):
                 violations[key] += int(bool(np.any(value)))
         done = terminated or truncated
-    metrics = _jsonable(info.get("episode_metrics", {}))
+    metrics = jsonable(info.get("episode_metrics", {}))
     metrics.update({f"{key}_steps": count for key, count in violations.items()})
     if callable(estimate):
         metrics["estimate_steps"] = len(errors)
@@ -187,7 +188,7 @@ def run_episode(env: gym.Env, agent, seed: int, env_id: str, agent_name: str,
     if callable(getattr(agent, "stats", None)):
         for key, value in agent.stats().items():
             if _is_number(value):
-                metrics[f"agent_{key}"] = _jsonable(float(value))
+                metrics[f"agent_{key}"] = jsonable(float(value))
     unwrapped = env.unwrapped
     return EpisodeRow(
         env_id=env_id,
@@ -235,7 +236,7 @@ class EpisodeTask:
             "obs_mode": self.obs_mode,
             "agent": self.agent,
             "seed": self.seed,
-            "env_kwargs": _jsonable(self.kwargs),
+            "env_kwargs": jsonable(self.kwargs),
         }
 
     def key(self) -> str:
@@ -257,7 +258,7 @@ def failed_row(task: EpisodeTask, exc: BaseException, wall_time_s: float = 0.0) 
         env_id=task.env_id, agent=task.agent, seed=task.seed, obs_mode=task.obs_mode,
         scenario=task.scenario, episode_return=math.nan, length=0, success=False,
         failure_reason="error", metrics={}, wall_time_s=wall_time_s, status="failed",
-        error=f"{type(exc).__name__}: {exc}{where}", env_kwargs=_jsonable(task.kwargs),
+        error=f"{type(exc).__name__}: {exc}{where}", env_kwargs=jsonable(task.kwargs),
     )
 
 
@@ -278,7 +279,7 @@ def run_task(task: EpisodeTask, agent_modules: Sequence[str] = ()) -> EpisodeRow
         env = gym.make(task.env_id, obs_mode=task.obs_mode, **kwargs)
         agent = spec.factory(env.unwrapped)
         row = run_episode(env, agent, task.seed, task.env_id, task.agent, task.scenario)
-        return dataclasses.replace(row, env_kwargs=_jsonable(task.kwargs))
+        return dataclasses.replace(row, env_kwargs=jsonable(task.kwargs))
     except Exception as exc:  # an agent's failure is a result, not a crash of the run
         return failed_row(task, exc, time.perf_counter() - start)
     finally:
@@ -287,30 +288,17 @@ def run_task(task: EpisodeTask, agent_modules: Sequence[str] = ()) -> EpisodeRow
 
 
 # --------------------------------------------------------------------- cache
-def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def atomic_write(path: str | Path, data: str | bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``.
 
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Binary twin of :func:`atomic_write_text`."""
+    Readers see the old file or the whole new one, never a partial write.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
+            handle.write(data.encode() if isinstance(data, str) else data)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
@@ -320,7 +308,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 
 def row_to_dict(row: EpisodeRow) -> dict:
-    return _jsonable(dataclasses.asdict(row))
+    return jsonable(dataclasses.asdict(row))
 
 
 def row_from_dict(data: Mapping) -> EpisodeRow:
@@ -353,7 +341,7 @@ class EpisodeCache:
             return None
         try:
             data = json.loads(path.read_text())
-            if data.get("task") != _jsonable(task.identity()):
+            if data.get("task") != jsonable(task.identity()):
                 raise ValueError("it was written for another task")
             return row_from_dict(data["row"])
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
@@ -362,8 +350,8 @@ class EpisodeCache:
             return None
 
     def store(self, task: EpisodeTask, row: EpisodeRow) -> None:
-        payload = {"task": _jsonable(task.identity()), "row": row_to_dict(row)}
-        atomic_write_text(self.path(task), json.dumps(payload, indent=1))
+        payload = {"task": jsonable(task.identity()), "row": row_to_dict(row)}
+        atomic_write(self.path(task), json.dumps(payload, indent=1))
 
 
 # ------------------------------------------------------------------ backends

@@ -26,7 +26,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from baselines.evaluation import _jsonable, atomic_write_bytes, atomic_write_text, row_to_dict
+from baselines.evaluation import atomic_write, jsonable, row_to_dict
 
 #: Metrics shown in the tables and plots when an environment reports them:
 #: key -> (label, format, which way is better). The final deviations are
@@ -321,18 +321,18 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
     plots: dict[str, str] = {}
     for env_id, rows in by_env(summary).items():
         rel = f"plots/{_short(env_id)}.png"
-        atomic_write_bytes(out / rel, plot_env(env_id, rows))
+        atomic_write(out / rel, plot_env(env_id, rows))
         plots[env_id] = rel
         paths[rel] = out / rel
     texts = {
         "leaderboard.md": markdown(summary, skipped, plots, meta),
         "leaderboard.csv": csv_text(summary),
-        "leaderboard.json": json.dumps(_jsonable(list(summary)), indent=1),
+        "leaderboard.json": json.dumps(jsonable(list(summary)), indent=1),
         "leaderboard.html": page(summary, skipped, plots, meta),
         "skipped.json": json.dumps(list(skipped), indent=1),
         "episodes.json": json.dumps([row_to_dict(r) for r in episodes], indent=1),
     }
     for name, text in texts.items():
-        atomic_write_text(out / name, text)
+        atomic_write(out / name, text)
         paths[name] = out / name
     return paths

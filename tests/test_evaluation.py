@@ -370,3 +370,19 @@ def test_failed_row_numbers_are_not_numbers():
     row = evaluation.failed_row(EpisodeTask(DOCK, "state", "random", 1), ValueError("bad"))
     assert math.isnan(row.episode_return) and row.error.startswith("ValueError: bad")
     assert evaluation.row_from_dict(evaluation.row_to_dict(row)).error == row.error
+
+
+def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypatch):
+    target = tmp_path / "out" / "file.json"
+    evaluation.atomic_write(target, "old")
+    evaluation.atomic_write(target, b"new")
+    assert target.read_text() == "new"
+
+    def failing_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(evaluation.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="disk full"):
+        evaluation.atomic_write(target, "newer")
+    assert target.read_text() == "new"
+    assert [p.name for p in target.parent.iterdir()] == ["file.json"]  # no temp file left
