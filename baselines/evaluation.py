@@ -46,6 +46,7 @@ import gymnasium as gym
 import numpy as np
 
 import auv_envs
+from baselines import registry
 from baselines.registry import agent_names, agent_spec
 
 #: Evaluation seeds start here; training seeds (train.py) stay below it, so the
@@ -370,8 +371,11 @@ def _run_local(tasks: Sequence[EpisodeTask], workers: int,
         for task in tasks:
             yield task, run_task(task, agent_modules)
         return
-    # "spawn": no fork of a parent that may hold torch/OpenMP threads or a GL context.
-    context = multiprocessing.get_context("spawn")
+    # Workers fork from a forkserver, not from this process (which may hold threads
+    # or a GL context); it imports the agent modules once for all of them.
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(
+        ["baselines.evaluation", *registry.BUILTIN_AGENT_MODULES, *agent_modules])
     pool = concurrent.futures.ProcessPoolExecutor(
         max_workers=workers, mp_context=context, initializer=_init_worker,
         initargs=(tuple(agent_modules),),
