@@ -150,6 +150,7 @@ BUILTIN_AGENT_MODULES = (
     "baselines.acoustic.agents",
     "baselines.lars.agents",
     "baselines.rl.agents",
+    "baselines.docking.agents",
 )
 
 

@@ -1,0 +1,109 @@
+"""Agents ``ofnmpc-ekf`` and ``ofnmpc-mhe`` (seed 003, Algorithms 1 and 2).
+
+Each control step: the observer takes the features observation (light pixels,
+visibility mask, DVL/INS velocities, attitude) and the input applied during the
+last period, and returns the state and disturbance estimate; the offset-free
+NMPC turns that into the generalized force, returned normalised by the thrust
+limits. The agents read only the observation and ``env.calibration`` — never
+``info`` (whose ground truth is for metrics).
+
+Until the observer has been initialised (at least two lights visible) the
+agent commands zero force and counts the step in ``stats()["waiting_steps"]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from baselines.agents.pd_docking import DOCKING_ENV_IDS
+from baselines.docking.observers import DockingEKF, DockingMHE, MHEConfig
+from baselines.docking.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
+from baselines.registry import AgentSpec, register_agent
+
+
+class OFNMPCAgent:
+    """Observer + offset-free NMPC on features observations.
+
+    Args:
+        env: an unwrapped docking env (its ``calibration`` is read).
+        observer: ``"ekf"`` or ``"mhe"``.
+        config: NMPC tuning.
+        mhe_config: MHE tuning (``observer="mhe"`` only).
+    """
+
+    def __init__(self, env, observer: str = "ekf", config: OFNMPCConfig | None = None,
+                 mhe_config: MHEConfig | None = None, nominal_model=None):
+        if getattr(env, "obs_mode", "features") not in ("features", "image"):
+            raise ValueError("OFNMPC agents act on features observations (or image behind "
+                             "a front end)")
+        cal = env.calibration
+        if observer == "ekf":
+            self.observer = DockingEKF(cal)
+        elif observer == "mhe":
+            self.observer = DockingMHE(cal, mhe_config)
+        else:
+            raise ValueError(f"unknown observer {observer!r}; valid: 'ekf', 'mhe'")
+        self.observer_name = observer
+        self.controller = OffsetFreeNMPC(cal, config, nominal_model=nominal_model)
+        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        del seed  # deterministic
+        self.observer.reset()
+        self.controller.reset()
+        self._tau = np.zeros(4)
+        self.waiting_steps = 0
+        self.estimate = None
+        self.last_result = None
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        del info  # ground truth is not for agents
+        estimate = self.observer.step(observation, self._tau)
+        if estimate is None:
+            self.waiting_steps += 1
+            self._tau = np.zeros(4)
+        else:
+            self.estimate = estimate
+            self.last_result = self.controller.solve(estimate.state, estimate.disturbance)
+            self._tau = self.last_result.tau
+        return (self._tau / self._limits).astype(np.float32)
+
+    def position_estimate(self) -> np.ndarray | None:
+        """The observer's estimate of the vehicle's CG position (DS frame), once it has one."""
+        return None if self.estimate is None else self.estimate.state[:3].copy()
+
+    def stats(self) -> dict:
+        """Per-episode numbers: NMPC solver failures (fallback steps), solve times, the
+        observer's failures (MHE) and the last disturbance estimate ``d`` (N, N, N, N m)."""
+        times = np.asarray(self.controller.solve_times) * 1000.0
+        out = {
+            "solver_failures": self.controller.failures,
+            "solves": self.controller.solves,
+            "mean_solve_ms": float(times.mean()) if len(times) else float("nan"),
+            "p95_solve_ms": float(np.percentile(times, 95)) if len(times) else float("nan"),
+            "observer_failures": getattr(self.observer, "failures", 0),
+            "waiting_steps": self.waiting_steps,
+        }
+        if self.estimate is not None:
+            for axis, value in zip("XYZN", self.estimate.disturbance, strict=True):
+                out[f"disturbance_{axis}"] = float(value)
+        return out
+
+
+def _ekf_agent(env) -> OFNMPCAgent:
+    return OFNMPCAgent(env, observer="ekf")
+
+
+def _mhe_agent(env) -> OFNMPCAgent:
+    return OFNMPCAgent(env, observer="mhe")
+
+
+register_agent(AgentSpec(
+    name="ofnmpc-ekf", factory=_ekf_agent, obs_mode="features", env_ids=DOCKING_ENV_IDS,
+    description="offset-free NMPC + EKF on the light pixels (seed 003)",
+))
+register_agent(AgentSpec(
+    name="ofnmpc-mhe", factory=_mhe_agent, obs_mode="features", env_ids=DOCKING_ENV_IDS,
+    description="offset-free NMPC + MHE on the light pixels (seed 003)",
+))

@@ -1,0 +1,320 @@
+"""Offset-free nonlinear MPC for docking (seed 003 §3.2), built in CasADi.
+
+The prediction model is the env's 4-DOF :class:`~auv_envs.core.hydrodynamics.NominalModel`
+(from ``calibration.nominal_model``; no second copy of the dynamics), augmented
+with a constant generalized disturbance ``d`` (seed 003 eq. 12) and
+discretised by one RK4 step per shooting interval (seed 003 §3.4, multiple
+shooting). The observer's estimates ``(x_hat, d_hat)`` are parameters.
+
+Offset-free formulation (seed 003 eqs. 13-16): the target state and input
+``(x_s, u_s)`` are decision variables tied by equality constraints inside the
+NLP::
+
+    x_s = F(x_s, u_s, d_hat)          equilibrium of the augmented model
+    (x_s, y_s, z_s, psi_s) = r        the docking point and heading
+
+so no analytic steady state is needed; the stage cost penalises ``x_k - x_s``
+and ``u_k - u_s``. With ``d_hat`` equal to the true constant disturbance the
+closed loop settles at ``r`` with zero offset.
+
+Constraints (seed 003 eq. 10, Fig. 6): input limits (hard); soft, with one
+slack per stage and an exact L1 penalty: the nose not behind the entrance
+plane, the hull above the seabed, the nose inside an approach wedge opening
+from the entrance (horizontal and vertical position constraints), a speed
+envelope, and the field of view — every guide light inside the image with a
+pixel margin, written bilinearly in the camera-frame coordinates
+(``m <= f X/Z + c <= W - m`` times ``Z > 0``) so the constraint stays smooth.
+
+Solver: IPOPT through ``nlpsol`` on an ``SX`` graph, warm-started from the
+previous primal-dual solution. A failed solve (IPOPT not converged) does not
+stop the vehicle: the previous plan, shifted by the time elapsed since it was
+computed, is applied instead, and the failure is counted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import casadi as ca
+import numpy as np
+
+from baselines.docking.observers import N_INPUT, N_STATE, PSI, VisualObservationModel
+
+
+@dataclasses.dataclass(frozen=True)
+class OFNMPCConfig:
+    """Tuning of the offset-free NMPC.
+
+    Attributes:
+        horizon: shooting intervals N (seed 003: N >= 20).
+        shooting_interval: seconds per interval (one RK4 step each).
+        state_weights: Q diagonal on ``x_k - x_s`` (x, y, z, psi, u, v, w, r).
+        input_weights: R diagonal on ``(u_k - u_s) / thrust_limits``.
+        terminal_scale: terminal weight ``P = terminal_scale * Q``.
+        fov_margin_px: margin of the field-of-view constraint, pixels.
+        nose_ahead_limit: the nose may not pass this far beyond the entrance plane, m.
+        seabed_clearance: hull clearance above the seabed, m.
+        wedge: approach wedge ``|y_nose|, |z_nose| <= w0 + slope * (-x_nose)``
+            as ``(w0, slope)``; ``None`` disables it.
+        speed_limits: envelope on the horizontal speed ``sqrt(u^2 + v^2)``, on
+            ``|w|`` and on ``|r|`` (m/s, m/s, rad/s).
+        slack_weights: exact L1 and quadratic penalty on the soft-constraint slack.
+        max_iter: iteration cap per control step.
+        solver: ``"fatrop"`` (structure-exploiting interior point, default) or
+            ``"ipopt"``; both solve the same NLP.
+    """
+
+    horizon: int = 20
+    shooting_interval: float = 0.25
+    state_weights: tuple[float, ...] = (1.0, 3.0, 3.0, 5.0, 1.0, 1.0, 1.0, 1.0)
+    input_weights: tuple[float, float, float, float] = (0.5, 0.5, 0.5, 0.5)
+    terminal_scale: float = 10.0
+    fov_margin_px: float | None = 20.0
+    nose_ahead_limit: float = 0.05
+    seabed_clearance: float = 0.3
+    wedge: tuple[float, float] | None = (0.1, 0.35)
+    speed_limits: tuple[float, float, float] = (0.6, 0.3, 0.2)
+    slack_weights: tuple[float, float] = (1e3, 1e3)
+    max_iter: int = 60
+    solver: str = "fatrop"
+    tol: float = 1e-6
+    mu_init: float = 1e-3
+
+    def __post_init__(self):
+        if self.horizon < 1 or self.shooting_interval <= 0:
+            raise ValueError("horizon must be >= 1 and shooting_interval positive")
+
+
+@dataclasses.dataclass(frozen=True)
+class NMPCResult:
+    """One control step: the input to apply and how it was obtained."""
+
+    tau: np.ndarray
+    success: bool
+    fallback: bool
+    solve_time: float
+    iterations: int
+    status: str
+
+
+class OffsetFreeNMPC:
+    """Seed 003's OFNMPC on the env's nominal model.
+
+    Args:
+        calibration: the docking env's ``calibration``.
+        config: :class:`OFNMPCConfig`.
+        nominal_model: prediction model (default ``calibration.nominal_model``).
+    """
+
+    def __init__(self, calibration, config: OFNMPCConfig | None = None, nominal_model=None):
+        self.config = config or OFNMPCConfig()
+        self.calibration = calibration
+        self.model = nominal_model or calibration.nominal_model
+        self.limits = np.asarray(calibration.thrust_limits, dtype=float)
+        self.reference = np.concatenate([np.asarray(calibration.target_position, float), [0.0]])
+        self._visual = VisualObservationModel(calibration)
+        self._build()
+        self.reset()
+
+    # ------------------------------------------------------------------ NLP
+    # Stage-wise layout, what FATROP's structure detection needs (IPOPT does
+    # not care): stage k holds chi_k = (X_k, t) and v_k = (U_k, s_k), where
+    # t = (velocity part of x_s, u_s) is carried unchanged along the horizon
+    # (chi_{k+1}[8:] = chi_k[8:]). The pose part of x_s is the reference r
+    # itself, so H x_s = r holds by construction and the equilibrium
+    # x_s = F(x_s, u_s, d) is imposed once, at stage 0.
+    def _build(self) -> None:
+        cfg = self.config
+        n, ts = cfg.horizon, cfg.shooting_interval
+        nx, nu = N_STATE + 4 + N_INPUT, N_INPUT + 1
+        chi = [ca.SX.sym(f"chi{k}", nx) for k in range(n + 1)]
+        v = [ca.SX.sym(f"v{k}", nu) for k in range(n)]
+        x0 = ca.SX.sym("x0", N_STATE)
+        d = ca.SX.sym("d", N_INPUT)
+        ref = ca.SX.sym("ref", 4)
+
+        xk, uk = ca.SX.sym("xk", N_STATE), ca.SX.sym("uk", N_INPUT)
+        step = ca.Function("rk4", [xk, uk, d], [self.model.step(xk, uk, ts, d=d, ops=ca)])
+        soft = ca.Function("soft", [xk], [self._soft_constraints(xk)])
+        q = ca.diag(ca.DM(cfg.state_weights))
+        r = ca.diag(ca.DM(np.asarray(cfg.input_weights) / self.limits**2))
+        l1, l2 = cfg.slack_weights
+
+        cost, g, lbg, ubg, equality = 0, [], [], [], []
+
+        def add(expr, lo, hi):
+            g.append(expr)
+            lbg.extend([lo] * expr.size1())
+            ubg.extend([hi] * expr.size1())
+            equality.extend([lo == hi] * expr.size1())
+
+        def split(c):
+            return c[:N_STATE], ca.vertcat(ref, c[N_STATE : N_STATE + 4]), c[N_STATE + 4 :]
+
+        for k in range(n):
+            x, xs, us = split(chi[k])
+            u, s = v[k][:N_INPUT], v[k][N_INPUT]
+            dx, du = x - xs, u - us
+            cost += ca.bilin(q, dx, dx) + ca.bilin(r, du, du) + l1 * s + l2 * s**2
+            add(chi[k + 1] - ca.vertcat(step(x, u, d), chi[k][N_STATE:]), 0.0, 0.0)
+            if k == 0:
+                add(x - x0, 0.0, 0.0)
+                add(xs - step(xs, us, d), 0.0, 0.0)  # target condition (equilibrium)
+            add(soft(x) + s, 0.0, np.inf)
+        x, xs, _ = split(chi[n])
+        cost += cfg.terminal_scale * ca.bilin(q, x - xs, x - xs)
+
+        decision = ca.vertcat(*[e for k in range(n) for e in (chi[k], v[k])], chi[n])
+        nlp = {"x": decision, "p": ca.vertcat(x0, d, ref), "f": cost, "g": ca.vertcat(*g)}
+        self._solver = ca.nlpsol("ofnmpc", cfg.solver, nlp, self._solver_options(equality))
+        self._lbg, self._ubg = np.array(lbg), np.array(ubg)
+
+        lbx, ubx = np.full(decision.size1(), -np.inf), np.full(decision.size1(), np.inf)
+        stride = nx + nu
+        for k in range(n):
+            u0 = k * stride + nx
+            lbx[u0 : u0 + N_INPUT], ubx[u0 : u0 + N_INPUT] = -self.limits, self.limits
+            lbx[u0 + N_INPUT] = 0.0
+        us0 = N_STATE + 4
+        lbx[us0 : us0 + N_INPUT], ubx[us0 : us0 + N_INPUT] = -self.limits, self.limits
+        self._lbx, self._ubx = lbx, ubx
+        self._stride, self._nx = stride, nx
+
+    def _solver_options(self, equality: list[bool]) -> dict:
+        cfg = self.config
+        common = {"tol": cfg.tol, "max_iter": cfg.max_iter, "mu_init": cfg.mu_init,
+                  "print_level": 0}
+        if cfg.solver == "fatrop":
+            return {"print_time": False, "structure_detection": "auto", "equality": equality,
+                    "fatrop": common}
+        if cfg.solver == "ipopt":
+            return {"print_time": False, "ipopt": {
+                **common, "sb": "yes", "warm_start_init_point": "yes",
+                "warm_start_bound_push": 1e-6, "warm_start_mult_bound_push": 1e-6}}
+        raise ValueError(f"unknown NLP solver {cfg.solver!r}; valid: 'fatrop', 'ipopt'")
+
+    def _soft_constraints(self, x):
+        """Rows that must be >= 0 (slack added) at one predicted state; roll = pitch = 0."""
+        cfg, cal = self.config, self.calibration
+        nose = cal.nose_offset
+        x_n = x[0] + nose * ca.cos(x[PSI])
+        y_n = x[1] + nose * ca.sin(x[PSI])
+        z_n = x[2]
+        half_height = cal.nominal_params.diameter / 2.0
+        rows = [
+            cfg.nose_ahead_limit - x_n,
+            x[2] - half_height - cfg.seabed_clearance - cal.seabed_z,
+        ]
+        if cfg.wedge is not None:
+            w0, slope = cfg.wedge
+            width = w0 + slope * (-x_n)
+            rows += [width - y_n, width + y_n, width - z_n, width + z_n]
+        horizontal, heave, yaw_rate = cfg.speed_limits
+        rows += [
+            horizontal**2 - x[4] ** 2 - x[5] ** 2,
+            heave - x[6], heave + x[6], yaw_rate - x[7], yaw_rate + x[7],
+        ]
+        if cfg.fov_margin_px is None:
+            return ca.vertcat(*rows)
+        k = cal.intrinsics
+        m = cfg.fov_margin_px
+        a_lo, a_hi = (m - k.cx) / k.fx, (k.width - m - k.cx) / k.fx
+        b_lo, b_hi = (m - k.cy) / k.fy, (k.height - m - k.cy) / k.fy
+        pts = self._visual.camera_points_expr(x, 0.0, 0.0)
+        for i in range(self._visual.n_lights):
+            xc, yc, zc = pts[0, i], pts[1, i], pts[2, i]
+            rows += [xc - a_lo * zc, a_hi * zc - xc, yc - b_lo * zc, b_hi * zc - yc]
+        return ca.vertcat(*rows)
+
+    # ------------------------------------------------------------------ runtime
+    def reset(self) -> None:
+        """Forget the warm start, the stored plan and the counters (new episode)."""
+        self.failures = 0
+        self.solves = 0
+        self.solve_times: list[float] = []
+        self._solution = None  # last successful primal solution
+        self._lam = None  # and its multipliers (IPOPT warm start)
+        self._age = 0.0  # seconds since that solution was computed
+
+    def solve(self, state, disturbance) -> NMPCResult:
+        """The input for the current estimate: first move of the optimal plan, or the fallback.
+
+        Args:
+            state: estimated ``(x, y, z, psi, u, v, w, r)``.
+            disturbance: estimated generalized disturbance ``d`` (4).
+        """
+        state = np.asarray(state, dtype=float)
+        disturbance = np.asarray(disturbance, dtype=float)
+        if state.shape != (N_STATE,) or disturbance.shape != (N_INPUT,):
+            raise ValueError(f"OFNMPC needs a state ({N_STATE},) and a disturbance ({N_INPUT},)")
+        if not (np.isfinite(state).all() and np.isfinite(disturbance).all()):
+            raise ValueError("OFNMPC got a non-finite state or disturbance estimate")
+        guess = self._warm_start(state)
+        p = np.concatenate([state, disturbance, self.reference])
+        args = dict(x0=guess, p=p, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
+        if self._lam is not None and self._age == 0.0:
+            args.update(lam_x0=self._lam[0], lam_g0=self._lam[1])
+        start = time.perf_counter()
+        sol = self._solver(**args)
+        elapsed = time.perf_counter() - start
+        stats = self._solver.stats()
+        success = bool(stats["success"])
+        self.solves += 1
+        self.solve_times.append(elapsed)
+        if success:
+            self._solution = np.asarray(sol["x"]).ravel()
+            self._lam = (np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel())
+            self._age = 0.0
+            tau = self._inputs(self._solution)[0]
+        else:
+            self.failures += 1
+            tau = self._fallback()
+        self._age += self.calibration.control_period
+        return NMPCResult(
+            tau=np.clip(tau, -self.limits, self.limits),
+            success=success,
+            fallback=not success,
+            solve_time=elapsed,
+            iterations=int(stats.get("iter_count", -1)),
+            status=str(stats["return_status"]),
+        )
+
+    def _stages(self, solution: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(chi (N + 1, nx), v (N, nu))`` of a decision vector."""
+        n = self.config.horizon
+        body = solution[: n * self._stride].reshape(n, self._stride)
+        chi = np.vstack([body[:, : self._nx], solution[n * self._stride :]])
+        return chi, body[:, self._nx :]
+
+    def _inputs(self, solution: np.ndarray) -> np.ndarray:
+        return self._stages(solution)[1][:, :N_INPUT]
+
+    def _fallback(self) -> np.ndarray:
+        """The last successful plan shifted by the time since it was computed; zero without one."""
+        if self._solution is None:
+            return np.zeros(N_INPUT)
+        index = min(int(self._age / self.config.shooting_interval), self.config.horizon - 1)
+        return self._inputs(self._solution)[index].copy()
+
+    def _warm_start(self, state: np.ndarray) -> np.ndarray:
+        """Initial guess: the last plan shifted in time by its age, else the state held."""
+        n, ts = self.config.horizon, self.config.shooting_interval
+        if self._solution is None:
+            chi = np.concatenate([state, np.zeros(4), np.zeros(N_INPUT)])
+            stage = np.concatenate([chi, np.zeros(N_INPUT + 1)])
+            return np.concatenate([np.tile(stage, n), chi])
+        chi, v = self._stages(self._solution)
+        if self._age > 0.0:
+            nodes = np.arange(n + 1) * ts
+            shifted = np.minimum(nodes + self._age, nodes[-1])
+            chi = np.column_stack([np.interp(shifted, nodes, col) for col in chi.T])
+            v = v[np.minimum((shifted[:-1] / ts).astype(int), n - 1)]
+        chi[0, :N_STATE] = state
+        return np.concatenate([np.hstack([chi[:-1], v]).ravel(), chi[-1]])
+
+    def planned_states(self) -> np.ndarray | None:
+        """(N + 1, 8) predicted states of the last successful solve (for plots)."""
+        if self._solution is None:
+            return None
+        return self._stages(self._solution)[0][:, :N_STATE].copy()

@@ -1,0 +1,150 @@
+"""Seed 003 OFNMPC: target conditions inside the NLP, offset-free closed loop, solver
+fallback, and a short seeded docking episode of the registered agent."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from baselines.docking.agents import OFNMPCAgent
+from baselines.docking.observers import DockingEKF
+from baselines.docking.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
+from baselines.evaluation import run_episode
+from baselines.registry import BUILTIN_AGENT_MODULES, agent_spec, make_agent
+from tests.conftest import DOCKING_IDS, make_env
+
+
+@pytest.fixture(scope="module")
+def calibration():
+    env = make_env(DOCKING_IDS[0], "features")
+    yield env.unwrapped.calibration
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def controller(calibration):
+    return OffsetFreeNMPC(calibration)
+
+
+def test_target_conditions_hold_inside_the_solution(controller, calibration):
+    """x_s is the docking pose at rest and u_s balances d and the restoring force."""
+    controller.reset()
+    d = np.array([5.0, -4.0, 3.0, 1.5])
+    result = controller.solve(np.array([-6.0, 0.3, -0.2, 0.05, 0.2, 0.0, 0.0, 0.0]), d)
+    assert result.success
+    chi, _ = controller._stages(controller._solution)
+    xs_velocity, us = chi[0, 8:12], chi[0, 12:16]
+    np.testing.assert_allclose(xs_velocity, 0.0, atol=1e-7)
+    target = np.concatenate([calibration.target_position, [0.0], xs_velocity])
+    derivative = calibration.nominal_model.derivatives(target, us, d)
+    np.testing.assert_allclose(derivative, 0.0, atol=1e-6)
+    # Net buoyancy +10 N: holding depth takes -10 N - d_Z of heave thrust.
+    np.testing.assert_allclose(us, -d - np.array([0.0, 0.0, 10.0, 0.0]), atol=1e-5)
+    # The carried target is the same at every stage.
+    np.testing.assert_allclose(chi[:, 8:], np.broadcast_to(chi[0, 8:], chi[:, 8:].shape),
+                               atol=1e-9)
+
+
+def test_offset_free_on_nominal_model_with_constant_unmodelled_force(calibration):
+    """Plant = nominal model + constant force; pixels from the visual model. The closed
+    loop settles on the docking point with zero offset and the EKF's disturbance
+    estimate converges to the force (seed 003 §3.2)."""
+    force = np.array([12.0, -15.0, 10.0, 4.0])
+    model = calibration.nominal_model
+    observer = DockingEKF(calibration)
+    controller = OffsetFreeNMPC(calibration)
+    visual = observer.visual
+    x = np.array([-3.5, 0.4, 0.3, 0.1, 0.0, 0.0, 0.0, 0.0])
+    tau = np.zeros(4)
+    for _ in range(300):
+        h, _ = visual.evaluate(x, np.zeros(2))
+        obs = {"pixels": h[: 2 * visual.n_lights].reshape(-1, 2),
+               "visible": np.ones(visual.n_lights), "velocity": x[4:8],
+               "attitude": np.array([0.0, 0.0, x[3]])}
+        estimate = observer.step(obs, tau)
+        result = controller.solve(estimate.state, estimate.disturbance)
+        assert result.success
+        tau = result.tau
+        x = model.step(x, tau, calibration.control_period, d=force)
+    np.testing.assert_allclose(x[:3], calibration.target_position, atol=1e-3)
+    assert abs(x[3]) < 1e-3
+    np.testing.assert_allclose(x[4:], 0.0, atol=1e-4)
+    np.testing.assert_allclose(estimate.disturbance, force, atol=0.05)
+    assert controller.failures == 0
+
+
+def test_solver_failure_applies_the_shifted_previous_plan(calibration):
+    """A disturbance beyond the thrust limits makes the target conditions infeasible:
+    the failure is counted and the previous plan, shifted by the elapsed time, runs."""
+    ctrl = OffsetFreeNMPC(calibration, OFNMPCConfig(max_iter=40))
+    x = np.array([-6.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    first = ctrl.solve(x, np.zeros(4))
+    assert first.success and not first.fallback
+    plan = ctrl._inputs(ctrl._solution).copy()
+    outcomes = [ctrl.solve(x, np.array([0.0, 0.0, 500.0, 0.0])) for _ in range(4)]
+    assert all(r.fallback and not r.success for r in outcomes)
+    assert ctrl.failures == 4
+    period, interval = calibration.control_period, ctrl.config.shooting_interval
+    for k, r in enumerate(outcomes, start=1):
+        np.testing.assert_allclose(r.tau, plan[int(k * period / interval + 1e-9)])
+    recovered = ctrl.solve(x, np.zeros(4))
+    assert recovered.success
+
+
+def test_non_finite_estimate_raises(controller):
+    with pytest.raises(ValueError, match="non-finite"):
+        controller.solve(np.full(8, np.nan), np.zeros(4))
+    with pytest.raises(ValueError, match="state"):
+        controller.solve(np.zeros(3), np.zeros(4))
+
+
+def test_agents_are_registered_for_both_docking_envs():
+    assert "baselines.docking.agents" in BUILTIN_AGENT_MODULES
+    for name in ("ofnmpc-ekf", "ofnmpc-mhe"):
+        spec = agent_spec(name)
+        assert spec.obs_mode == "features"
+        assert all(spec.applies_to(e) for e in DOCKING_IDS)
+
+
+def test_agent_rejects_unknown_observer_and_state_observations():
+    env = make_env(DOCKING_IDS[0], "state")
+    try:
+        with pytest.raises(ValueError, match="features"):
+            make_agent("ofnmpc-ekf", env)
+    finally:
+        env.close()
+    env = make_env(DOCKING_IDS[0], "features")
+    try:
+        with pytest.raises(ValueError, match="observer"):
+            OFNMPCAgent(env.unwrapped, observer="ukf")
+    finally:
+        env.close()
+
+
+def test_ofnmpc_ekf_docks_in_mismatch_scenario():
+    """A short seeded episode; the agent never sees ``info`` (it gets an empty dict)."""
+    env_id = DOCKING_IDS[0]
+    env = make_env(env_id, "features", scenario="mismatch", time_limit=40.0)
+    try:
+        agent = make_agent("ofnmpc-ekf", env)
+
+        class _NoInfo:
+            """The agent behind a wall that hides ``info``."""
+
+            def __getattr__(self, name):
+                return getattr(agent, name)
+
+            def act(self, observation, info):
+                return agent.act(observation, {})
+
+        row = run_episode(env, _NoInfo(), 100_000, env_id, "ofnmpc-ekf")
+    finally:
+        env.close()
+    assert row.success, row.failure_reason
+    tol = env.unwrapped.calibration.tolerances
+    assert abs(row.metrics["final_lateral_error"]) <= tol.lateral
+    assert abs(row.metrics["final_vertical_error"]) <= tol.vertical
+    assert row.metrics["agent_solver_failures"] == 0
+    assert row.metrics["agent_solves"] == row.length
+    assert row.metrics["estimate_error_max"] < 0.5  # position_estimate() vs truth
+    assert {f"agent_disturbance_{a}" for a in "XYZN"} <= set(row.metrics)
