@@ -1,0 +1,383 @@
+"""Seed 002's lamp-array front end on rendered docking frames, its parts, and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import auv_envs  # noqa: F401
+from auv_envs.core.camera import CameraIntrinsics, points_in_camera, project
+from auv_envs.core.frames import rotation_from_euler
+from baselines.frontend import FrontEndAgent
+from baselines.registry import agent_spec, make_agent
+from baselines.vision.lamp_array import (
+    DETECTED,
+    PREDICTED,
+    BlobEKF,
+    CameraPositionFilter,
+    LampArrayFrontEnd,
+    SegmentationParams,
+    TrackerParams,
+    identify_l_shape,
+    identify_ring,
+    segment_lamps,
+)
+from tests.conftest import DOCKING_IDS
+
+LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v0", "auv_envs/DockingStation-v0"
+N_FRAMES = 24
+
+
+def _observation(image: np.ndarray, info: dict) -> dict:
+    """The image observation of the noise-free ``mismatch`` scenario, rebuilt from info."""
+    return {
+        "image": image,
+        "velocity": info["true_velocity"][[0, 1, 2, 5]].astype(np.float32),
+        "attitude": info["true_euler"].astype(np.float32),
+    }
+
+
+def _lamps_apart(info: dict, min_gap: float = 25.0, border: float = 15.0) -> bool:
+    if not info["true_visible"].all():
+        return False
+    px = info["true_pixels"]
+    gaps = np.linalg.norm(px[:, None] - px[None], axis=-1) + 1e9 * np.eye(len(px))
+    inside = ((px > border) & (px < np.array([640, 480]) - border)).all()
+    return bool(gaps.min() >= min_gap and inside)
+
+
+def _render_sequence(env_id: str, seed: int) -> tuple[list, object]:
+    """``pd-state`` docks a state env (no rendering, fast); from the first step with every
+    lamp visible and apart, ``N_FRAMES`` frames are rendered at 640x480."""
+    env = gym.make(env_id, obs_mode="state", render_mode="rgb_array")
+    try:
+        agent = make_agent("pd-state", env)
+        obs, info = env.reset(seed=seed)
+        frames = []
+        while len(frames) < N_FRAMES:
+            if frames or _lamps_apart(info):
+                frames.append((_observation(env.render(), info), info["true_pixels"].copy(),
+                               info["true_visible"].copy()))
+            obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+            if terminated or truncated:
+                break
+        return frames, env.unwrapped.calibration
+    finally:
+        env.close()
+
+
+@pytest.fixture(scope="module", params=[LAMP_ID, RING_ID], ids=["lamp-array", "six-lights"])
+def rendered(request):
+    frames, calibration = _render_sequence(request.param, seed=100_000)
+    assert len(frames) == N_FRAMES, "the reference controller docked before the frames were taken"
+    return request.param, frames, calibration
+
+
+def _paint_out(image: np.ndarray, pixels: np.ndarray, radius: int = 30) -> np.ndarray:
+    """Hide lamps under discs of the water's colour."""
+    out = image.copy()
+    water = tuple(int(c) for c in np.median(image.reshape(-1, 3), axis=0))
+    for u, v in pixels:
+        cv2.circle(out, (round(u), round(v)), radius, water, -1)
+    return out
+
+
+# --------------------------------------------------------------------------- on renders
+
+
+def test_segmentation_finds_every_lamp_within_1px(rendered):
+    _, frames, _ = rendered
+    for obs, true_px, _ in frames[:: N_FRAMES // 4]:
+        blobs = segment_lamps(cv2.cvtColor(obs["image"], cv2.COLOR_RGB2GRAY))
+        assert len(blobs) == len(true_px)
+        gaps = np.linalg.norm(true_px[:, None] - blobs.centres[None], axis=-1).min(axis=1)
+        assert gaps.max() <= 1.0, gaps
+
+
+def test_front_end_labels_every_lamp_at_initialisation(rendered):
+    _, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    obs, true_px, _ = frames[0]
+    out = front_end(obs, {})
+    assert front_end.initialised
+    assert out["visible"].dtype == np.int8 and out["pixels"].dtype == np.float32
+    np.testing.assert_array_equal(out["visible"], 1)
+    errors = np.linalg.norm(out["pixels"] - true_px, axis=1)
+    assert errors.max() <= 1.0, errors  # by label: a wrong identity would be tens of px off
+    np.testing.assert_array_equal(front_end.tracks.status, DETECTED)
+
+
+def test_tracks_follow_the_lamps_and_match_the_features_space(rendered):
+    env_id, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    features_space = gym.make(env_id, obs_mode="features").observation_space
+    for obs, true_px, true_vis in frames:
+        out = front_end(obs, {})
+        assert features_space.contains(out)
+        np.testing.assert_array_equal(out["visible"], true_vis)
+        errors = np.linalg.norm(out["pixels"] - true_px, axis=1)
+        assert errors.max() <= 1.0, errors
+        np.testing.assert_array_equal(out["velocity"], obs["velocity"])
+        np.testing.assert_array_equal(out["attitude"], obs["attitude"])
+    assert front_end.stats()["lamp_initialisations"] == 1
+
+
+@pytest.mark.parametrize("hidden", [(0, 2), "all"], ids=["two-lamps", "every-lamp"])
+def test_tracks_survive_an_occlusion_and_reassign_correctly(rendered, hidden):
+    _, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    hidden = np.arange(len(cal.light_labels)) if hidden == "all" else np.array(hidden)
+    occluded = range(4, 12)  # 0.8 s
+    for k, (obs, true_px, _) in enumerate(frames):
+        if k in occluded:
+            obs = dict(obs, image=_paint_out(obs["image"], true_px[hidden]))
+        out = front_end(obs, {})
+        errors = np.linalg.norm(front_end.tracks.pixels - true_px, axis=1)
+        if k in occluded:
+            assert not out["visible"][hidden].any()
+            assert (front_end.tracks.status[hidden] == PREDICTED).all()
+            assert errors[hidden].max() <= 3.0, errors  # predicted where the lamps are
+        else:
+            np.testing.assert_array_equal(out["visible"], 1)
+            assert errors.max() <= 1.0, (k, errors)  # each lamp back under its own label
+    assert front_end.stats()["lamp_initialisations"] == 1  # never re-initialised
+
+
+def test_front_end_never_reads_info(rendered):
+    class Untouchable(dict):
+        def __getitem__(self, key):
+            raise AssertionError(f"front end read info[{key!r}]")
+
+        def get(self, *args):
+            raise AssertionError("front end read info")
+
+    _, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    for obs, _, _ in frames[:3]:
+        front_end(obs, Untouchable())
+
+
+def test_reset_starts_over_and_reruns_identically(rendered):
+    _, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    first = [front_end(obs, {})["pixels"] for obs, _, _ in frames[:6]]
+    front_end.reset(1)
+    assert not front_end.initialised
+    assert np.isnan(front_end.tracks.pixels).all()
+    again = [front_end(obs, {})["pixels"] for obs, _, _ in frames[:6]]
+    np.testing.assert_array_equal(first, again)
+
+
+def test_no_lamps_means_no_initialisation(rendered):
+    _, frames, cal = rendered
+    front_end = LampArrayFrontEnd(cal)
+    obs = frames[0][0]
+    out = front_end(dict(obs, image=np.zeros_like(obs["image"])), {})
+    assert not front_end.initialised
+    np.testing.assert_array_equal(out["visible"], 0)
+    np.testing.assert_array_equal(out["pixels"], 0.0)
+
+
+# --------------------------------------------------------------------------- identity rules
+
+L_LAYOUT = np.array([[1.2, 0, -0.6], [1.8, 0, -0.6], [2.4, 0, -0.6], [2.4, 0.5, -0.6]])
+
+
+def _view(points: np.ndarray, cam_pos, yaw: float, pitch: float, roll: float = 0.0):
+    """Project world points with a camera looking along its body x (OpenCV axes)."""
+    k = CameraIntrinsics.from_fovy(640, 480, 45.0)
+    body_to_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    rot = rotation_from_euler(roll, pitch, yaw) @ body_to_cv
+    return project(k, points_in_camera(points, np.asarray(cam_pos, float), rot))[0]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_l_shape_rule_labels_perspective_views_in_any_order(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        cam = [rng.uniform(-6, -1.5), rng.uniform(-1.5, 1.5), rng.uniform(0.0, 1.5)]
+        target = L_LAYOUT.mean(axis=0) - cam
+        yaw = math.atan2(target[1], target[0]) + rng.uniform(-0.1, 0.1)
+        pitch = math.atan2(-target[2], math.hypot(target[0], target[1]))
+        pixels = _view(L_LAYOUT, cam, yaw, pitch, rng.uniform(-0.1, 0.1))
+        order = rng.permutation(4)
+        labels = identify_l_shape(pixels[order], L_LAYOUT)
+        if labels is not None:  # None is allowed (ambiguous), a wrong labelling is not
+            np.testing.assert_array_equal(order[labels], np.arange(4))
+
+
+def test_l_shape_rule_labels_a_typical_view_and_refuses_a_square():
+    pixels = _view(L_LAYOUT, [-3.0, 0.3, 1.2], 0.0, math.radians(25))
+    np.testing.assert_array_equal(identify_l_shape(pixels, L_LAYOUT), [0, 1, 2, 3])
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10]], float)
+    assert identify_l_shape(square, L_LAYOUT) is None
+    # Mirrored (D on the other side of A -> C): not this array.
+    mirrored = pixels * [-1.0, 1.0]
+    np.testing.assert_array_equal(identify_l_shape(mirrored, L_LAYOUT), [2, 1, 0, 3])
+
+
+def test_ring_rule_labels_a_hexagon_in_any_order():
+    angles = np.radians([90, 150, 210, 270, 330, 30])
+    expected = np.column_stack([np.cos(angles), -np.sin(angles)]) * 40 + 300
+    rng = np.random.default_rng(3)
+    # Seen turned by up to 12 deg from the expected view (perspective, attitude error), shrunk,
+    # shifted, with pixel noise.
+    for turn in np.radians([-12, -5, 0, 7, 12]):
+        c, s = math.cos(turn), math.sin(turn)
+        seen = (expected - 300) @ np.array([[c, -s], [s, c]]).T * 0.7 + [250, 180]
+        seen += rng.normal(0, 0.5, seen.shape)
+        order = rng.permutation(6)
+        labels = identify_ring(seen[order], expected)
+        np.testing.assert_array_equal(order[labels], np.arange(6))
+
+
+def test_ring_rule_refuses_the_ambiguous_half_step():
+    angles = np.radians(np.arange(0, 360, 60))
+    ring = np.column_stack([np.cos(angles), np.sin(angles)])
+    half = np.radians(30.0)
+    turned = ring @ np.array([[math.cos(half), -math.sin(half)],
+                              [math.sin(half), math.cos(half)]]).T
+    assert identify_ring(turned, ring) is None
+
+
+# --------------------------------------------------------------------------- filters
+
+
+def test_blob_ekf_jacobian_matches_finite_differences():
+    x = np.array([100.0, 50.0, 3.0, -2.0, 6.5, 0.4])
+    _, H = BlobEKF.measure(x)
+    eps = 1e-6
+    numeric = np.column_stack([
+        (BlobEKF.measure(x + eps * e)[0] - BlobEKF.measure(x - eps * e)[0]) / (2 * eps)
+        for e in np.eye(6)
+    ])
+    np.testing.assert_allclose(H, numeric, atol=1e-6)
+
+
+def test_blob_ekf_position_update_is_the_kalman_update():
+    P = np.diag([4.0, 9.0, 1.0, 1.0, 1.0, 1.0])
+    P[0, 2] = P[2, 0] = 0.5
+    ekf = BlobEKF([10.0, 20.0, 1.0, 0.0, 5.0, 0.0], P)
+    R = np.diag([1.0, 2.0])
+    ekf.update_position(np.array([12.0, 17.0]), R)
+    H = np.zeros((2, 6))
+    H[0, 0] = H[1, 1] = 1.0
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    x = np.array([10.0, 20.0, 1.0, 0.0, 5.0, 0.0]) + K @ np.array([2.0, -3.0])
+    np.testing.assert_allclose(ekf.x, x, atol=1e-12)
+    np.testing.assert_allclose(ekf.P, (np.eye(6) - K @ H) @ P, atol=1e-12)
+
+
+def test_blob_ekf_predict_moves_with_constant_velocity():
+    F, Q = BlobEKF.transition(0.1, 100.0, 10.0)
+    ekf = BlobEKF([0.0, 0.0, 20.0, -10.0, 4.0, 1.0], np.eye(6))
+    ekf.predict(F, Q)
+    np.testing.assert_allclose(ekf.x, [2.0, -1.0, 20.0, -10.0, 4.1, 1.0])
+    assert np.all(np.diag(ekf.P) > 1.0)
+
+
+def test_camera_position_filter_recovers_the_camera_from_labelled_lamps():
+    k = CameraIntrinsics.from_fovy(640, 480, 45.0)
+    cam = np.array([-3.0, 0.4, 1.0])
+    body_to_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    rot = rotation_from_euler(0.02, math.radians(20), -0.1) @ body_to_cv
+    pixels, _ = project(k, points_in_camera(L_LAYOUT, cam, rot))
+    pose = CameraPositionFilter(k, L_LAYOUT)
+    pose.set_rotation(rot)
+    residual = pose.initialise(np.arange(4), pixels, sigma=0.5)
+    assert residual < 1e-6
+    np.testing.assert_allclose(pose.t, cam, atol=1e-6)
+    # Two lamps suffice once the rotation is known.
+    pose.initialise(np.array([0, 3]), pixels[[0, 3]], sigma=0.5)
+    np.testing.assert_allclose(pose.t, cam, atol=1e-6)
+    # A predicted offset is pulled back by the update.
+    pose.predict(np.array([0.2, 0.0, 0.0]), sigma=0.3)
+    pose.update([np.array([i]) for i in range(4)], pixels, np.full(4, 0.5))
+    assert np.linalg.norm(pose.t - cam) < 0.01
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+@pytest.fixture(scope="module")
+def lamp_front_end():
+    env = gym.make(LAMP_ID, obs_mode="image", image_size=(64, 48))
+    try:
+        yield LampArrayFrontEnd.from_env(env), env.observation_space.sample()
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(
+    "change, error, match",
+    [
+        (lambda o: o["image"], TypeError, "dict"),
+        (lambda o: {"image": o["image"]}, KeyError, "velocity"),
+        (lambda o: dict(o, image=o["image"].astype(np.float32)), ValueError, "uint8"),
+        (lambda o: dict(o, image=o["image"][:10]), ValueError, "shape"),
+        (lambda o: dict(o, attitude=np.array([0.0, np.nan, 0.0])), ValueError, "finite"),
+        (lambda o: dict(o, velocity=np.zeros(3)), ValueError, r"\(4,\)"),
+    ],
+)
+def test_bad_observations_raise(lamp_front_end, change, error, match):
+    front_end, obs = lamp_front_end
+    with pytest.raises(error, match=match):
+        front_end(change(obs), {})
+
+
+def test_front_end_needs_an_image_env():
+    env = gym.make(LAMP_ID, obs_mode="features")
+    try:
+        with pytest.raises(ValueError, match="image"):
+            LampArrayFrontEnd.from_env(env)
+    finally:
+        env.close()
+
+
+def test_bad_configuration_raises(lamp_front_end):
+    cal = gym.make(RING_ID, obs_mode="state").unwrapped.calibration
+    with pytest.raises(ValueError, match="identity"):
+        LampArrayFrontEnd(cal, identity="nearest")
+    with pytest.raises(ValueError, match="four lamps"):
+        LampArrayFrontEnd(cal, identity="l-shape")
+    with pytest.raises(ValueError, match="odd"):
+        SegmentationParams(block_size=30)
+    with pytest.raises(ValueError, match="gate_px"):
+        TrackerParams(gate_px=math.inf)
+    with pytest.raises(ValueError, match="lost_after"):
+        TrackerParams(lost_after=0)
+
+
+def test_bad_segmentation_and_identity_input_raises():
+    with pytest.raises(ValueError, match="uint8"):
+        segment_lamps(np.zeros((4, 4), np.float32))
+    with pytest.raises(ValueError, match="four"):
+        identify_l_shape(np.zeros((3, 2)), L_LAYOUT)
+    with pytest.raises(ValueError, match="layout"):
+        identify_l_shape(np.zeros((4, 2)), L_LAYOUT[:, :2])
+    with pytest.raises(ValueError, match="finite"):
+        identify_ring(np.full((6, 2), np.nan), np.zeros((6, 2)))
+
+
+# --------------------------------------------------------------------------- registry
+
+
+@pytest.mark.parametrize("name", ["ofnmpc-ekf-image", "ofnmpc-mhe-image"])
+def test_image_agents_are_registered_behind_the_front_end(name):
+    spec = agent_spec(name)
+    assert spec.obs_mode == "image"
+    assert all(spec.applies_to(env_id) for env_id in DOCKING_IDS)
+    env = gym.make(RING_ID, obs_mode="image", image_size=(64, 48))
+    try:
+        agent = make_agent(name, env)
+    except KeyError as exc:  # the inner OFNMPC agent is not registered (yet)
+        assert name.removesuffix("-image") in str(exc)
+    else:
+        assert isinstance(agent, FrontEndAgent)
+        assert isinstance(agent.front_end, LampArrayFrontEnd)
+    finally:
+        env.close()
