@@ -151,6 +151,7 @@ BUILTIN_AGENT_MODULES = (
     "baselines.lars.agents",
     "baselines.rl.agents",
     "baselines.docking.agents",
+    "baselines.vision.agents",
 )
 
 
