@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from baselines import registry
 from baselines.docking.agents import OFNMPCAgent
 from baselines.docking.observers import DockingEKF
 from baselines.docking.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
 from baselines.evaluation import run_episode
-from baselines.registry import BUILTIN_AGENT_MODULES, agent_spec, make_agent
+from baselines.registry import BUILTIN_AGENT_MODULES, make_agent
 from tests.conftest import DOCKING_IDS, make_env
 
 
@@ -56,7 +57,7 @@ def test_offset_free_on_nominal_model_with_constant_unmodelled_force(calibration
     visual = observer.visual
     x = np.array([-3.5, 0.4, 0.3, 0.1, 0.0, 0.0, 0.0, 0.0])
     tau = np.zeros(4)
-    for _ in range(300):
+    for _ in range(220):
         h, _ = visual.evaluate(x, np.zeros(2))
         obs = {"pixels": h[: 2 * visual.n_lights].reshape(-1, 2),
                "visible": np.ones(visual.n_lights), "velocity": x[4:8],
@@ -66,10 +67,10 @@ def test_offset_free_on_nominal_model_with_constant_unmodelled_force(calibration
         assert result.success
         tau = result.tau
         x = model.step(x, tau, calibration.control_period, d=force)
-    np.testing.assert_allclose(x[:3], calibration.target_position, atol=1e-3)
-    assert abs(x[3]) < 1e-3
+    np.testing.assert_allclose(x[:3], calibration.target_position, atol=1e-4)
+    assert abs(x[3]) < 1e-6
     np.testing.assert_allclose(x[4:], 0.0, atol=1e-4)
-    np.testing.assert_allclose(estimate.disturbance, force, atol=0.05)
+    np.testing.assert_allclose(estimate.disturbance, force, atol=1e-4)
     assert controller.failures == 0
 
 
@@ -100,8 +101,10 @@ def test_non_finite_estimate_raises(controller):
 
 def test_agents_are_registered_for_both_docking_envs():
     assert "baselines.docking.agents" in BUILTIN_AGENT_MODULES
+    # Importing baselines.docking.agents (above) registered them; reading the table
+    # directly avoids importing every other builtin agent module (torch etc.).
     for name in ("ofnmpc-ekf", "ofnmpc-mhe"):
-        spec = agent_spec(name)
+        spec = registry._REGISTRY[name]
         assert spec.obs_mode == "features"
         assert all(spec.applies_to(e) for e in DOCKING_IDS)
 
@@ -148,3 +151,33 @@ def test_ofnmpc_ekf_docks_in_mismatch_scenario():
     assert row.metrics["agent_solves"] == row.length
     assert row.metrics["estimate_error_max"] < 0.5  # position_estimate() vs truth
     assert {f"agent_disturbance_{a}" for a in "XYZN"} <= set(row.metrics)
+
+
+def test_compiled_solver_gives_the_same_plan(calibration, tmp_path, monkeypatch):
+    """C code generation changes the speed, not the iterates (short horizon: fast build)."""
+    monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
+    config = OFNMPCConfig(horizon=2, compile=True, compile_flags=("-O0",))
+    compiled = OffsetFreeNMPC(calibration, config)
+    assert compiled.compiled
+    assert len(list((tmp_path / "casadi").glob("ofnmpc_*.so"))) == 1
+    reference = OffsetFreeNMPC(calibration, OFNMPCConfig(horizon=2))
+    x, d = np.array([-4.0, 0.3, -0.2, 0.05, 0.2, 0.0, 0.0, 0.0]), np.array([3.0, -2, 1, 0.5])
+    for _ in range(3):
+        a, b = compiled.solve(x, d), reference.solve(x, d)
+        assert a.success and b.success
+        np.testing.assert_allclose(a.tau, b.tau, rtol=1e-9, atol=1e-9)
+        x = calibration.nominal_model.step(x, a.tau, calibration.control_period, d=d)
+    # A second controller finds the cached library instead of compiling again.
+    assert OffsetFreeNMPC(calibration, config).compiled
+
+
+def test_without_a_compiler_the_solver_warns_and_runs_uncompiled(calibration, tmp_path,
+                                                                  monkeypatch):
+    import baselines.docking.ofnmpc as module
+
+    monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
+    monkeypatch.setattr(module.shutil, "which", lambda name: None)
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        ctrl = OffsetFreeNMPC(calibration, OFNMPCConfig(horizon=2, compile=True))
+    assert not ctrl.compiled
+    assert ctrl.solve(np.array([-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]), np.zeros(4)).success

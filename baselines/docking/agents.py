@@ -13,6 +13,8 @@ agent commands zero force and counts the step in ``stats()["waiting_steps"]``.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from baselines.agents.pd_docking import DOCKING_ENV_IDS
@@ -29,6 +31,9 @@ class OFNMPCAgent:
         observer: ``"ekf"`` or ``"mhe"``.
         config: NMPC tuning.
         mhe_config: MHE tuning (``observer="mhe"`` only).
+        nominal_model: the model shared by observer and NMPC (seed 003: "the
+            process models of EKF and MHE are the same as the prediction model");
+            default ``calibration.nominal_model``.
     """
 
     def __init__(self, env, observer: str = "ekf", config: OFNMPCConfig | None = None,
@@ -38,9 +43,9 @@ class OFNMPCAgent:
                              "a front end)")
         cal = env.calibration
         if observer == "ekf":
-            self.observer = DockingEKF(cal)
+            self.observer = DockingEKF(cal, nominal_model=nominal_model)
         elif observer == "mhe":
-            self.observer = DockingMHE(cal, mhe_config)
+            self.observer = DockingMHE(cal, mhe_config, nominal_model=nominal_model)
         else:
             raise ValueError(f"unknown observer {observer!r}; valid: 'ekf', 'mhe'")
         self.observer_name = observer
@@ -56,10 +61,13 @@ class OFNMPCAgent:
         self.waiting_steps = 0
         self.estimate = None
         self.last_result = None
+        self.observer_times: list[float] = []
 
     def act(self, observation, info: dict) -> np.ndarray:
         del info  # ground truth is not for agents
+        start = time.perf_counter()
         estimate = self.observer.step(observation, self._tau)
+        self.observer_times.append(time.perf_counter() - start)
         if estimate is None:
             self.waiting_steps += 1
             self._tau = np.zeros(4)
@@ -82,6 +90,7 @@ class OFNMPCAgent:
             "solves": self.controller.solves,
             "mean_solve_ms": float(times.mean()) if len(times) else float("nan"),
             "p95_solve_ms": float(np.percentile(times, 95)) if len(times) else float("nan"),
+            "mean_observer_ms": 1000.0 * float(np.mean(self.observer_times or [np.nan])),
             "observer_failures": getattr(self.observer, "failures", 0),
             "waiting_steps": self.waiting_steps,
         }

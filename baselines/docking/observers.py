@@ -343,15 +343,16 @@ class DockingEKF:
             lights, control period, sensor noise).
         noise: noise settings (default: from the calibration).
         initial_disturbance_std: prior std of ``d`` (N, N, N, N m).
+        nominal_model: process model (default ``calibration.nominal_model``).
     """
 
     def __init__(self, calibration, noise: ObserverNoise | None = None,
-                 initial_disturbance_std=(20.0, 20.0, 20.0, 5.0)):
+                 initial_disturbance_std=(20.0, 20.0, 20.0, 5.0), nominal_model=None):
         self.visual = VisualObservationModel(calibration)
         self.noise = noise or ObserverNoise.from_calibration(calibration)
+        model = nominal_model or calibration.nominal_model
         self.filter = ExtendedKalmanFilter(
-            augmented_transition(calibration.nominal_model, calibration.control_period),
-            self.noise.process_cov(),
+            augmented_transition(model, calibration.control_period), self.noise.process_cov()
         )
         self._meas_var = self.noise.measurement_std(self.visual.n_lights) ** 2
         self._d0_cov = np.diag(np.asarray(initial_disturbance_std, dtype=float) ** 2)
@@ -439,17 +440,19 @@ class DockingMHE:
         calibration: the docking env's ``calibration``.
         config: :class:`MHEConfig`.
         noise: noise settings (default: from the calibration).
+        initial_disturbance_std: prior std of ``w`` at the start (N, N, N, N m).
+        nominal_model: process model (default ``calibration.nominal_model``).
     """
 
     def __init__(self, calibration, config: MHEConfig | None = None,
                  noise: ObserverNoise | None = None,
-                 initial_disturbance_std=(20.0, 20.0, 20.0, 5.0)):
+                 initial_disturbance_std=(20.0, 20.0, 20.0, 5.0), nominal_model=None):
         self.config = config or MHEConfig()
         if self.config.horizon < 2:
             raise ValueError(f"MHE horizon must be >= 2, got {self.config.horizon}")
         self.noise = noise or ObserverNoise.from_calibration(calibration)
         self.visual = VisualObservationModel(calibration)
-        self.model = calibration.nominal_model
+        self.model = nominal_model or calibration.nominal_model
         self.dt = calibration.control_period
         self._aug = augmented_transition(self.model, self.dt)
         q = self.noise.process_cov().copy()
