@@ -173,3 +173,9 @@ def test_malformed_features_are_rejected(calibration):
         ekf.step({**obs, "pixels": obs["pixels"][:2]}, np.zeros(4))
     with pytest.raises(ValueError, match="non-finite"):
         ekf.step({**obs, "velocity": np.array([np.nan, 0, 0, 0])}, np.zeros(4))
+    # A visible light with non-finite pixels is treated as not visible.
+    broken = obs["pixels"].copy()
+    broken[0] = np.nan
+    estimate = ekf.step({**obs, "pixels": broken}, np.zeros(4))
+    assert np.isfinite(estimate.state).all()
+    np.testing.assert_allclose(estimate.state[:4], x[:4], atol=1e-4)

@@ -123,7 +123,9 @@ class Measurement:
 
     ``z`` has the layout of :attr:`VisualObservationModel.measurement`; ``mask``
     says which rows carry data (the pixels of lights that are not visible do
-    not); ``attitude`` is the INS (roll, pitch, yaw).
+    not; a light whose pixels are not finite counts as not visible);
+    ``attitude`` is the INS (roll, pitch, yaw). Non-finite velocities or
+    attitude raise ``ValueError``.
     """
 
     z: np.ndarray
@@ -433,8 +435,9 @@ class DockingMHE:
     ``M-1`` steps) the data sit at its start and the unused slots get zero
     weight: the problem is then the full-information estimate. The output is
     the state at the latest measurement and ``d = W`` on the last transition.
-    A failed solve falls back to the prior propagated by the model (counted in
-    ``failures``).
+    A failed solve (IPOPT not converged) falls back to the previous estimates
+    shifted one step and propagated by the model, and is counted in
+    ``failures``.
 
     Args:
         calibration: the docking env's ``calibration``.
@@ -474,10 +477,8 @@ class DockingMHE:
         tau = ca.SX.sym("tau", N_INPUT, m - 1)
         prior = ca.SX.sym("prior", N_AUG)
         chol = ca.SX.sym("L", N_AUG, N_AUG)
-        step = ca.Function(
-            "step", [xs[:, 0], tau[:, 0], ws[:, 0]],
-            [self.model.step(xs[:, 0], tau[:, 0] + ws[:, 0], self.dt, ops=ca)],
-        )
+        xk, tk, wk = ca.SX.sym("xk", N_STATE), ca.SX.sym("tk", N_INPUT), ca.SX.sym("wk", N_INPUT)
+        step = ca.Function("step", [xk, tk, wk], [self.model.step(xk, tk + wk, self.dt, ops=ca)])
         h = self.visual.measurement
         residuals = [chol @ (ca.vertcat(xs[:, 0], ws[:, 0]) - prior)]
         g = []
@@ -507,7 +508,6 @@ class DockingMHE:
             },
         }
         self._solver = ca.nlpsol("mhe", "ipopt", nlp, opts)
-        self._n_g = N_STATE * (m - 1)
 
     def reset(self) -> None:
         """New episode: empty window, counters zeroed."""
