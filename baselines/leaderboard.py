@@ -190,11 +190,11 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
     axis_in, bar_in = 3.0, 0.3
     width = ncols * (label_in + axis_in) + 0.3
     height_row = bar_in * len(rows) + 0.9
-    height = nrows * height_row + 0.5
+    height = nrows * height_row + 0.8
     fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
     fig.subplots_adjust(left=label_in / width, right=1 - 0.3 / width, bottom=0.35 / height,
-                        top=1 - 0.5 / height, wspace=label_in / axis_in,
+                        top=1 - 0.8 / height, wspace=label_in / axis_in,
                         hspace=0.75 / (height_row - 0.75))
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax, key in zip(axes, keys, strict=False):
@@ -202,12 +202,17 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
         stds = [r["metrics"][key]["std"] if key in r["metrics"] else 0.0 for r in rows]
         positions = list(range(len(rows)))
         ax.barh(positions, means, xerr=stds, color="#4477aa", ecolor="#222222", capsize=3)
+        finite = [m for m in means if math.isfinite(m)]
+        if finite and min(finite) > 0 and max(finite) / min(finite) > 100:
+            ax.set_xscale("log")  # e.g. random next to trackers: keep both readable
         ax.set_yticks(positions, names, fontsize=8)
         ax.invert_yaxis()
         better = HEADLINE_METRICS.get(key, ("", "", "lower"))[2]
-        ax.set_title(f"{metric_label(key)} ({better} is better)", fontsize=9)
+        scale = ", log scale" if ax.get_xscale() == "log" else ""
+        ax.set_title(f"{metric_label(key)} ({better} is better{scale})", fontsize=9)
         ax.tick_params(axis="x", labelsize=8)
-        ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
+        if ax.get_xscale() == "linear":
+            ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
         ax.grid(axis="x", alpha=0.3)
     for ax in axes[len(keys):]:
         ax.set_visible(False)
@@ -220,9 +225,10 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
 # ---------------------------------------------------------------------- html
 _STYLE = """
 body { font-family: system-ui, sans-serif; margin: 1.5rem; color: #222; }
-table.leaderboard { border-collapse: collapse; margin: 0.5rem 0 1rem; font-size: 0.9rem; }
-table.leaderboard th, table.leaderboard td { border: 1px solid #ccc; padding: 0.25rem 0.5rem; }
-table.leaderboard th { background: #eef; cursor: pointer; user-select: none; }
+table { border-collapse: collapse; margin: 0.5rem 0 1rem; font-size: 0.9rem; }
+th, td { border: 1px solid #ccc; padding: 0.25rem 0.5rem; }
+th { background: #eef; }
+table.leaderboard th { cursor: pointer; user-select: none; }
 table.leaderboard th[aria-sort="ascending"]::after { content: " \\25B2"; }
 table.leaderboard th[aria-sort="descending"]::after { content: " \\25BC"; }
 tr.failed td { background: #fee; }
