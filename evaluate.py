@@ -91,7 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cache-dir", type=str, default=None,
                         help="episode cache (default OUT/episodes)")
     parser.add_argument("--no-cache", action="store_true",
-                        help="run every episode again (the cache is still refreshed)")
+                        help="run every episode again and refresh the cache (do this after "
+                             "changing an agent or environment: the cache key is the task and "
+                             "the package version, not the code)")
     parser.add_argument("--backend", choices=BACKENDS, default="local",
                         help="local processes (default) or Ray tasks")
     parser.add_argument("--ray-address", type=str, default=None,

@@ -328,6 +328,10 @@ class EpisodeCache:
     A file that cannot be read or belongs to another task (a corrupt or
     foreign file) is reported with a ``RuntimeWarning`` and treated as
     missing, so the episode runs again and the file is overwritten.
+
+    The key covers the task and the package version, not the code: after
+    changing an agent or an environment, rerun with ``refresh`` (``--no-cache``)
+    or into a new directory.
     """
 
     def __init__(self, directory: str | Path):
