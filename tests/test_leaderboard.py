@@ -86,6 +86,10 @@ def test_rerun_resumes_from_the_cache(tiny_run, tmp_path, capsys):
     assert [p.stat().st_mtime_ns for p in cached] == stamps  # not rewritten
     assert (out / "leaderboard.json").read_text() == (tiny_run / "leaderboard.json").read_text()
 
+    assert evaluate.main([*TINY, "--out", str(out), "--no-cache"]) == 0
+    assert "6 episodes: 6 run, 0 from the cache, 0 failed" in capsys.readouterr().err
+    assert all(p.stat().st_mtime_ns != s for p, s in zip(cached, stamps, strict=True))
+
 
 def test_raising_agent_shows_as_failed_in_every_output(tmp_path, capsys):
     out = tmp_path / "res"
