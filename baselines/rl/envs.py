@@ -53,7 +53,14 @@ def wrap_env(env: gym.Env, flatten_obs: bool = False) -> gym.Env:
 
 def make_env(config: TrainConfig) -> gym.Env:
     """One wrapped training environment (no seeding: the vector env seeds it)."""
-    env = gym.make(config.env_id, obs_mode=config.run["obs_mode"], **config.run["env_kwargs"])
+    try:
+        env = gym.make(config.env_id, obs_mode=config.run["obs_mode"],
+                       **config.run["env_kwargs"])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(
+            f"cannot make {config.env_id} with obs_mode={config.run['obs_mode']!r} and "
+            f"env_kwargs {config.run['env_kwargs']}: {exc}"
+        ) from exc
     return Monitor(wrap_env(env, config.run["flatten_obs"]))
 
 

@@ -107,7 +107,10 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
         "segments": len(info["segments"]),
         "package_version": info["package_version"],
         "versions": {k: info[k] for k in ("stable_baselines3", "torch", "gymnasium", "python")},
-        "final_heldout_eval": evals[-1] if evals else None,
+        "final_heldout_eval": (
+            {k: float(v) if k != "step" and k != "episodes" else int(v)
+             for k, v in evals[-1].items()} if evals else None
+        ),
         "description": (
             f"{manifest['algo'].upper()} on {manifest['obs_mode']} observations, "
             f"{info['steps']} steps"

@@ -455,10 +455,10 @@ def train(config: TrainConfig, run_dir: str | Path, command: str = "",
     if run.config.exists():
         raise ConfigError(f"{run.path} already holds a run; resume it with --resume or pick "
                           "another --run-dir")
+    torch.set_num_threads(config.run["torch_threads"])
+    model = build_model(config)  # before writing anything: a bad env argument fails here
     run.path.mkdir(parents=True, exist_ok=True)
     save_config(config, run.config)
-    torch.set_num_threads(config.run["torch_threads"])
-    model = build_model(config)
     if config.hyperparams.get("use_sde"):
         print("note: with use_sde a resumed run is not bit-identical to an uninterrupted one",
               flush=True)
