@@ -1,0 +1,289 @@
+"""Reproduce seed 003's simulations with the ``ofnmpc-ekf`` and ``ofnmpc-mhe`` agents.
+
+    PYTHONPATH=. python scripts/reproduce_seed003.py [--out results/seed003] [--seed 100000]
+
+Scenario 1 (``scenario="mismatch"``: damping mismatch only, no noise, no
+current), ``DockingStation-v0`` (``--env`` picks ``LampArrayDocking-v0``):
+
+* both agents dock; plots of the 3-D trajectories, the outputs (x, y, z, psi
+  against time, with the allowable deviations) and the disturbance estimates
+  (``scenario1_*.png``);
+* the steady-state disturbance estimate. The env's nominal model *knows* the
+  10 N net buoyancy (it is part of the restoring forces of
+  ``calibration.nominal_model``), so with it ``d_Z`` settles near 0 N. Seed 003's
+  prediction model drops the restoring forces (its eq. 7), so its disturbance
+  estimate absorbs the buoyancy; the run "seed 003 model" uses the same
+  :class:`NominalModel` with ``net_buoyancy=0`` to show that. Because an episode
+  ends at the entrance while the vehicle still moves, the steady state is
+  measured by station keeping at a set point 3 m in front of the entrance
+  (``--hold`` seconds).
+
+Scenario 2 (``scenario="current"``: 0.3 m/s current, 5 px / 0.02 m/s noise):
+five current directions, one episode each per observer (``--episodes`` for
+more seeds), a table like seed 003's Table 4 (success, docking time) and the
+trajectories
+(``scenario2_trajectories.png``). If the image-mode agents
+``ofnmpc-ekf-image`` / ``ofnmpc-mhe-image`` are registered, they fly the same
+five episodes with ``obs_mode="image"`` and their success counts are printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from pathlib import Path
+
+import gymnasium as gym
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+import auv_envs  # noqa: E402, F401
+from auv_envs.core.hydrodynamics import NominalModel  # noqa: E402
+from baselines.docking.agents import OFNMPCAgent  # noqa: E402
+from baselines.registry import agent_names, make_agent  # noqa: E402
+
+ENV_ID = "auv_envs/DockingStation-v0"
+OBSERVERS = ("ekf", "mhe")
+DIRECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)
+
+
+@dataclasses.dataclass
+class Trace:
+    """One episode, step by step."""
+
+    time: list = dataclasses.field(default_factory=list)
+    position: list = dataclasses.field(default_factory=list)
+    heading: list = dataclasses.field(default_factory=list)
+    estimate: list = dataclasses.field(default_factory=list)
+    disturbance: list = dataclasses.field(default_factory=list)
+    success: bool = False
+    failure: str = ""
+    docking_time: float | None = None
+    solver_failures: int = 0
+
+
+def fly(env, agent, seed: int, hold_point=None) -> Trace:
+    """Run one episode (or a station-keeping run at ``hold_point``) and record it."""
+    obs, info = env.reset(seed=seed)
+    agent.reset(seed)
+    inner = getattr(agent, "inner", agent)
+    if hold_point is not None:
+        inner.controller.reference = np.asarray(hold_point, dtype=float)
+    trace, done = Trace(), False
+    while not done:
+        action = agent.act(obs, info)
+        trace.time.append(info["time"])
+        trace.position.append(info["true_position"].copy())
+        trace.heading.append(info["true_euler"][2])
+        est = inner.estimate
+        trace.estimate.append(np.full(8, np.nan) if est is None else est.state.copy())
+        trace.disturbance.append(np.full(4, np.nan) if est is None else est.disturbance.copy())
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    metrics = info["episode_metrics"]
+    trace.success = bool(metrics["success"])
+    trace.failure = metrics["failure_reason"]
+    trace.docking_time = metrics["docking_time"]
+    trace.solver_failures = int(inner.stats()["solver_failures"])
+    return trace
+
+
+def seed003_model(calibration) -> NominalModel:
+    """Seed 003's prediction model: the env's nominal model without restoring forces."""
+    return NominalModel(dataclasses.replace(calibration.nominal_params, net_buoyancy=0.0))
+
+
+def scenario1(args, out: Path) -> None:
+    env = gym.make(args.env, obs_mode="features", scenario="mismatch")
+    cal = env.unwrapped.calibration
+    traces = {o: fly(env, OFNMPCAgent(env.unwrapped, o), args.seed) for o in OBSERVERS}
+    print(f"## Scenario 1 (model mismatch), {args.env}, seed {args.seed}")
+    print("| observer | docked | docking time s | solver failures | d at docking (X, Y, Z, N) |")
+    print("|---|---|---|---|---|")
+    for o, t in traces.items():
+        d = ", ".join(f"{v:.2f}" for v in t.disturbance[-1])
+        print(f"| {o.upper()} | {t.success} | {t.docking_time} | {t.solver_failures} | {d} |")
+    plot_trajectories({o.upper(): t for o, t in traces.items()}, cal,
+                      out / "scenario1_trajectories.png", "Scenario 1: 3-D docking trajectories")
+    plot_outputs(traces, cal, out / "scenario1_outputs.png")
+    plot_disturbances(traces, out / "scenario1_disturbance.png")
+
+    hold_point = np.array([cal.target_position[0] - 3.0, 0.0, 0.0, 0.0])
+    hold_env = gym.make(args.env, obs_mode="features", scenario="mismatch",
+                        time_limit=args.hold)
+    print(f"\n## Scenario 1 steady state: station keeping at x = {hold_point[0]:.1f} m for "
+          f"{args.hold:g} s; mean d over the last 5 s (N, N, N, N m)")
+    print("| prediction model | observer | d_X | d_Y | d_Z | d_N |")
+    print("|---|---|---|---|---|---|")
+    holds = {}
+    for label, model in (("env nominal model (knows the 10 N buoyancy)", None),
+                         ("seed 003 model (restoring forces dropped)", seed003_model(cal))):
+        for o in OBSERVERS:
+            agent = OFNMPCAgent(hold_env.unwrapped, o, nominal_model=model)
+            t = fly(hold_env, agent, args.seed, hold_point=hold_point)
+            tail = np.asarray(t.disturbance)[np.asarray(t.time) >= t.time[-1] - 5.0]
+            mean = np.nanmean(tail, axis=0)
+            print(f"| {label} | {o.upper()} | " + " | ".join(f"{v:.2f}" for v in mean) + " |")
+            holds[f"{o.upper()}, {label.split(' (')[0]}"] = t
+    plot_disturbances(holds, out / "scenario1_steady_state_disturbance.png",
+                      "Station keeping: disturbance estimates")
+
+
+def scenario2(args, out: Path) -> None:
+    seeds = [args.seed + i for i in range(args.episodes)]
+    print(f"\n## Scenario 2 (0.3 m/s current, 5 px / 0.02 m/s noise), {args.env}, "
+          f"seeds {seeds}")
+    print("| current direction (deg) | OFNMPC-EKF | OFNMPC-MHE |")
+    print("|---|---|---|")
+    traces, wins = {o: {} for o in OBSERVERS}, dict.fromkeys(OBSERVERS, 0)
+    cal = None
+    for direction in args.directions:
+        env = gym.make(args.env, obs_mode="features", scenario="current",
+                       current_direction=direction)
+        cal = env.unwrapped.calibration
+        cells = []
+        for o in OBSERVERS:
+            agent = OFNMPCAgent(env.unwrapped, o)
+            runs = [fly(env, agent, s) for s in seeds]
+            traces[o][direction] = runs[0]
+            docked = [t for t in runs if t.success]
+            wins[o] += len(docked)
+            if len(runs) == 1:
+                t = runs[0]
+                cells.append(f"docked, {t.docking_time:.1f} s" if t.success
+                             else f"failed ({t.failure})")
+            else:
+                times = [t.docking_time for t in docked]
+                mean = f", mean {np.mean(times):.1f} s" if times else ""
+                cells.append(f"{len(docked)}/{len(runs)} docked{mean}")
+        print(f"| {direction:g} | " + " | ".join(cells) + " |")
+    n = len(args.directions) * len(seeds)
+    print(f"| success | {wins['ekf']}/{n} | {wins['mhe']}/{n} |")
+    fig = plt.figure(figsize=(12, 5))
+    for i, o in enumerate(OBSERVERS):
+        ax = fig.add_subplot(1, 2, i + 1, projection="3d")
+        for direction, t in traces[o].items():
+            p = np.asarray(t.position)
+            ax.plot(p[:, 0], p[:, 1], p[:, 2], label=f"{direction:g} deg")
+        _station(ax, cal)
+        ax.set_title(f"OFNMPC-{o.upper()} 3-D trajectories, Scenario 2")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "scenario2_trajectories.png", dpi=120)
+    plt.close(fig)
+
+    if args.no_image:
+        return
+    image_agents = [f"ofnmpc-{o}-image" for o in OBSERVERS if f"ofnmpc-{o}-image"
+                    in agent_names()]
+    if not image_agents:
+        print("\nimage mode: ofnmpc-ekf-image / ofnmpc-mhe-image are not registered; skipped")
+        return
+    print("\n## Scenario 2 with image observations (lamp-array front end)")
+    for name in image_agents:
+        wins_image = 0
+        for direction in args.directions:
+            env = gym.make(args.env, obs_mode="image", scenario="current",
+                           current_direction=direction)
+            agent = make_agent(name, env)
+            wins_image += sum(fly(env, agent, s).success for s in seeds)
+            env.close()
+        print(f"{name}: {wins_image}/{n} docked")
+
+
+def _station(ax, cal) -> None:
+    lights = np.asarray(cal.light_positions)
+    ax.scatter(lights[:, 0], lights[:, 1], lights[:, 2], c="gold", s=12, label="lights")
+    ax.scatter([0], [0], [0], c="k", marker="x", label="entrance")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m)")
+
+
+def plot_trajectories(traces: dict, cal, path: Path, title: str) -> None:
+    fig = plt.figure(figsize=(7, 5))
+    ax = fig.add_subplot(projection="3d")
+    for label, t in traces.items():
+        p, e = np.asarray(t.position), np.asarray(t.estimate)
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], label=f"{label} (true)")
+        ax.plot(e[:, 0], e[:, 1], e[:, 2], "--", lw=0.8, label=f"{label} (estimated)")
+    _station(ax, cal)
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_outputs(traces: dict, cal, path: Path) -> None:
+    """Nose position and heading against time with the allowable deviations."""
+    tol = cal.tolerances
+    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
+    for o, t in traces.items():
+        p, psi = np.asarray(t.position), np.asarray(t.heading)
+        nose = p + cal.nose_offset * np.column_stack([np.cos(psi), np.sin(psi), 0 * psi])
+        for ax, y in zip(axes, (nose[:, 0], nose[:, 1], nose[:, 2], np.degrees(psi)),
+                         strict=True):
+            ax.plot(t.time, y, label=f"OFNMPC-{o.upper()}")
+    bands = (tol.longitudinal, tol.lateral, tol.vertical, tol.heading_deg)
+    names = ("nose x (m)", "nose y (m)", "nose z (m)", "heading (deg)")
+    for ax, band, name in zip(axes, bands, names, strict=True):
+        ax.axhline(band, ls=":", c="gray")
+        ax.axhline(-band, ls=":", c="gray")
+        ax.set_ylabel(name)
+    axes[0].legend()
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle("Scenario 1: outputs (dotted: allowable deviation)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_disturbances(traces: dict, path: Path,
+                      title: str = "Scenario 1: disturbance estimates") -> None:
+    fig, axes = plt.subplots(4, 1, figsize=(7, 8), sharex=True)
+    for label, t in traces.items():
+        d = np.asarray(t.disturbance)
+        name = label if len(label) > 3 else f"OFNMPC-{label.upper()}"
+        for i, ax in enumerate(axes):
+            ax.plot(t.time, d[:, i], label=name)
+    for ax, name in zip(axes, ("d_X (N)", "d_Y (N)", "d_Z (N)", "d_N (N m)"), strict=True):
+        ax.set_ylabel(name)
+    axes[0].legend(fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results/seed003"))
+    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v0"])
+    parser.add_argument("--seed", type=int, default=100_000)
+    parser.add_argument("--hold", type=float, default=40.0,
+                        help="station-keeping seconds for the steady-state estimate")
+    parser.add_argument("--directions", type=float, nargs="+", default=list(DIRECTIONS))
+    parser.add_argument("--episodes", type=int, default=1,
+                        help="seeds per direction in Scenario 2 (seed, seed + 1, ...)")
+    parser.add_argument("--skip-scenario1", action="store_true")
+    parser.add_argument("--no-image", action="store_true", help="skip the image-mode agents")
+    args = parser.parse_args()
+    if args.hold <= 5.0 or not math.isfinite(args.hold):
+        parser.error("--hold must be longer than 5 s")
+    if args.episodes < 1:
+        parser.error("--episodes must be at least 1")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not args.skip_scenario1:
+        scenario1(args, args.out)
+    scenario2(args, args.out)
+    print(f"\nplots in {args.out}/")
+
+
+if __name__ == "__main__":
+    main()
