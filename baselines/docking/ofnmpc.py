@@ -15,7 +15,9 @@ NLP::
 
 so no analytic steady state is needed; the stage cost penalises ``x_k - x_s``
 and ``u_k - u_s``. With ``d_hat`` equal to the true constant disturbance the
-closed loop settles at ``r`` with zero offset.
+closed loop settles at ``r`` with zero offset. (The pose part of ``x_s`` is
+written as ``r`` itself, so the second condition holds by construction; the
+velocity part of ``x_s`` and ``u_s`` are decision variables.)
 
 Constraints (seed 003 eq. 10, Fig. 6): input limits (hard); soft, with one
 slack per stage and an exact L1 penalty: the nose not behind the entrance
@@ -25,10 +27,18 @@ envelope, and the field of view — every guide light inside the image with a
 pixel margin, written bilinearly in the camera-frame coordinates
 (``m <= f X/Z + c <= W - m`` times ``Z > 0``) so the constraint stays smooth.
 
-Solver: IPOPT through ``nlpsol`` on an ``SX`` graph, warm-started from the
-previous primal-dual solution. A failed solve (IPOPT not converged) does not
-stop the vehicle: the previous plan, shifted by the time elapsed since it was
-computed, is applied instead, and the failure is counted.
+Solver: FATROP (a structure-exploiting interior-point method for optimal
+control problems, shipped with CasADi) through ``nlpsol`` on an ``SX`` graph
+laid out stage by stage, warm-started with the previous solution shifted in
+time by one control period; IPOPT on the same NLP is an option
+(``OFNMPCConfig(solver="ipopt")``, primal-dual warm start). Measured on this
+project's machine, FATROP needed about a third of IPOPT's time per solve
+(``benchmarks/ofnmpc_speed.py``); ``OFNMPCConfig(compile=True)`` halves it
+again by compiling the NLP's functions to C. A failed solve (not converged
+within ``max_iter``, or infeasible) does not stop the vehicle: the last
+successful plan, shifted by the time elapsed since it was computed, is applied
+instead, and the failure is counted (``failures``; the agents report it in
+``stats()``).
 """
 
 from __future__ import annotations
@@ -335,7 +345,8 @@ class OffsetFreeNMPC:
         guess = self._warm_start(state)
         p = np.concatenate([state, disturbance, self.reference])
         args = dict(x0=guess, p=p, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
-        if self._lam is not None and self._age == 0.0:
+        if self._lam is not None and self.config.solver == "ipopt":
+            # IPOPT's warm start uses the last multipliers (FATROP takes a primal guess).
             args.update(lam_x0=self._lam[0], lam_g0=self._lam[1])
         start = time.perf_counter()
         sol = self._solver(**args)
