@@ -152,6 +152,7 @@ BUILTIN_AGENT_MODULES = (
     "baselines.rl.agents",
     "baselines.docking.agents",
     "baselines.vision.agents",
+    "baselines.lars.ltat_agents",
 )
 
 
