@@ -9,7 +9,8 @@ environment's action exactly as it did in training:
 * ``FlattenObservation`` when the config asks for it (a ``Dict``
   observation becomes one vector for an ``MlpPolicy``).
 
-Training adds SB3's ``Monitor`` (episode returns), a ``DummyVecEnv`` and,
+Training adds :class:`LearnerInfo` (drops the ground-truth info the learner
+never reads), SB3's ``Monitor`` (episode returns), a ``DummyVecEnv`` and,
 optionally, ``VecNormalize`` over the non-image ``Box`` observation keys.
 """
 
@@ -51,6 +52,33 @@ def wrap_env(env: gym.Env, flatten_obs: bool = False) -> gym.Env:
     return env
 
 
+#: The info keys a learner reads (SB3's success rate); Monitor adds ``episode``.
+LEARNER_INFO_KEYS = ("is_success",)
+
+
+class LearnerInfo(gym.Wrapper):
+    """Passes on only :data:`LEARNER_INFO_KEYS` of ``info``.
+
+    SB3's ``DummyVecEnv`` deep-copies every info dict on every step, and the
+    ``auv_envs`` infos carry ground truth for metrics (pixels, positions,
+    per-step errors) that training never reads; copying it cost about an
+    eighth of PPO's time on ``DockingStation-v0`` (``benchmarks/ppo_speed.py``).
+    Only the training vector env uses this wrapper; evaluation sees full infos.
+    """
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        return obs, _keep(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, _keep(info)
+
+
+def _keep(info: dict) -> dict:
+    return {key: info[key] for key in LEARNER_INFO_KEYS if key in info}
+
+
 def make_env(config: TrainConfig) -> gym.Env:
     """One wrapped training environment (no seeding: the vector env seeds it)."""
     try:
@@ -61,7 +89,7 @@ def make_env(config: TrainConfig) -> gym.Env:
             f"cannot make {config.env_id} with obs_mode={config.run['obs_mode']!r} and "
             f"env_kwargs {config.run['env_kwargs']}: {exc}"
         ) from exc
-    return Monitor(wrap_env(env, config.run["flatten_obs"]))
+    return Monitor(LearnerInfo(wrap_env(env, config.run["flatten_obs"])))
 
 
 def normalize_arguments(config: TrainConfig, observation_space: spaces.Space) -> dict | None:
