@@ -32,9 +32,10 @@ control problems, shipped with CasADi) through ``nlpsol`` on an ``SX`` graph
 laid out stage by stage, warm-started with the previous solution shifted in
 time by one control period; IPOPT on the same NLP is an option
 (``OFNMPCConfig(solver="ipopt")``, primal-dual warm start). Measured on this
-project's machine, FATROP needed about a third of IPOPT's time per solve
-(``benchmarks/ofnmpc_speed.py``); ``OFNMPCConfig(compile=True)`` halves it
-again by compiling the NLP's functions to C. A failed solve (not converged
+project's machine, an ``ofnmpc-ekf`` step took about half the CPU time with
+FATROP than with IPOPT (``benchmarks/ofnmpc_speed.py --ipopt``), and
+``OFNMPCConfig(compile=True)`` saves about another third by compiling the
+NLP's functions to C. A failed solve (not converged
 within ``max_iter``, or infeasible) does not stop the vehicle: the last
 successful plan, shifted by the time elapsed since it was computed, is applied
 instead, and the failure is counted (``failures``; the agents report it in
