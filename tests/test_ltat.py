@@ -34,6 +34,7 @@ from baselines.lars.siamese import (  # noqa: E402
     WEIGHTS_FILE,
     Pyramid,
     SiameseNet,
+    SiameseTracker,
     default_weights_dir,
     load_siamese,
     marker_box,
@@ -65,15 +66,17 @@ def shipped():
     return load_siamese()
 
 
-def _rollout(seed, sea_state, steps):
-    """Stereo observations and infos with the exporter's privileged tracking arm."""
+def _rollout(seed, sea_state, steps, offset=(0.0, 0.0, 0.0), offset_from=0):
+    """Stereo observations and infos with the exporter's privileged tracking arm,
+    which moves ``offset`` (m, world) off its station from step ``offset_from`` on."""
     env = LARSCaptureEnv(obs_mode="stereo", sea_state=sea_state, control="position",
                          time_limit=steps * 0.04 + 1.0)
     try:
         obs, info = env.reset(seed=seed)
         out = [(obs, info)]
-        for _ in range(steps - 1):
-            obs, _, terminated, truncated, info = env.step(tracking_action(env, info))
+        for k in range(steps - 1):
+            wander = offset if k >= offset_from else (0.0, 0.0, 0.0)
+            obs, _, terminated, truncated, info = env.step(tracking_action(env, info, wander))
             out.append((obs, info))
             if terminated or truncated:
                 break
@@ -232,14 +235,15 @@ def test_online_detector_learns_the_marker(calm_rollout, shipped):
     added = 0
     for obs, info in rollout[:10]:
         box = marker_box(info["true_pixels"][0])
-        added += detector.add_samples(detector.features(Pyramid(obs["left"]), box), box)
+        added += detector.add_samples(detector.features([Pyramid(obs["left"])], box)[0], box)
     assert added >= detector.params.min_positives
     assert detector.ready and detector.fits >= 1
     obs, info = rollout[-1]
     box = marker_box(info["true_pixels"][0])
-    feats = detector.features(Pyramid(obs["left"]), box)
-    centre, score = detector.detect(feats)
-    assert centre is not None
+    feats = detector.features([Pyramid(obs["left"])], box)[0]
+    found = detector.detect(feats)
+    assert found, "no window above the detector's threshold"
+    centre, _ = found[0]
     true_centre = 0.5 * (box[:2] + box[2:])
     assert np.linalg.norm(centre - true_centre) <= feats.cell
 
@@ -273,6 +277,36 @@ def test_ltat_reacquires_after_wash_over(wash_rollout):
     assert max(ious) > REACQUIRE_IOU, ious
     assert ious[-1] > REACQUIRE_IOU, ious
     assert corner_frames and max(corner_frames) <= CORNER_TOLERANCE
+
+
+def test_detector_reacquires_when_the_camera_moved_during_wash_over(shipped):
+    """The arm moves 0.39 m while the crest hides the marker: it reappears ~170 px
+    away, outside the held tracker's reach; the online detector must find it."""
+    rollout, calibration = _rollout(WASH_SEED, "severe", 46, offset=(0.25, 0.3, 0.0),
+                                    offset_from=20)
+    front = LTATFrontEnd(calibration)
+    front.reset(WASH_SEED)
+    alone = SiameseTracker(shipped[0])
+    visible_again = None
+    for k, (obs, info) in enumerate(rollout):
+        features = front(obs, {})
+        pyramids = [Pyramid(obs["left"]), Pyramid(obs["right"])]
+        if k == 0:
+            alone.init(pyramids, [marker_box(info["true_pixels"][v]) for v in range(2)])
+        else:
+            alone.track(pyramids)
+        if k > 20 and visible_again is None and info["true_visible"].all():
+            visible_again = k
+    assert visible_again is not None and visible_again < len(rollout) - REACQUIRE_FRAMES
+    stats = front.stats()
+    assert stats["ltat_redetections"] >= 1
+    truth_box = marker_box(rollout[-1][1]["true_pixels"][0], (640, 480))
+    assert _iou(front.last_output.boxes[0], truth_box) > REACQUIRE_IOU
+    assert features["visible"].all()
+    err = np.linalg.norm(features["pixels"] - rollout[-1][1]["true_pixels"], axis=2)
+    assert err.max() <= CORNER_TOLERANCE
+    # The tracker alone, without the detector, does not get it back.
+    assert _iou(alone.box(0), truth_box) < REACQUIRE_IOU
 
 
 # ---------------------------------------------------------------------- agent

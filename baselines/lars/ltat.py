@@ -51,6 +51,7 @@ from threadpoolctl import threadpool_limits
 
 from auv_envs.core.stereo import StereoRig, triangulate
 from baselines.lars.siamese import (
+    CHANNELS,
     STRIDE,
     TEMPLATE_SIZE,
     Pyramid,
@@ -62,6 +63,7 @@ from baselines.lars.siamese import (
     context_size,
     load_siamese,
     marker_box,
+    to_tensor,
 )
 
 
@@ -119,15 +121,21 @@ class MarkerCornerExtractor:
         high = cv2.inRange(hsv, (180 - p.hue, p.saturation, p.value), (180, 255, 255))
         return cv2.bitwise_or(low, high)
 
-    def candidates(self, image: np.ndarray, box=None) -> list[np.ndarray]:
-        """All triangles (3, 2) found in ``image`` (inside the grown ``box`` if given),
-        largest blob first."""
+    def candidates(self, image: np.ndarray, box=None, pad: float | None = None
+                   ) -> list[np.ndarray]:
+        """All triangles (3, 2) found in ``image`` (inside ``box`` grown by ``pad`` per
+        side, default ``params.pad``, if given), largest blob first.
+
+        A blob that touches the edge of the search region inside the image
+        is cut by the region, not a whole triangle, and is skipped.
+        """
         h, w = image.shape[:2]
-        x0, y0 = 0, 0
+        x0, y0, x1, y1 = 0, 0, w, h
         roi = image
         if box is not None:
+            pad = self.params.pad if pad is None else pad
             cx, cy, bw, bh = box_centre_size(box)
-            gw, gh = bw * (0.5 + self.params.pad), bh * (0.5 + self.params.pad)
+            gw, gh = bw * (0.5 + pad), bh * (0.5 + pad)
             x0, y0 = max(0, int(cx - gw)), max(0, int(cy - gh))
             x1, y1 = min(w, int(math.ceil(cx + gw))), min(h, int(math.ceil(cy + gh)))
             if x1 - x0 < 4 or y1 - y0 < 4:
@@ -139,15 +147,19 @@ class MarkerCornerExtractor:
         contours.sort(key=cv2.contourArea, reverse=True)
         out = []
         for contour in contours:
+            bx, by, bw, bh = cv2.boundingRect(contour)
+            if ((bx == 0 < x0) or (by == 0 < y0) or (bx + bw == x1 - x0 and x1 < w)
+                    or (by + bh == y1 - y0 and y1 < h)):
+                continue
             corners = self.fit_triangle(contour.reshape(-1, 2).astype(float))
             if corners is not None:
                 # OpenCV pixel indices -> continuous coordinates (centres at +0.5).
                 out.append(corners + (x0 + 0.5, y0 + 0.5))
         return out
 
-    def find(self, image: np.ndarray, box) -> np.ndarray | None:
-        """Corners (3, 2) of the largest triangle in ``box``, or None."""
-        found = self.candidates(image, box)
+    def find(self, image: np.ndarray, box, pad: float | None = None) -> np.ndarray | None:
+        """Corners (3, 2) of the largest triangle in ``box`` (grown by ``pad``), or None."""
+        found = self.candidates(image, box, pad)
         return found[0] if found else None
 
     def fit_triangle(self, points: np.ndarray) -> np.ndarray | None:
@@ -252,7 +264,7 @@ class MarkerCornerExtractor:
         for base, other in ((base1, base2), (base2, base1)):
             leg = self._fit(self._side_points(points, apex, base, (0.7, 1 - trim), 3.0), centroid)
             tol = max(3.0, 0.15 * float(np.linalg.norm(other - base)))
-            end = self._fit(self._side_points(points, base, other, (trim, 0.35), tol), centroid)
+            end = self._fit(self._side_points(points, base, other, (trim, 0.2), tol), centroid)
             corners.append(None if leg is None or end is None else _line_intersection(*leg, *end))
         if any(c is None for c in corners):
             return None
@@ -317,8 +329,11 @@ class DetectorParams:
 
     Attributes:
         threshold: a detection needs a classifier score at least this
-            (targets are +1 / -1; the seed's "empirical threshold").
+            (targets are +1 / -1; the seed's "empirical threshold"; set low
+            because every detection is verified before it re-seeds the
+            tracker, see :class:`LTATracker`).
         alpha: ridge regularisation.
+        candidates: windows per frame tried, best first.
         max_positives, max_negatives: sample buffers (oldest dropped first).
         random_negatives, hard_negatives: negatives added per confident view
             (random background windows, and the windows the current
@@ -329,14 +344,15 @@ class DetectorParams:
         min_positives: no detection before this many positives.
     """
 
-    threshold: float = 0.0
-    alpha: float = 1.0
+    threshold: float = -0.5
+    alpha: float = 10.0
+    candidates: int = 5
     max_positives: int = 60
     max_negatives: int = 300
     random_negatives: int = 6
     hard_negatives: int = 4
     negative_distance: float = 2.0
-    fit_every: int = 8
+    fit_every: int = 6
     min_positives: int = 6
 
 
@@ -378,30 +394,36 @@ class OnlineDetector:
         return self.classifier is not None
 
     @torch.no_grad()
-    def features(self, pyramid: Pyramid, box) -> _FrameFeatures:
-        """Window descriptors of the whole frame at the scale of ``box``."""
+    def features(self, pyramids, box) -> list[_FrameFeatures]:
+        """Window descriptors of whole frames (one per pyramid, same size) at the scale of
+        ``box`` (one forward pass)."""
         _, _, w, h = box_centre_size(box)
         scale = TEMPLATE_SIZE / context_size(w, h)
-        image = pyramid.resized(scale)
-        fmap = self.net.embed(
-            torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None].float()
-        )
-        pooled = F.avg_pool2d(fmap, 2, stride=1)
+        half = TEMPLATE_SIZE // 2
+        # Padded by half a window (the image's mean colour, as the tracker's
+        # crops are) so that a window can centre on a target at the border.
+        images = [cv2.copyMakeBorder(pyr.resized(scale), half, half, half, half,
+                                     cv2.BORDER_CONSTANT, value=pyr.fill) for pyr in pyramids]
         win = TEMPLATE_SIZE // STRIDE  # 8 cells
-        desc = F.unfold(pooled, kernel_size=win // 2, dilation=2)[0].T.numpy()  # (N, C * 16)
-        rows = pooled.shape[2] - (win - 2)
-        cols = pooled.shape[3] - (win - 2)
-        if rows <= 0 or cols <= 0:
-            return _FrameFeatures(np.zeros((0, desc.shape[1] if desc.ndim == 2 else 0)),
-                                  np.zeros((0, 2)), 1.0)
-        desc = desc / (np.linalg.norm(desc, axis=1, keepdims=True) + 1e-9)
-        sx = pyramid.size[0] / image.shape[1]
-        sy = pyramid.size[1] / image.shape[0]
+        height, width = images[0].shape[:2]
+        rows = math.ceil(height / STRIDE) - (win - 1)
+        cols = math.ceil(width / STRIDE) - (win - 1)
+        if rows <= 0 or cols <= 0:  # the frame is smaller than one window
+            empty = _FrameFeatures(np.zeros((0, CHANNELS[-1] * (win // 2) ** 2)),
+                                   np.zeros((0, 2)), 1.0)
+            return [empty for _ in pyramids]
+        fmap = self.net.embed(to_tensor(images))
+        pooled = F.avg_pool2d(fmap, 2, stride=1)
+        # Window (y, x) covers feature cells y..y+7: a 4 x 4 grid of 2 x 2 means.
+        desc = F.unfold(pooled, kernel_size=win // 2, dilation=2).transpose(1, 2).numpy()
+        desc = desc / (np.linalg.norm(desc, axis=2, keepdims=True) + 1e-9)
+        sx = pyramids[0].size[0] / (width - 2 * half)
+        sy = pyramids[0].size[1] / (height - 2 * half)
         gy, gx = np.mgrid[0:rows, 0:cols]
-        # Window (y, x) spans resized pixels [8x, 8x + 64): centre 8x + 32.
-        centres = np.stack([(STRIDE * gx + TEMPLATE_SIZE / 2) * sx,
-                            (STRIDE * gy + TEMPLATE_SIZE / 2) * sy], axis=-1).reshape(-1, 2)
-        return _FrameFeatures(desc, centres, STRIDE * sx)
+        # Window (y, x) spans padded pixels [8x, 8x + 64): centre 8x + 32, i.e.
+        # 8x in the unpadded resized image.
+        centres = np.stack([STRIDE * gx * sx, STRIDE * gy * sy], axis=-1).reshape(-1, 2)
+        return [_FrameFeatures(d, centres, STRIDE * sx) for d in desc]
 
     def scores(self, feats: _FrameFeatures) -> np.ndarray:
         if self.classifier is None or len(feats.descriptors) == 0:
@@ -461,15 +483,15 @@ class OnlineDetector:
         self.fits += 1
         self._since_fit = 0
 
-    def detect(self, feats: _FrameFeatures) -> tuple[np.ndarray | None, float]:
-        """Centre (2,) of the best window and its score; None below the threshold."""
+    def detect(self, feats: _FrameFeatures, count: int = 1) -> list[tuple[np.ndarray, float]]:
+        """The best ``count`` windows above the threshold: ``(centre (2,), score)``, best
+        first; empty before the first fit."""
         s = self.scores(feats)
         if len(s) == 0 or not self.ready:
-            return None, -math.inf
-        best = int(np.argmax(s))
-        if s[best] < self.params.threshold:
-            return None, float(s[best])
-        return feats.centres[best].copy(), float(s[best])
+            return []
+        order = np.argsort(s)[::-1][:count]
+        return [(feats.centres[i].copy(), float(s[i])) for i in order
+                if s[i] >= self.params.threshold]
 
 
 # ---------------------------------------------------------------------- LTAT
@@ -481,7 +503,7 @@ class LTATParams:
         lost_score: a view whose tracker score falls below this has lost the target.
         confident_score: above this in both views, with corners that pass the
             stereo check, a frame trains the detector and the templates.
-        sample_every: confident frames between detector samples.
+        sample_every: confident frames between template updates and detector samples.
         row_tolerance: px; corners of the two views on the same row.
         size_tolerance: relative error allowed on the triangulated marker sides.
         lookalike_frames, lookalike_spread: a tracked triangle is a look-alike
@@ -492,16 +514,19 @@ class LTATParams:
         snap_to_corners: when the corners are verified, the output box (and
             the tracker's) becomes the corners' box: the verified marker
             corrects the tracker's drift in position and size.
+        verify_pad: a detection's corners are searched in its box grown by
+            this fraction per side.
     """
 
     lost_score: float = 0.35
     confident_score: float = 0.7
-    sample_every: int = 2
+    sample_every: int = 3
     row_tolerance: float = 3.0
     size_tolerance: float = 0.12
     lookalike_frames: int = 6
     lookalike_spread: float = 0.04
     snap_to_corners: bool = True
+    verify_pad: float = 0.5
 
 
 @dataclasses.dataclass
@@ -510,7 +535,8 @@ class LTATOutput:
 
     Attributes:
         boxes: (2, 4) marker boxes (left, right), x_min, y_min, x_max, y_max.
-        scores: (2,) the Siamese tracker's scores.
+        scores: (2,) the Siamese tracker's scores (NaN on a frame where a
+            verified detection re-seeded the tracker).
         lost: (2,) whether each view has lost the target this frame.
         corners: (2, 3, 2) A1, A2, A3 in both views, or None when they were
             not found in both or failed the stereo check.
@@ -530,12 +556,14 @@ class LTATracker:
     1. The Siamese tracker moves both boxes (one batched forward pass).
     2. A view whose score is below ``lost_score`` has lost the target. If the
        other view still has it, the lost view is re-seeded from it along the
-       rectified row at the last verified disparity; if both lost it, the
-       online detector searches each whole frame and its best window above
-       its threshold re-seeds the tracker (position, and the template stored
-       at the last confident frame). The re-seeded view is tracked again on
-       the same frame and kept if its score clears ``lost_score``; otherwise
-       the box holds its last position (no drifting onto the background).
+       rectified row at the last verified disparity (and kept if its score
+       then clears ``lost_score``). If both lost it, the online detector
+       searches the whole frame; its best windows above its threshold are
+       verified in turn (corners in both views, :func:`stereo_check`) and
+       the first verified one re-seeds the tracker: position, and the
+       templates stored at the last confident frame. Otherwise the boxes
+       hold their last position (no drifting onto the background) and the
+       next frame tries again.
     3. The marker corners are extracted inside both boxes and checked by
        :func:`stereo_check`. A whole, row-consistent triangle of a wrong but
        steady size over ``lookalike_frames`` frames means the tracker sits
@@ -593,8 +621,7 @@ class LTATracker:
         boxes, scores = self.tracker.track(pyramids, update=False)
         lost = scores < p.lost_score
         if lost.all():
-            for v in range(2):
-                self._redetect(v, pyramids, boxes, scores, lost)
+            self._redetect(pyramids, images, boxes, scores, lost)
         elif lost.any():
             v = int(np.flatnonzero(lost)[0])
             self._transfer(v, pyramids, boxes, scores, lost)
@@ -630,23 +657,21 @@ class LTATracker:
                 # tracker is on a look-alike. Teach the detector so and search again.
                 self.counts["analog_rejections"] += 1
                 history.clear()
-                self._reject(pyramids, boxes, scores)
+                self._reject(pyramids, images, boxes, scores)
         else:
             self._wrong_size.clear()
         return LTATOutput(boxes, scores, lost, corners)
 
-    def _reject(self, pyramids, boxes, scores) -> None:
+    def _reject(self, pyramids, images, boxes, scores) -> None:
         """The tracked boxes are a distractor: negatives for the detector, then re-detect.
 
         If the detector finds nothing better the boxes stay (no corners are
         reported from them) and the next frame checks again.
         """
         lost = np.ones(2, dtype=bool)
-        for v in range(2):
-            feats = self.detector.features(pyramids[v], boxes[v])
+        for v, feats in enumerate(self.detector.features(pyramids, boxes[0])):
             self.detector.add_negative(feats, boxes[v])
-        for v in range(2):
-            self._redetect(v, pyramids, boxes, scores, lost)
+        self._redetect(pyramids, images, boxes, scores, lost)
 
     def _retrack(self, v, pyramids, box, boxes, scores, lost) -> None:
         """Re-seed view ``v`` at ``box`` with its stored template and track it on this frame."""
@@ -665,31 +690,54 @@ class LTATracker:
         self._retrack(v, pyramids, box_from_centre(cx + shift, cy, w, h), boxes, scores, lost)
         self.counts["transfers"] += int(not lost[v])
 
-    def _redetect(self, v, pyramids, boxes, scores, lost) -> None:
-        """Search the whole frame with the online detector; re-seed the tracker on a hit."""
-        if not self.detector.ready:
+    def _redetect(self, pyramids, images, boxes, scores, lost) -> None:
+        """Search the whole left frame with the online detector; re-seed on a verified hit.
+
+        The detector's best windows (``candidates``, best first, above its
+        threshold) are tried in turn: the right view's box is the left one
+        moved by the last verified disparity along the rectified row, the
+        corners are extracted in both, and the first candidate that passes
+        :func:`stereo_check` re-seeds both views (their corner boxes, the
+        templates stored at the last confident frame). A candidate of the
+        wrong size is skipped, not learnt as a negative: a crest sweeping
+        over the marker also leaves smaller (truncated) triangles.
+        """
+        if not self.detector.ready or self.disparity is None:
             return
-        w, h = self.sizes[v]
-        feats = self.detector.features(pyramids[v], box_from_centre(0.0, 0.0, w, h))
-        centre, _ = self.detector.detect(feats)
+        p = self.params
         self.counts["detector_runs"] += 1
-        if centre is None:
+        feats = self.detector.features([pyramids[0]], (0.0, 0.0, *self.sizes[0]))[0]
+        for centre, _ in self.detector.detect(feats, self.detector.params.candidates):
+            left = box_from_centre(*centre, *self.sizes[0])
+            right = box_from_centre(centre[0] - self.disparity, centre[1], *self.sizes[1])
+            # The window lies up to half a cell (~20 px) off the target: search wider.
+            found = [self.extractor.find(images[0], left, p.verify_pad),
+                     self.extractor.find(images[1], right, p.verify_pad)]
+            check = stereo_check(found[0], found[1], self.rig, self.marker_sides,
+                                 p.row_tolerance, p.size_tolerance)
+            if check != "ok":
+                continue
+            for v in range(2):
+                boxes[v] = marker_box(found[v])
+                self.tracker.reseed(v, pyramids[v], boxes[v], template=self.anchors[v])
+            scores[:] = np.nan
+            lost[:] = False
+            self.counts["redetections"] += 1
             return
-        self._retrack(v, pyramids, box_from_centre(*centre, w, h), boxes, scores, lost)
-        self.counts["redetections"] += int(not lost[v])
 
     def _learn(self, pyramids, boxes, corners) -> None:
-        """A confident, verified frame: templates, sizes, disparity and detector samples."""
+        """A confident, verified frame: sizes and disparity; every ``sample_every``-th
+        one also the templates and the detector's samples."""
         self._confident += 1
         for v in range(2):
-            self.tracker.update_template(v, pyramids[v])
-            self.anchors[v] = self.tracker.template_of(v)
             self.sizes[v] = box_centre_size(boxes[v])[2:]
         self.disparity = float(np.mean(corners[0, :, 0] - corners[1, :, 0]))
-        if self._confident % self.params.sample_every == 0:
-            for v in range(2):
-                feats = self.detector.features(pyramids[v], boxes[v])
-                self.counts["positives"] += int(self.detector.add_samples(feats, boxes[v]))
+        if (self._confident - 1) % self.params.sample_every:
+            return
+        self.tracker.update_templates(pyramids, [0, 1])
+        for v, feats in enumerate(self.detector.features(pyramids, boxes[0])):
+            self.anchors[v] = self.tracker.template_of(v)
+            self.counts["positives"] += int(self.detector.add_samples(feats, boxes[v]))
 
 
 # ---------------------------------------------------------------------- front end

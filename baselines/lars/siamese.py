@@ -380,14 +380,19 @@ class SiameseTracker:
             return np.full(4, np.nan)
         return box_from_centre(s.cx, s.cy, s.w, s.h)
 
-    def update_template(self, view: int, pyramid: Pyramid, rate: float | None = None) -> None:
-        """Blend the crop at the view's current box into its template (moving average)."""
-        s = self.views[view]
-        crop, tw, th = self.template_crop(pyramid, self.box(view))
+    def update_templates(self, pyramids, views, rate: float | None = None) -> None:
+        """Blend the crops at the views' current boxes into their templates (moving
+        average; one forward pass for all ``views``)."""
+        if not views:
+            return
+        crops = [self.template_crop(pyramids[v], self.box(v)) for v in views]
+        feats = self.embed_crops([c for c, _, _ in crops])
         r = self.params.template_rate if rate is None else rate
-        s.template = (1.0 - r) * s.template + r * self.embed_crops([crop])
-        s.template_w = (1.0 - r) * s.template_w + r * tw
-        s.template_h = (1.0 - r) * s.template_h + r * th
+        for k, (v, (_, tw, th)) in enumerate(zip(views, crops, strict=True)):
+            s = self.views[v]
+            s.template = (1.0 - r) * s.template + r * feats[k : k + 1]
+            s.template_w = (1.0 - r) * s.template_w + r * tw
+            s.template_h = (1.0 - r) * s.template_h + r * th
 
     def set_box(self, view: int, box) -> None:
         """Move view ``view``'s box without touching its template."""
@@ -424,8 +429,10 @@ class SiameseTracker:
         for k, v in enumerate(views):
             scores[v] = self._step(v, out[k], sides[k], pyramids[v].size)
             boxes[v] = self.box(v)
-            if update and scores[v] >= self.params.update_score:
-                self.update_template(v, pyramids[v])
+        if update:
+            self.update_templates(
+                pyramids, [v for v in views if scores[v] >= self.params.update_score]
+            )
         return boxes, scores
 
     def _step(self, view: int, out: np.ndarray, side: float, image_size) -> float:
