@@ -391,13 +391,26 @@ class BlobEKF:
         self.x[4] = max(self.x[4], 0.5)
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """Matrices [v]x of the rows of ``v`` (n, 3) -> (n, 3, 3), with [v]x w = v x w."""
+    out = np.zeros((len(v), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return out
+
+
 class CameraPositionFilter:
     """EKF on the camera centre in the array's (DS) frame: the rigid-array observer.
 
     The camera rotation comes from the INS attitude of each observation (``set_rotation``), so
-    the only unknown of the array's rigid-body pose is the camera position ``t``. It is
-    propagated with the DVL velocity and corrected with the pixel centres of the tracked lamps
-    through the pinhole model; projecting the array from it predicts every lamp, in view or not.
+    the unknown of the array's rigid-body pose is the camera position ``t``. It is propagated
+    with the DVL displacement and corrected with the pixel centres of the tracked lamps through
+    the pinhole model; projecting the array from it predicts every lamp, in view or not.
+
+    The INS attitude is noisy (``attitude_sigma``, white from frame to frame), and 0.2 deg is
+    2 px at this camera's focal length; each update therefore also estimates that frame's
+    small camera rotation error ``dtheta`` (prior N(0, attitude_sigma^2 I), forgotten at the
+    next frame), and projections use it until then.
 
     Args:
         intrinsics: camera intrinsics.
@@ -409,15 +422,25 @@ class CameraPositionFilter:
         self.points = np.asarray(points, dtype=float)
         self.t = np.zeros(3)
         self.P = np.eye(3)
+        self.dtheta = np.zeros(3)
+        self.attitude_sigma = 0.0
         self.world_to_cam = np.eye(3)
 
-    def set_rotation(self, cam_to_world: np.ndarray) -> None:
+    def set_rotation(self, cam_to_world: np.ndarray, attitude_sigma: float = 0.0) -> None:
+        """The new frame's measured camera rotation and its noise (rad); clears ``dtheta``."""
         self.world_to_cam = np.asarray(cam_to_world).T
+        self.attitude_sigma = float(attitude_sigma)
+        self.dtheta = np.zeros(3)
 
-    def project(self, t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixels (n, 2), Jacobians d pixel / d t (n, 2, 3) and in-front mask (n,)."""
+    def project(self, t: np.ndarray | None = None, dtheta: np.ndarray | None = None):
+        """Pixels (n, 2), Jacobians d pixel / d t and d pixel / d dtheta (n, 2, 3 each) and
+        the in-front mask (n,)."""
         k = self.intrinsics
-        cam = (self.points - (self.t if t is None else t)) @ self.world_to_cam.T
+        t = self.t if t is None else t
+        dtheta = self.dtheta if dtheta is None else dtheta
+        measured = (self.points - t) @ self.world_to_cam.T
+        skew = _skew(measured)
+        cam = measured + skew @ dtheta  # turned by the small rotation error dtheta
         z = np.maximum(cam[:, 2], 1e-6)
         pix = np.column_stack([k.fx * cam[:, 0] / z + k.cx, k.fy * cam[:, 1] / z + k.cy])
         d_pix_d_cam = np.zeros((len(cam), 2, 3))
@@ -425,8 +448,14 @@ class CameraPositionFilter:
         d_pix_d_cam[:, 0, 2] = -k.fx * cam[:, 0] / z**2
         d_pix_d_cam[:, 1, 1] = k.fy / z
         d_pix_d_cam[:, 1, 2] = -k.fy * cam[:, 1] / z**2
-        jac = -d_pix_d_cam @ self.world_to_cam
-        return pix, jac, cam[:, 2] > 0.05
+        jac_t = -d_pix_d_cam @ self.world_to_cam
+        jac_theta = d_pix_d_cam @ skew
+        return pix, jac_t, jac_theta, cam[:, 2] > 0.05
+
+    def prediction_cov(self, jac_t: np.ndarray, jac_theta: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) covariance of the projected lamps from ``P`` and the attitude noise."""
+        cov = jac_t @ self.P @ jac_t.transpose(0, 2, 1)
+        return cov + self.attitude_sigma**2 * jac_theta @ jac_theta.transpose(0, 2, 1)
 
     def initialise(self, lamp_ids: np.ndarray, pixels: np.ndarray, sigma: float) -> float:
         """Camera position from >= 2 labelled lamps; returns the RMS reprojection error (px).
@@ -444,11 +473,11 @@ class CameraPositionFilter:
                 rhs.append(coeff @ self.points[i])
         self.t = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0]
         for _ in range(3):
-            pix, jac, _ = self.project()
+            pix, jac, _, _ = self.project()
             J = jac[lamp_ids].reshape(-1, 3)
             r = (pixels - pix[lamp_ids]).ravel()
             self.t = self.t + np.linalg.lstsq(J, r, rcond=None)[0]
-        pix, jac, front = self.project()
+        pix, jac, _, front = self.project()
         J = jac[lamp_ids].reshape(-1, 3)
         self.P = np.linalg.inv(J.T @ J / sigma**2 + 1e-6 * np.eye(3))
         if not front[lamp_ids].all():
@@ -459,26 +488,40 @@ class CameraPositionFilter:
         self.t = self.t + displacement
         self.P = self.P + sigma**2 * np.eye(3)
 
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.t.copy(), self.P.copy(), self.dtheta.copy()
+
+    def restore(self, state: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self.t, self.P, self.dtheta = (x.copy() for x in state)
+
     def update(self, groups: list[np.ndarray], pixels: np.ndarray, sigmas: np.ndarray,
                iterations: int = 2) -> None:
-        """Iterated EKF update; measurement k is the mean projection of the lamps in
-        ``groups[k]`` (one lamp, or the members of a merged blob)."""
+        """Iterated EKF update of ``(t, dtheta)``; measurement k is the mean projection of the
+        lamps in ``groups[k]`` (one lamp, or the members of a merged blob)."""
         if not groups:
             return
         z = np.asarray(pixels, dtype=float).ravel()
         R = np.diag(np.repeat(np.asarray(sigmas, float) ** 2, 2))
-        prior = self.t
-        t = prior
+        prior = np.concatenate([self.t, np.zeros(3)])
+        P = np.zeros((6, 6))
+        P[:3, :3] = self.P
+        P[3:, 3:] = self.attitude_sigma**2 * np.eye(3)
+        mean = np.zeros((len(groups), len(self.points)))  # row k averages groups[k]
+        for k, g in enumerate(groups):
+            mean[k, g] = 1.0 / len(g)
+        x = prior
         for _ in range(iterations):
-            pix, jac, _ = self.project(t)
-            h = np.array([pix[g].mean(axis=0) for g in groups]).ravel()
-            H = np.concatenate([jac[g].mean(axis=0) for g in groups])
-            S = H @ self.P @ H.T + R
-            K = np.linalg.solve(S, H @ self.P).T
-            t = prior + K @ (z - h - H @ (prior - t))
-        self.t = t
-        A = np.eye(3) - K @ H
-        self.P = A @ self.P @ A.T + K @ R @ K.T
+            pix, jac_t, jac_theta, _ = self.project(x[:3], x[3:])
+            h = (mean @ pix).ravel()
+            jac = np.concatenate([jac_t, jac_theta], axis=2).reshape(len(pix), 12)
+            H = (mean @ jac).reshape(-1, 6)
+            S = H @ P @ H.T + R
+            K = np.linalg.solve(S, H @ P).T
+            x = prior + K @ (z - h - H @ (prior - x))
+        A = np.eye(6) - K @ H
+        P = A @ P @ A.T + K @ R @ K.T
+        self.t, self.dtheta = x[:3], x[3:]
+        self.P = P[:3, :3]
 
 
 # --------------------------------------------------------------------------- tracker
@@ -594,6 +637,10 @@ class LampArrayFrontEnd:
         self._pose = CameraPositionFilter(self.intrinsics, self._points)
         self._transition = BlobEKF.transition(self._dt, self.params.accel_sigma,
                                               self.params.size_accel_sigma)
+        # Sensor noise of the scenario (calibration) on top of the model's own allowances.
+        self._attitude_sigma = float(calibration.attitude_noise_std)
+        self._displacement_sigma = self._dt * math.hypot(self.params.velocity_sigma,
+                                                         calibration.velocity_noise_std)
         self.reset()
 
     @classmethod
@@ -620,7 +667,7 @@ class LampArrayFrontEnd:
         gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         blobs = segment_lamps(gray, self.segmentation)
         body_rot = rotation_from_euler(*attitude)
-        self._pose.set_rotation(body_rot @ self._cam_rot_body)
+        self._pose.set_rotation(body_rot @ self._cam_rot_body, self._attitude_sigma)
         world_velocity = body_rot @ velocity[:3]
         if self._tracks is None:
             self._initialise(gray, blobs)
@@ -655,7 +702,7 @@ class LampArrayFrontEnd:
             nan = np.full((self._n, 2), np.nan)
             return LampTracks(self.labels, nan, np.full(self._n, np.nan), self._status.copy())
         pixels = np.array([t.position for t in self._tracks])
-        _, _, front = self._pose.project()
+        front = self._pose.project()[3]
         pixels[~front] = np.nan
         radii = np.array([t.x[4] for t in self._tracks])
         return LampTracks(self.labels, pixels, radii, self._status.copy())
@@ -702,6 +749,12 @@ class LampArrayFrontEnd:
         residual = self._pose.initialise(ids, blobs.centres[order], self.params.pixel_sigma)
         if not residual <= self.params.init_max_residual:
             return  # the labelled array does not fit the rigid layout: wait for a better frame
+        # The lamps are identical (seed 002 §1.2), so radius x depth is the same for all; a
+        # blob much smaller than its depth allows is a lamp partly hidden.
+        depth = (self._points - self._pose.t) @ self._pose.world_to_cam[2]
+        size = blobs.radii[order] * depth
+        if size.max() > 1.3 * size.min():
+            return
         p0 = np.diag([1.0, 1.0, 100.0**2, 100.0**2, 1.0, 10.0**2])
         self._tracks = []
         for j in order:
@@ -715,7 +768,7 @@ class LampArrayFrontEnd:
         """The lights as seen with the current attitude from 5 m in front of them (DS -x);
         None when that view does not face them (the vehicle is turned away)."""
         centre = self._points.mean(axis=0)
-        pixels, _, front = self._pose.project(centre - np.array([5.0, 0.0, 0.0]))
+        pixels, _, _, front = self._pose.project(centre - np.array([5.0, 0.0, 0.0]))
         return pixels if front.all() else None
 
     def _camera_displacement(self, body_rot: np.ndarray, world_velocity: np.ndarray):
@@ -727,42 +780,54 @@ class LampArrayFrontEnd:
 
     def _track(self, gray: np.ndarray, blobs: Blobs, displacement: np.ndarray) -> None:
         p = self.params
-        dt = self._dt
-        self._pose.predict(displacement, p.velocity_sigma * dt)
-        rigid, jac, front = self._pose.project()
+        pose = self._pose
+        pose.predict(displacement, self._displacement_sigma)
+        rigid, jac_t, jac_theta, front = pose.project()
+        rigid_cov = pose.prediction_cov(jac_t, jac_theta) + p.rigid_sigma**2 * np.eye(2)
 
         # Predict each lamp, then weigh the prediction with the rigid array's (§2.2.3 2)).
         for i, track in enumerate(self._tracks):
             track.predict(*self._transition)
             if front[i]:
-                cov = jac[i] @ self._pose.P @ jac[i].T + p.rigid_sigma**2 * np.eye(2)
-                track.update_position(rigid[i], cov)
+                track.update_position(rigid[i], rigid_cov[i])
+        predicted = np.array([t.position for t in self._tracks])
+        members = self._blob_members(blobs, predicted, front)
+
+        # A lamp is seen when its centre is: a blob left by a lamp whose centre is hidden (a
+        # sliver beside the fork, half a lamp at the border) has a biased circle. The test
+        # point is where the rest of the array puts the centre: the array updated with every
+        # other candidate blob (which absorbs this frame's INS attitude error). The lamp's own
+        # blob and track are left out, as they may be the biased ones. A disc cut by a straight
+        # edge keeps its centre iff more than half of it is left, which is then also its
+        # circle's share: a blob cut by the image border must fill half its circle. The array
+        # is then updated with the seen blobs only.
+        prior = pose.snapshot()
+        seen = {}
+        for j, lamps in members.items():
+            pose.restore(prior)
+            others = [k for k in members if k != j]
+            pose.update(*self._pose_measurements(blobs, members, others))
+            test_points = pose.project()[0]
+            lit = [i for i in lamps if self._centre_is_bright(gray, test_points[i])]
+            if lit and not (len(lamps) == 1 and blobs.on_border[j] and self._fill(blobs, j) < 0.5):
+                seen[j] = lit
+        pose.restore(prior)
+        pose.update(*self._pose_measurements(blobs, members, seen))
 
         status = np.full(self._n, PREDICTED)
-        groups, group_pixels, group_sigmas = [], [], []
-        predicted = np.array([t.position for t in self._tracks])
-        for j, members in self._blob_members(blobs, predicted, front).items():
-            # A lamp is seen when its centre is: a blob left by a lamp whose centre is hidden
-            # (a sliver beside the fork, half a lamp at the border) has a biased circle. The
-            # array's prediction of the centre is the test point, as the lamp's own track
-            # may have followed such a blob.
-            seen = [i for i in members if self._centre_is_bright(gray, rigid[i])]
-            if not seen:
-                continue
-            if len(members) == 1:
-                self._update_with_blob(self._tracks[members[0]], blobs, j)
-                status[members[0]] = DETECTED
-                sigma = p.pixel_sigma * (4.0 if blobs.on_border[j] else 1.0)
+        rigid = pose.project()[0]
+        for j, lamps in seen.items():
+            if len(members[j]) == 1:
+                self._update_with_blob(self._tracks[lamps[0]], blobs, j)
+                status[lamps[0]] = DETECTED
             else:
-                status[seen] = MERGED
-                sigma = max(blobs.radii[j] / 2.0, p.pixel_sigma)
-            groups.append(np.array(members))
-            group_pixels.append(blobs.centres[j])
-            group_sigmas.append(sigma)
-        self._pose.update(groups, np.array(group_pixels), np.array(group_sigmas))
+                # Lamps in a merged blob are where the array, just fitted to it, puts them.
+                for i in lamps:
+                    self._tracks[i].update_position(rigid[i], p.pixel_sigma**2 * np.eye(2))
+                status[lamps] = MERGED
         self._status = status
 
-        if groups:
+        if seen:
             self._frames_without_detection = 0
         else:
             self._frames_without_detection += 1
@@ -770,6 +835,21 @@ class LampArrayFrontEnd:
                 self._counts["track_losses"] += 1
                 self._tracks = None
                 self._status[:] = UNINITIALISED
+
+    def _pose_measurements(self, blobs: Blobs, members: dict[int, list[int]],
+                           used) -> tuple[list, np.ndarray, np.ndarray]:
+        """Array-filter measurements from the blobs ``used`` (indices): a blob measures the
+        mean projection of all its member lamps (one, or several when merged)."""
+        groups, pixels, sigmas = [], [], []
+        for j in used:
+            lamps = members[j]
+            groups.append(np.array(lamps))
+            pixels.append(blobs.centres[j])
+            if len(lamps) == 1:
+                sigmas.append(self.params.pixel_sigma * (4.0 if blobs.on_border[j] else 1.0))
+            else:
+                sigmas.append(max(blobs.radii[j] / 2.0, self.params.pixel_sigma))
+        return groups, np.array(pixels).reshape(-1, 2), np.array(sigmas)
 
     def _blob_members(self, blobs: Blobs, predicted: np.ndarray,
                       front: np.ndarray) -> dict[int, list[int]]:
@@ -788,6 +868,11 @@ class LampArrayFrontEnd:
             if gap[j] <= margin:
                 members.setdefault(j, []).append(k)
         return members
+
+    @staticmethod
+    def _fill(blobs: Blobs, j: int) -> float:
+        """Share of blob ``j``'s enclosing circle that the blob covers."""
+        return float(blobs.areas[j] / (math.pi * blobs.radii[j] ** 2))
 
     def _centre_is_bright(self, gray: np.ndarray, uv: np.ndarray) -> bool:
         """Whether every pixel within ``centre_halo`` px of ``uv`` is lamp-bright and inside
