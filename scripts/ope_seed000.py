@@ -1,0 +1,251 @@
+"""Seed 000 Fig. 6: OPE success and precision of the Siamese tracker alone vs LTAT.
+
+One-pass evaluation (OTB, Wu et al. 2013), as in seed 000 §3: each tracker
+starts from the true box of the first frame and runs through the sequence
+without restarts. The target is the AUV's marker box (the axis-aligned box of
+the three projected marker corners, clipped to the image; see
+:mod:`baselines.lars.siamese`); both views of every frame count, frames
+whose marker lies outside the image are left out.
+
+* success(t): fraction of frames with IoU(output, truth) > t, t in [0, 1];
+  its area under the curve (AUC, the mean over 21 thresholds) ranks trackers.
+* precision(t): fraction of frames with a centre error <= t px; the value at
+  20 px ranks trackers.
+
+Three rows: the Siamese tracker alone (same network, same template update),
+LTAT as shipped, and LTAT with its boxes left as the tracker's (never
+snapped to the verified corners), which isolates what re-detection alone
+adds.
+
+Sequences come from the LARS exporter (:mod:`auv_envs.datasets.lars`) with
+evaluation seeds >= 100000 (the tracker trained on seeds 1000-2011). The
+severe sequences are the first seeds from 100000 whose labels show both a
+wash-over (a corner hidden by a crest) and an analog in view.
+
+    python scripts/ope_seed000.py [--sequences 4] [--steps 250] [--out results/ope_seed000]
+
+Prints a Markdown table and writes ``ope_seed000.png`` and ``ope_seed000.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
+from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
+from baselines.lars.ltat import LTATParams, LTATracker  # noqa: E402
+from baselines.lars.siamese import (  # noqa: E402
+    EVAL_SEED_MIN,
+    Pyramid,
+    SiameseTracker,
+    load_siamese,
+    marker_box,
+)
+
+KINDS = ("siamese", "ltat-tracker-box", "ltat")
+NAMES = {
+    "siamese": "Siamese tracker alone",
+    "ltat-tracker-box": "LTAT, tracker boxes (no corner snap)",
+    "ltat": "LTAT",
+}
+IOU_THRESHOLDS = np.linspace(0.0, 1.0, 21)
+PIXEL_THRESHOLDS = np.arange(0, 51)
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU of boxes (N, 4) row by row; 0 where an output box is NaN."""
+    x0 = np.maximum(a[:, 0], b[:, 0])
+    y0 = np.maximum(a[:, 1], b[:, 1])
+    x1 = np.minimum(a[:, 2], b[:, 2])
+    y1 = np.minimum(a[:, 3], b[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area = lambda r: (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])  # noqa: E731
+    out = inter / (area(a) + area(b) - inter)
+    return np.nan_to_num(out, nan=0.0)
+
+
+def centre_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Centre distance (px) row by row; inf where an output box is NaN."""
+    ca = 0.5 * (a[:, :2] + a[:, 2:])
+    cb = 0.5 * (b[:, :2] + b[:, 2:])
+    return np.nan_to_num(np.linalg.norm(ca - cb, axis=1), nan=np.inf)
+
+
+def success_curve(ious: np.ndarray) -> np.ndarray:
+    return np.array([(ious > t).mean() for t in IOU_THRESHOLDS])
+
+
+def precision_curve(errors: np.ndarray) -> np.ndarray:
+    return np.array([(errors <= t).mean() for t in PIXEL_THRESHOLDS])
+
+
+def truth_boxes(labels: dict, size) -> np.ndarray:
+    """(T, 2, 4) marker boxes clipped to the image; NaN when out of view."""
+    c = labels["corners_px"]
+    return np.array([[marker_box(c[t, v], size) for v in range(2)] for t in range(len(c))])
+
+
+def frames(path: Path, t: int) -> list[np.ndarray]:
+    return [cv2.cvtColor(cv2.imread(str(path / v / f"{t:06d}.png")), cv2.COLOR_BGR2RGB)
+            for v in ("left", "right")]
+
+
+def run_tracker(kind: str, path: Path, truth: np.ndarray, net, rig, sides):
+    """Output boxes (T, 2, 4) of ``kind`` started on frame 0's truth.
+
+    ``kind``: ``"siamese"`` (the tracker alone), ``"ltat"`` (as shipped), or
+    ``"ltat-tracker-box"`` (LTAT whose boxes are never snapped to the
+    verified corners: re-detection alone).
+
+    Returns:
+        The boxes and LTAT's event counters (empty for the tracker alone).
+    """
+    n = len(truth)
+    out = np.full((n, 2, 4), np.nan)
+    images = frames(path, 0)
+    pyrs = [Pyramid(im) for im in images]
+    out[0] = truth[0]
+    if kind == "siamese":
+        tracker = SiameseTracker(net)
+        tracker.init(pyrs, truth[0])
+    else:
+        params = LTATParams(snap_to_corners=kind == "ltat")
+        tracker = LTATracker(net, rig, sides, params=params)
+        tracker.reset(np.random.default_rng(0))
+        tracker.start(pyrs, truth[0])
+    for t in range(1, n):
+        images = frames(path, t)
+        pyrs = [Pyramid(im) for im in images]
+        if kind == "siamese":
+            out[t] = tracker.track(pyrs)[0]
+        else:
+            out[t] = tracker.step(pyrs, images).boxes
+    return out, (dict(tracker.counts) if kind != "siamese" else {})
+
+
+def select_sequences(data: Path, sea: str, count: int, steps: int) -> list[Path]:
+    """Export evaluation sequences; severe ones must show a wash-over and an analog."""
+    paths, seed = [], EVAL_SEED_MIN + (0 if sea == "calm" else 50000)
+    while len(paths) < count:
+        path = data / f"{sea}_{seed}"
+        try:
+            meta, labels = load_sequence(path)
+            ok = meta["frames"] == steps
+        except (FileNotFoundError, OSError, KeyError):
+            ok = False
+        if not ok:
+            export_sequence(path, seed, sea, steps)
+            meta, labels = load_sequence(path)
+        first = truth_boxes(labels, meta["image_size"])[0]
+        usable = np.isfinite(first).all()
+        if sea == "severe":
+            usable &= bool(labels["occluded"].any()) and bool(labels["distractors"].any())
+        if usable:
+            paths.append(path)
+        seed += 1
+    return paths
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sequences", type=int, default=4, help="per sea state")
+    parser.add_argument("--steps", type=int, default=250, help="frames per sequence")
+    parser.add_argument("--data", default="build/ope_seed000_data")
+    parser.add_argument("--out", default="results/ope_seed000")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    net, _ = load_siamese()
+    env = LARSCaptureEnv()  # calibration only (no rendering)
+    rig, sides = env.calibration.stereo, env.calibration.marker_sides
+    env.close()
+
+    results = {}
+    for sea in ("calm", "severe"):
+        paths = select_sequences(Path(args.data), sea, args.sequences, args.steps)
+        for kind in KINDS:
+            ious, errors, seconds, count = [], [], 0.0, 0
+            events = collections.Counter()
+            for path in paths:
+                meta, labels = load_sequence(path)
+                truth = truth_boxes(labels, meta["image_size"])
+                start = time.perf_counter()
+                boxes, counts = run_tracker(kind, path, truth, net, rig, sides)
+                events.update(counts)
+                seconds += time.perf_counter() - start
+                count += len(truth)
+                valid = np.isfinite(truth).all(axis=2)
+                ious.append(iou(boxes[valid], truth[valid]))
+                errors.append(centre_error(boxes[valid], truth[valid]))
+            ious, errors = np.concatenate(ious), np.concatenate(errors)
+            s, p = success_curve(ious), precision_curve(errors)
+            results[(sea, kind)] = {
+                "sequences": [pth.name for pth in paths],
+                "frames": int(len(ious)),
+                "success": s.tolist(),
+                "precision": p.tolist(),
+                "auc": float(s.mean()),
+                "precision_20px": float(p[20]),
+                "stereo_frames_per_s": count / seconds,
+                "ltat_events": dict(events),
+            }
+
+    print("| sea state | tracker | views scored | success AUC | precision @ 20 px |")
+    print("|---|---|---|---|---|")
+    for (sea, kind), r in results.items():
+        print(f"| {sea} | {NAMES[kind]} | {r['frames']} | {r['auc']:.3f} | "
+              f"{r['precision_20px']:.3f} |")
+    for (sea, kind), r in results.items():
+        if r["ltat_events"]:
+            print(f"{sea} {kind}: {r['ltat_events']}")
+    for sea in ("calm", "severe"):
+        a, b = results[(sea, "siamese")], results[(sea, "ltat")]
+        met = b["auc"] > a["auc"] and b["precision_20px"] >= a["precision_20px"]
+        print(f"{sea}: LTAT success AUC above the tracker alone's and precision@20 not below "
+              f"it: {met} (AUC {b['auc']:.3f} vs {a['auc']:.3f}, precision@20 "
+              f"{b['precision_20px']:.3f} vs {a['precision_20px']:.3f})")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 2, figsize=(10, 8))
+    for row, sea in enumerate(("calm", "severe")):
+        for kind in KINDS:
+            r = results[(sea, kind)]
+            axes[row, 0].plot(IOU_THRESHOLDS, r["success"],
+                              label=f"{NAMES[kind]} [{r['auc']:.3f}]")
+            axes[row, 1].plot(PIXEL_THRESHOLDS, r["precision"],
+                              label=f"{NAMES[kind]} [{r['precision_20px']:.3f}]")
+        axes[row, 0].set(title=f"Success plots of OPE ({sea})", xlabel="Overlap threshold",
+                         ylabel="Success rate", xlim=(0, 1), ylim=(0, 1.02))
+        axes[row, 1].set(title=f"Precision plots of OPE ({sea})",
+                         xlabel="Location error threshold (px)", ylabel="Precision",
+                         xlim=(0, 50), ylim=(0, 1.02))
+        for ax in axes[row]:
+            ax.grid(alpha=0.3)
+            ax.legend(loc="lower right" if ax is axes[row, 1] else "lower left")
+    fig.tight_layout()
+    fig.savefig(out / "ope_seed000.png", dpi=120)
+    (out / "ope_seed000.json").write_text(json.dumps(
+        {f"{sea}/{kind}": r for (sea, kind), r in results.items()}, indent=2))
+    print(f"wrote {out / 'ope_seed000.png'} and {out / 'ope_seed000.json'}")
+
+
+if __name__ == "__main__":
+    main()
