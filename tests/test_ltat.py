@@ -336,6 +336,8 @@ def test_front_end_rejects_wrong_images(calm_rollout):
     obs["left"] = obs["left"][:100]
     with pytest.raises(ValueError, match="left image"):
         front(obs, {})
+    with pytest.raises(ValueError, match="'stereo' observation"):
+        front({"pixels": np.zeros((2, 3, 2))}, {})
     with pytest.raises(ValueError, match="obs_mode='stereo'"):
         from baselines.lars.ltat_agents import make_front_end
 

@@ -13,10 +13,10 @@ online-learned correlation trackers).
 The parts, each with one role:
 
 * :class:`MarkerCornerExtractor`: the three marker corners inside a box
-  (OpenCV colour threshold, contour, polygon approximation; sub-pixel by
-  intersecting lines fitted to the edges), labelled A1 (port base), A2
-  (starboard base), A3 (apex).
-* :func:`match_stereo`: corners of the two views matched by label and
+  (OpenCV colour threshold, contour, the largest triangle inscribed in its
+  convex hull; sub-pixel by intersecting lines fitted to the edges near
+  each corner), labelled A1 (port base), A2 (starboard base), A3 (apex).
+* :func:`stereo_check`: corners of the two views matched by label and
   checked against the rectified geometry (same rows, positive disparity)
   and the marker's known size (triangulated sides, seed 000 eq. 2).
 * :class:`OnlineDetector`: the online-learned detector.
@@ -434,7 +434,7 @@ class OnlineDetector:
         """Learn from one confident box: the window on it is a positive, far windows negatives.
 
         Returns whether a positive was added (the box centre must fall within
-        half a cell of a window centre).
+        0.75 of a cell of a window centre).
         """
         if len(feats.descriptors) == 0:
             return False
@@ -804,6 +804,9 @@ class LTATFrontEnd:
 
     def __call__(self, observation, info=None) -> dict:
         start = time.perf_counter()
+        keys = ("left", "right", "joint_position", "joint_velocity")
+        if not isinstance(observation, dict) or any(k not in observation for k in keys):
+            raise ValueError(f"LTATFrontEnd expects the 'stereo' observation dict with keys {keys}")
         left, right = observation["left"], observation["right"]
         for name, image in (("left", left), ("right", right)):
             if image.shape != self._size or image.dtype != np.uint8:
