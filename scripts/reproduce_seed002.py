@@ -1,7 +1,7 @@
 """Reproduce seed 002's tracking evaluation: the lamp-array front end under occlusion, CLEAR MOT.
 
     PYTHONPATH=. python scripts/reproduce_seed002.py [--seeds 5] [--frames 600]
-        [--scenario mismatch] [--threshold 20]
+        [--scenario mismatch] [--threshold 20] [--env auv_envs/LampArrayDocking-v0]
 
 Seed 002 §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
 were out of view and reported PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px (Table 4).
@@ -17,7 +17,8 @@ station); the tracker's hypotheses are the lamps it reports visible, with their 
 
 Two scores are printed: from the frame where the front end initialised its tracks (seed 002
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
-(the frames before initialisation then count as misses).
+(the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v0``
+runs the same evaluation on the six docking lights (the ring identity rule).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from baselines.agents.pd_docking import DockingPDAgent
 from baselines.vision.lamp_array import LampArrayFrontEnd
 
 ENV_ID = "auv_envs/LampArrayDocking-v0"
+ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v0")
 #: Seed 002 Table 4 (targets) and its precision-plot threshold (Fig. 11: > 90 % at 13 px).
 PAPER = {"prcn": 0.9976, "mota": 0.8465, "motp_px": 13.24, "occluded": 0.3306}
 PRECISION_PLOT_PX = 13.0
@@ -82,11 +84,11 @@ def excursions(rng: np.random.Generator, duration: float) -> list[tuple[float, n
     return legs
 
 
-def run_sequence(seed: int, frames: int, scenario: str) -> dict:
+def run_sequence(seed: int, frames: int, scenario: str, env_id: str = ENV_ID) -> dict:
     """One seeded sequence: truth and the front end's output per frame."""
-    env = gym.make(ENV_ID, obs_mode="image", scenario=scenario, min_visible_lights=1,
+    env = gym.make(env_id, obs_mode="image", scenario=scenario, min_visible_lights=1,
                    lights_lost_timeout=1e6, time_limit=frames * 0.1 + 1.0)
-    state_env = gym.make(ENV_ID, obs_mode="state")  # only to build the PD pilot
+    state_env = gym.make(env_id, obs_mode="state")  # only to build the PD pilot
     try:
         cal = env.unwrapped.calibration
         pd = DockingPDAgent(state_env.unwrapped, max_axial_error=PILOT_AXIAL_ERROR)
@@ -178,12 +180,14 @@ def main() -> None:
                         help="'current' adds the INS/DVL noise and a 0.3 m/s current")
     parser.add_argument("--threshold", type=float, default=20.0,
                         help="CLEAR MOT match distance, px")
+    parser.add_argument("--env", default=ENV_ID, choices=ENV_IDS)
     args = parser.parse_args()
 
-    seqs = [run_sequence(seed, args.frames, args.scenario) for seed in range(args.seeds)]
+    seqs = [run_sequence(seed, args.frames, args.scenario, args.env)
+            for seed in range(args.seeds)]
     header = (f"{'sequence':22s} {'occl%':>6s} {'PRCN%':>7s} {'RCLL%':>7s} {'FP':>5s} "
               f"{'FN':>5s} {'IDs':>4s} {'FM':>4s} {'MOTA%':>7s} {'MOTPpx':>7s} {'<=13px%':>7s}")
-    print(f"{ENV_ID} image 640x480, scenario {args.scenario}, match threshold "
+    print(f"{args.env} image 640x480, scenario {args.scenario}, match threshold "
           f"{args.threshold:g} px")
     print(header)
     for seed, seq in enumerate(seqs):

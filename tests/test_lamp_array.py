@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -23,7 +24,7 @@ from baselines.vision.lamp_array import (
     SegmentationParams,
     TrackerParams,
     identify_l_shape,
-    identify_ring,
+    ring_labelings,
     segment_lamps,
 )
 from tests.conftest import DOCKING_IDS
@@ -50,7 +51,8 @@ def _lamps_apart(info: dict, min_gap: float = 25.0, border: float = 15.0) -> boo
     return bool(gaps.min() >= min_gap and inside)
 
 
-def _render_sequence(env_id: str, seed: int) -> tuple[list, object]:
+@functools.cache
+def _render_sequence(env_id: str, seed: int = 100_000) -> tuple[list, object]:
     """``pd-state`` docks a state env (no rendering, fast); from the first step with every
     lamp visible and apart, ``N_FRAMES`` frames are rendered at 640x480."""
     env = gym.make(env_id, obs_mode="state", render_mode="rgb_array")
@@ -72,17 +74,19 @@ def _render_sequence(env_id: str, seed: int) -> tuple[list, object]:
 
 @pytest.fixture(scope="module", params=[LAMP_ID, RING_ID], ids=["lamp-array", "six-lights"])
 def rendered(request):
-    frames, calibration = _render_sequence(request.param, seed=100_000)
+    frames, calibration = _render_sequence(request.param)
     assert len(frames) == N_FRAMES, "the reference controller docked before the frames were taken"
     return request.param, frames, calibration
 
 
-def _paint_out(image: np.ndarray, pixels: np.ndarray, radius: int = 30) -> np.ndarray:
-    """Hide lamps under discs of the water's colour."""
+def _paint_out(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """Hide the lamps at ``pixels`` (and only them) under discs of the water's colour."""
+    blobs = segment_lamps(cv2.cvtColor(image, cv2.COLOR_RGB2GRAY))
     out = image.copy()
     water = tuple(int(c) for c in np.median(image.reshape(-1, 3), axis=0))
-    for u, v in pixels:
-        cv2.circle(out, (round(u), round(v)), radius, water, -1)
+    for uv in pixels:
+        j = np.argmin(np.linalg.norm(blobs.centres - uv, axis=1))
+        cv2.circle(out, (round(uv[0]), round(uv[1])), math.ceil(blobs.radii[j]) + 2, water, -1)
     return out
 
 
@@ -138,7 +142,7 @@ def test_tracks_survive_an_occlusion_and_reassign_correctly(rendered, hidden):
         out = front_end(obs, {})
         errors = np.linalg.norm(front_end.tracks.pixels - true_px, axis=1)
         if k in occluded:
-            assert not out["visible"][hidden].any()
+            np.testing.assert_array_equal(out["visible"], ~np.isin(np.arange(len(true_px)), hidden))
             assert (front_end.tracks.status[hidden] == PREDICTED).all()
             assert errors[hidden].max() <= 3.0, errors  # predicted where the lamps are
         else:
@@ -220,28 +224,38 @@ def test_l_shape_rule_labels_a_typical_view_and_refuses_a_square():
     np.testing.assert_array_equal(identify_l_shape(mirrored, L_LAYOUT), [2, 1, 0, 3])
 
 
-def test_ring_rule_labels_a_hexagon_in_any_order():
-    angles = np.radians([90, 150, 210, 270, 330, 30])
-    expected = np.column_stack([np.cos(angles), -np.sin(angles)]) * 40 + 300
-    rng = np.random.default_rng(3)
-    # Seen turned by up to 12 deg from the expected view (perspective, attitude error), shrunk,
-    # shifted, with pixel noise.
-    for turn in np.radians([-12, -5, 0, 7, 12]):
-        c, s = math.cos(turn), math.sin(turn)
-        seen = (expected - 300) @ np.array([[c, -s], [s, c]]).T * 0.7 + [250, 180]
-        seen += rng.normal(0, 0.5, seen.shape)
-        order = rng.permutation(6)
-        labels = identify_ring(seen[order], expected)
-        np.testing.assert_array_equal(order[labels], np.arange(6))
+HEXAGON = np.radians([90, 150, 210, 270, 330, 30])
 
 
-def test_ring_rule_refuses_the_ambiguous_half_step():
-    angles = np.radians(np.arange(0, 360, 60))
-    ring = np.column_stack([np.cos(angles), np.sin(angles)])
-    half = np.radians(30.0)
-    turned = ring @ np.array([[math.cos(half), -math.sin(half)],
-                              [math.sin(half), math.cos(half)]]).T
-    assert identify_ring(turned, ring) is None
+@pytest.mark.parametrize("missing", [(), (2,), (0, 3)], ids=["all", "one-hidden", "two-hidden"])
+def test_ring_labelings_keep_the_cyclic_order_and_include_the_truth(missing):
+    seen_lights = np.array([i for i in range(6) if i not in missing])
+    # A hexagon seen turned by 10 deg (perspective, attitude), shrunk, shifted, shuffled.
+    angles = HEXAGON[seen_lights] + np.radians(10)
+    pixels = np.column_stack([np.cos(angles), -np.sin(angles)]) * 30 + [250, 180]
+    order = np.random.default_rng(len(missing)).permutation(len(seen_lights))
+    ring_order = np.argsort(np.arctan2(-np.sin(HEXAGON), np.cos(HEXAGON)))
+    candidates = ring_labelings(pixels[order], ring_order)
+    k = len(seen_lights)
+    assert len(candidates) == math.comb(6, k) * k
+    truth = seen_lights[order]
+    assert sum(np.array_equal(c, truth) for c in candidates) == 1
+    assert all(len(set(c.tolist())) == k for c in candidates)
+
+
+def test_ring_initialises_with_a_light_hidden_and_labels_it():
+    frames, cal = _render_sequence(RING_ID)
+    front_end = LampArrayFrontEnd(cal)
+    for k, (obs, true_px, _) in enumerate(frames[:6]):
+        image = _paint_out(obs["image"], true_px[[4]]) if k < 3 else obs["image"]
+        out = front_end(dict(obs, image=image), {})
+        assert front_end.initialised
+        expected = np.ones(6, np.int8)
+        if k < 3:
+            expected[4] = 0
+        np.testing.assert_array_equal(out["visible"], expected)
+        errors = np.linalg.norm(front_end.tracks.pixels - true_px, axis=1)
+        assert errors.max() <= 1.5, errors  # light 4 predicted by the array, then detected
 
 
 # --------------------------------------------------------------------------- filters
@@ -288,6 +302,8 @@ def test_camera_position_filter_recovers_the_camera_from_labelled_lamps():
     pixels, _ = project(k, points_in_camera(L_LAYOUT, cam, rot))
     pose = CameraPositionFilter(k, L_LAYOUT)
     pose.set_rotation(rot)
+    assert pose.fit_residual(np.arange(4), pixels) < 1e-6
+    assert pose.fit_residual(np.array([2, 1, 0, 3]), pixels) > 5.0  # A and C swapped
     residual = pose.initialise(np.arange(4), pixels, sigma=0.5)
     assert residual < 1e-6
     np.testing.assert_allclose(pose.t, cam, atol=1e-6)
@@ -360,7 +376,9 @@ def test_bad_segmentation_and_identity_input_raises():
     with pytest.raises(ValueError, match="layout"):
         identify_l_shape(np.zeros((4, 2)), L_LAYOUT[:, :2])
     with pytest.raises(ValueError, match="finite"):
-        identify_ring(np.full((6, 2), np.nan), np.zeros((6, 2)))
+        ring_labelings(np.full((6, 2), np.nan), np.arange(6))
+    with pytest.raises(ValueError, match="centres"):
+        ring_labelings(np.zeros((2, 2)), np.arange(6))
 
 
 # --------------------------------------------------------------------------- registry

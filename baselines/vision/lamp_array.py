@@ -12,7 +12,8 @@ method for the UUV recovery process", J. Unmanned Undersea Systems 29(4), 2021):
    geometry: for the L-shaped array A, B, C, D by the shape of the L (:func:`identify_l_shape`:
    seed 002 uses edge lengths; we use the line A-B-C, B between A and C, and the side D is on,
    which a perspective view keeps); for a convex ring such as the six symmetric docking lights
-   by their cyclic order and the INS roll (:func:`identify_ring`, our documented rule).
+   by their cyclic order and the fit of the rigid array with the INS attitude
+   (:func:`ring_labelings`, our documented rule; four of the six lights suffice).
 4. **One EKF per lamp on its blob features** (§2.2.3 1)): :class:`BlobEKF`.
 5. **Cost matrix with the array's rigid-body information + Hungarian assignment** (§2.2.3 2)):
    the EKF prediction of each lamp is weighed with the lamp's position predicted by the rigid
@@ -38,6 +39,7 @@ Our choices where seed 002 is silent, each measured on this package's renders:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import cv2
@@ -262,50 +264,42 @@ def identify_l_shape(centres: np.ndarray, layout: np.ndarray,
     return np.array([a, b, c, d])
 
 
-def _wrap(angle):
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+def ring_labelings(centres: np.ndarray, ring_order: np.ndarray) -> list[np.ndarray]:
+    """Candidate labellings of k detections of a convex planar ring of n lights (k <= n).
 
-
-def identify_ring(centres: np.ndarray, expected: np.ndarray,
-                  max_angle_error: float = math.radians(20.0)) -> np.ndarray | None:
-    """Label the detections of a convex planar ring (e.g. the six docking lights).
-
-    Our rule for symmetric layouts, where edge lengths cannot tell the lights apart: seen from
-    the front, a convex planar array keeps the cyclic order of its lights in the image, so the
-    labelling is one of n cyclic shifts. ``expected`` is where the lights would appear from a
-    nominal viewpoint with the vehicle's measured attitude (the INS roll turns the image); the
-    shift whose angles about the centroid agree best is taken.
+    Our rule for symmetric layouts such as the six docking lights, where edge lengths cannot
+    tell the lights apart: seen from its front, a convex planar array keeps the cyclic order
+    of its lights in the image. So the detections, in their order about their centroid, are
+    the lights of some k-subset of the ring in ring order, up to a cyclic shift:
+    C(n, k) * k candidates (6 for six of six lights, 30 for five). The front end keeps the
+    one that fits the rigid array with the measured attitude best (:meth:`LampArrayFrontEnd
+    ._identify_ring`).
 
     Args:
-        centres: (n, 2) detection centres, px.
-        expected: (n, 2) expected image positions of lights 0..n-1 (any scale and offset).
-        max_angle_error: largest RMS angle difference accepted, rad; the runner-up shift must
-            be at least twice as far off.
+        centres: (k, 2) detection centres, px (k >= 3).
+        ring_order: the n light indices in their cyclic order in the image (the order of
+            their angles about their centroid in a projection of the layout).
 
     Returns:
-        Detection index of each light, or None when ambiguous.
+        Arrays ``labels`` (k,): ``labels[j]`` is the light of detection j.
     """
     pts = np.asarray(centres, dtype=float)
-    exp = np.asarray(expected, dtype=float)
-    if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape != exp.shape or len(pts) < 3:
-        raise ValueError(f"centres {pts.shape} and expected {exp.shape} must be equal (n>=3, 2)")
-    if not (np.isfinite(pts).all() and np.isfinite(exp).all()):
-        raise ValueError("centres and expected must be finite")
-    n = len(pts)
-    ang_d = np.arctan2(*(pts - pts.mean(axis=0)).T[::-1])
-    ang_e = np.arctan2(*(exp - exp.mean(axis=0)).T[::-1])
-    order_d, order_e = np.argsort(ang_d), np.argsort(ang_e)
-    errors = []
-    for shift in range(n):
-        det = np.roll(order_d, -shift)
-        errors.append(math.sqrt(np.mean(_wrap(ang_d[det] - ang_e[order_e]) ** 2)))
-    ranked = np.argsort(errors)
-    best = int(ranked[0])
-    if errors[best] > max_angle_error or (n > 1 and errors[ranked[1]] < 2.0 * errors[best]):
-        return None
-    labels = np.empty(n, dtype=int)
-    labels[order_e] = np.roll(order_d, -best)
-    return labels
+    ring = np.asarray(ring_order, dtype=int)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not 3 <= len(pts) <= len(ring):
+        raise ValueError(f"need 3..{len(ring)} (u, v) centres, got shape {pts.shape}")
+    if not np.isfinite(pts).all():
+        raise ValueError("centres must be finite")
+    k = len(pts)
+    rel = pts - pts.mean(axis=0)
+    det_order = np.argsort(np.arctan2(rel[:, 1], rel[:, 0]))
+    out = []
+    for subset in itertools.combinations(range(len(ring)), k):
+        lights = ring[list(subset)]
+        for shift in range(k):
+            labels = np.empty(k, dtype=int)
+            labels[np.roll(det_order, -shift)] = lights
+            out.append(labels)
+    return out
 
 
 # --------------------------------------------------------------------------- filters
@@ -457,21 +451,36 @@ class CameraPositionFilter:
         cov = jac_t @ self.P @ jac_t.transpose(0, 2, 1)
         return cov + self.attitude_sigma**2 * jac_theta @ jac_theta.transpose(0, 2, 1)
 
-    def initialise(self, lamp_ids: np.ndarray, pixels: np.ndarray, sigma: float) -> float:
-        """Camera position from >= 2 labelled lamps; returns the RMS reprojection error (px).
-
-        A linear least-squares solve of the collinearity equations (each pixel ray through its
-        lamp) followed by three Gauss-Newton steps on the pixel error.
-        """
+    def _linear_position(self, lamp_ids: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+        """Least-squares camera position from the collinearity equations (each pixel's ray
+        passes through its lamp), linear in the position once the rotation is known."""
         k = self.intrinsics
         m = self.world_to_cam
-        rows, rhs = [], []
-        for i, (u, v) in zip(lamp_ids, pixels, strict=True):
-            x, y = (u - k.cx) / k.fx, (v - k.cy) / k.fy
-            for coeff in (x * m[2] - m[0], y * m[2] - m[1]):
-                rows.append(coeff)
-                rhs.append(coeff @ self.points[i])
-        self.t = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0]
+        x = (pixels[:, 0] - k.cx) / k.fx
+        y = (pixels[:, 1] - k.cy) / k.fy
+        rows = np.concatenate([x[:, None] * m[2] - m[0], y[:, None] * m[2] - m[1]])
+        points = self.points[np.concatenate([lamp_ids, lamp_ids])]
+        rhs = np.einsum("ij,ij->i", rows, points)
+        return np.linalg.lstsq(rows, rhs, rcond=None)[0]
+
+    def fit_residual(self, lamp_ids: np.ndarray, pixels: np.ndarray) -> float:
+        """RMS pixel error (per axis) of the best linear fit of the camera position to
+        labelled lamps; inf if a lamp lands behind the camera. Leaves the filter unchanged."""
+        pix, _, _, front = self.project(self._linear_position(lamp_ids, pixels))
+        if not front[lamp_ids].all():
+            return math.inf
+        return float(np.sqrt(np.mean((pixels - pix[lamp_ids]) ** 2)))
+
+    def initialise(self, lamp_ids: np.ndarray, pixels: np.ndarray, sigma: float) -> float:
+        """Camera position from >= 2 labelled lamps; returns the RMS reprojection error (px,
+        per axis).
+
+        The linear solve of :meth:`fit_residual` followed by three Gauss-Newton steps on the
+        pixel error.
+        """
+        lamp_ids = np.asarray(lamp_ids, dtype=int)
+        pixels = np.asarray(pixels, dtype=float)
+        self.t = self._linear_position(lamp_ids, pixels)
         for _ in range(3):
             pix, jac, _, _ = self.project()
             J = jac[lamp_ids].reshape(-1, 3)
@@ -482,7 +491,7 @@ class CameraPositionFilter:
         self.P = np.linalg.inv(J.T @ J / sigma**2 + 1e-6 * np.eye(3))
         if not front[lamp_ids].all():
             return math.inf
-        return float(np.sqrt(np.mean((pixels - pix[lamp_ids]) ** 2) * 2))
+        return float(np.sqrt(np.mean((pixels - pix[lamp_ids]) ** 2)))
 
     def predict(self, displacement: np.ndarray, sigma: float) -> None:
         self.t = self.t + displacement
@@ -545,6 +554,8 @@ class TrackerParams:
             array must be initialised again.
         centre_halo: a lamp is seen when the (2 halo + 1)^2 pixels around the array's
             prediction of its centre are all lamp-bright.
+        ring_init_min: lights of a ring that must be detected to initialise (the L-shaped
+            array needs all four, as in seed 002).
     """
 
     pixel_sigma: float = 0.7
@@ -558,12 +569,13 @@ class TrackerParams:
     init_max_residual: float = 8.0
     lost_after: int = 300
     centre_halo: int = 1
+    ring_init_min: int = 4
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
             if field.type in (int, "int"):
-                low = 0 if field.name == "centre_halo" else 1
+                low = {"centre_halo": 0, "ring_init_min": 3}.get(field.name, 1)
                 if not (isinstance(value, int) and value >= low):
                     raise ValueError(f"{field.name} must be an integer >= {low}, got {value!r}")
             elif not (math.isfinite(value) and value > 0):
@@ -732,44 +744,69 @@ class LampArrayFrontEnd:
         return image, velocity, attitude
 
     def _initialise(self, gray: np.ndarray, blobs: Blobs) -> None:
-        """Label the lamps when every one is detected, alone and whole (seed 002 §2.2.1-2.2.2)."""
-        if len(blobs) != self._n or blobs.on_border.any():
+        """Label the lamps once enough are detected, alone and whole (seed 002 §2.2.1-2.2.2):
+        all four of the L-shaped array, at least ``ring_init_min`` lights of a ring."""
+        p = self.params
+        k = len(blobs)
+        need = self._n if self.identity == "l-shape" else min(p.ring_init_min, self._n)
+        if not need <= k <= self._n or blobs.on_border.any():
             return
         fill = blobs.areas / (math.pi * blobs.radii**2)
         if (fill < 0.5).any() or not all(self._centre_is_bright(gray, c) for c in blobs.centres):
             return  # a lamp is partly hidden: its centre is not reliable yet
         if self.identity == "l-shape":
             order = identify_l_shape(blobs.centres, self._points)
+            labels = None if order is None else np.argsort(order)
         else:
-            expected = self._expected_ring()
-            order = None if expected is None else identify_ring(blobs.centres, expected)
-        if order is None:
+            labels = self._identify_ring(blobs.centres)
+        if labels is None:
             return
-        ids = np.arange(self._n)
-        residual = self._pose.initialise(ids, blobs.centres[order], self.params.pixel_sigma)
-        if not residual <= self.params.init_max_residual:
+        residual = self._pose.initialise(labels, blobs.centres, p.pixel_sigma)
+        if not residual <= p.init_max_residual:
             return  # the labelled array does not fit the rigid layout: wait for a better frame
         # The lamps are identical (seed 002 §1.2), so radius x depth is the same for all; a
         # blob much smaller than its depth allows is a lamp partly hidden.
-        depth = (self._points - self._pose.t) @ self._pose.world_to_cam[2]
-        size = blobs.radii[order] * depth
+        depth = (self._points[labels] - self._pose.t) @ self._pose.world_to_cam[2]
+        size = blobs.radii * depth
         if size.max() > 1.3 * size.min():
             return
-        p0 = np.diag([1.0, 1.0, 100.0**2, 100.0**2, 1.0, 10.0**2])
+        projected, _, _, _ = self._pose.project()
+        typical_radius = float(np.median(blobs.radii))
+        detected = np.full(self._n, -1)
+        detected[labels] = np.arange(k)
         self._tracks = []
-        for j in order:
-            u, v = blobs.centres[j]
-            self._tracks.append(BlobEKF([u, v, 0.0, 0.0, blobs.radii[j], 0.0], p0))
-        self._status[:] = DETECTED
+        for i in range(self._n):
+            j = detected[i]
+            if j >= 0:  # from its blob
+                x0, var = [*blobs.centres[j], 0.0, 0.0, blobs.radii[j], 0.0], 1.0
+            else:  # not seen: where the array puts it
+                x0, var = [*projected[i], 0.0, 0.0, typical_radius, 0.0], 25.0
+            p0 = np.diag([var, var, 100.0**2, 100.0**2, 1.0, 10.0**2])
+            self._tracks.append(BlobEKF(x0, p0))
+        self._status = np.where(detected >= 0, DETECTED, PREDICTED)
         self._frames_without_detection = 0
         self._counts["initialisations"] += 1
 
-    def _expected_ring(self) -> np.ndarray | None:
-        """The lights as seen with the current attitude from 5 m in front of them (DS -x);
-        None when that view does not face them (the vehicle is turned away)."""
+    def _identify_ring(self, centres: np.ndarray) -> np.ndarray | None:
+        """The :func:`ring_labelings` candidate that best fits the rigid array with the
+        measured attitude, if it fits (RMS <= ``init_max_residual`` px) and no other comes
+        close (the runner-up must be twice as far off, and 2 px farther)."""
         centre = self._points.mean(axis=0)
-        pixels, _, _, front = self._pose.project(centre - np.array([5.0, 0.0, 0.0]))
-        return pixels if front.all() else None
+        # The lights' cyclic order in the image, as seen from 5 m in front of them (DS -x).
+        view, _, _, front = self._pose.project(centre - np.array([5.0, 0.0, 0.0]))
+        if not front.all():
+            return None  # turned away from the station: no nominal view to order them by
+        rel = view - view.mean(axis=0)
+        ring_order = np.argsort(np.arctan2(rel[:, 1], rel[:, 0]))
+        scored = []
+        for labels in ring_labelings(centres, ring_order):
+            scored.append((self._pose.fit_residual(labels, centres), labels))
+        scored.sort(key=lambda item: item[0])
+        best = scored[0][0]
+        runner_up = scored[1][0] if len(scored) > 1 else math.inf
+        if best > self.params.init_max_residual or runner_up < max(2.0 * best, best + 2.0):
+            return None
+        return scored[0][1]
 
     def _camera_displacement(self, body_rot: np.ndarray, world_velocity: np.ndarray):
         """Camera motion since the last frame: the DVL velocity (trapezoidal rule) moves the
@@ -963,6 +1000,6 @@ __all__ = [
     "SegmentationParams",
     "TrackerParams",
     "identify_l_shape",
-    "identify_ring",
+    "ring_labelings",
     "segment_lamps",
 ]
