@@ -200,6 +200,35 @@ def test_front_end_finds_marker_from_first_frame_without_truth(calm_rollout):
     assert front.stats()["ltat_initialised_at"] == 0
 
 
+def test_marker_cut_by_one_image_border_gives_the_corners_seen_in_both():
+    """Arm held still while the AUV drifts: the apex leaves the left image first
+    (seed 100004, from step 2; the right image keeps all three corners)."""
+    env = LARSCaptureEnv(obs_mode="stereo", sea_state="calm", control="position")
+    try:
+        obs, info = env.reset(seed=EVAL_SEED_MIN + 4)
+        lo, hi = env.calibration.joint_limits.T
+        hold = ((2.0 * obs["joint_position"] - lo - hi) / (hi - lo)).astype(np.float32)
+        front = LTATFrontEnd(env.calibration)
+        front.reset(0)
+        partial_frames = 0
+        for _ in range(12):
+            features = front(obs, {})
+            vis = features["visible"].astype(bool)
+            truth_vis = info["true_visible"].astype(bool)
+            if not vis.all():  # a partial report never claims a corner outside the image
+                assert not (vis & ~truth_vis).any()
+            if vis.any():
+                err = np.linalg.norm(features["pixels"] - info["true_pixels"], axis=2)[vis]
+                assert err.max() <= CORNER_TOLERANCE
+            if truth_vis[1].all() and not truth_vis[0, 2]:
+                partial_frames += vis[:, :2].all() and not vis[:, 2].any()
+            obs, _, _, _, info = env.step(hold)
+    finally:
+        env.close()
+    assert partial_frames >= 5
+    assert front.stats()["ltat_partial_frames"] >= 5
+
+
 def test_stereo_check_rejects_wrong_size_and_rows(calm_rollout):
     rollout, calibration = calm_rollout
     truth = rollout[0][1]["true_pixels"]

@@ -244,28 +244,35 @@ class MarkerCornerExtractor:
             normal = -normal
         return p + self.params.edge_offset * normal, d
 
-    def _refine(self, points, apex, base1, base2):
-        """Sub-pixel corners as intersections of local edge lines.
+    def _corner_fits(self, points, apex, base1, base2, slack: float = 0.0) -> list:
+        """Sub-pixel corners ``[apex, base1, base2]`` as intersections of local edge lines
+        (None where a fit lacks points).
 
         The legs are curves on the hull (the painted patch narrows around
         the cylinder) and the base is an arc, so each corner is where the
         tangent lines of its two edges *near that corner* meet: A3 from the
         apex halves of the legs, A1/A2 from the base end of the leg and the
-        nearest part of the base.
+        nearest part of the base. ``slack`` (px) widens the point selection
+        around the given polygon.
         """
         p = self.params
         centroid = (apex + base1 + base2) / 3.0
         trim = p.edge_trim
-        legs = [self._fit(self._side_points(points, apex, b, (trim, 0.5), 2.5), centroid)
+        legs = [self._fit(self._side_points(points, apex, b, (trim, 0.5), 2.5 + slack), centroid)
                 for b in (base1, base2)]
-        if legs[0] is None or legs[1] is None:
-            return None
-        corners = [_line_intersection(*legs[0], *legs[1])]
+        corners = [None if legs[0] is None or legs[1] is None
+                   else _line_intersection(*legs[0], *legs[1])]
         for base, other in ((base1, base2), (base2, base1)):
-            leg = self._fit(self._side_points(points, apex, base, (0.7, 1 - trim), 3.0), centroid)
-            tol = max(3.0, 0.15 * float(np.linalg.norm(other - base)))
+            leg = self._fit(self._side_points(points, apex, base, (0.7, 1 - trim), 3.0 + slack),
+                            centroid)
+            tol = max(3.0, 0.15 * float(np.linalg.norm(other - base))) + slack
             end = self._fit(self._side_points(points, base, other, (trim, 0.2), tol), centroid)
             corners.append(None if leg is None or end is None else _line_intersection(*leg, *end))
+        return corners
+
+    def _refine(self, points, apex, base1, base2):
+        """All three corners refined (:meth:`_corner_fits`), or None."""
+        corners = self._corner_fits(points, apex, base1, base2)
         if any(c is None for c in corners):
             return None
         refined = np.array(corners)
@@ -274,6 +281,45 @@ class MarkerCornerExtractor:
         if np.linalg.norm(refined - np.array([apex, base1, base2]), axis=1).max() > 0.15 * scale:
             return None
         return refined
+
+    def find_partial(self, image: np.ndarray, predicted: np.ndarray, margin: float = 8.0,
+                     max_shift: float = 6.0) -> np.ndarray | None:
+        """Corners of a marker cut by the image border, near ``predicted`` (3, 2) A1-A3.
+
+        ``predicted`` comes from the other view (the same rows, shifted by the
+        disparity). Each predicted corner at least ``margin`` px inside the
+        image is refined from the red blob's edges near it and kept if it
+        moved at most ``max_shift`` px. Returns (3, 2) with NaN rows for the
+        corners not found, or None if none was.
+        """
+        h, w = image.shape[:2]
+        pred = np.asarray(predicted, dtype=float)
+        inside = ((pred[:, 0] >= margin) & (pred[:, 0] < w - margin)
+                  & (pred[:, 1] >= margin) & (pred[:, 1] < h - margin))
+        if not inside.any():
+            return None
+        pad = self.params.pad * float(np.ptp(pred, axis=0).max())
+        x0, y0 = (max(0, int(v - pad)) for v in pred.min(axis=0))
+        x1 = min(w, int(math.ceil(pred[:, 0].max() + pad)))
+        y1 = min(h, int(math.ceil(pred[:, 1].max() + pad)))
+        if x1 - x0 < 4 or y1 - y0 < 4:
+            return None
+        mask = self.red_mask(image[y0:y1, x0:x1])
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not contours:
+            return None
+        contour = max(contours, key=cv2.contourArea)
+        if cv2.contourArea(contour) < self.params.min_area:
+            return None
+        offset = np.array([x0 + 0.5, y0 + 0.5])
+        local = pred - offset
+        fits = self._corner_fits(contour.reshape(-1, 2).astype(float), local[2], local[0],
+                                 local[1], slack=2.0)
+        out = np.full((3, 2), np.nan)
+        for k, fit in zip((2, 0, 1), fits, strict=True):
+            if inside[k] and fit is not None and np.linalg.norm(fit - local[k]) <= max_shift:
+                out[k] = fit + offset
+        return out if np.isfinite(out).any() else None
 
 
 def stereo_check(
@@ -516,6 +562,9 @@ class LTATParams:
             corrects the tracker's drift in position and size.
         verify_pad: a detection's corners are searched in its box grown by
             this fraction per side.
+        partial_corners: when one view sees the whole marker and the other
+            only part of it (cut by the image border), report the corners
+            seen in both (:meth:`LTATracker._partial`).
     """
 
     lost_score: float = 0.35
@@ -527,6 +576,7 @@ class LTATParams:
     lookalike_spread: float = 0.04
     snap_to_corners: bool = True
     verify_pad: float = 0.5
+    partial_corners: bool = True
 
 
 @dataclasses.dataclass
@@ -538,14 +588,16 @@ class LTATOutput:
         scores: (2,) the Siamese tracker's scores (NaN on a frame where a
             verified detection re-seeded the tracker).
         lost: (2,) whether each view has lost the target this frame.
-        corners: (2, 3, 2) A1, A2, A3 in both views, or None when they were
-            not found in both or failed the stereo check.
+        corners: (2, 3, 2) A1, A2, A3 in both views, NaN for a corner not
+            seen in both; None when none passed the stereo check.
+        visible: (2, 3) which corners are given.
     """
 
     boxes: np.ndarray
     scores: np.ndarray
     lost: np.ndarray
     corners: np.ndarray | None
+    visible: np.ndarray
 
 
 class LTATracker:
@@ -645,6 +697,8 @@ class LTATracker:
                         self.tracker.set_box(v, boxes[v])
                 if scores.min() >= p.confident_score:
                     self._learn(pyramids, boxes, corners)
+            elif check == "missing" and p.partial_corners:
+                corners = self._partial(images, found)
             if check == "size":
                 self._wrong_size.append(float(np.mean(
                     marker_side_ratios(found[0], found[1], self.rig, self.marker_sides))))
@@ -660,7 +714,46 @@ class LTATracker:
                 self._reject(pyramids, images, boxes, scores)
         else:
             self._wrong_size.clear()
-        return LTATOutput(boxes, scores, lost, corners)
+        visible = np.zeros((2, 3), dtype=bool) if corners is None else np.isfinite(corners[..., 0])
+        return LTATOutput(boxes, scores, lost, corners, visible)
+
+    def _partial(self, images, found) -> np.ndarray | None:
+        """Corners of a marker that one view sees whole and the other cut by its border.
+
+        The cut view's corners are searched near the whole view's, moved by
+        the last verified disparity along the rows
+        (:meth:`MarkerCornerExtractor.find_partial`); those found must sit on
+        the same rows with a positive disparity, and with both base corners
+        the triangulated base must have the marker's length. Returns (2, 3, 2)
+        with NaN for the corners not seen in both views, or None.
+        """
+        if (found[0] is None) == (found[1] is None) or self.disparity is None:
+            return None
+        p = self.params
+        whole = 0 if found[0] is not None else 1
+        cut = 1 - whole
+        shift = -self.disparity if cut == 1 else self.disparity
+        partial = self.extractor.find_partial(images[cut], found[whole] + (shift, 0.0))
+        if partial is None:
+            return None
+        corners = np.full((2, 3, 2), np.nan)
+        corners[whole], corners[cut] = found[whole], partial
+        seen = np.isfinite(partial[:, 0])
+        left, right = corners[0, seen], corners[1, seen]
+        if np.abs(left[:, 1] - right[:, 1]).max() > p.row_tolerance:
+            return None
+        if (left[:, 0] - right[:, 0] - (self.rig.left.cx - self.rig.right.cx)).min() <= 0.0:
+            return None
+        if seen[0] and seen[1]:
+            ends = triangulate(self.rig, left[:2], right[:2])
+            base = float(np.linalg.norm(ends[0] - ends[1]))
+            if abs(base / self.marker_sides[0] - 1.0) > p.size_tolerance:
+                return None
+        corners[:, ~seen] = np.nan
+        # Follow the depth while the marker stays cut (the next prediction).
+        self.disparity = float(np.mean(left[:, 0] - right[:, 0]))
+        self.counts["partial"] += 1
+        return corners
 
     def _reject(self, pyramids, images, boxes, scores) -> None:
         """The tracked boxes are a distractor: negatives for the detector, then re-detect.
@@ -770,8 +863,10 @@ class LTATFrontEnd:
     ``__call__(observation, info) -> features`` (``pixels`` (2, 3, 2)
     float32, zero where not visible; ``visible`` (2, 3) int8;
     ``joint_position``/``joint_velocity`` passed through), ``stats()``.
-    ``info`` is never read. Corners are reported only when found in both
-    views and verified by :func:`match_stereo` (all three or none).
+    ``info`` is never read. Corners are reported when found in both views
+    and verified by :func:`stereo_check` (all three), or, with the marker
+    cut by one image's border, those seen in both that pass the row and
+    base-length checks (:meth:`LTATracker._partial`).
 
     Until the marker is first found the front end runs
     :func:`find_marker_pair` on every frame (see the module docstring);
@@ -812,7 +907,6 @@ class LTATFrontEnd:
             if image.shape != self._size or image.dtype != np.uint8:
                 raise ValueError(f"{name} image must be {self._size} uint8 (the calibration's "
                                  f"size), got {image.shape} {image.dtype}")
-        corners = None
         if not self.ltat.started:
             corners = find_marker_pair(self.ltat.extractor, left, right, self.rig,
                                        self.marker_sides, self.params.row_tolerance,
@@ -821,16 +915,17 @@ class LTATFrontEnd:
                 boxes = np.array([marker_box(corners[v]) for v in range(2)])
                 self.ltat.start([Pyramid(left), Pyramid(right)], boxes)
                 self.initialised_at = self.frames
-                self.last_output = LTATOutput(boxes, np.ones(2), np.zeros(2, bool), corners)
+                self.last_output = LTATOutput(boxes, np.ones(2), np.zeros(2, bool), corners,
+                                              np.ones((2, 3), dtype=bool))
         else:
             self.last_output = self.ltat.step([Pyramid(left), Pyramid(right)], (left, right))
-            corners = self.last_output.corners
         self.frames += 1
         pixels = np.zeros((2, 3, 2), dtype=np.float32)
         visible = np.zeros((2, 3), dtype=np.int8)
-        if corners is not None:
-            pixels[:] = corners
-            visible[:] = 1
+        out = self.last_output
+        if out is not None and out.corners is not None:
+            pixels[out.visible] = out.corners[out.visible]
+            visible[out.visible] = 1
         self.seconds += time.perf_counter() - start
         return {
             "pixels": pixels,
@@ -848,6 +943,7 @@ class LTATFrontEnd:
             "ltat_lost_views": c["lost_views"],
             "ltat_redetections": c["redetections"],
             "ltat_stereo_transfers": c["transfers"],
+            "ltat_partial_frames": c["partial"],
             "ltat_detector_fits": self.ltat.detector.fits,
             "ltat_ms_per_frame": 1e3 * self.seconds / max(self.frames, 1),
         }
