@@ -289,6 +289,29 @@ def test_image_mode_trains_with_multi_input_policy(tmp_path):
     assert isinstance(model.policy, MultiInputActorCriticPolicy)
 
 
+@pytest.mark.parametrize(
+    ("algo", "overrides"),
+    [
+        ("a2c", {"n_steps": 8, "n_envs": 2}),
+        ("td3", {"learning_starts": 32, "batch_size": 16}),
+        ("ddpg", {"learning_starts": 32, "batch_size": 16}),
+    ],
+)
+def test_other_algorithms_train_on_dict_observations(algo, overrides, tmp_path):
+    config = resolve_config(algo, "auv_envs/LARSCapture-v0", 0, {
+        **overrides, "obs_mode": "features", "n_timesteps": 64, "n_eval_episodes": 1,
+        "eval_freq": 64, "checkpoint_freq": 32, "policy_kwargs": {"net_arch": [8, 8]},
+    })
+    result = training.train(config, tmp_path / algo, progress_bar=False, echo=False)
+    assert result.finished and result.steps >= 64
+    spec = agents.policy_spec(tmp_path / algo / "final")
+    env = make_env("auv_envs/LARSCapture-v0", "features")
+    row = run_episode(env, spec.factory(env.unwrapped), TRAIN_EVAL_SEED_BASE,
+                      "auv_envs/LARSCapture-v0", algo)
+    assert row.length > 0
+    env.close()
+
+
 # -------------------------------------------------------------------- agents
 def test_exported_policy_acts_as_in_training(ppo_runs, tmp_path):
     """The exported agent reproduces the final held-out evaluation of training exactly."""
