@@ -30,10 +30,15 @@ Our choices where seed 002 is silent, each measured on this package's renders:
   ``LampArrayDocking-v0`` clips their lower edge; the first moment was then 1.1-1.2 px off the
   projected centre, the circle centre <= 0.5 px).
 * The rigid-array prediction comes from a small EKF on the camera position, fed by the INS
-  attitude and DVL velocity that the observation carries and by the tracked lamps. It keeps
-  out-of-view lamps predicted where the array puts them, so they are re-acquired correctly.
-* Lamps whose blobs merge (overlapping in the image) are reported at their prediction, and the
-  merged blob informs the array through the mean of its members' projections.
+  attitude and DVL velocity that the observation carries and by the tracked lamps; each update
+  also estimates that frame's INS attitude error. It keeps out-of-view lamps predicted where
+  the array puts them, so they are re-acquired under the right label.
+* A lamp is reported visible only when its centre is: the pixels where the rest of the array
+  puts the centre must be lit. A lamp half hidden by the fork or the image border leaves a
+  blob whose circle is biased; the env, too, calls a lamp visible when the line of sight to
+  its centre is clear.
+* Lamps whose blobs merge (overlapping in the image) are reported where the array, fitted to
+  the merged blob through the mean of its members' projections, puts them.
 """
 
 from __future__ import annotations
