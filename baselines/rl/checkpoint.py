@@ -42,9 +42,9 @@ import numpy as np
 import torch
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
+from auv_envs.core.assets import sha256_file, verify_sha256
 from baselines.rl.config import ALGORITHMS, OFF_POLICY, TrainConfig
 from baselines.rl.envs import make_vec_env
-from baselines.rl.policy import sha256
 
 FORMAT = 1
 MODEL = "model.zip"
@@ -123,7 +123,7 @@ def write_checkpoint(root: Path, model, config: TrainConfig, extra: dict, keep: 
     }
     with open(tmp / STATE, "wb") as handle:
         cloudpickle.dump(state, handle)
-    files = {p.name: sha256(p) for p in sorted(tmp.iterdir())}
+    files = {p.name: sha256_file(p) for p in sorted(tmp.iterdir())}
     manifest = {
         "format": FORMAT,
         "step": step,
@@ -174,14 +174,7 @@ def verify_checkpoint(path: Path, config: TrainConfig) -> dict:
         raise CheckpointError(
             f"checkpoint {path} has format {manifest.get('format')!r}, this version reads {FORMAT}"
         )
-    for name, expected in files.items():
-        file = path / name
-        if not file.is_file():
-            raise CheckpointError(f"checkpoint {path} is incomplete: {name} missing")
-        if sha256(file) != expected:
-            raise CheckpointError(
-                f"checkpoint {path} is corrupt: {name} does not match its recorded SHA-256"
-            )
+    verify_sha256(path, files, CheckpointError)
     required = {MODEL, STATE} | ({REPLAY_BUFFER} if config.algo in OFF_POLICY else set())
     if not required <= set(files):
         raise CheckpointError(f"checkpoint {path} lacks {sorted(required - set(files))}")

@@ -12,7 +12,6 @@ acting wrongly.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import pickle
 from pathlib import Path
@@ -24,7 +23,7 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import VecNormalize
 
-from auv_envs.core.assets import asset_root
+from auv_envs.core.assets import asset_root, verify_sha256
 from baselines.rl.config import ALGORITHMS
 from baselines.rl.envs import wrap_env
 
@@ -46,13 +45,6 @@ class PolicyFileError(RuntimeError):
     """A policy directory whose files are missing, corrupt or inconsistent."""
 
 
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
 
 def read_manifest(directory: Path) -> dict:
     """``policy.json`` of a policy directory, checked for the keys an agent needs."""
@@ -73,15 +65,7 @@ def read_manifest(directory: Path) -> dict:
 
 def verify_files(directory: Path, files: dict[str, str]) -> None:
     """Every file in ``files`` (name -> SHA-256) exists under ``directory`` with that digest."""
-    directory = Path(directory)
-    for name, expected in files.items():
-        path = directory / name
-        if not path.is_file():
-            raise PolicyFileError(f"file missing: {path}")
-        if sha256(path) != expected:
-            raise PolicyFileError(
-                f"file {path} is corrupt or was changed (SHA-256 differs from the one recorded)"
-            )
+    verify_sha256(directory, files, PolicyFileError)
 
 
 def load_normalizer(path: Path) -> VecNormalize:

@@ -47,6 +47,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.utils import LinearSchedule
 
 import auv_envs
+from auv_envs.core.assets import sha256_file
 from baselines.evaluation import run_episode
 from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
@@ -60,7 +61,7 @@ from baselines.rl.config import (
     validate,
 )
 from baselines.rl.envs import make_vec_env
-from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, PolicyAgent, sha256
+from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, PolicyAgent
 
 #: ``policy_kwargs.activation_fn`` names (a YAML file cannot name a class safely).
 ACTIVATIONS = {
@@ -245,7 +246,7 @@ def write_final(run: RunDirectory, model, config: TrainConfig) -> Path:
         "env_kwargs": config.run["env_kwargs"],
         "flatten_obs": config.run["flatten_obs"],
         "steps": int(model.num_timesteps),
-        "files": {name: sha256(run.final / name) for name in files},
+        "files": {name: sha256_file(run.final / name) for name in files},
     }
     (run.final / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2))
     return run.final
