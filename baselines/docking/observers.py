@@ -330,6 +330,25 @@ def initial_state(model: VisualObservationModel, meas: Measurement, noise: Obser
     return state(best.x), cov
 
 
+def initial_augmented_state(
+    model: VisualObservationModel, meas: Measurement, noise: ObserverNoise, d0_cov: np.ndarray
+):
+    """:func:`initial_state` extended by a zero disturbance with covariance ``d0_cov``.
+
+    Returns:
+        ``(augmented state (12,), covariance (12, 12))`` or ``None`` as
+        :func:`initial_state`.
+    """
+    init = initial_state(model, meas, noise)
+    if init is None:
+        return None
+    x0, p0 = init
+    cov = np.zeros((N_AUG, N_AUG))
+    cov[:N_STATE, :N_STATE] = p0
+    cov[N_STATE:, N_STATE:] = d0_cov
+    return np.concatenate([x0, np.zeros(N_INPUT)]), cov
+
+
 def _unwrap_yaw(meas: Measurement, psi: float) -> np.ndarray:
     """The measurement with its yaw moved to within pi of the state's heading."""
     z = meas.z.copy()
@@ -371,14 +390,10 @@ class DockingEKF:
         """
         meas = Measurement.from_features(observation, self.visual.n_lights)
         if not self.initialised:
-            init = initial_state(self.visual, meas, self.noise)
+            init = initial_augmented_state(self.visual, meas, self.noise, self._d0_cov)
             if init is None:
                 return None
-            x0, p0 = init
-            cov = np.zeros((N_AUG, N_AUG))
-            cov[:N_STATE, :N_STATE] = p0
-            cov[N_STATE:, N_STATE:] = self._d0_cov
-            self.filter.initialise(np.concatenate([x0, np.zeros(N_INPUT)]), cov)
+            self.filter.initialise(*init)
             self.initialised = True
         else:
             self.filter.predict(np.asarray(tau_applied, dtype=float))
@@ -532,15 +547,11 @@ class DockingMHE:
         meas = Measurement.from_features(observation, self.visual.n_lights)
         tau_applied = np.asarray(tau_applied, dtype=float)
         if self._count == 0:
-            init = initial_state(self.visual, meas, self.noise)
+            init = initial_augmented_state(self.visual, meas, self.noise, self._d0_cov)
             if init is None:
                 return None
-            x0, p0 = init
-            cov = np.zeros((N_AUG, N_AUG))
-            cov[:N_STATE, :N_STATE] = p0
-            cov[N_STATE:, N_STATE:] = self._d0_cov
-            self._arrival.initialise(np.concatenate([x0, np.zeros(N_INPUT)]), cov)
-            self._guess[: N_STATE * m] = np.tile(x0, m)
+            self._arrival.initialise(*init)
+            self._guess[: N_STATE * m] = np.tile(init[0][:N_STATE], m)
         elif self._count < m:
             self._tau[:, self._count - 1] = tau_applied
         else:
