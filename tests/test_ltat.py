@@ -18,6 +18,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
+from auv_envs.core.assets import sha256_file  # noqa: E402
 from auv_envs.datasets.lars import tracking_action  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 from baselines.lars.ltat import (  # noqa: E402
@@ -159,9 +160,7 @@ def test_weights_of_another_shape_are_refused(tmp_path):
     state.pop(next(iter(state)))
     torch.save(state, target / WEIGHTS_FILE)
     meta = json.loads((target / META_FILE).read_text())
-    from baselines.lars.siamese import _sha256
-
-    meta["weights_sha256"] = _sha256(target / WEIGHTS_FILE)
+    meta["weights_sha256"] = sha256_file(target / WEIGHTS_FILE)
     (target / META_FILE).write_text(json.dumps(meta))
     with pytest.raises(ValueError, match="cannot load"):
         load_siamese(target)

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -59,6 +58,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from auv_envs.core.assets import sha256_file
 
 TEMPLATE_SIZE = 64
 SEARCH_SIZE = 128
@@ -235,14 +236,6 @@ def cell_centres() -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- weights
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def default_weights_dir() -> Path:
     from auv_envs.core.assets import asset_root
 
@@ -271,7 +264,7 @@ def load_siamese(directory: str | Path | None = None) -> tuple[SiameseNet, dict]
         recorded_arch = meta["architecture"]
     except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as exc:
         raise ValueError(f"corrupt Siamese tracker metadata {meta_path}: {exc}; {hint}") from exc
-    actual_sha = _sha256(weights_path)
+    actual_sha = sha256_file(weights_path)
     if actual_sha != recorded_sha:
         raise ValueError(
             f"Siamese tracker weights {weights_path} are corrupt or do not match {meta_path}: "
@@ -777,7 +770,7 @@ def train(out: Path, data_dir: Path, seed: int = 0, per_sea_state: int = 12, ste
         "torch_version": torch.__version__,
         "architecture": ARCHITECTURE,
         "validation": val,
-        "weights_sha256": _sha256(weights_path),
+        "weights_sha256": sha256_file(weights_path),
     }
     (out / META_FILE).write_text(json.dumps(meta, indent=2) + "\n")
     log(f"wrote {weights_path} ({weights_path.stat().st_size / 1e6:.2f} MB) and {out / META_FILE}")
