@@ -5,6 +5,7 @@ Deliberately functions and one mixin rather than a base class of empty hooks.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Iterable
 
@@ -66,10 +67,26 @@ def set_physics_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndar
 class ReconstructingPickleMixin:
     """Pickle an env as its constructor arguments plus its explicit run-time state.
 
-    The class must set ``self._init_kwargs`` in ``__init__`` and implement
-    ``_get_runtime_state()`` / ``_set_runtime_state(state)``. MuJoCo models,
-    data and renderers are rebuilt rather than pickled.
+    The class must set ``self._init_kwargs`` in ``__init__``. The run-time
+    state is, by default, MuJoCo's integration state of ``self._physics``
+    (an object with ``model`` and ``data``) plus a deep copy of
+    ``self._episode`` (everything else that changes during an episode); a
+    class that keeps more overrides ``_get_runtime_state()`` /
+    ``_set_runtime_state(state)`` and calls these. MuJoCo models, data and
+    renderers are rebuilt rather than pickled.
     """
+
+    def _get_runtime_state(self) -> dict:
+        physics = self._physics
+        return {
+            "physics": get_physics_state(physics.model, physics.data),
+            "episode": copy.deepcopy(self._episode),
+        }
+
+    def _set_runtime_state(self, state: dict) -> None:
+        physics = self._physics
+        set_physics_state(physics.model, physics.data, state["physics"])
+        self._episode = copy.deepcopy(state["episode"])
 
     def __getstate__(self):
         rng = getattr(self, "_np_random", None)

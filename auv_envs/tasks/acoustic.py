@@ -15,7 +15,6 @@ device, not a change of model) and many times faster.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 
@@ -31,9 +30,7 @@ from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    get_physics_state,
     reject_unknown_kwargs,
-    set_physics_state,
     validate_action,
 )
 
@@ -550,16 +547,3 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         if ep.static_point is not None:
             out["static_point"] = ep.static_point
         return out
-
-    # ------------------------------------------------------------------ pickling
-    def _get_runtime_state(self) -> dict:
-        physics = self._physics
-        return {
-            "physics": get_physics_state(physics.model, physics.data),
-            "episode": copy.deepcopy(self._episode),
-        }
-
-    def _set_runtime_state(self, state: dict) -> None:
-        physics = self._physics
-        set_physics_state(physics.model, physics.data, state["physics"])
-        self._episode = copy.deepcopy(state["episode"])

@@ -32,9 +32,7 @@ from auv_envs.core.camera import (
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    get_physics_state,
     reject_unknown_kwargs,
-    set_physics_state,
     validate_action,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
@@ -255,9 +253,6 @@ class _EpisodeState:
     fov_violations: int = 0
     control_effort: float = 0.0
     min_lights_visible: int = 0
-
-    def copy(self) -> _EpisodeState:
-        return dataclasses.replace(self, current=self.current.copy())
 
 
 class DockingEnv(ReconstructingPickleMixin, gym.Env):
@@ -699,19 +694,6 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "min_lights_visible": ep.min_lights_visible,
             "control_effort": ep.control_effort,
         }
-
-    # ------------------------------------------------------------------ pickling
-    def _get_runtime_state(self) -> dict:
-        physics = self._physics
-        return {
-            "physics": get_physics_state(physics.model, physics.data),
-            "episode": self._episode.copy(),
-        }
-
-    def _set_runtime_state(self, state: dict) -> None:
-        physics = self._physics
-        set_physics_state(physics.model, physics.data, state["physics"])
-        self._episode = state["episode"].copy()
 
 
 _NO_VIOLATIONS = {"fov": False, "behind_entrance": False, "seabed": False}

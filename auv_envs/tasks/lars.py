@@ -20,9 +20,7 @@ from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    get_physics_state,
     reject_unknown_kwargs,
-    set_physics_state,
     validate_action,
 )
 from auv_envs.core.rendering import CameraRenderer
@@ -195,9 +193,6 @@ class _EpisodeState:
     occluded_steps: int = 0
     distractor_steps: int = 0
     control_effort: float = 0.0
-
-    def copy(self) -> _EpisodeState:
-        return dataclasses.replace(self)
 
 
 class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
@@ -815,16 +810,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         }
 
     # ------------------------------------------------------------------ pickling
-    def _get_runtime_state(self) -> dict:
-        physics = self._physics
-        return {
-            "physics": get_physics_state(physics.model, physics.data),
-            "episode": self._episode.copy(),
-        }
-
     def _set_runtime_state(self, state: dict) -> None:
-        physics = self._physics
-        set_physics_state(physics.model, physics.data, state["physics"])
-        self._episode = state["episode"].copy()
+        super()._set_runtime_state(state)
         if self._episode.motion is not None:
             self._prepare_episode_constants(self._episode.motion)
