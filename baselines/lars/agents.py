@@ -36,6 +36,8 @@ from baselines.lars.ckf import (
 )
 from baselines.lars.control import (
     FOLLOW,
+    KD,
+    KP,
     STRIKE,
     CaptureStrategy,
     ComputedTorquePD,
@@ -115,7 +117,7 @@ class CKFPDAgent:
                  heave_omega_bounds=(0.5, 1.6), attitude_memory: int = 50,
                  relock_after: float = 1.0, settle_time: float = 0.5,
                  adapt_pixel_noise: bool = True, strike: bool = True,
-                 kp: float = 160.0, kd: float = 20.0):
+                 kp: float = KP, kd: float = KD):
         cal = _check_env(env)
         self.calibration = cal
         self.dt = float(cal.control_period)

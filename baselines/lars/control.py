@@ -25,8 +25,11 @@ import math
 
 import numpy as np
 
-#: Seed 000, eq. 30 and §3.4: "Kp = 160 and Kd = 20".
-KP, KD = 160.0, 20.0
+from auv_envs.tasks.lars import POSITION_GAINS
+
+#: Seed 000, eq. 30 and §3.4: "Kp = 160 and Kd = 20" (the gains the env's
+#: ``control="position"`` inner loop uses, ``calibration.position_gains``).
+KP, KD = POSITION_GAINS
 
 
 @dataclasses.dataclass(frozen=True)
