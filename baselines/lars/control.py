@@ -31,6 +31,11 @@ from auv_envs.tasks.lars import POSITION_GAINS
 #: ``control="position"`` inner loop uses, ``calibration.position_gains``).
 KP, KD = POSITION_GAINS
 
+# Powers and derivative factors of the quintic, built once (evaluated every step).
+_EXPONENTS = np.arange(6)
+_RATE_FACTORS = np.arange(1, 6)
+_ACCEL_FACTORS = np.array([2.0, 6.0, 12.0, 20.0])
+
 
 @dataclasses.dataclass(frozen=True)
 class QuinticSegment:
@@ -73,10 +78,10 @@ class QuinticSegment:
         """Position, velocity and acceleration at ``t``, clamped to ``[t0, t1]``."""
         tau = min(max(float(t), self.t0), self.t1) - self.t0
         c = self.coefficients
-        powers = tau ** np.arange(6)
+        powers = tau**_EXPONENTS
         p = powers @ c
-        v = (np.arange(1, 6) * powers[:5]) @ c[1:]
-        a = (np.array([2.0, 6.0, 12.0, 20.0]) * powers[:4]) @ c[2:]
+        v = (_RATE_FACTORS * powers[:5]) @ c[1:]
+        a = (_ACCEL_FACTORS * powers[:4]) @ c[2:]
         return p, v, a
 
 
