@@ -289,16 +289,30 @@ def run_task(task: EpisodeTask, agent_modules: Sequence[str] = ()) -> EpisodeRow
 
 
 # --------------------------------------------------------------------- cache
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+#: Mode of a file :func:`atomic_write` creates: what ``open(path, "w")`` would
+#: give (``mkstemp`` alone creates 0600 files, unreadable to a web server
+#: serving the leaderboard).
+_FILE_MODE = 0o666 & ~_umask()
+
+
 def atomic_write(path: str | Path, data: str | bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``.
 
-    Readers see the old file or the whole new one, never a partial write.
+    Readers see the old file or the whole new one, never a partial write. The
+    file gets the permissions of a plain ``open(path, "w")`` (0666 less the umask).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as handle:
+            os.fchmod(handle.fileno(), _FILE_MODE)
             handle.write(data.encode() if isinstance(data, str) else data)
             handle.flush()
             os.fsync(handle.fileno())

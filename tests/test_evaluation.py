@@ -377,6 +377,9 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
     evaluation.atomic_write(target, "old")
     evaluation.atomic_write(target, b"new")
     assert target.read_text() == "new"
+    plain = tmp_path / "plain"
+    plain.write_text("x")
+    assert target.stat().st_mode == plain.stat().st_mode  # not mkstemp's 0600
 
     def failing_replace(src, dst):
         raise OSError("disk full")
