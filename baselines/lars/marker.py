@@ -153,6 +153,7 @@ class MarkerLocaliser:
         self.reset()
         marker = calibration.marker
         self._body = np.asarray(marker.corners, dtype=float)
+        self._body_centre = self._body.mean(axis=0)
         self._depth_offset = float(marker.depth_offset)
         self._capture_body = np.asarray(calibration.capture_point_body, dtype=float)
 
@@ -241,4 +242,4 @@ class MarkerLocaliser:
 
     def marker_centre(self, cg, rotation: np.ndarray) -> np.ndarray:
         """The centroid of the three corners in the world."""
-        return np.asarray(cg, dtype=float) + rotation @ self._body.mean(axis=0)
+        return np.asarray(cg, dtype=float) + rotation @ self._body_centre
