@@ -67,7 +67,8 @@ def set_physics_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndar
 class ReconstructingPickleMixin:
     """Pickle an env as its constructor arguments plus its explicit run-time state.
 
-    The class must set ``self._init_kwargs`` in ``__init__``. The run-time
+    The class must record its arguments in ``__init__`` with
+    :meth:`_accept_arguments` (or set ``self._init_kwargs``). The run-time
     state is, by default, MuJoCo's integration state of ``self._physics``
     (an object with ``model`` and ``data``) plus a deep copy of
     ``self._episode`` (everything else that changes during an episode); a
@@ -75,6 +76,21 @@ class ReconstructingPickleMixin:
     ``_set_runtime_state(state)`` and calls these. MuJoCo models, data and
     renderers are rebuilt rather than pickled.
     """
+
+    def _accept_arguments(self, unknown: dict, **arguments) -> None:
+        """Record the constructor ``arguments`` and check the ones every env shares.
+
+        Sets ``self._init_kwargs`` (what pickling rebuilds the env from); unknown
+        keywords raise ``TypeError`` listing the valid ones; ``obs_mode`` must be
+        one of the class's ``obs_modes`` and ``render_mode`` None or one of
+        ``metadata["render_modes"]`` (``ValueError`` naming the valid values).
+        """
+        self._init_kwargs = dict(arguments)
+        reject_unknown_kwargs(unknown, arguments, type(self).__name__)
+        check_choice("obs_mode", arguments["obs_mode"], self.obs_modes)
+        check_choice(
+            "render_mode", arguments["render_mode"], (None, *self.metadata["render_modes"])
+        )
 
     def _get_runtime_state(self) -> dict:
         physics = self._physics

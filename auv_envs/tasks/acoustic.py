@@ -30,7 +30,6 @@ from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    reject_unknown_kwargs,
     validate_action,
 )
 
@@ -327,17 +326,15 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         render_mode: str | None = None,
         **unknown,
     ):
-        self._init_kwargs = dict(
+        self._accept_arguments(
+            unknown,
             obs_mode=obs_mode, disturbance=disturbance, trajectory=trajectory,
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
             render_mode=render_mode,
         )
-        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
-        check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("disturbance", disturbance, tuple(DISTURBANCES))
         check_choice("trajectory", trajectory, TRAJECTORIES)
-        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         if static_point is not None:
             check_choice("static_point", static_point, range(1, len(STATIC_POINTS) + 1))
         for name in ("time_limit", "error_clip", "track_gate", "success_radius"):

@@ -32,7 +32,6 @@ from auv_envs.core.camera import (
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    reject_unknown_kwargs,
     validate_action,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
@@ -358,17 +357,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         render_mode: str | None = None,
         **unknown,
     ):
-        self._init_kwargs = dict(
+        self._accept_arguments(
+            unknown,
             obs_mode=obs_mode, scenario=scenario, current_direction=current_direction,
             image_size=tuple(image_size), model_mismatch=model_mismatch,
             damping_mismatch=tuple(damping_mismatch), tolerances=tolerances,
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, render_mode=render_mode,
         )
-        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
-        check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("scenario", scenario, SCENARIOS)
-        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         width, height = (int(s) for s in image_size)
         if time_limit <= 0 or lights_lost_timeout <= 0:
             raise ValueError("time_limit and lights_lost_timeout must be positive")

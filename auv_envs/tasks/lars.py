@@ -20,7 +20,6 @@ from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
-    reject_unknown_kwargs,
     validate_action,
 )
 from auv_envs.core.rendering import CameraRenderer
@@ -311,17 +310,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         render_mode: str | None = None,
         **unknown,
     ):
-        self._init_kwargs = dict(
+        self._accept_arguments(
+            unknown,
             obs_mode=obs_mode, sea_state=sea_state, control=control,
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
             render_mode=render_mode,
         )
-        reject_unknown_kwargs(unknown, self._init_kwargs, type(self).__name__)
-        check_choice("obs_mode", obs_mode, OBS_MODES)
         check_choice("sea_state", sea_state, SEA_STATES)
         check_choice("control", control, CONTROLS)
-        check_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         if len(tuple(image_size)) != 2:
             raise ValueError(f"image_size must be (width, height), got {image_size!r}")
         width, height = (int(v) for v in image_size)
