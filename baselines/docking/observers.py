@@ -36,7 +36,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import least_squares
 
-from auv_envs.core.frames import rotation_from_euler
+from auv_envs.core.frames import rotation_from_euler, wrap_angle
 from auv_envs.core.hydrodynamics import NominalModel
 
 N_STATE = 8
@@ -58,11 +58,6 @@ def rotation_zyx(roll, pitch, yaw):
         ca.horzcat(sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
         ca.horzcat(-sp, cp * sr, cp * cr),
     )
-
-
-def wrap(angle: float) -> float:
-    """Wrap to ``[-pi, pi)``."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class VisualObservationModel:
@@ -300,7 +295,7 @@ def initial_state(model: VisualObservationModel, meas: Measurement, noise: Obser
     def residual(p):
         h, _ = model.evaluate(state(p), meas.attitude)
         r = meas.z[pose_rows] - h[pose_rows]
-        r[-1] = wrap(r[-1])
+        r[-1] = wrap_angle(r[-1])
         return r / std
 
     def jacobian(p):
@@ -352,7 +347,7 @@ def initial_augmented_state(
 def _unwrap_yaw(meas: Measurement, psi: float) -> np.ndarray:
     """The measurement with its yaw moved to within pi of the state's heading."""
     z = meas.z.copy()
-    z[-1] = psi + wrap(z[-1] - psi)
+    z[-1] = psi + wrap_angle(z[-1] - psi)
     return z
 
 
