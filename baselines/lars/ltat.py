@@ -410,6 +410,19 @@ class _FrameFeatures:
     centres: np.ndarray  # (N, 2) image pixels
     cell: float  # image pixels per feature cell
 
+    def window_on(self, box, reach: float = 0.75) -> tuple[int | None, np.ndarray]:
+        """The window on ``box``'s centre and every window's distance to it (cells).
+
+        The index is None when no window centre lies within ``reach`` cells
+        (or the frame has no window).
+        """
+        if len(self.descriptors) == 0:
+            return None, np.zeros(0)
+        cx, cy, _, _ = box_centre_size(box)
+        dist = np.hypot(self.centres[:, 0] - cx, self.centres[:, 1] - cy) / self.cell
+        nearest = int(np.argmin(dist))
+        return (None if dist[nearest] > reach else nearest), dist
+
 
 class OnlineDetector:
     """A window classifier learnt during the episode (seed 000 §2.1.2's online detector).
@@ -482,14 +495,10 @@ class OnlineDetector:
         Returns whether a positive was added (the box centre must fall within
         0.75 of a cell of a window centre).
         """
-        if len(feats.descriptors) == 0:
+        nearest, dist = feats.window_on(box)
+        if nearest is None:
             return False
         p = self.params
-        cx, cy, _, _ = box_centre_size(box)
-        dist = np.hypot(feats.centres[:, 0] - cx, feats.centres[:, 1] - cy) / feats.cell
-        nearest = int(np.argmin(dist))
-        if dist[nearest] > 0.75:
-            return False
         self.positives.append(feats.descriptors[nearest])
         far = np.flatnonzero(dist > p.negative_distance)
         if len(far):
@@ -506,12 +515,8 @@ class OnlineDetector:
 
     def add_negative(self, feats: _FrameFeatures, box) -> bool:
         """A box known to hold a distractor: its window becomes a negative; refit at once."""
-        if len(feats.descriptors) == 0:
-            return False
-        cx, cy, _, _ = box_centre_size(box)
-        dist = np.hypot(feats.centres[:, 0] - cx, feats.centres[:, 1] - cy) / feats.cell
-        nearest = int(np.argmin(dist))
-        if dist[nearest] > 0.75:
+        nearest, _ = feats.window_on(box)
+        if nearest is None:
             return False
         self.negatives.append(feats.descriptors[nearest])
         if len(self.positives) >= self.params.min_positives:
