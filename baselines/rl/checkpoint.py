@@ -43,6 +43,7 @@ import torch
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from auv_envs.core.assets import sha256_file, verify_sha256
+from baselines.evaluation import atomic_write
 from baselines.rl.config import ALGORITHMS, OFF_POLICY, TrainConfig
 from baselines.rl.envs import make_vec_env
 
@@ -87,12 +88,6 @@ def restore_random_state(model, state: dict) -> None:
         model.action_noise = state["action_noise"]
 
 
-def _write_json_atomic(path: Path, payload) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(payload, indent=2))
-    os.replace(tmp, path)
-
-
 def write_checkpoint(root: Path, model, config: TrainConfig, extra: dict, keep: int) -> Path:
     """Save the learner at a safe point under ``root/step-<n>``; returns the directory.
 
@@ -133,12 +128,12 @@ def write_checkpoint(root: Path, model, config: TrainConfig, extra: dict, keep: 
         "config_digest": config.digest(),
         "files": files,
     }
-    _write_json_atomic(tmp / MANIFEST, manifest)
+    atomic_write(tmp / MANIFEST, json.dumps(manifest, indent=2))
     final = root / f"step-{step:010d}"
     if final.exists():
         shutil.rmtree(final)
     os.replace(tmp, final)
-    _write_json_atomic(root / LATEST, {"checkpoint": final.name})
+    atomic_write(root / LATEST, json.dumps({"checkpoint": final.name}, indent=2))
     for old in sorted(root.glob("step-*"))[:-keep]:
         shutil.rmtree(old, ignore_errors=True)
     return final

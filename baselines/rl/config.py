@@ -33,6 +33,8 @@ from pathlib import Path
 import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
+from baselines.evaluation import atomic_write
+
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
 ALGORITHMS = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
 OFF_POLICY = ("sac", "td3", "ddpg")
@@ -344,7 +346,8 @@ def schedule_initial_value(key: str, text: str) -> float:
 
 
 def save_config(config: TrainConfig, path: Path) -> None:
-    Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+    """Write ``config`` as YAML, atomically (``resume`` rewrites it in a live run directory)."""
+    atomic_write(path, yaml.safe_dump(config.to_dict(), sort_keys=False))
 
 
 def read_config(path: Path) -> TrainConfig:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import io
 import json
 import platform
 import signal
@@ -48,7 +49,7 @@ from stable_baselines3.common.utils import LinearSchedule
 
 import auv_envs
 from auv_envs.core.assets import sha256_file
-from baselines.evaluation import run_episode
+from baselines.evaluation import atomic_write, run_episode
 from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
     ALGORITHMS,
@@ -204,12 +205,11 @@ def _truncate_rows(path: Path, last_step: int) -> None:
     kept = [r for r in rows if int(r["step"]) <= last_step]
     if fields is None:
         return
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(fields))
-        writer.writeheader()
-        writer.writerows(kept)
-    tmp.replace(path)
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=list(fields))
+    writer.writeheader()
+    writer.writerows(kept)
+    atomic_write(path, buffer.getvalue())
 
 
 def _versions() -> dict:
@@ -224,9 +224,7 @@ def _versions() -> dict:
 
 
 def _write_run_info(run: RunDirectory, info: dict) -> None:
-    tmp = run.info.with_name(run.info.name + ".tmp")
-    tmp.write_text(json.dumps(info, indent=2))
-    tmp.replace(run.info)
+    atomic_write(run.info, json.dumps(info, indent=2))
 
 
 def write_final(run: RunDirectory, model, config: TrainConfig) -> Path:
