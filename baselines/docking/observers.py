@@ -217,6 +217,24 @@ def augmented_transition(model: NominalModel, dt: float) -> ca.Function:
     )
 
 
+def kalman_gain(cov: np.ndarray, jacobian: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
+    """``K = P H^T (H P H^T + R)^-1`` (seed 003 eqs. 26-28), by a linear solve."""
+    s = jacobian @ cov @ jacobian.T + noise_cov
+    return np.linalg.solve(s, jacobian @ cov).T
+
+
+def joseph_covariance(cov: np.ndarray, gain: np.ndarray, jacobian: np.ndarray,
+                      noise_cov: np.ndarray) -> np.ndarray:
+    """Updated covariance in Joseph form, ``(I - K H) P (I - K H)^T + K R K^T``.
+
+    The same as ``(I - K H) P`` in exact arithmetic; stays symmetric positive
+    definite in floating point. Shared by the EKF here and the lamp-array
+    filters of :mod:`baselines.vision.lamp_array`.
+    """
+    i_kh = np.eye(len(cov)) - gain @ jacobian
+    return i_kh @ cov @ i_kh.T + gain @ noise_cov @ gain.T
+
+
 class ExtendedKalmanFilter:
     """Extended Kalman filter (seed 003 eqs. 17-28).
 
@@ -253,12 +271,9 @@ class ExtendedKalmanFilter:
         definite in floating point.
         """
         h = np.asarray(jacobian, dtype=float)
-        p = self.cov
-        s = h @ p @ h.T + noise_cov
-        gain = np.linalg.solve(s, h @ p).T
+        gain = kalman_gain(self.cov, h, noise_cov)
         self.mean = self.mean + gain @ np.asarray(innovation, dtype=float)
-        i_kh = np.eye(len(p)) - gain @ h
-        self.cov = i_kh @ p @ i_kh.T + gain @ noise_cov @ gain.T
+        self.cov = joseph_covariance(self.cov, gain, h, noise_cov)
 
 
 @dataclasses.dataclass(frozen=True)

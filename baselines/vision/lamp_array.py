@@ -53,6 +53,7 @@ from scipy.optimize import linear_sum_assignment
 
 from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.frames import rotation_from_euler
+from baselines.docking.observers import joseph_covariance, kalman_gain
 
 #: Track status codes (:attr:`LampTracks.status`).
 UNINITIALISED, DETECTED, MERGED, PREDICTED = 0, 1, 2, 3
@@ -381,12 +382,9 @@ class BlobEKF:
         self._correct(np.asarray(uv) - self.x[0:2], H, cov)
 
     def _correct(self, innovation: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
-        S = H @ self.P @ H.T + R
-        K = np.linalg.solve(S, H @ self.P).T
+        K = kalman_gain(self.P, H, R)
         self.x = self.x + K @ innovation
-        # Joseph form keeps P symmetric positive definite.
-        A = np.eye(6) - K @ H
-        self.P = A @ self.P @ A.T + K @ R @ K.T
+        self.P = joseph_covariance(self.P, K, H, R)
         self.x[4] = max(self.x[4], 0.5)
 
 
@@ -529,11 +527,9 @@ class CameraPositionFilter:
             h = (mean @ pix).ravel()
             jac = np.concatenate([jac_t, jac_theta], axis=2).reshape(len(pix), 12)
             H = (mean @ jac).reshape(-1, 6)
-            S = H @ P @ H.T + R
-            K = np.linalg.solve(S, H @ P).T
+            K = kalman_gain(P, H, R)
             x = prior + K @ (z - h - H @ (prior - x))
-        A = np.eye(6) - K @ H
-        P = A @ P @ A.T + K @ R @ K.T
+        P = joseph_covariance(P, K, H, R)
         self.t, self.dtheta = x[:3], x[3:]
         self.P = P[:3, :3]
 
