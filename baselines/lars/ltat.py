@@ -340,12 +340,26 @@ def stereo_check(
     """
     if left is None or right is None:
         return "missing"
+    rectified = rectified_check(left, right, rig, row_tolerance)
+    if rectified != "ok":
+        return rectified
+    if marker_size_error(left, right, rig, sides) > size_tolerance:
+        return "size"
+    return "ok"
+
+
+def rectified_check(left: np.ndarray, right: np.ndarray, rig: StereoRig,
+                    row_tolerance: float = 3.0) -> str:
+    """Whether matched points (N, 2) of the two views fit the rectified pair.
+
+    Returns:
+        ``"ok"``, ``"rows"`` (a pair more than ``row_tolerance`` px apart
+        vertically) or ``"disparity"`` (a pair with a non-positive disparity).
+    """
     if np.abs(left[:, 1] - right[:, 1]).max() > row_tolerance:
         return "rows"
     if (left[:, 0] - right[:, 0] - (rig.left.cx - rig.right.cx)).min() <= 0.0:
         return "disparity"
-    if marker_size_error(left, right, rig, sides) > size_tolerance:
-        return "size"
     return "ok"
 
 
@@ -745,9 +759,7 @@ class LTATracker:
         corners[whole], corners[cut] = found[whole], partial
         seen = np.isfinite(partial[:, 0])
         left, right = corners[0, seen], corners[1, seen]
-        if np.abs(left[:, 1] - right[:, 1]).max() > p.row_tolerance:
-            return None
-        if (left[:, 0] - right[:, 0] - (self.rig.left.cx - self.rig.right.cx)).min() <= 0.0:
+        if rectified_check(left, right, self.rig, p.row_tolerance) != "ok":
             return None
         if seen[0] and seen[1]:
             ends = triangulate(self.rig, left[:2], right[:2])
