@@ -100,6 +100,25 @@ def _point_set(x, name: str) -> np.ndarray:
     return arr
 
 
+def _point_ids(ids, n_points: int, name: str, per: str, *,
+               non_negative: bool = False) -> np.ndarray:
+    """The integer ids of a point set: one per point, distinct (and >= 0 if asked).
+
+    ``per`` names id and point in the error message (``"label per estimate"``).
+    """
+    lab = np.asarray(ids)
+    if lab.size == 0:
+        lab = lab.reshape(0).astype(np.int64)
+    if lab.ndim != 1 or lab.shape[0] != n_points:
+        raise ValueError(f"{name} must hold one {per} ({n_points})")
+    if not np.issubdtype(lab.dtype, np.integer):
+        raise ValueError(f"{name} must be integers, got dtype {lab.dtype}")
+    if (non_negative and (lab < 0).any()) or np.unique(lab).size != lab.size:
+        kind = " non-negative integers" if non_negative else ""
+        raise ValueError(f"{name} must be distinct{kind}")
+    return lab
+
+
 def _check_c_p(c: float, p: float) -> tuple[float, float]:
     c, p = float(c), float(p)
     if not (math.isfinite(c) and c > 0.0):
@@ -247,15 +266,8 @@ def assign_track_labels(estimates: Sequence, labels: Sequence, truth, gate: floa
     last = np.full(n_targets, NO_TRACK, dtype=np.int64)
     for t in range(n_steps):
         pts = _point_set(estimates[t], f"estimates[{t}]")
-        lab = np.asarray(labels[t])
-        if lab.size == 0:
-            lab = lab.reshape(0).astype(np.int64)
-        if lab.ndim != 1 or lab.shape[0] != pts.shape[0]:
-            raise ValueError(f"labels[{t}] must hold one label per estimate ({pts.shape[0]})")
-        if not np.issubdtype(lab.dtype, np.integer):
-            raise ValueError(f"labels[{t}] must be integers, got dtype {lab.dtype}")
-        if (lab < 0).any() or np.unique(lab).size != lab.size:
-            raise ValueError(f"labels[{t}] must be distinct non-negative integers")
+        lab = _point_ids(labels[t], pts.shape[0], f"labels[{t}]", "label per estimate",
+                         non_negative=True)
         if pts.shape[0] == 0:
             continue
         if pts.shape[1] != dim:
@@ -563,16 +575,7 @@ class ClearMOT(NamedTuple):
 
 def _frame_set(ids, points, name: str, t: int) -> tuple[np.ndarray, np.ndarray]:
     pts = _point_set(points, f"{name}_points[{t}]")
-    lab = np.asarray(ids)
-    if lab.size == 0:
-        lab = lab.reshape(0).astype(np.int64)
-    if lab.ndim != 1 or lab.shape[0] != pts.shape[0]:
-        raise ValueError(f"{name}_ids[{t}] must hold one id per point ({pts.shape[0]})")
-    if not np.issubdtype(lab.dtype, np.integer):
-        raise ValueError(f"{name}_ids[{t}] must be integers, got dtype {lab.dtype}")
-    if np.unique(lab).size != lab.size:
-        raise ValueError(f"{name}_ids[{t}] must be distinct")
-    return lab, pts
+    return _point_ids(ids, pts.shape[0], f"{name}_ids[{t}]", "id per point"), pts
 
 
 def clear_mot(gt_ids: Sequence, gt_points: Sequence, hyp_ids: Sequence, hyp_points: Sequence,
