@@ -95,10 +95,13 @@ PATCH_SIZE = PATCH_FACTOR * TEMPLATE_SIZE
 
 
 # ---------------------------------------------------------------------- geometry
-def context_size(width: float, height: float) -> float:
-    """SiamFC's template context: side of the square crop around a ``w x h`` box."""
+def context_size(width, height):
+    """SiamFC's template context: side of the square crop around a ``w x h`` box.
+
+    Works on floats and, element-wise, on arrays of sizes.
+    """
     pad = 0.5 * (width + height)
-    return math.sqrt((width + pad) * (height + pad))
+    return np.sqrt((width + pad) * (height + pad))
 
 
 def box_centre_size(box) -> tuple[float, float, float, float]:
@@ -440,10 +443,7 @@ class SiameseTracker:
         def change(r):
             return np.maximum(r, 1.0 / r)
 
-        size_change = change(
-            np.sqrt((w_new + 0.5 * (w_new + h_new)) * (h_new + 0.5 * (w_new + h_new)))
-            / context_size(w_old, h_old)
-        )
+        size_change = change(context_size(w_new, h_new) / context_size(w_old, h_old))
         ratio_change = change((w_old / h_old) / (w_new / h_new))
         penalty = np.exp(-(ratio_change * size_change - 1.0) * p.scale_penalty)
         pscore = (1.0 - p.window_influence) * score * penalty + p.window_influence * self._window
