@@ -23,7 +23,13 @@ import sys
 from pathlib import Path
 
 from baselines.rl.checkpoint import CheckpointError
-from baselines.rl.config import ALGORITHMS, ConfigError, parse_overrides, resolve_config
+from baselines.rl.config import (
+    ALGORITHMS,
+    TRAIN_EVAL_SEED_BASE,
+    ConfigError,
+    parse_overrides,
+    resolve_config,
+)
 
 
 def _env_id(name: str) -> str:
@@ -45,7 +51,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--env", help="environment id (the auv_envs/ prefix is optional)")
     parser.add_argument("--obs-mode", help="observation mode (default: from the YAML file)")
     parser.add_argument("--seed", type=int, default=0,
-                        help="training seed (training seeds stay below 90000)")
+                        help=f"training seed (training seeds stay below {TRAIN_EVAL_SEED_BASE})")
     parser.add_argument("--n-envs", type=int, help="parallel environments (DummyVecEnv)")
     parser.add_argument("--n-timesteps", type=int, help="training budget in env steps")
     parser.add_argument("--set", dest="overrides", action="append", default=[],

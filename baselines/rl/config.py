@@ -33,7 +33,7 @@ from pathlib import Path
 import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
-from baselines.evaluation import atomic_write
+from baselines.evaluation import EVAL_SEED_BASE, atomic_write
 
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
 ALGORITHMS = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
@@ -42,7 +42,7 @@ OFF_POLICY = ("sac", "td3", "ddpg")
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
 #: Training-time evaluation seeds start here; training seeds stay below it and
-#: both stay below ``baselines.evaluation.EVAL_SEED_BASE`` (the leaderboard's).
+#: both stay below :data:`baselines.evaluation.EVAL_SEED_BASE` (the leaderboard's).
 TRAIN_EVAL_SEED_BASE = 90_000
 
 #: Keys ``train.py`` reads itself, with their defaults.
@@ -295,7 +295,7 @@ def validate(config: TrainConfig) -> None:
             f"seed must be in [0, {top}] so training seeds stay below the held-out "
             f"evaluation seeds ({TRAIN_EVAL_SEED_BASE}+), got {config.seed}"
         )
-    if config.run["n_eval_episodes"] > 100_000 - TRAIN_EVAL_SEED_BASE:
+    if config.run["n_eval_episodes"] > EVAL_SEED_BASE - TRAIN_EVAL_SEED_BASE:
         raise ConfigError("n_eval_episodes would reach the leaderboard's evaluation seeds")
     arguments = algo_arguments(config.algo)
     for key, value in config.hyperparams.items():
