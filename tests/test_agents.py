@@ -10,6 +10,14 @@ from baselines.registry import agent_names, agent_spec, make_agent
 from tests.conftest import DOCKING_IDS, make_env
 
 
+def assert_docked(row, tolerances) -> None:
+    """The episode ended docked, its final lateral and vertical errors inside the env's
+    tolerances (shared by the docking agents' episode tests)."""
+    assert row.success, row.failure_reason
+    assert abs(row.metrics["final_lateral_error"]) <= tolerances.lateral
+    assert abs(row.metrics["final_vertical_error"]) <= tolerances.vertical
+
+
 def test_registry_lists_builtin_agents():
     assert {"random", "pd-state"} <= set(agent_names())
 
@@ -27,10 +35,8 @@ def test_pd_reference_controller_docks_in_mismatch_scenario(env_id, seed):
         row = run_episode(env, make_agent("pd-state", env), seed, env_id, "pd-state")
     finally:
         env.close()
-    assert row.success, row.failure_reason
     tol = env.unwrapped.calibration.tolerances
-    assert abs(row.metrics["final_lateral_error"]) <= tol.lateral
-    assert abs(row.metrics["final_vertical_error"]) <= tol.vertical
+    assert_docked(row, tol)
     assert abs(row.metrics["final_heading_error_deg"]) <= tol.heading_deg
     assert row.metrics["docking_time"] < 100.0
 

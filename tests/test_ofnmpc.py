@@ -13,6 +13,7 @@ from baselines.docking.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
 from baselines.evaluation import run_episode
 from baselines.registry import BUILTIN_AGENT_MODULES, make_agent
 from tests.conftest import DOCKING_IDS, make_env
+from tests.test_agents import assert_docked
 
 
 @pytest.fixture(scope="module")
@@ -143,10 +144,7 @@ def test_ofnmpc_ekf_docks_in_mismatch_scenario():
         row = run_episode(env, _NoInfo(), 100_000, env_id, "ofnmpc-ekf")
     finally:
         env.close()
-    assert row.success, row.failure_reason
-    tol = env.unwrapped.calibration.tolerances
-    assert abs(row.metrics["final_lateral_error"]) <= tol.lateral
-    assert abs(row.metrics["final_vertical_error"]) <= tol.vertical
+    assert_docked(row, env.unwrapped.calibration.tolerances)
     assert row.metrics["agent_solver_failures"] == 0
     assert row.metrics["agent_solves"] == row.length
     assert row.metrics["estimate_error_max"] < 0.5  # position_estimate() vs truth
