@@ -40,8 +40,9 @@ def test_target_conditions_hold_inside_the_solution(controller, calibration):
     target = np.concatenate([calibration.target_position, [0.0], xs_velocity])
     derivative = calibration.nominal_model.derivatives(target, us, d)
     np.testing.assert_allclose(derivative, 0.0, atol=1e-6)
-    # Net buoyancy +10 N: holding depth takes -10 N - d_Z of heave thrust.
-    np.testing.assert_allclose(us, -d - np.array([0.0, 0.0, 10.0, 0.0]), atol=1e-5)
+    # Net buoyancy B - W (N, up): holding depth takes -(B - W) - d_Z of heave thrust.
+    buoyancy = calibration.nominal_params.net_buoyancy
+    np.testing.assert_allclose(us, -d - np.array([0.0, 0.0, buoyancy, 0.0]), atol=1e-5)
     # The carried target is the same at every stage.
     np.testing.assert_allclose(chi[:, 8:], np.broadcast_to(chi[0, 8:], chi[:, 8:].shape),
                                atol=1e-9)
