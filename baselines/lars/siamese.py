@@ -701,6 +701,7 @@ def train(out: Path, data_dir: Path, seed: int = 0, per_sea_state: int = 12, ste
     The last calm and the last severe sequence are held out for validation.
     """
     import auv_envs
+    from auv_envs.datasets.lars import load_sequence
 
     start = time.perf_counter()
     torch.manual_seed(seed)
@@ -739,6 +740,7 @@ def train(out: Path, data_dir: Path, seed: int = 0, per_sea_state: int = 12, ste
     weights_path = out / WEIGHTS_FILE
     torch.save(net.state_dict(), weights_path)
     seeds = {s: train_sequences(s, per_sea_state) for s in ("calm", "severe")}
+    image_size = load_sequence(train_dirs[0])[0]["image_size"]  # as exported
     meta = {
         "format_version": META_FORMAT_VERSION,
         "command": " ".join(["python -m baselines.lars.siamese", *sys.argv[1:]])
@@ -750,7 +752,7 @@ def train(out: Path, data_dir: Path, seed: int = 0, per_sea_state: int = 12, ste
             "validation_seeds": {s: v[-1:] for s, v in seeds.items()},
             "steps_per_sequence": steps,
             "frame_step": frame_step,
-            "image_size": [640, 480],
+            "image_size": image_size,
             "train_patches": int(len(train_set.patches)),
             "validation_patches": int(len(val_set.patches)),
         },
