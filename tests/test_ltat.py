@@ -70,8 +70,8 @@ def shipped():
 def _rollout(seed, sea_state, steps, offset=(0.0, 0.0, 0.0), offset_from=0):
     """Stereo observations and infos with the exporter's privileged tracking arm,
     which moves ``offset`` (m, world) off its station from step ``offset_from`` on."""
-    env = LARSCaptureEnv(obs_mode="stereo", sea_state=sea_state, control="position",
-                         time_limit=steps * 0.04 + 1.0)
+    # (the default 30 s time limit is far beyond the <= 48 steps rolled out here)
+    env = LARSCaptureEnv(obs_mode="stereo", sea_state=sea_state, control="position")
     try:
         obs, info = env.reset(seed=seed)
         out = [(obs, info)]
@@ -94,6 +94,10 @@ def calm_rollout():
 @pytest.fixture(scope="module")
 def wash_rollout():
     return _rollout(WASH_SEED, "severe", 48)
+
+
+def _image_size(calibration):
+    return calibration.stereo.left.width, calibration.stereo.left.height
 
 
 def _iou(a, b):
@@ -292,7 +296,7 @@ def test_ltat_reacquires_after_wash_over(wash_rollout):
         if k == first_hidden:
             lost_before = front.stats()["ltat_lost_views"]
         if last_hidden < k <= last_hidden + REACQUIRE_FRAMES:
-            truth_box = marker_box(info["true_pixels"][0], (640, 480))
+            truth_box = marker_box(info["true_pixels"][0], _image_size(calibration))
             ious.append(_iou(front.last_output.boxes[0], truth_box))
             if features["visible"].all():
                 err = np.linalg.norm(features["pixels"] - info["true_pixels"], axis=2)
@@ -328,7 +332,7 @@ def test_detector_reacquires_when_the_camera_moved_during_wash_over(shipped):
     assert visible_again is not None and visible_again < len(rollout) - REACQUIRE_FRAMES
     stats = front.stats()
     assert stats["ltat_redetections"] >= 1
-    truth_box = marker_box(rollout[-1][1]["true_pixels"][0], (640, 480))
+    truth_box = marker_box(rollout[-1][1]["true_pixels"][0], _image_size(calibration))
     assert _iou(front.last_output.boxes[0], truth_box) > REACQUIRE_IOU
     assert features["visible"].all()
     err = np.linalg.norm(features["pixels"] - rollout[-1][1]["true_pixels"], axis=2)
