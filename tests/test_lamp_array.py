@@ -42,12 +42,14 @@ def _observation(image: np.ndarray, info: dict) -> dict:
     }
 
 
-def _lamps_apart(info: dict, min_gap: float = 25.0, border: float = 15.0) -> bool:
+def _lamps_apart(info: dict, intrinsics: CameraIntrinsics, min_gap: float = 25.0,
+                 border: float = 15.0) -> bool:
     if not info["true_visible"].all():
         return False
     px = info["true_pixels"]
     gaps = np.linalg.norm(px[:, None] - px[None], axis=-1) + 1e9 * np.eye(len(px))
-    inside = ((px > border) & (px < np.array([640, 480]) - border)).all()
+    size = np.array([intrinsics.width, intrinsics.height])
+    inside = ((px > border) & (px < size - border)).all()
     return bool(gaps.min() >= min_gap and inside)
 
 
@@ -61,7 +63,7 @@ def _render_sequence(env_id: str, seed: int = 100_000) -> tuple[list, object]:
         obs, info = env.reset(seed=seed)
         frames = []
         while len(frames) < N_FRAMES:
-            if frames or _lamps_apart(info):
+            if frames or _lamps_apart(info, env.unwrapped.calibration.intrinsics):
                 frames.append((_observation(env.render(), info), info["true_pixels"].copy(),
                                info["true_visible"].copy()))
             obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
