@@ -47,7 +47,7 @@ import numpy as np
 
 import auv_envs
 from baselines import registry
-from baselines.registry import agent_names, agent_spec
+from baselines.registry import agent_names, agent_spec, env_entry_point
 
 #: Evaluation seeds start here; training seeds (train.py) stay below it, so the
 #: two sets never overlap.
@@ -551,11 +551,12 @@ def run_tasks(
 
 # ------------------------------------------------------------------ planning
 def env_parameters(env_id: str) -> tuple[str, ...]:
-    """The named constructor arguments of environment ``env_id`` (``obs_mode`` excluded)."""
-    entry_point = gym.spec(env_id).entry_point
-    if isinstance(entry_point, str):
-        entry_point = gym.envs.registration.load_env_creator(entry_point)
-    params = inspect.signature(entry_point).parameters.values()
+    """The named constructor arguments of environment ``env_id`` (``obs_mode`` excluded).
+
+    Raises:
+        KeyError: ``env_id`` is not registered with Gymnasium.
+    """
+    params = inspect.signature(env_entry_point(env_id)).parameters.values()
     return tuple(p.name for p in params
                  if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "obs_mode")
 

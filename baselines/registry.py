@@ -101,8 +101,8 @@ class AgentSpec:
         return self.skip_reason(env_id) is None
 
 
-def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
-    """The observation modes environment ``env_id`` declares (``None``: not declared).
+def env_entry_point(env_id: str):
+    """The class (or creator function) Gymnasium has registered for ``env_id``.
 
     Raises:
         KeyError: ``env_id`` is not registered with Gymnasium.
@@ -113,7 +113,16 @@ def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
         raise KeyError(f"unknown environment {env_id!r}") from exc
     if isinstance(entry_point, str):
         entry_point = gym.envs.registration.load_env_creator(entry_point)
-    modes = getattr(entry_point, "obs_modes", None)
+    return entry_point
+
+
+def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
+    """The observation modes environment ``env_id`` declares (``None``: not declared).
+
+    Raises:
+        KeyError: ``env_id`` is not registered with Gymnasium.
+    """
+    modes = getattr(env_entry_point(env_id), "obs_modes", None)
     return tuple(modes) if modes else None
 
 

@@ -24,13 +24,13 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import gymnasium as gym  # noqa: E402
 import torch  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
 from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
 
 import auv_envs  # noqa: E402
+from baselines.registry import env_obs_modes  # noqa: E402
 from baselines.rl.config import resolve_config  # noqa: E402
 from baselines.rl.training import algorithm_kwargs, build_model  # noqa: E402
 
@@ -43,8 +43,7 @@ FAST_MODES = ("features", "measurements")
 
 
 def fast_modes(env_id: str) -> list[str]:
-    entry_point = gym.envs.registration.load_env_creator(gym.spec(env_id).entry_point)
-    return [m for m in entry_point.obs_modes if m in FAST_MODES]
+    return [m for m in env_obs_modes(env_id) or () if m in FAST_MODES]
 
 
 def config_for(env_id: str, obs_mode: str, flatten: bool):
