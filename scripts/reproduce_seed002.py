@@ -30,6 +30,7 @@ import gymnasium as gym
 import numpy as np
 
 import auv_envs  # noqa: F401
+from auv_envs.core.frames import rotation_from_euler
 from auv_envs.metrics import clear_mot_labelled
 from baselines.agents.pd_docking import DockingPDAgent
 from baselines.vision.lamp_array import LampArrayFrontEnd
@@ -43,11 +44,6 @@ PRECISION_PLOT_PX = 13.0
 PILOT_AXIAL_ERROR = 3.0
 
 
-def _rot_z(angle: float) -> np.ndarray:
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def pilot_action(pd: DockingPDAgent, info: dict, waypoint: np.ndarray, heading: float,
                  target: np.ndarray) -> np.ndarray:
     """The PD reference controller steered to ``waypoint`` with ``heading`` (privileged).
@@ -56,7 +52,7 @@ def pilot_action(pd: DockingPDAgent, info: dict, waypoint: np.ndarray, heading: 
     true state expressed in a frame placed at the waypoint and turned by ``heading`` makes it
     hold the waypoint and heading instead (its law only uses the horizontal rotation).
     """
-    rot = _rot_z(-heading)
+    rot = rotation_from_euler(0.0, 0.0, -heading)
     position = target + rot @ (info["true_position"] - waypoint)
     roll, pitch, yaw = info["true_euler"]
     state = np.concatenate([
