@@ -28,6 +28,7 @@ Everything printed is also written to ``OUT/seed000.json``; plots go to
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -55,9 +56,11 @@ PITCHES = (15.0, 20.0, 30.0)
 YAWS = (-30.0, 0.0, 30.0)
 #: Seed bases: each experiment draws its own episodes.
 ESTIMATION_SEED, ATTITUDE_SEED, CAPTURE_SEED = 1000, 2000, 3000
+#: Frames per block of the paper's Fig. 10 statistic.
+BLOCK = 25
 
 
-def block_max(errors: np.ndarray, block: int = 25) -> np.ndarray:
+def block_max(errors: np.ndarray, block: int = BLOCK) -> np.ndarray:
     """Largest mean of ``block`` consecutive absolute errors per axis (paper Fig. 10)."""
     n = (len(errors) // block) * block
     if n == 0:
@@ -186,41 +189,48 @@ def capture(agent_name: str, sea: str, episodes: int) -> dict:
 
 
 # ---------------------------------------------------------------- plots
-def plot_trajectories(run: dict, sea: str, path: Path) -> None:
+@contextlib.contextmanager
+def axis_panels(title: str, path: Path):
+    """One panel per axis x / y / z; on exit: legend, ``title``, saved to ``path``."""
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
-    for k, ax in enumerate(axes):
-        ax.plot(run["time"], run["measured"][:, k], ".", ms=2, color="tab:orange",
-                label="measured")
-        ax.plot(run["time"], run["truth"][:, k], "-", lw=1.2, color="k", label="true")
-        ax.plot(run["time"], run["estimate"][:, k], "-", lw=1.0, color="tab:blue", label="CKF")
-        ax.set_xlabel("time (s)")
-        ax.set_ylabel(f"{AXES[k]} (m)")
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"AUV position, {sea} sea: measured, true and CKF (seed 000 Figs. 9/11)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        yield axes
+        axes[0].legend(fontsize=8)
+        fig.suptitle(title)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
+
+
+def plot_trajectories(run: dict, sea: str, path: Path) -> None:
+    title = f"AUV position, {sea} sea: measured, true and CKF (seed 000 Figs. 9/11)"
+    with axis_panels(title, path) as axes:
+        for k, ax in enumerate(axes):
+            ax.plot(run["time"], run["measured"][:, k], ".", ms=2, color="tab:orange",
+                    label="measured")
+            ax.plot(run["time"], run["truth"][:, k], "-", lw=1.2, color="k", label="true")
+            ax.plot(run["time"], run["estimate"][:, k], "-", lw=1.0, color="tab:blue",
+                    label="CKF")
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel(f"{AXES[k]} (m)")
 
 
 def plot_errors(runs: list, sea: str, warmup: float, path: Path) -> None:
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     run = runs[0]
     keep = run["time"] >= warmup
-    for k, ax in enumerate(axes):
-        for key, colour in (("measured", "tab:orange"), ("estimate", "tab:blue")):
-            err = np.abs(run[key][keep, k] - run["truth"][keep, k])
-            n = (len(err) // 25) * 25
-            blocks = np.nanmean(err[:n].reshape(-1, 25), axis=1) * 1e3
-            offset = -0.2 if key == "measured" else 0.2
-            ax.bar(np.arange(len(blocks)) + offset, blocks, width=0.4, color=colour,
-                   label="measured" if key == "measured" else "CKF")
-        ax.set_xlabel("block of 25 frames")
-        ax.set_ylabel(f"|error| {AXES[k]} (mm)")
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"Mean position error per 25 frames, {sea} sea (seed 000 Figs. 10/12)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    title = f"Mean position error per {BLOCK} frames, {sea} sea (seed 000 Figs. 10/12)"
+    with axis_panels(title, path) as axes:
+        for k, ax in enumerate(axes):
+            for key, colour in (("measured", "tab:orange"), ("estimate", "tab:blue")):
+                err = np.abs(run[key][keep, k] - run["truth"][keep, k])
+                n = (len(err) // BLOCK) * BLOCK
+                blocks = np.nanmean(err[:n].reshape(-1, BLOCK), axis=1) * 1e3
+                offset = -0.2 if key == "measured" else 0.2
+                ax.bar(np.arange(len(blocks)) + offset, blocks, width=0.4, color=colour,
+                       label="measured" if key == "measured" else "CKF")
+            ax.set_xlabel(f"block of {BLOCK} frames")
+            ax.set_ylabel(f"|error| {AXES[k]} (mm)")
 
 
 # ---------------------------------------------------------------- report
