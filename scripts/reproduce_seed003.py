@@ -43,6 +43,11 @@ import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
 from auv_envs.core.hydrodynamics import NominalModel  # noqa: E402
+from auv_envs.tasks.docking import (  # noqa: E402
+    SCENARIO_CURRENT_SPEED,
+    SCENARIO_PIXEL_NOISE,
+    SCENARIO_VELOCITY_NOISE,
+)
 from baselines.docking.agents import OFNMPCAgent  # noqa: E402
 from baselines.registry import agent_names, make_agent  # noqa: E402
 
@@ -120,7 +125,8 @@ def scenario1(args, out: Path) -> None:
     print("| prediction model | observer | d_X | d_Y | d_Z | d_N |")
     print("|---|---|---|---|---|---|")
     holds = {}
-    for label, model in (("env nominal model (knows the 10 N buoyancy)", None),
+    buoyancy = cal.nominal_params.net_buoyancy
+    for label, model in ((f"env nominal model (knows the {buoyancy:g} N buoyancy)", None),
                          ("seed 003 model (restoring forces dropped)", seed003_model(cal))):
         for o in OBSERVERS:
             agent = OFNMPCAgent(hold_env.unwrapped, o, nominal_model=model)
@@ -135,8 +141,8 @@ def scenario1(args, out: Path) -> None:
 
 def scenario2(args, out: Path) -> None:
     seeds = [args.seed + i for i in range(args.episodes)]
-    print(f"\n## Scenario 2 (0.3 m/s current, 5 px / 0.02 m/s noise), {args.env}, "
-          f"seeds {seeds}")
+    print(f"\n## Scenario 2 ({SCENARIO_CURRENT_SPEED:g} m/s current, {SCENARIO_PIXEL_NOISE:g} px "
+          f"/ {SCENARIO_VELOCITY_NOISE:g} m/s noise), {args.env}, seeds {seeds}")
     print("| current direction (deg) | OFNMPC-EKF | OFNMPC-MHE |")
     print("|---|---|---|")
     traces, wins = {o: {} for o in OBSERVERS}, dict.fromkeys(OBSERVERS, 0)
