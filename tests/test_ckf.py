@@ -17,14 +17,23 @@ from baselines.lars.ckf import (
 )
 
 
+def kf_step(transition, f, h, q, r, x, p, z):
+    """One textbook Kalman filter step (predict, then update with ``z``).
+
+    ``transition`` maps the mean (``f @ x``, or an affine ``f @ x + b``); the
+    covariance is predicted with ``f`` either way.
+    """
+    x, p = transition(x), f @ p @ f.T + q
+    s = h @ p @ h.T + r
+    k = p @ h.T @ np.linalg.inv(s)
+    return x + k @ (z - h @ x), p - k @ s @ k.T
+
+
 def kalman_reference(f, h, q, r, x, p, zs):
-    """The textbook Kalman filter (predict, then update) over measurements ``zs``."""
+    """The textbook Kalman filter over measurements ``zs``: (mean, covariance) after each."""
     out = []
     for z in zs:
-        x, p = f @ x, f @ p @ f.T + q
-        s = h @ p @ h.T + r
-        k = p @ h.T @ np.linalg.inv(s)
-        x, p = x + k @ (z - h @ x), p - k @ s @ k.T
+        x, p = kf_step(lambda v: f @ v, f, h, q, r, x, p, z)
         out.append((x.copy(), p.copy()))
     return out
 
@@ -58,17 +67,9 @@ def test_equals_kalman_filter_on_linear_gaussian_model():
     for z, r in zip(zs, rs, strict=True):
         ckf.predict()
         assert ckf.update(z, r)
-        x, p = _kf_step(model, h, q, r, x, p, z)
+        x, p = kf_step(model, model.matrix, h, q, r, x, p, z)
         np.testing.assert_allclose(ckf.mean, x, atol=1e-9, rtol=0)
         np.testing.assert_allclose(ckf.covariance, p, atol=1e-9, rtol=0)
-
-
-def _kf_step(model, h, q, r, x, p, z):
-    f = model.matrix
-    x, p = model(x), f @ p @ f.T + q  # affine transition: same covariance as F x
-    s = h @ p @ h.T + r
-    k = p @ h.T @ np.linalg.inv(s)
-    return x + k @ (z - h @ x), p - k @ s @ k.T
 
 
 def test_equals_kalman_filter_random_linear_model():
