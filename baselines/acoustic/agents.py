@@ -30,7 +30,7 @@ from baselines.acoustic.gmphd import (
     GaussianMixturePHDBank,
     MixtureReducer,
 )
-from baselines.acoustic.positioning import LeastSquaresPositioner
+from baselines.acoustic.positioning import LeastSquaresPositioner, work_area_centre
 from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/AcousticTracking-v0",)
@@ -51,9 +51,8 @@ def _check_env(env, name: str):
 
 def _estimate_bounds(env, cal):
     """The fallback estimate (work-area centre) and the env's action bounds (the tank)."""
-    lo, hi = (np.asarray(v, dtype=np.float64) for v in cal.work_area)
     space = env.action_space
-    return 0.5 * (lo + hi), space.low.astype(np.float64), space.high.astype(np.float64)
+    return work_area_centre(cal), space.low.astype(np.float64), space.high.astype(np.float64)
 
 
 def _check_observation(observation) -> None:
@@ -67,16 +66,18 @@ class _FixSource:
     def __init__(self, calibration, bands):
         self.positioner = LeastSquaresPositioner(calibration, "fused")
         self.bands = np.asarray(bands)
+        self._floor = FIX_VARIANCE_FLOOR * np.eye(3)
+        self._eye = np.eye(3)
 
     def __call__(self, observation):
         _check_observation(observation)
         fixes = self.positioner.solve(observation["tdoa"], observation["azimuth"],
                                       observation["elevation"], observation["mask"])
         z = fixes.position[self.bands]
-        R = fixes.covariance[self.bands] + FIX_VARIANCE_FLOOR * np.eye(3)
+        R = fixes.covariance[self.bands] + self._floor
         valid = fixes.valid[self.bands]
         z = np.where(valid[..., None], z, 0.0)
-        R = np.where(valid[..., None, None], R, np.eye(3))
+        R = np.where(valid[..., None, None], R, self._eye)
         return z, R, valid
 
 
@@ -207,8 +208,7 @@ class LSKalmanAgent:
 def best_single_band(env) -> int:
     """The band with the smallest mean elevation noise at the work-area centre."""
     cal = env.calibration
-    lo, hi = (np.asarray(v, dtype=np.float64) for v in cal.work_area)
-    return int(np.argmin(cal.array.model(0.5 * (lo + hi))["elevation_std"].mean(axis=1)))
+    return int(np.argmin(cal.array.model(work_area_centre(cal))["elevation_std"].mean(axis=1)))
 
 
 def _single(env):

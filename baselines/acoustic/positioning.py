@@ -119,6 +119,12 @@ def doa_rows(azimuth: np.ndarray, elevation: np.ndarray, nodes: np.ndarray):
     return I_, N_
 
 
+def work_area_centre(calibration) -> np.ndarray:
+    """(3,) centre of the calibration's ``work_area`` (where the noise model is read)."""
+    lo, hi = (np.asarray(v, dtype=np.float64) for v in calibration.work_area)
+    return 0.5 * (lo + hi)
+
+
 def _solve_normal(A: np.ndarray, b: np.ndarray):
     """Batched normal-equation least squares; returns (x, (A^T A)^{-1}, rss)."""
     AtA = np.einsum("...ri,...rj->...ij", A, A)
@@ -167,8 +173,7 @@ class LeastSquaresPositioner:
         self._low = np.array([-margin, -margin, -calibration.tank_depth - margin])
         self._high = np.array([sx + margin, sy + margin, margin])
         # Per-band noise stds at the work-area centre (calibration, not state).
-        lo, hi = (np.asarray(v, dtype=np.float64) for v in calibration.work_area)
-        model = calibration.array.model(0.5 * (lo + hi))
+        model = calibration.array.model(work_area_centre(calibration))
         clock = calibration.config.clock_offset_std
         self.range_diff_std = self._c * np.hypot(model["tdoa_std"], clock)  # (Q, N-1) m
         self.azimuth_std = model["azimuth_std"]  # (Q, N)
