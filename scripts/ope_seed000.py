@@ -45,7 +45,6 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
@@ -58,6 +57,7 @@ from baselines.lars.siamese import (  # noqa: E402
     SiameseTracker,
     load_siamese,
     marker_box,
+    read_frame,
 )
 
 KINDS = ("siamese", "ltat-tracker-box", "ltat")
@@ -104,8 +104,7 @@ def truth_boxes(labels: dict, size) -> np.ndarray:
 
 
 def frames(path: Path, t: int) -> list[np.ndarray]:
-    return [cv2.cvtColor(cv2.imread(str(path / v / f"{t:06d}.png")), cv2.COLOR_BGR2RGB)
-            for v in ("left", "right")]
+    return [read_frame(path, v, t) for v in ("left", "right")]
 
 
 def run_tracker(kind: str, path: Path, truth: np.ndarray, net, rig, sides):

@@ -481,6 +481,19 @@ class PatchSet:
     view: np.ndarray
 
 
+def read_frame(sequence_dir, view: str, t: int) -> np.ndarray:
+    """Frame ``t`` of view ``view`` (``"left"``/``"right"``) of an exported sequence, RGB.
+
+    Raises:
+        FileNotFoundError: if the PNG is missing or unreadable.
+    """
+    path = Path(sequence_dir)
+    image = cv2.imread(str(path / view / f"{t:06d}.png"), cv2.IMREAD_COLOR)
+    if image is None:
+        raise FileNotFoundError(f"missing or unreadable frame {view}/{t:06d}.png in {path}")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
 def build_patches(sequence_dirs, frame_step: int = 2) -> PatchSet:
     """Cut a patch around the true marker box in every ``frame_step``-th frame of both views."""
     from auv_envs.datasets.lars import load_sequence
@@ -494,13 +507,9 @@ def build_patches(sequence_dirs, frame_step: int = 2) -> PatchSet:
                 box = marker_box(labels["corners_px"][t, view])
                 if not np.isfinite(box).all():
                     continue
-                image = cv2.imread(str(path / name / f"{t:06d}.png"), cv2.IMREAD_COLOR)
-                if image is None:
-                    raise FileNotFoundError(f"missing or unreadable frame {name}/{t:06d}.png "
-                                            f"in {path}")
                 cx, cy, w, h = box_centre_size(box)
                 side = context_size(w, h)
-                pyr = Pyramid(cv2.cvtColor(image, cv2.COLOR_BGR2RGB))
+                pyr = Pyramid(read_frame(path, name, t))
                 out["patches"].append(pyr.crop(cx, cy, PATCH_FACTOR * side, PATCH_SIZE))
                 out["sizes"].append((w * TEMPLATE_SIZE / side, h * TEMPLATE_SIZE / side))
                 seen = int(labels["corners_visible"][t, view].sum())
