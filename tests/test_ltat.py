@@ -348,15 +348,15 @@ def test_ltat_ckf_pd_is_registered_for_stereo():
     assert spec.applies_to("auv_envs/LARSCapture-v0")
 
 
-def test_ltat_ckf_pd_builds_when_ckf_pd_exists():
+def test_ltat_ckf_pd_builds_on_the_ckf_pd_agent():
+    from baselines.lars.agents import CKFPDAgent
+
     env = LARSCaptureEnv(obs_mode="stereo")
     try:
-        if "ckf-pd" in agent_names():
-            agent = make_agent("ltat-ckf-pd", env)
-            assert isinstance(agent.front_end, LTATFrontEnd)
-        else:
-            with pytest.raises(KeyError, match="ckf-pd"):
-                make_agent("ltat-ckf-pd", env)
+        assert "ckf-pd" in agent_names()  # a builtin: the inner agent must be there
+        agent = make_agent("ltat-ckf-pd", env)
+        assert isinstance(agent.front_end, LTATFrontEnd)
+        assert isinstance(agent.inner, CKFPDAgent)
     finally:
         env.close()
 
