@@ -30,16 +30,20 @@ def _read_csv(path: Path) -> list[dict]:
 
 
 def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
-    """Held-out evaluation return (mean ± std) and success, and the training episodes' return."""
-    import matplotlib
+    """Held-out evaluation return (mean ± std) and success, and the training episodes' return.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Drawn on a bare Agg ``Figure`` (as :mod:`baselines.leaderboard` does), so
+    exporting never switches the caller's pyplot backend.
+    """
     import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     evals = _read_csv(run.eval_curve)
     episodes = _read_csv(run.train_episodes)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    fig = Figure(figsize=(7, 6))
+    FigureCanvasAgg(fig)
+    top, bottom = fig.subplots(2, 1, sharex=True)
     if episodes:
         step = np.array([float(r["step"]) for r in episodes])
         ret = np.array([float(r["return"]) for r in episodes])
@@ -62,7 +66,6 @@ def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
     bottom.set_xlabel("environment steps")
     fig.tight_layout()
     fig.savefig(out, dpi=80)
-    plt.close(fig)
 
 
 def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None = None) -> Path:
