@@ -35,15 +35,19 @@ def static_errors(steps: int = 200, seed: int = 0) -> dict[str, list[float]]:
         cal = env.unwrapped.calibration
         solvers = {m: LeastSquaresPositioner(cal, m) for m in METHODS}
         errors = {m: [] for m in METHODS}
-        obs, info = env.reset(seed=seed + point)
-        for _ in range(steps):
-            source = info["detection_origin"] == 0
-            for m, solver in solvers.items():
-                fix = solver.solve(obs["tdoa"], obs["azimuth"], obs["elevation"], obs["mask"])
-                use = source & fix.valid
-                errors[m].extend(np.linalg.norm(fix.position[use] - info["true_position"],
-                                                axis=-1))
-            obs, _, _, _, info = env.step(info["true_position"])
+        try:
+            obs, info = env.reset(seed=seed + point)
+            for _ in range(steps):
+                source = info["detection_origin"] == 0
+                for m, solver in solvers.items():
+                    fix = solver.solve(obs["tdoa"], obs["azimuth"], obs["elevation"],
+                                       obs["mask"])
+                    use = source & fix.valid
+                    errors[m].extend(np.linalg.norm(fix.position[use] - info["true_position"],
+                                                    axis=-1))
+                obs, _, _, _, info = env.step(info["true_position"])
+        finally:
+            env.close()
         for m in METHODS:
             out[m].append(float(np.mean(errors[m])))
     return out
