@@ -216,6 +216,53 @@ def max_error(estimates, truth, *, allow_missing: bool = False) -> float:
 # --------------------------------------------------------------------------- TFC
 
 
+def _previous_index(last_ids: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Per object, the index in this frame's ``ids`` of the id it was last matched to, or -1."""
+    out = np.full(last_ids.shape[0], -1, dtype=np.int64)
+    for j in np.flatnonzero(last_ids != NO_TRACK):
+        k = np.flatnonzero(ids == last_ids[j])
+        if k.size:
+            out[j] = k[0]
+    return out
+
+
+def _match_frame(dist: np.ndarray, previous: np.ndarray, gate: float) -> np.ndarray:
+    """CLEAR-MOT correspondence of one frame (Bernardin & Stiefelhagen 2008, §3.1).
+
+    1. An object keeps its earlier hypothesis (index ``previous[i]`` in this frame, -1 for
+       none) if that hypothesis is still free and within ``gate`` (distance <= gate).
+    2. The remaining objects and hypotheses are matched by ``linear_sum_assignment`` on the
+       distance; pairs farther than ``gate`` carry a large finite cost (so the solver first
+       maximises the number of gated pairs) and are discarded afterwards.
+
+    Args:
+        dist: (n_objects, n_hypotheses) distances.
+        previous: (n_objects,) index of each object's earlier hypothesis in this frame, or -1.
+        gate: gating distance.
+
+    Returns:
+        (n_objects,) index of the matched hypothesis, or -1.
+    """
+    n_obj, n_hyp = dist.shape
+    matched = np.full(n_obj, -1, dtype=np.int64)
+    free_obj = np.ones(n_obj, dtype=bool)
+    free_hyp = np.ones(n_hyp, dtype=bool)
+    for i in np.flatnonzero(previous >= 0):
+        k = previous[i]
+        if free_hyp[k] and dist[i, k] <= gate:
+            matched[i] = k
+            free_obj[i] = free_hyp[k] = False
+    oi, hk = np.flatnonzero(free_obj), np.flatnonzero(free_hyp)
+    if oi.size and hk.size:
+        sub = dist[np.ix_(oi, hk)]
+        valid = sub <= gate
+        big = gate * (min(sub.shape) + 1) + 1.0  # exceeds any sum of gated distances
+        rows, cols = linear_sum_assignment(np.where(valid, sub, big))
+        keep = valid[rows, cols]
+        matched[oi[rows[keep]]] = hk[cols[keep]]
+    return matched
+
+
 def assign_track_labels(estimates: Sequence, labels: Sequence, truth, gate: float) -> np.ndarray:
     """Per-step label of the track assigned to each target, with a gating distance.
 
@@ -273,24 +320,8 @@ def assign_track_labels(estimates: Sequence, labels: Sequence, truth, gate: floa
         if pts.shape[1] != dim:
             raise ValueError(f"estimates[{t}] has dimension {pts.shape[1]}, truth has {dim}")
 
-        dist = cdist(tru[t], pts)
-        free_tgt = np.ones(n_targets, dtype=bool)
-        free_est = np.ones(pts.shape[0], dtype=bool)
-        # Rule 1: keep a still-valid previous correspondence.
-        for j in np.flatnonzero(last != NO_TRACK):
-            k = np.flatnonzero(lab == last[j])
-            if k.size and free_est[k[0]] and dist[j, k[0]] <= gate:
-                out[t, j] = last[j]
-                free_tgt[j] = free_est[k[0]] = False
-        # Rule 2: optimal matching of the rest.
-        tj, ek = np.flatnonzero(free_tgt), np.flatnonzero(free_est)
-        if tj.size and ek.size:
-            sub = dist[np.ix_(tj, ek)]
-            valid = sub <= gate
-            big = gate * (min(sub.shape) + 1) + 1.0  # exceeds any sum of gated distances
-            rows, cols = linear_sum_assignment(np.where(valid, sub, big))
-            keep = valid[rows, cols]
-            out[t, tj[rows[keep]]] = lab[ek[cols[keep]]]
+        matched = _match_frame(cdist(tru[t], pts), _previous_index(last, lab), gate)
+        out[t, matched >= 0] = lab[matched[matched >= 0]]
         assigned = out[t] != NO_TRACK
         last[assigned] = out[t, assigned]
     return out[:, 0] if single else out
@@ -639,30 +670,13 @@ def clear_mot(gt_ids: Sequence, gt_points: Sequence, hyp_ids: Sequence, hyp_poin
         n_objects += oids.size
         matched_hyp = np.full(oids.size, -1)
         if oids.size and hids.size:
-            dist = cdist(opts, hpts)
-            valid = dist <= threshold
-            free_obj = np.ones(oids.size, dtype=bool)
-            free_hyp = np.ones(hids.size, dtype=bool)
-            # Rule 1: keep a still-valid earlier correspondence.
-            for i, o in enumerate(oids.tolist()):
-                if o not in last:
-                    continue
-                k = np.flatnonzero((hids == last[o]) & free_hyp)
-                if k.size and valid[i, k[0]]:
-                    matched_hyp[i] = k[0]
-                    free_obj[i] = free_hyp[k[0]] = False
-            # Rule 2: optimal matching of the rest; a changed hypothesis is a switch.
-            oi, hk = np.flatnonzero(free_obj), np.flatnonzero(free_hyp)
-            if oi.size and hk.size:
-                sub_valid = valid[np.ix_(oi, hk)]
-                big = threshold * (min(sub_valid.shape) + 1) + 1.0
-                cost = np.where(sub_valid, dist[np.ix_(oi, hk)], big)
-                rows, cols = linear_sum_assignment(cost)
-                keep = sub_valid[rows, cols]
-                for i, k in zip(oi[rows[keep]], hk[cols[keep]], strict=True):
-                    o = int(oids[i])
-                    n_switches += int(o in last and last[o] != hids[k])
-                    matched_hyp[i] = k
+            previous = np.array([last.get(o, NO_TRACK) for o in oids.tolist()], dtype=np.int64)
+            matched_hyp = _match_frame(cdist(opts, hpts), _previous_index(previous, hids),
+                                       threshold)
+            # A match to another hypothesis than the object's last one is a switch (a kept
+            # correspondence never is).
+            for i in np.flatnonzero(matched_hyp >= 0):
+                n_switches += int(previous[i] != NO_TRACK and previous[i] != hids[matched_hyp[i]])
         for i, o in enumerate(oids.tolist()):
             k = matched_hyp[i]
             tracked_runs.setdefault(o, []).append(k >= 0)
