@@ -35,3 +35,20 @@ for _env_id, _entry_point in ENVIRONMENTS.items():
         # Time limits are handled inside each env so that the episode summary
         # in ``info`` is written on truncation too.
         register(id=_env_id, entry_point=_entry_point, disable_env_checker=False)
+
+
+def env_class(env_id: str):
+    """The class (or creator function) Gymnasium has registered for ``env_id``.
+
+    Raises:
+        KeyError: ``env_id`` is not registered with Gymnasium.
+    """
+    import gymnasium as gym
+
+    try:
+        entry_point = gym.spec(env_id).entry_point
+    except gym.error.Error as exc:
+        raise KeyError(f"unknown environment {env_id!r}") from exc
+    if isinstance(entry_point, str):
+        entry_point = gym.envs.registration.load_env_creator(entry_point)
+    return entry_point

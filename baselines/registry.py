@@ -26,6 +26,8 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+import auv_envs
+
 
 class Agent(Protocol):
     def reset(self, seed: int | None = None) -> None: ...
@@ -102,18 +104,8 @@ class AgentSpec:
 
 
 def env_entry_point(env_id: str):
-    """The class (or creator function) Gymnasium has registered for ``env_id``.
-
-    Raises:
-        KeyError: ``env_id`` is not registered with Gymnasium.
-    """
-    try:
-        entry_point = gym.spec(env_id).entry_point
-    except gym.error.Error as exc:
-        raise KeyError(f"unknown environment {env_id!r}") from exc
-    if isinstance(entry_point, str):
-        entry_point = gym.envs.registration.load_env_creator(entry_point)
-    return entry_point
+    """The class Gymnasium has registered for ``env_id`` (see :func:`auv_envs.env_class`)."""
+    return auv_envs.env_class(env_id)
 
 
 def env_obs_modes(env_id: str) -> tuple[str, ...] | None:

@@ -27,10 +27,7 @@ IMAGE_MODES = ("image", "stereo")
 
 def declared_obs_modes(env_id: str) -> tuple[str, ...]:
     """The observation modes an environment class declares (its ``obs_modes``)."""
-    entry_point = gym.spec(env_id).entry_point
-    if isinstance(entry_point, str):
-        entry_point = gym.envs.registration.load_env_creator(entry_point)
-    return tuple(entry_point.obs_modes)
+    return tuple(auv_envs.env_class(env_id).obs_modes)
 
 
 def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:

@@ -24,11 +24,7 @@ IMAGE_MODES = ("image", "stereo")
 SMALL_IMAGE = (64, 48)
 
 
-def env_class(env_id: str) -> type:
-    entry_point = gym.spec(env_id).entry_point
-    if isinstance(entry_point, str):
-        return gym.envs.registration.load_env_creator(entry_point)
-    return entry_point
+env_class = auv_envs.env_class
 
 
 def obs_modes(env_id: str) -> tuple[str, ...]:
