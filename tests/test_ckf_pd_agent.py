@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
+from auv_envs.tasks.lars_scene import auv_rotation
 from baselines.evaluation import run_episode
 from baselines.lars.agents import CKFPDAgent
-from baselines.lars.marker import MarkerLocaliser, auv_rotation, marker_attitude
+from baselines.lars.marker import MarkerLocaliser, marker_attitude
 from baselines.registry import agent_names, agent_spec, make_agent
 
 ENV_ID = "auv_envs/LARSCapture-v0"

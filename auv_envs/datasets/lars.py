@@ -46,9 +46,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from auv_envs.core import frames  # noqa: E402
 from auv_envs.core.camera import points_in_camera, project  # noqa: E402
 from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, LARSCaptureEnv  # noqa: E402
+from auv_envs.tasks.lars_scene import auv_rotation  # noqa: E402
 
 FORMAT_VERSION = 1
 
@@ -77,7 +77,7 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
     half_l, r = cal.auv_length / 2.0, cal.auv_diameter / 2.0
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     body = signs * (half_l, r, r)
-    rot = _auv_rotation(info)
+    rot = auv_rotation(info["true_pitch"], info["true_yaw"])
     world = body @ rot.T + info["true_position"]
     k = cal.stereo.left
     out = np.full((2, 4), np.nan)
@@ -91,10 +91,6 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
         if box[2] > box[0] and box[3] > box[1]:
             out[i] = box
     return out
-
-
-def _auv_rotation(info: dict) -> np.ndarray:
-    return frames.rotation_from_euler(0.0, -info["true_pitch"], info["true_yaw"])
 
 
 def export_sequence(

@@ -41,6 +41,14 @@ ANALOG_SCALE = 0.8
 ANALOG_MARKER_BASE_X = -0.12
 
 
+def auv_rotation(pitch: float, yaw: float) -> np.ndarray:
+    """Body-to-world rotation of the level-rolled AUV with nose-up ``pitch`` and ``yaw``.
+
+    frames.py's ZYX pitch is nose-down positive, hence the sign.
+    """
+    return frames.rotation_from_euler(0.0, -pitch, yaw)
+
+
 @dataclasses.dataclass(frozen=True)
 class MarkerGeometry:
     """The triangle marker on a cylinder of radius ``radius``.
@@ -130,8 +138,8 @@ class AUVMotion:
         return 2.0 * math.pi / self.heave_period
 
     def rotation(self) -> np.ndarray:
-        """Body-to-world rotation (frames.py ZYX; its pitch is nose-down positive)."""
-        return frames.rotation_from_euler(0.0, -self.pitch, self.yaw)
+        """Body-to-world rotation (see :func:`auv_rotation`)."""
+        return auv_rotation(self.pitch, self.yaw)
 
 
 #: Documented randomisation ranges of :class:`AUVMotion` (``reset`` draws

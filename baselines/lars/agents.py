@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from auv_envs.tasks.lars_scene import AUV_FREEBOARD
+from auv_envs.tasks.lars_scene import AUV_FREEBOARD, auv_rotation
 from baselines.lars.ckf import (
     CubatureKalmanFilter,
     HeaveSurgeModel,
@@ -44,7 +44,7 @@ from baselines.lars.control import (
     SampledTrajectory,
     joint_reference,
 )
-from baselines.lars.marker import MarkerLocaliser, auv_rotation
+from baselines.lars.marker import MarkerLocaliser
 from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/LARSCapture-v0",)

@@ -23,9 +23,8 @@ import math
 
 import numpy as np
 
-from auv_envs.core.frames import rotation_from_euler
 from auv_envs.core.stereo import StereoRig, triangulate
-from auv_envs.tasks.lars_scene import marker_pitch_yaw
+from auv_envs.tasks.lars_scene import auv_rotation, marker_pitch_yaw
 
 #: Floor on the pixel noise the measurement covariance assumes (px): detectors
 #: are never better than sub-pixel, and a zero covariance would make the
@@ -36,11 +35,6 @@ MIN_PIXEL_STD = 0.3
 MIN_DISPARITY = 1.0
 #: Matched corners behind the measured pixel noise before it is trusted.
 ADAPT_MIN_CORNERS = 30
-
-
-def auv_rotation(pitch: float, yaw: float) -> np.ndarray:
-    """Body-to-world rotation of a level-rolled AUV with nose-up ``pitch`` and ``yaw``."""
-    return rotation_from_euler(0.0, -pitch, yaw)
 
 
 def marker_attitude(corners, depth_offset: float, refine: bool = True,
