@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import torch  # noqa: E402
 
 from auv_envs.datasets.lars import tracking_action  # noqa: E402
-from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
+from auv_envs.tasks.lars import CONTROL_PERIOD, LARSCaptureEnv  # noqa: E402
 from baselines.lars.ltat import LTATFrontEnd  # noqa: E402
 from baselines.lars.siamese import Pyramid, SiameseTracker, marker_box  # noqa: E402
 
@@ -37,7 +37,7 @@ TARGET_FPS = 25.0
 def render_episode(seed: int, frames: int):
     """Stereo observations of a severe-sea episode, the env's calibration, frame-0 truth."""
     env = LARSCaptureEnv(obs_mode="stereo", sea_state="severe", control="position",
-                         time_limit=frames * 0.04 + 1.0)
+                         time_limit=frames * CONTROL_PERIOD + 1.0)
     obs, info = env.reset(seed=seed)
     truth = info["true_pixels"]
     observations = []

@@ -50,9 +50,9 @@ import torch  # noqa: E402
 
 from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
+from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
 from baselines.lars.ltat import LTATParams, LTATracker, MarkerCornerExtractor  # noqa: E402
 from baselines.lars.siamese import (  # noqa: E402
-    EVAL_SEED_MIN,
     Pyramid,
     SiameseTracker,
     load_siamese,
@@ -172,7 +172,7 @@ def corner_errors(paths, size, step: int = 3) -> dict:
 
 def select_sequences(data: Path, sea: str, count: int, steps: int) -> list[Path]:
     """Export evaluation sequences; severe ones must show a wash-over and an analog."""
-    paths, seed = [], EVAL_SEED_MIN + (0 if sea == "calm" else 50000)
+    paths, seed = [], EVAL_SEED_BASE + (0 if sea == "calm" else 50000)
     while len(paths) < count:
         path = data / f"{sea}_{seed}"
         try:

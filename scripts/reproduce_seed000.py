@@ -44,6 +44,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
+from auv_envs.tasks.lars import CONTROL_PERIOD  # noqa: E402
 from baselines.evaluation import run_episode  # noqa: E402
 from baselines.lars.agents import CKFPDAgent  # noqa: E402
 from baselines.lars.marker import MarkerLocaliser, marker_attitude  # noqa: E402
@@ -128,7 +129,7 @@ def estimation(sea: str, episodes: int, track_time: float, warmup: float) -> tup
 
 def attitude(pitch_deg: float, yaw_deg: float, seed: int, steps: int) -> dict:
     """Pitch/yaw estimates with the AUV pinned at the set angles."""
-    env = gym.make(ENV_ID, obs_mode="features", time_limit=steps * 0.04 + 1)
+    env = gym.make(ENV_ID, obs_mode="features", time_limit=steps * CONTROL_PERIOD + 1)
     try:
         cal = env.unwrapped.calibration
         literal_loc = MarkerLocaliser(cal, refine_attitude=False)

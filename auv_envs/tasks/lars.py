@@ -47,6 +47,8 @@ CONTROLS = ("torque", "position")
 
 PHYSICS_TIMESTEP = 0.01
 FRAME_SKIP = 4
+#: Seconds per env step (``calibration.control_period``).
+CONTROL_PERIOD = PHYSICS_TIMESTEP * FRAME_SKIP
 #: Seed 000, eq. 30: Kp = 160, Kd = 20, used by ``control="position"`` as the
 #: acceleration gains of a computed-torque inner loop (eqs. 29-30).
 POSITION_GAINS = (160.0, 20.0)
@@ -351,7 +353,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._physics = _Physics(model)
         arm = ArmModel(model)
         self._arm = arm
-        self._dt = PHYSICS_TIMESTEP * FRAME_SKIP
+        self._dt = CONTROL_PERIOD
         if abs(model.opt.timestep - PHYSICS_TIMESTEP) > 1e-12:
             raise ValueError("assets/lars/scene.xml timestep differs from PHYSICS_TIMESTEP")
 

@@ -60,6 +60,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from auv_envs.core.assets import sha256_file
+from baselines.evaluation import EVAL_SEED_BASE
 
 TEMPLATE_SIZE = 64
 SEARCH_SIZE = 128
@@ -84,9 +85,8 @@ DEFAULT_WEIGHTS_DIR = "lars/siamese"
 WEIGHTS_FILE = "weights.pt"
 META_FILE = "meta.json"
 TRAIN_COMMAND = "python -m baselines.lars.siamese train --out assets/lars/siamese"
-#: Training sequences are seeded inside this range; evaluation uses >= 100000.
+#: Training sequences are seeded inside this range; evaluation uses >= EVAL_SEED_BASE.
 TRAIN_SEED_RANGE = (1000, 99999)
-EVAL_SEED_MIN = 100000
 #: Frames (of the exported sequence) between a training template and its search.
 MAX_PAIR_GAP = 40
 #: A training patch spans this many template contexts (search crop plus shifts).
@@ -669,7 +669,7 @@ def train_sequences(sea_state: str, count: int) -> list[int]:
     start = 1000 if sea_state == "calm" else 2000
     seeds = list(range(start, start + count))
     lo, hi = TRAIN_SEED_RANGE
-    if not all(lo <= s <= hi for s in seeds) or max(seeds) >= EVAL_SEED_MIN:
+    if not all(lo <= s <= hi for s in seeds) or max(seeds) >= EVAL_SEED_BASE:
         raise ValueError("training seeds must stay inside TRAIN_SEED_RANGE")
     return seeds
 
