@@ -38,6 +38,12 @@ class StereoRig:
         right = pts - (self.baseline, 0.0, 0.0)  # the right camera sits at +baseline along x
         return np.stack([project(self.left, pts)[0], project(self.right, right)[0]])
 
+    def disparity(self, u_left, u_right) -> np.ndarray:
+        """``x_L - x_R`` with image x measured from each camera's principal point (px)."""
+        return (np.asarray(u_left, dtype=float) - self.left.cx) - (
+            np.asarray(u_right, dtype=float) - self.right.cx
+        )
+
 
 def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
     """Left-camera-frame points (N, 3) from matched pixels (seed 000, eq. 2).
@@ -56,7 +62,7 @@ def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
     k = rig.left
     x_left = left[:, 0] - k.cx
     y_left = left[:, 1] - k.cy
-    disparity = x_left - (right[:, 0] - rig.right.cx)
+    disparity = rig.disparity(left[:, 0], right[:, 0])
     if np.any(~(disparity > 0.0)):
         raise ValueError("disparity must be positive (point in front of both cameras)")
     scale = rig.baseline / disparity
