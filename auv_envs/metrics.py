@@ -745,3 +745,25 @@ def clear_mot_labelled(true_points, true_visible, est_points, est_visible,
         [ids[m] for m in ev], [p[m] for p, m in zip(ep, ev, strict=True)],
         threshold,
     )
+
+
+def box_iou(a, b) -> np.ndarray | float:
+    """Intersection over union of axis-aligned boxes ``(x0, y0, x1, y1)``, row by row.
+
+    The overlap measure of OTB's one-pass evaluation (Wu, Lim & Yang, CVPR 2013).
+    ``a`` and ``b`` are (N, 4) arrays (or single (4,) boxes, giving a float); a
+    row where either box is NaN (a tracker that reports no box) scores 0.
+    """
+    a2 = np.atleast_2d(np.asarray(a, dtype=np.float64))
+    b2 = np.atleast_2d(np.asarray(b, dtype=np.float64))
+    if a2.shape[-1] != 4 or b2.shape[-1] != 4:
+        raise ValueError(f"boxes must be (N, 4) or (4,), got {np.shape(a)} and {np.shape(b)}")
+    x0 = np.maximum(a2[:, 0], b2[:, 0])
+    y0 = np.maximum(a2[:, 1], b2[:, 1])
+    x1 = np.minimum(a2[:, 2], b2[:, 2])
+    y1 = np.minimum(a2[:, 3], b2[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area_a = (a2[:, 2] - a2[:, 0]) * (a2[:, 3] - a2[:, 1])
+    area_b = (b2[:, 2] - b2[:, 0]) * (b2[:, 3] - b2[:, 1])
+    out = np.nan_to_num(inter / (area_a + area_b - inter), nan=0.0)
+    return float(out[0]) if np.ndim(a) == 1 and np.ndim(b) == 1 else out

@@ -49,6 +49,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
+from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
 from baselines.lars.ltat import LTATParams, LTATracker, MarkerCornerExtractor  # noqa: E402
@@ -68,18 +69,6 @@ NAMES = {
 }
 IOU_THRESHOLDS = np.linspace(0.0, 1.0, 21)
 PIXEL_THRESHOLDS = np.arange(0, 51)
-
-
-def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of boxes (N, 4) row by row; 0 where an output box is NaN."""
-    x0 = np.maximum(a[:, 0], b[:, 0])
-    y0 = np.maximum(a[:, 1], b[:, 1])
-    x1 = np.minimum(a[:, 2], b[:, 2])
-    y1 = np.minimum(a[:, 3], b[:, 3])
-    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
-    area = lambda r: (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])  # noqa: E731
-    out = inter / (area(a) + area(b) - inter)
-    return np.nan_to_num(out, nan=0.0)
 
 
 def centre_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -224,7 +213,7 @@ def main(argv=None) -> None:
                 seconds += time.perf_counter() - start
                 count += len(truth)
                 valid = np.isfinite(truth).all(axis=2)
-                ious.append(iou(boxes[valid], truth[valid]))
+                ious.append(box_iou(boxes[valid], truth[valid]))
                 errors.append(centre_error(boxes[valid], truth[valid]))
             ious, errors = np.concatenate(ious), np.concatenate(errors)
             s, p = success_curve(ious), precision_curve(errors)

@@ -20,6 +20,7 @@ import torch  # noqa: E402
 
 from auv_envs.core.assets import sha256_file  # noqa: E402
 from auv_envs.datasets.lars import tracking_action  # noqa: E402
+from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
 from baselines.lars.ltat import (  # noqa: E402
@@ -98,14 +99,6 @@ def wash_rollout():
 
 def _image_size(calibration):
     return calibration.stereo.left.width, calibration.stereo.left.height
-
-
-def _iou(a, b):
-    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
-    x1, y1 = min(a[2], b[2]), min(a[3], b[3])
-    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
-    area = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1])
-    return inter / (area - inter)
 
 
 # ---------------------------------------------------------------------- weights
@@ -297,7 +290,7 @@ def test_ltat_reacquires_after_wash_over(wash_rollout):
             lost_before = front.stats()["ltat_lost_views"]
         if last_hidden < k <= last_hidden + REACQUIRE_FRAMES:
             truth_box = marker_box(info["true_pixels"][0], _image_size(calibration))
-            ious.append(_iou(front.last_output.boxes[0], truth_box))
+            ious.append(box_iou(front.last_output.boxes[0], truth_box))
             if features["visible"].all():
                 err = np.linalg.norm(features["pixels"] - info["true_pixels"], axis=2)
                 corner_frames.append(err.max())
@@ -333,12 +326,12 @@ def test_detector_reacquires_when_the_camera_moved_during_wash_over(shipped):
     stats = front.stats()
     assert stats["ltat_redetections"] >= 1
     truth_box = marker_box(rollout[-1][1]["true_pixels"][0], _image_size(calibration))
-    assert _iou(front.last_output.boxes[0], truth_box) > REACQUIRE_IOU
+    assert box_iou(front.last_output.boxes[0], truth_box) > REACQUIRE_IOU
     assert features["visible"].all()
     err = np.linalg.norm(features["pixels"] - rollout[-1][1]["true_pixels"], axis=2)
     assert err.max() <= CORNER_TOLERANCE
     # The tracker alone, without the detector, does not get it back.
-    assert _iou(alone.box(0), truth_box) < REACQUIRE_IOU
+    assert box_iou(alone.box(0), truth_box) < REACQUIRE_IOU
 
 
 # ---------------------------------------------------------------------- agent

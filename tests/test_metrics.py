@@ -422,3 +422,12 @@ def test_tcfe_defaults_small_for_smooth_large_for_erratic():
 def test_tcfe_rejects_bad_input(x, kwargs, match):
     with pytest.raises(ValueError, match=match):
         metrics.tcfe(x, **kwargs)
+
+
+def test_box_iou_hand_worked_and_nan_boxes_score_zero():
+    a = np.array([[0.0, 0.0, 2.0, 2.0], [0.0, 0.0, 1.0, 1.0], [0.0, 0.0, 1.0, 1.0]])
+    b = np.array([[1.0, 1.0, 3.0, 3.0], [0.0, 0.0, 1.0, 1.0], [np.nan] * 4])
+    np.testing.assert_allclose(metrics.box_iou(a, b), [1.0 / 7.0, 1.0, 0.0])
+    assert metrics.box_iou([0, 0, 1, 1], [2, 2, 3, 3]) == 0.0
+    with pytest.raises(ValueError, match="boxes"):
+        metrics.box_iou([0, 0, 1], [0, 0, 1, 1])
