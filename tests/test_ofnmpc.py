@@ -180,3 +180,48 @@ def test_without_a_compiler_the_solver_warns_and_runs_uncompiled(calibration, tm
         ctrl = OffsetFreeNMPC(calibration, OFNMPCConfig(horizon=2, compile=True))
     assert not ctrl.compiled
     assert ctrl.solve(np.array([-4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]), np.zeros(4)).success
+
+
+def test_processes_needing_the_same_library_compile_it_once(tmp_path, monkeypatch):
+    """The build is locked: of two simultaneous requests one compiles, the other waits and
+    loads the result (a tiny NLP keeps the build short)."""
+    import threading
+
+    import casadi as ca
+
+    import baselines.docking.ofnmpc as module
+
+    monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
+    builds, build = [], module._build_library
+
+    def counting_build(*args):
+        builds.append(args[0])
+        build(*args)
+
+    monkeypatch.setattr(module, "_build_library", counting_build)
+    x = ca.SX.sym("x", 2)
+    options = {"print_time": False, "ipopt": {"print_level": 0, "sb": "yes"}}
+    solver = ca.nlpsol("tiny", "ipopt", {"x": x, "f": ca.sumsqr(x - ca.DM([1.0, -2.0]))},
+                       options)
+    results = [None, None]
+
+    def request(i):
+        results[i] = module.compiled_nlpsol("tiny", "ipopt", solver, options, ("-O0",))
+
+    threads = [threading.Thread(target=request, args=(i,)) for i in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert builds == ["tiny"]
+    for compiled in results:
+        np.testing.assert_allclose(np.ravel(compiled(x0=[0.0, 0.0])["x"]), [1.0, -2.0],
+                                   atol=1e-6)
+
+
+def test_default_controller_is_compiled_where_a_compiler_exists(controller):
+    import shutil
+
+    assert controller.config.compile
+    assert controller.compiled == (shutil.which("cc") is not None
+                                   or shutil.which("gcc") is not None)
