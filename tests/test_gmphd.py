@@ -193,3 +193,71 @@ def test_extractor_keeps_labels():
     _, s2, l2 = ext(mix(0.3))
     _, s3, l3 = ext(mix(5.0))
     assert len(s1) == 1 and l1[0] == l2[0] and l3[0] != l2[0]
+
+
+def test_batched_reduction_equals_band_by_band():
+    rng = np.random.default_rng(8)
+    q, n = 4, 9
+    w = rng.uniform(0, 1, (q, n)) * (rng.random((q, n)) < 0.8)
+    w[2] = 0.0  # an empty band
+    m = rng.normal(size=(q, n, 6)) * 0.3
+    P = np.stack([[_random_spd(rng, 6, 0.3) for _ in range(n)] for _ in range(q)])
+    labels = rng.integers(0, 100, (q, n))
+    reducer = MixtureReducer(1e-5, 4.0, max_components=3)
+    bw, bm, bP, bl = reducer.reduce(w, m, P, labels)
+    for i in range(q):
+        one = reducer(GaussianMixture(w[i], m[i], P[i], labels[i]))
+        k = len(one)
+        assert np.count_nonzero(bw[i]) == k
+        np.testing.assert_allclose(bw[i, :k], one.weights, rtol=1e-12)
+        np.testing.assert_allclose(bm[i, :k], one.means, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(bP[i, :k], one.covariances, rtol=1e-12, atol=1e-15)
+        assert list(bl[i, :k]) == list(one.labels)
+        assert np.all(bl[i, k:] == -1) and np.all(bw[i, k:] == 0)
+    # The band-by-band reference, written out (Vo & Ma Table II) for band 0.
+    keep = np.flatnonzero(w[0] > 1e-5)
+    keep = keep[np.argsort(-w[0, keep], kind="stable")]
+    j = keep[0]
+    close = [i for i in keep
+             if (m[0, i] - m[0, j]) @ np.linalg.solve(P[0, i], m[0, i] - m[0, j]) <= 4.0]
+    assert bw[0, 0] == pytest.approx(w[0, close].sum(), rel=1e-12)
+
+
+def test_gci_of_identical_inputs_returns_them():
+    rng = np.random.default_rng(6)
+    P = np.stack([_random_spd(rng, 6, 0.1) for _ in range(2)])
+    means = np.zeros((2, 6))
+    means[1, :3] = 50.0  # well separated: the mixture power is then (nearly) exact
+    mix = GaussianMixture(np.array([0.8, 0.3]), means, P, np.array([4, 9]))
+    fused = GeneralizedCovarianceIntersection([0.2] * 5)([mix] * 5)
+    assert len(fused) >= 2
+    np.testing.assert_allclose(fused.weights[:2], mix.weights, rtol=1e-9)
+    np.testing.assert_allclose(fused.means[:2], mix.means, atol=1e-9)
+    np.testing.assert_allclose(fused.covariances[:2], mix.covariances, rtol=1e-9, atol=1e-12)
+    assert list(fused.labels[:2]) == [4, 9]
+    assert np.all(fused.weights[2:] < 1e-12 * fused.weights[1])
+
+
+def test_gci_of_three_gaussians_is_covariance_intersection():
+    rng = np.random.default_rng(9)
+    mixes = [_mix(rng.normal(size=6), _random_spd(rng, 6, 0.5 + 0.2 * i), w=0.5 + 0.1 * i)
+             for i in range(3)]
+    om = np.array([0.2, 0.3, 0.5])
+    fused = GeneralizedCovarianceIntersection(om)(mixes)
+    info = sum(o * np.linalg.inv(x.covariances[0]) for o, x in zip(om, mixes, strict=True))
+    P = np.linalg.inv(info)
+    mean = P @ sum(o * np.linalg.solve(x.covariances[0], x.means[0])
+                   for o, x in zip(om, mixes, strict=True))
+    np.testing.assert_allclose(fused.covariances[0], P, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fused.means[0], mean, rtol=1e-9, atol=1e-12)
+    # The weight is the integral of prod_q (w_q N_q)^om_q: check it by quadrature in 1-D.
+    from scipy.integrate import quad
+    from scipy.stats import norm
+
+    params = list(zip((0.0, 1.0, -0.5), (1.0, 0.6, 1.4), (0.9, 0.4, 1.2), om, strict=True))
+    one_d = [GaussianMixture(np.array([w]), np.array([[mu]]), np.array([[[s**2]]]),
+                             np.array([i])) for i, (mu, s, w, _) in enumerate(params)]
+    expected, _ = quad(lambda x: np.prod([(w * norm.pdf(x, mu, s)) ** o
+                                          for mu, s, w, o in params]), -20, 20)
+    got = GeneralizedCovarianceIntersection(om)(one_d).weights[0]
+    assert got == pytest.approx(expected, rel=1e-9)

@@ -86,3 +86,17 @@ def test_bad_input(calibration):
     solver = LeastSquaresPositioner(calibration)
     with pytest.raises(ValueError, match="expected tdoa"):
         solver.solve(np.zeros((10, 8, 8)), np.zeros((10, 8, 8)), np.zeros((10, 8, 8)))
+
+
+def test_only_real_detections_are_solved(calibration):
+    rng = np.random.default_rng(4)
+    lo, hi = (np.asarray(v) for v in calibration.work_area)
+    q = len(calibration.band_centres)
+    points = rng.uniform(lo, hi, (q, 4, 3))
+    mask = rng.random((q, 4)) < 0.5
+    fixes = LeastSquaresPositioner(calibration).solve(*_exact(calibration, points), mask)
+    np.testing.assert_allclose(fixes.position[mask], points[mask], atol=1e-6)
+    assert np.all(np.isnan(fixes.position[~mask])) and not fixes.valid[~mask].any()
+    assert np.array_equal(fixes.valid, mask)
+    with pytest.raises(ValueError, match="mask"):
+        LeastSquaresPositioner(calibration).solve(*_exact(calibration, points), mask[:, :2])

@@ -22,16 +22,24 @@ in each band keep true), with the exact power of a Gaussian
     N(x; m, P)^omega = kappa(omega, P) N(x; m, P / omega),
     kappa = det(2 pi P / omega)^{1/2} / det(2 pi P)^{omega/2}.
 
-The product of the powered mixtures is expanded pairwise, band by band, with
-the exact product of two Gaussians
-``N(x; a, A) N(x; b, B) = N(a; b, A + B) N(x; c, C)``,
-``C^{-1} = A^{-1} + B^{-1}``, ``C^{-1} c = A^{-1} a + B^{-1} b``. For single
-Gaussians this is covariance intersection: ``C^{-1} = sum_q omega_q P_q^{-1}``.
-After each band the expansion keeps the ``max_components`` heaviest terms
-above ``min_weight``. A band with ``omega_q = 0`` contributes ``v^0 = 1``
-exactly and is skipped; so is a band whose mixture is empty (documented
-choice: an empty band carries no information here rather than vetoing every
-target).
+The product of the powered mixtures is a sum over one component per band;
+each term is a product of Gaussians, computed exactly in information form:
+with ``S_q = P_q / omega_q``, ``Lambda = sum_q S_q^{-1}``,
+``eta = sum_q S_q^{-1} m_q``,
+
+    prod_q N(x; m_q, S_q) = K N(x; Lambda^{-1} eta, Lambda^{-1}),
+    log K = -1/2 [sum_q (d log 2 pi + log det S_q + m_q^T S_q^{-1} m_q)
+                  - (d log 2 pi - log det Lambda + eta^T Lambda^{-1} eta)].
+
+For single Gaussians this is covariance intersection:
+``C^{-1} = sum_q omega_q P_q^{-1}``. The terms are expanded band by band,
+summing the information (a matrix sum per term, no inversion); whenever the
+expansion holds more than ``max_components`` terms, the heaviest
+``max_components`` are kept (a beam). At the end the kept terms are formed,
+sorted by weight, and those at or below ``min_weight`` are dropped. A band
+with ``omega_q = 0`` contributes ``v^0 = 1`` exactly and is skipped; so is a
+band whose mixture is empty (documented choice: an empty band carries no
+information here rather than vetoing every target).
 """
 
 from __future__ import annotations
@@ -46,32 +54,20 @@ from baselines.acoustic.gmphd import GaussianMixture
 LOG_2PI = math.log(2.0 * math.pi)
 
 
-def _power(mix: GaussianMixture, omega: float):
-    """log weights, means, covariances of the powered mixture (see the module docstring)."""
-    d = mix.means.shape[-1]
-    _, logdet = np.linalg.slogdet(mix.covariances)
-    # log kappa = 0.5 [d log(2 pi / omega) + logdet] - 0.5 omega [d log 2 pi + logdet]
-    log_kappa = 0.5 * (d * (LOG_2PI - math.log(omega)) + logdet) \
-        - 0.5 * omega * (d * LOG_2PI + logdet)
-    return omega * np.log(mix.weights) + log_kappa, mix.means, mix.covariances / omega
+def _terms(L: np.ndarray, h: np.ndarray, s: np.ndarray, base: np.ndarray):
+    """Log weights, means and covariances of product terms in information form.
 
-
-def _product(a, b):
-    """All pairwise products of two (log-weight, mean, covariance) mixtures."""
-    la, ma, Pa = a
-    lb, mb, Pb = b
-    d = ma.shape[-1]
-    S = Pa[:, None] + Pb[None]  # (A, B, d, d)
-    diff = ma[:, None] - mb[None]
-    S_inv = np.linalg.inv(S)
-    _, logdet = np.linalg.slogdet(S)
-    log_c = -0.5 * (np.einsum("abi,abij,abj->ab", diff, S_inv, diff) + logdet + d * LOG_2PI)
-    Ia, Ib = np.linalg.inv(Pa), np.linalg.inv(Pb)
-    C = np.linalg.inv(Ia[:, None] + Ib[None])
-    info = np.einsum("aij,aj->ai", Ia, ma)[:, None] + np.einsum("bij,bj->bi", Ib, mb)[None]
-    c = np.einsum("abij,abj->abi", C, info)
-    return ((la[:, None] + lb[None] + log_c).reshape(-1), c.reshape(-1, d),
-            C.reshape(-1, d, d))
+    Args:
+      L: (T, d, d) summed information ``Lambda``; h: (T, d) summed ``eta``;
+      s: (T,) summed ``d log 2 pi + log det S_q + m_q^T S_q^{-1} m_q``;
+      base: (T,) summed log weights of the powered components.
+    """
+    d = L.shape[-1]
+    C = np.linalg.inv(L)
+    c = (C @ h[..., None])[..., 0]
+    _, logdet_L = np.linalg.slogdet(L)
+    log_k = -0.5 * (s - (d * LOG_2PI - logdet_L + np.einsum("ti,ti->t", h, c)))
+    return base + log_k, c, C
 
 
 class GeneralizedCovarianceIntersection:
@@ -105,19 +101,39 @@ class GeneralizedCovarianceIntersection:
             mix = used[0][0]
             return GaussianMixture(mix.weights.copy(), mix.means.copy(),
                                    mix.covariances.copy(), mix.labels.copy())
-        first, om = used[0]
-        acc = _power(first, om)
-        labels = first.labels
-        for mix, om in used[1:]:
-            lw, m, P = _product(acc, _power(mix, om))
-            labels = np.repeat(labels, len(mix))  # the first band's label travels along
-            keep = np.argsort(-lw, kind="stable")[: self.max_components]
-            keep = keep[lw[keep] > math.log(self.min_weight)]
-            if not len(keep):
-                return GaussianMixture.empty(m.shape[-1])
-            acc, labels = (lw[keep], m[keep], P[keep]), labels[keep]
-        lw, m, P = acc
-        return GaussianMixture(np.exp(lw), m, P, labels.astype(np.int64))
+        sizes = [len(mix) for mix, _ in used]
+        om = np.repeat([o for _, o in used], sizes)
+        w = np.concatenate([mix.weights for mix, _ in used])
+        m = np.concatenate([mix.means for mix, _ in used])
+        P = np.concatenate([mix.covariances for mix, _ in used])
+        d = m.shape[-1]
+        # The powered components N(x; m, P)^om = kappa N(x; m, P / om), all bands at once.
+        info = np.linalg.inv(P) * om[:, None, None]
+        eta = (info @ m[..., None])[..., 0]
+        _, logdet_P = np.linalg.slogdet(P)
+        log_kappa = 0.5 * (d * (LOG_2PI - np.log(om)) + logdet_P) \
+            - 0.5 * om * (d * LOG_2PI + logdet_P)
+        base_all = om * np.log(w) + log_kappa
+        s_all = d * LOG_2PI + logdet_P - d * np.log(om) + np.einsum("ni,ni->n", m, eta)
+        ends = np.cumsum(sizes)
+        L, h, s, base = info[: ends[0]], eta[: ends[0]], s_all[: ends[0]], base_all[: ends[0]]
+        labels = used[0][0].labels
+        for start, end in zip(ends[:-1], ends[1:], strict=True):
+            n = end - start
+            L = (L[:, None] + info[None, start:end]).reshape(-1, d, d)
+            h = (h[:, None] + eta[None, start:end]).reshape(-1, d)
+            s = (s[:, None] + s_all[None, start:end]).reshape(-1)
+            base = (base[:, None] + base_all[None, start:end]).reshape(-1)
+            labels = np.repeat(labels, n)  # the first band's label travels along
+            if len(base) > self.max_components:
+                lw = _terms(L, h, s, base)[0]
+                keep = np.argsort(-lw, kind="stable")[: self.max_components]
+                L, h, s, base, labels = L[keep], h[keep], s[keep], base[keep], labels[keep]
+        lw, c, C = _terms(L, h, s, base)
+        keep = np.argsort(-lw, kind="stable")
+        keep = keep[lw[keep] > math.log(self.min_weight)]
+        return GaussianMixture(np.exp(lw[keep]), c[keep], C[keep],
+                               labels[keep].astype(np.int64))
 
 
 class LabelledExtractor:

@@ -176,7 +176,7 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
 
 
 class MixtureReducer:
-    """Pruning, merging and capping (Vo & Ma 2006, Table II).
+    """Pruning, merging and capping (Vo & Ma 2006, Table II), batched over bands.
 
     Args:
       prune_threshold: T (seed 004: 1e-5); components at or below it are dropped.
@@ -194,37 +194,81 @@ class MixtureReducer:
         self.max_components = int(max_components)
 
     def __call__(self, mixture: GaussianMixture) -> GaussianMixture:
-        keep = mixture.weights > self.prune_threshold
-        if not keep.any():
-            return GaussianMixture.empty(mixture.means.shape[-1])
-        mix = mixture.select(keep)
-        order = np.argsort(-mix.weights, kind="stable")
-        w, m, P, lab = mix.weights[order], mix.means[order], mix.covariances[order], \
-            mix.labels[order]
-        P_inv = np.linalg.inv(P)
-        left = np.ones(len(w), bool)
-        out_w, out_m, out_P, out_l = [], [], [], []
-        while left.any() and len(out_w) < self.max_components:
-            j = int(np.argmax(left))  # heaviest remaining (sorted order)
-            idx = np.flatnonzero(left)
-            d = m[idx] - m[j]
-            close = idx[np.einsum("ni,nij,nj->n", d, P_inv[idx], d) <= self.merge_threshold]
-            wl = w[close]
-            total = wl.sum()
-            mean = wl @ m[close] / total
-            dm = m[close] - mean
-            cov = np.einsum("n,nij->ij", wl, P[close] + dm[:, :, None] * dm[:, None, :]) / total
-            out_w.append(total)
-            out_m.append(mean)
-            out_P.append(cov)
-            out_l.append(lab[j])
-            left[close] = False
-        return GaussianMixture(np.array(out_w), np.array(out_m), np.array(out_P),
-                               np.array(out_l, dtype=np.int64))
+        """Reduce one mixture."""
+        w, m, P, lab = self.reduce(mixture.weights[None], mixture.means[None],
+                                   mixture.covariances[None], mixture.labels[None])
+        n = int(np.count_nonzero(w[0]))
+        return GaussianMixture(w[0, :n], m[0, :n], P[0, :n], lab[0, :n])
+
+    def reduce(self, weights, means, covariances, labels):
+        """Reduce Q padded mixtures at once.
+
+        The greedy loop of Table II (take the heaviest remaining component,
+        merge every remaining one within U of it under that one's own
+        covariance, repeat) runs once per *output* component, each pass
+        vectorised over the bands.
+
+        Args:
+          weights: (Q, M) (0 marks an empty slot); means (Q, M, d);
+            covariances (Q, M, d, d); labels (Q, M).
+
+        Returns:
+          (weights (Q, J), means, covariances, labels), J <= max_components,
+          heaviest first in each band; a band's empty slots (weight 0, identity
+          covariance, label -1) come after its components.
+        """
+        q_, d = weights.shape[0], means.shape[-1]
+        keep = weights > self.prune_threshold
+        n = int(keep.sum(axis=1).max(initial=0))
+        eye = np.eye(d)
+        if n == 0:
+            return (np.zeros((q_, 0)), np.zeros((q_, 0, d)), np.zeros((q_, 0, d, d)),
+                    np.zeros((q_, 0), dtype=np.int64))
+        order = np.argsort(np.where(keep, -weights, np.inf), axis=1, kind="stable")[:, :n]
+        w = np.take_along_axis(weights, order, axis=1)
+        m = np.take_along_axis(means, order[..., None], axis=1)
+        P = np.take_along_axis(covariances, order[..., None, None], axis=1)
+        lab = np.take_along_axis(labels, order, axis=1)
+        left = np.take_along_axis(keep, order, axis=1)
+        P_inv = np.linalg.inv(np.where(left[..., None, None], P, eye))
+        cap = min(self.max_components, n)
+        out_w = np.zeros((q_, cap))
+        out_m = np.zeros((q_, cap, d))
+        out_P = np.broadcast_to(eye, (q_, cap, d, d)).copy()
+        out_l = np.full((q_, cap), -1, dtype=np.int64)
+        rows = np.arange(q_)
+        used = 0
+        for it in range(cap):
+            active = left.any(axis=1)
+            if not active.any():
+                break
+            j = np.argmax(left, axis=1)  # heaviest remaining (sorted order)
+            diff = m - m[rows, j][:, None]
+            maha = np.einsum("qni,qnij,qnj->qn", diff, P_inv, diff)
+            close = left & (maha <= self.merge_threshold)
+            wl = np.where(close, w, 0.0)
+            total = wl.sum(axis=1)
+            safe = np.where(active, total, 1.0)
+            mean = np.einsum("qn,qni->qi", wl, m) / safe[:, None]
+            dm = m - mean[:, None]
+            cov = np.einsum("qn,qnij->qij", wl, P + dm[..., :, None] * dm[..., None, :])
+            a = np.flatnonzero(active)
+            out_w[a, it] = total[a]
+            out_m[a, it] = mean[a]
+            out_P[a, it] = cov[a] / safe[a, None, None]
+            out_l[a, it] = lab[a, j[a]]
+            left &= ~close
+            used = it + 1
+        return out_w[:, :used], out_m[:, :used], out_P[:, :used], out_l[:, :used]
 
 
 class GaussianMixturePHDBank:
     """Q independent GM-PHD filters (one per sub-band) sharing the adaptive birth.
+
+    The Q mixtures are kept padded to a common number of slots (``weights``
+    (Q, J) with 0 marking an empty slot, ``means`` (Q, J, 6), ``covariances``
+    (Q, J, 6, 6), ``labels`` (Q, J)) so that prediction, update and reduction
+    each run once for all bands.
 
     Args:
       n_bands: Q.
@@ -251,30 +295,20 @@ class GaussianMixturePHDBank:
         self.reset()
 
     def reset(self) -> None:
-        self.mixtures = [GaussianMixture.empty() for _ in range(self.n_bands)]
+        q = self.n_bands
+        self.weights = np.zeros((q, 0))
+        self.means = np.zeros((q, 0, STATE_DIM))
+        self.covariances = np.zeros((q, 0, STATE_DIM, STATE_DIM))
+        self.labels = np.zeros((q, 0), dtype=np.int64)
         self._next_label = 0
 
-    def _padded(self, extra_w, extra_m, extra_P):
-        """Predicted mixtures plus the birth components, padded to one slot count."""
-        q = self.n_bands
-        sizes = [len(mix) for mix in self.mixtures]
-        b = len(extra_w)
-        j = max(sizes) + b if (max(sizes) + b) else 1
-        w = np.zeros((q, j))
-        m = np.zeros((q, j, STATE_DIM))
-        P = np.broadcast_to(np.eye(STATE_DIM), (q, j, STATE_DIM, STATE_DIM)).copy()
-        labels = np.full((q, j), -1, dtype=np.int64)
-        birth_labels = np.arange(self._next_label, self._next_label + q * b).reshape(q, b)
-        self._next_label += q * b
-        for i, mix in enumerate(self.mixtures):
-            n = len(mix)
-            if n:
-                pm, pP = self.motion.predict(mix.means, mix.covariances)
-                w[i, :n], m[i, :n], P[i, :n] = self.p_survival * mix.weights, pm, pP
-                labels[i, :n] = mix.labels
-            w[i, n:n + b], m[i, n:n + b], P[i, n:n + b] = extra_w, extra_m, extra_P
-            labels[i, n:n + b] = birth_labels[i]
-        return w, m, P, labels
+    @property
+    def mixtures(self) -> list[GaussianMixture]:
+        """The Q mixtures without their empty slots (views of the padded arrays)."""
+        counts = np.count_nonzero(self.weights, axis=1)
+        return [GaussianMixture(self.weights[i, :n], self.means[i, :n],
+                                self.covariances[i, :n], self.labels[i, :n])
+                for i, n in enumerate(counts)]
 
     def step(self, z: np.ndarray, R: np.ndarray, valid: np.ndarray) -> list[GaussianMixture]:
         """Predict, add the adaptive birth, update with each band's fixes, reduce.
@@ -283,20 +317,29 @@ class GaussianMixturePHDBank:
           z: (Q, K, 3) position fixes, R: (Q, K, 3, 3), valid: (Q, K).
 
         Returns:
-          The Q updated mixtures (also kept in ``self.mixtures``).
+          The Q updated mixtures (also in ``self.mixtures``).
         """
-        confirmed = [mix.means[mix.weights >= self.birth.confirmed_weight, :3]
-                     for mix in self.mixtures]
         # Last step's positions: the motion over one 10 ms period is far below
         # the exclusion radius.
-        confirmed = np.concatenate(confirmed)
+        confirmed = self.means[self.weights >= self.birth.confirmed_weight][:, :3]
         bw, bm, bP = self.birth(z[valid], confirmed)
-        w, m, P, labels = self._padded(bw, bm, bP)
-        uw, um, uP, source = gmphd_update(w, m, P, z, R, valid, self.p_detect,
-                                          self.clutter_density)
-        ulabels = labels[:, source]
-        self.mixtures = [
-            self.reducer(GaussianMixture(uw[i], um[i], uP[i], ulabels[i]))
-            for i in range(self.n_bands)
-        ]
+        q, b = self.n_bands, len(bw)
+        pm, pP = self.motion.predict(self.means, self.covariances)
+        w = np.concatenate([self.p_survival * self.weights, np.broadcast_to(bw, (q, b))], 1)
+        if w.shape[1] == 0:
+            return self.mixtures
+        m = np.concatenate([pm, np.broadcast_to(bm, (q, b, STATE_DIM))], 1)
+        P = np.concatenate([pP, np.broadcast_to(bP, (q, b, STATE_DIM, STATE_DIM))], 1)
+        births = np.arange(self._next_label, self._next_label + q * b).reshape(q, b)
+        self._next_label += q * b
+        labels = np.concatenate([self.labels, births], 1)
+        # Only the real fixes matter: move them to the front of each band.
+        k = int(valid.sum(axis=1).max(initial=0))
+        first = np.argsort(~valid, axis=1, kind="stable")[:, :k]
+        uw, um, uP, source = gmphd_update(
+            w, m, P, np.take_along_axis(z, first[..., None], 1),
+            np.take_along_axis(R, first[..., None, None], 1),
+            np.take_along_axis(valid, first, 1), self.p_detect, self.clutter_density)
+        self.weights, self.means, self.covariances, self.labels = self.reducer.reduce(
+            uw, um, uP, labels[:, source])
         return self.mixtures

@@ -127,15 +127,16 @@ def work_area_centre(calibration) -> np.ndarray:
 
 def _solve_normal(A: np.ndarray, b: np.ndarray):
     """Batched normal-equation least squares; returns (x, (A^T A)^{-1}, rss)."""
-    AtA = np.einsum("...ri,...rj->...ij", A, A)
-    Atb = np.einsum("...ri,...r->...i", A, b)
+    At = np.swapaxes(A, -1, -2)
+    AtA = At @ A
+    Atb = (At @ b[..., None])[..., 0]
     # A relative ridge of 1e-12 keeps degenerate (clutter) systems solvable
     # without moving well-posed solutions beyond round-off.
     scale = np.trace(AtA, axis1=-2, axis2=-1)[..., None, None]
-    AtA = AtA + 1e-12 * scale * np.eye(A.shape[-1]) + 1e-300
+    AtA += (1e-12 * scale + 1e-300) * np.eye(A.shape[-1])
     inv = np.linalg.inv(AtA)
-    x = np.einsum("...ij,...j->...i", inv, Atb)
-    r = np.einsum("...ri,...i->...r", A, x) - b
+    x = (inv @ Atb[..., None])[..., 0]
+    r = (A @ x[..., None])[..., 0] - b
     return x, inv, np.einsum("...r,...r->...", r, r)
 
 
@@ -178,6 +179,11 @@ class LeastSquaresPositioner:
         self.range_diff_std = self._c * np.hypot(model["tdoa_std"], clock)  # (Q, N-1) m
         self.azimuth_std = model["azimuth_std"]  # (Q, N)
         self.elevation_std = model["elevation_std"]  # (Q, N)
+        # Per band, the factor multiplying each row's range (see _row_std).
+        scale = {"fused": (2.0 * self.range_diff_std, self.azimuth_std, self.elevation_std),
+                 "tdoa": (2.0 * self.range_diff_std,),
+                 "doa": (self.azimuth_std, self.elevation_std)}[method]
+        self._row_scale = np.concatenate(scale, axis=-1)  # (Q, rows)
         self.n_unknowns = 3 if method == "doa" else 4
         rows = {"fused": 3 * self._n - 1, "tdoa": self._n - 1, "doa": 2 * self._n}[method]
         self.dof = rows - self.n_unknowns
@@ -197,26 +203,23 @@ class LeastSquaresPositioner:
             parts_b.append(N_)
         return np.concatenate(parts_A, axis=-2), np.concatenate(parts_b, axis=-1)
 
-    def _row_std(self, p: np.ndarray, band_axis_shape) -> np.ndarray:
-        """First-order residual stds (..., rows) of each row at positions p (..., 3)."""
-        diff = p[..., None, :] - self._nodes  # (..., N, 3)
+    def _row_std(self, p: np.ndarray, band: np.ndarray) -> np.ndarray:
+        """First-order residual stds (M, rows) of each row at positions p (M, 3) in bands (M,)."""
+        diff = p[:, None, :] - self._nodes  # (M, N, 3)
         horizontal = np.maximum(np.hypot(diff[..., 0], diff[..., 1]), 1.0)
         ranges = np.maximum(np.hypot(horizontal, diff[..., 2]), 1.0)
-        # Broadcast the per-band stds (Q, .) over the detection axis.
-        extra = (1,) * (p.ndim - 1 - len(band_axis_shape))
-        rd = self.range_diff_std.reshape(band_axis_shape + extra + (-1,))
-        az = self.azimuth_std.reshape(band_axis_shape + extra + (-1,))
-        el = self.elevation_std.reshape(band_axis_shape + extra + (-1,))
         parts = []
         if self.method in ("fused", "tdoa"):
-            parts.append(2.0 * ranges[..., 1:] * rd)
+            parts.append(ranges[:, 1:])
         if self.method in ("fused", "doa"):
-            parts.append(horizontal * az)
-            parts.append(ranges * el)
-        return np.concatenate(parts, axis=-1)
+            parts += [horizontal, ranges]
+        return np.concatenate(parts, axis=-1) * self._row_scale[band]
 
     def solve(self, tdoa, azimuth, elevation, mask=None) -> PositionFixes:
         """Fix every detection of a measurement set.
+
+        Only the real detections (``mask``) are solved, in one batch; the
+        entries of the others are NaN (position, covariance, chi2) and invalid.
 
         Args:
           tdoa: (Q, K, N-1) s; azimuth, elevation: (Q, K, N) rad. The leading
@@ -237,19 +240,27 @@ class LeastSquaresPositioner:
                 f"expected tdoa (..., {self._n - 1}) and azimuth/elevation (..., {self._n}) "
                 f"with equal leading axes, got {tdoa.shape}, {azimuth.shape}, {elevation.shape}"
             )
-        if lead[:1] != (len(self.range_diff_std),):
-            raise ValueError(f"the leading axis must be the {len(self.range_diff_std)} bands, "
-                             f"got shape {lead}")
+        n_bands = len(self._row_scale)
+        if lead[:1] != (n_bands,):
+            raise ValueError(f"the leading axis must be the {n_bands} bands, got shape {lead}")
         mask = np.ones(lead, bool) if mask is None else np.asarray(mask).astype(bool)
-        A, b = self._system(tdoa, azimuth, elevation)
+        if mask.shape != lead:
+            raise ValueError(f"mask must have shape {lead}, got {mask.shape}")
+        sel = np.nonzero(mask)
+        A, b = self._system(tdoa[sel], azimuth[sel], elevation[sel])
         x, inv, rss = _solve_normal(A, b)
         if self.weighting == "noise":
-            w = 1.0 / self._row_std(x[..., :3], lead[:1])  # x is centred
+            w = 1.0 / self._row_std(x[:, :3], sel[0])  # x is centred; sel[0]: the band
             x, inv, rss = _solve_normal(A * w[..., None], b * w)
-        position = x[..., :3] + self._centre
-        covariance = inv[..., :3, :3]
-        valid = mask & np.all(np.isfinite(position), axis=-1)
-        valid &= np.all((position >= self._low) & (position <= self._high), axis=-1)
+        position = x[:, :3] + self._centre
+        ok = np.all(np.isfinite(position), axis=-1)
+        ok &= np.all((position >= self._low) & (position <= self._high), axis=-1)
         if self.gate is not None and self.dof > 0:
-            valid &= rss <= self.gate * self.dof
-        return PositionFixes(position, covariance, rss, self.dof, valid)
+            ok &= rss <= self.gate * self.dof
+        out_position = np.full(lead + (3,), np.nan)
+        out_covariance = np.full(lead + (3, 3), np.nan)
+        chi2 = np.full(lead, np.nan)
+        valid = np.zeros(lead, bool)
+        out_position[sel], out_covariance[sel] = position, inv[:, :3, :3]
+        chi2[sel], valid[sel] = rss, ok
+        return PositionFixes(out_position, out_covariance, chi2, self.dof, valid)
