@@ -25,7 +25,7 @@ import numpy as np
 from sklearn.cluster import DBSCAN
 
 STATE_DIM = 6
-LOG_2PI = math.log(2.0 * math.pi)
+TWO_PI_CUBED = (2.0 * math.pi) ** 3
 
 
 @dataclasses.dataclass
@@ -147,30 +147,35 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     w = np.asarray(weights, dtype=np.float64)
     q_, j_ = w.shape
     k_ = z.shape[1]
-    pd = np.broadcast_to(np.asarray(p_detect, dtype=np.float64), (q_,))[:, None]
-    HP = covariances[..., :3, :]  # (Q, J, 3, 6)
+    pd = np.asarray(p_detect, dtype=np.float64)
+    pd = pd[:, None] if pd.ndim else pd
+    HPt = np.swapaxes(covariances[:, :, None, :3, :], -1, -2)  # P H^T: (Q, J, 1, 6, 3)
     S = covariances[:, :, None, :3, :3] + R[:, None]  # (Q, J, K, 3, 3)
     S_inv = np.linalg.inv(S)
-    nu = z[:, None] - means[:, :, None, :3]  # (Q, J, K, 3)
-    maha = np.einsum("...i,...ij,...j->...", nu, S_inv, nu)
-    _, logdet = np.linalg.slogdet(S)
-    log_q = -0.5 * (maha + logdet + 3 * LOG_2PI)
-    gain = np.einsum("qjai,qjkab->qjkib", HP, S_inv)  # P H^T S^-1: (Q, J, K, 6, 3)
-    m_upd = means[:, :, None] + np.einsum("qjkib,qjkb->qjki", gain, nu)
+    nu = (z[:, None] - means[:, :, None, :3])[..., None]  # (Q, J, K, 3, 1)
+    S_inv_nu = S_inv @ nu
+    maha = (np.swapaxes(nu, -1, -2) @ S_inv_nu)[..., 0, 0]
+    # N(z; H m, S) = exp(-maha / 2) / sqrt((2 pi)^3 det S)
+    likelihood = np.exp(-0.5 * maha) / np.sqrt(TWO_PI_CUBED * np.linalg.det(S))
+    gain = HPt @ S_inv  # P H^T S^-1: (Q, J, K, 6, 3)
+    out_m = np.empty((q_, j_ * (k_ + 1), STATE_DIM))
+    out_m[:, :j_] = means
+    out_m[:, j_:] = (means[:, :, None] + (HPt @ S_inv_nu)[..., 0]).reshape(q_, -1, STATE_DIM)
     # Joseph form (I - K H) P (I - K H)^T + K R K^T: equal to P - K H P in exact
     # arithmetic, but stays positive definite when P's position-velocity block is
     # nearly singular (tiny process noise over 10 ms steps).
-    IKH = np.broadcast_to(np.eye(STATE_DIM), gain.shape[:3] + (STATE_DIM, STATE_DIM)).copy()
+    IKH = np.empty(gain.shape[:3] + (STATE_DIM, STATE_DIM))
+    IKH[...] = np.eye(STATE_DIM)
     IKH[..., :3] -= gain
-    P_upd = IKH @ covariances[:, :, None] @ np.swapaxes(IKH, -1, -2) \
-        + gain @ R[:, None] @ np.swapaxes(gain, -1, -2)
-    num = (pd * w)[:, :, None] * np.exp(log_q)  # (Q, J, K)
-    num = np.where(valid[:, None, :], num, 0.0)
-    w_upd = num / (clutter_density + num.sum(axis=1, keepdims=True))
-    out_w = np.concatenate([(1.0 - pd) * w, w_upd.reshape(q_, j_ * k_)], axis=1)
-    out_m = np.concatenate([means, m_upd.reshape(q_, j_ * k_, STATE_DIM)], axis=1)
-    out_P = np.concatenate([covariances, P_upd.reshape(q_, j_ * k_, STATE_DIM, STATE_DIM)],
-                           axis=1)
+    out_P = np.empty((q_, j_ * (k_ + 1), STATE_DIM, STATE_DIM))
+    out_P[:, :j_] = covariances
+    P_upd = IKH @ covariances[:, :, None] @ np.swapaxes(IKH, -1, -2)
+    P_upd += gain @ R[:, None] @ np.swapaxes(gain, -1, -2)
+    out_P[:, j_:] = P_upd.reshape(q_, -1, STATE_DIM, STATE_DIM)
+    num = (pd * w)[:, :, None] * np.where(valid[:, None, :], likelihood, 0.0)  # (Q, J, K)
+    out_w = np.empty((q_, j_ * (k_ + 1)))
+    out_w[:, :j_] = (1.0 - pd) * w
+    out_w[:, j_:] = (num / (clutter_density + num.sum(axis=1, keepdims=True))).reshape(q_, -1)
     source = np.concatenate([np.arange(j_), np.repeat(np.arange(j_), k_)])
     return out_w, out_m, out_P, source
 
@@ -310,14 +315,16 @@ class GaussianMixturePHDBank:
                                 self.covariances[i, :n], self.labels[i, :n])
                 for i, n in enumerate(counts)]
 
-    def step(self, z: np.ndarray, R: np.ndarray, valid: np.ndarray) -> list[GaussianMixture]:
-        """Predict, add the adaptive birth, update with each band's fixes, reduce.
+    def predict(self, z: np.ndarray, valid: np.ndarray):
+        """Predicted intensity plus this step's adaptive birth (Vo & Ma Table I, steps 1-2).
 
         Args:
-          z: (Q, K, 3) position fixes, R: (Q, K, 3, 3), valid: (Q, K).
+          z: (Q, K, 3) position fixes; valid: (Q, K) which are real.
 
         Returns:
-          The Q updated mixtures (also in ``self.mixtures``).
+          Padded (weights (Q, J), means, covariances, labels): the survivors of
+          each band, then the birth components (the same in every band, with
+          fresh labels per band).
         """
         # Last step's positions: the motion over one 10 ms period is far below
         # the exclusion radius.
@@ -326,13 +333,17 @@ class GaussianMixturePHDBank:
         q, b = self.n_bands, len(bw)
         pm, pP = self.motion.predict(self.means, self.covariances)
         w = np.concatenate([self.p_survival * self.weights, np.broadcast_to(bw, (q, b))], 1)
-        if w.shape[1] == 0:
-            return self.mixtures
         m = np.concatenate([pm, np.broadcast_to(bm, (q, b, STATE_DIM))], 1)
         P = np.concatenate([pP, np.broadcast_to(bP, (q, b, STATE_DIM, STATE_DIM))], 1)
         births = np.arange(self._next_label, self._next_label + q * b).reshape(q, b)
         self._next_label += q * b
-        labels = np.concatenate([self.labels, births], 1)
+        return w, m, P, np.concatenate([self.labels, births], 1)
+
+    def update(self, predicted, z: np.ndarray, R: np.ndarray, valid: np.ndarray) -> None:
+        """PHD update of each band with its own fixes, then reduction (Table I 3-4, II)."""
+        w, m, P, labels = predicted
+        if w.shape[1] == 0:
+            return
         # Only the real fixes matter: move them to the front of each band.
         k = int(valid.sum(axis=1).max(initial=0))
         first = np.argsort(~valid, axis=1, kind="stable")[:, :k]
@@ -342,4 +353,15 @@ class GaussianMixturePHDBank:
             np.take_along_axis(valid, first, 1), self.p_detect, self.clutter_density)
         self.weights, self.means, self.covariances, self.labels = self.reducer.reduce(
             uw, um, uP, labels[:, source])
+
+    def step(self, z: np.ndarray, R: np.ndarray, valid: np.ndarray) -> list[GaussianMixture]:
+        """Predict, add the adaptive birth, update with each band's fixes, reduce.
+
+        Args:
+          z: (Q, K, 3) position fixes, R: (Q, K, 3, 3), valid: (Q, K).
+
+        Returns:
+          The Q updated mixtures (also in ``self.mixtures``).
+        """
+        self.update(self.predict(z, valid), z, R, valid)
         return self.mixtures
