@@ -25,9 +25,7 @@ from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
     add_pixel_noise,
-    inside_image,
-    points_in_camera,
-    project,
+    project_few,
 )
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
@@ -198,23 +196,36 @@ class _Physics:
         self.seabed_z = float(self.data.geom("seabed").xpos[2])
         # Rays see the scenery (geom groups 0-1); lamp geoms are group 2.
         self.ray_groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
-        self._ray_dist = np.zeros(n_lights)
-        self._ray_geom = np.zeros(n_lights, dtype=np.int32)
+        # Views into MjData made once (its array properties build a new view on
+        # every access) and buffers reused every step; mj_resetData and
+        # mj_setState write in place, so the views stay valid.
+        adr, vadr = self.qpos_adr, self.qvel_adr
+        self._pos = self.data.qpos[adr : adr + 3]
+        self._quat = self.data.qpos[adr + 3 : adr + 7]
+        self._qvel = self.data.qvel[vadr : vadr + 6]
+        self._rot = np.empty(9)
+        self._ray_origin = np.empty(3)
+        self._ray_vec = np.empty(3)
+        self._ray_geom = np.empty(1, dtype=np.int32)
 
     def position(self) -> np.ndarray:
-        return self.data.qpos[self.qpos_adr : self.qpos_adr + 3].copy()
+        return self._pos.copy()
 
     def rotation(self) -> np.ndarray:
-        mat = np.empty(9)
-        mujoco.mju_quat2Mat(mat, self.data.qpos[self.qpos_adr + 3 : self.qpos_adr + 7])
-        return mat.reshape(3, 3)
+        mujoco.mju_quat2Mat(self._rot, self._quat)
+        return self._rot.reshape(3, 3).copy()
 
     def body_velocity(self, rotation: np.ndarray) -> np.ndarray:
         """(u, v, w, p, q, r) in the body frame."""
-        qvel = self.data.qvel[self.qvel_adr : self.qvel_adr + 6]
-        out = qvel.copy()
-        out[0:3] = qvel[0:3] @ rotation
+        out = self._qvel.copy()
+        out[0:3] = out[0:3] @ rotation
         return out
+
+    def kinematics(self) -> tuple[list, list, list]:
+        """Position (3), body-to-world rotation (9, row-major) and the free joint's
+        velocity (world linear, body angular; 6) as Python floats."""
+        mujoco.mju_quat2Mat(self._rot, self._quat)
+        return self._pos.tolist(), self._rot.tolist(), self._qvel.tolist()
 
     def set_state(self, position, euler, body_velocity) -> None:
         mujoco.mj_resetData(self.model, self.data)
@@ -226,15 +237,20 @@ class _Physics:
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
         mujoco.mj_forward(self.model, self.data)
 
-    def occluded(self, cam_pos: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        """Whether static scenery blocks the line of sight to each target."""
-        n = len(targets)
-        dist, geomid = self._ray_dist[:n], self._ray_geom[:n]
-        mujoco.mj_multiRay(
-            self.model, self.data, cam_pos, (targets - cam_pos).ravel(), self.ray_groups, 1,
-            self.hull_body, geomid, dist, None, n, mujoco.mjMAXVAL,
+    def occluded(self, origin, target) -> bool:
+        """Whether static scenery blocks the line of sight from ``origin`` to ``target``.
+
+        One ``mj_ray`` per call: for a few rays it is several times cheaper
+        than ``mj_multiRay``, whose set-up covers every geom whatever the rays.
+        """
+        self._ray_origin[:] = origin
+        vec = self._ray_vec
+        vec[0], vec[1], vec[2] = target[0] - origin[0], target[1] - origin[1], target[2] - origin[2]
+        dist = mujoco.mj_ray(
+            self.model, self.data, self._ray_origin, vec, self.ray_groups, 1,
+            self.hull_body, self._ray_geom,
         )
-        return (dist >= 0.0) & (dist < 1.0 - 1e-6)
+        return 0.0 <= dist < 1.0 - 1e-6
 
 
 @dataclasses.dataclass
@@ -336,6 +352,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
     reward_terms = ("progress", "control", "visibility", "success", "failure")
+    _reward_keys = tuple((name, f"reward_{name}") for name in reward_terms)
     metric_keys = (
         "distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
         "heading_error", "docked", "lights_visible", "violation_fov",
@@ -420,9 +437,11 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             yaw_rate_noise_std=SCENARIO_YAW_RATE_NOISE if noisy else 0.0,
             attitude_noise_std=SCENARIO_ATTITUDE_NOISE if noisy else 0.0,
         )
-        self._thrust = np.array(self._params.thrust_limits)
+        # Per-step constants as Python floats (the step path works in floats).
+        self._thrust = tuple(float(t) for t in self._params.thrust_limits)
         self._cam_rot_body = self.calibration.extrinsics.rotation_matrix
-        self._cam_pos_body = np.array(self.calibration.extrinsics.position)
+        self._cam_pos_body = self.calibration.extrinsics.position
+        self._lights = [tuple(p) for p in light_positions.tolist()]
         self._hull_axes = (nose, self._params.diameter / 2, self._params.diameter / 2)
         self._heading_tolerance = math.radians(self.calibration.tolerances.heading_deg)
 
@@ -494,8 +513,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        force = a * self._thrust
-        x, y, z, n = force.tolist()
+        a_list = a.tolist()
+        x, y, z, n = (ai * ti for ai, ti in zip(a_list, self._thrust, strict=True))
         tau = (x, y, z, 0.0, 0.0, n)
         current = ep.current.tolist()
         model, data = self._physics.model, self._physics.data
@@ -512,7 +531,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         fov_violation = n_visible < self._min_visible
         ep.lost_time = ep.lost_time + self._dt if fov_violation else 0.0
         ep.fov_violations += int(fov_violation)
-        ep.control_effort += float(force @ force) * self._dt
+        ep.control_effort += (x * x + y * y + z * z + n * n) * self._dt
 
         docked = self._docked(truth, tol)
         behind = truth["longitudinal"] > tol.longitudinal and not docked
@@ -530,7 +549,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         potential = self._potential(truth)
         terms = {
             "progress": ep.prev_potential - potential,
-            "control": -0.001 * float(np.dot(a, a)),
+            "control": -0.001 * sum(ai * ai for ai in a_list),
             "visibility": -0.01 if fov_violation else 0.0,
             "success": 10.0 if docked else 0.0,
             "failure": -10.0 if failure else 0.0,
@@ -564,37 +583,58 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
-        """Ground truth after a step, computed once and shared by obs, reward and info."""
+        """Ground truth after a step, computed once and shared by obs, reward and info.
+
+        Python floats throughout: with a handful of lights, NumPy's per-call
+        overhead would cost several times the arithmetic.
+        """
         phys = self._physics
-        pos = phys.position()
-        rot = phys.rotation()
-        vel = phys.body_velocity(rot)
-        cam_pos = pos + rot @ self._cam_pos_body
-        lights = self.calibration.light_positions
-        points_cam = points_in_camera(lights, cam_pos, rot @ self._cam_rot_body)
-        pixels, in_front = project(self.calibration.intrinsics, points_cam)
-        visible = in_front & inside_image(self.calibration.intrinsics, pixels)
-        if visible.any():
-            visible &= ~phys.occluded(cam_pos, lights)
-        r = rot.tolist()
-        euler = frames.euler_from_rotation(r)
+        pos, r, qvel = phys.kinematics()
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
+        x, y, z = pos
+        vx, vy, vz = qvel[0], qvel[1], qvel[2]
+        velocity = [
+            vx * r00 + vy * r10 + vz * r20,
+            vx * r01 + vy * r11 + vz * r21,
+            vx * r02 + vy * r12 + vz * r22,
+            qvel[3], qvel[4], qvel[5],
+        ]
+        bx, by, bz = self._cam_pos_body
+        cam_pos = (
+            x + r00 * bx + r01 * by + r02 * bz,
+            y + r10 * bx + r11 * by + r12 * bz,
+            z + r20 * bx + r21 * by + r22 * bz,
+        )
+        cam_rot = (phys._rot.reshape(3, 3) @ self._cam_rot_body).tolist()
+        pixels, in_image = project_few(
+            self.calibration.intrinsics, self._lights, cam_pos, cam_rot
+        )
+        visible = [
+            ok and not phys.occluded(cam_pos, light)
+            for ok, light in zip(in_image, self._lights, strict=True)
+        ]
+        rows = [[r00, r01, r02], [r10, r11, r12], [r20, r21, r22]]
+        euler = frames.euler_from_rotation(rows)
         offset = self.calibration.nose_offset
-        nose = (pos[0] + r[0][0] * offset, pos[1] + r[1][0] * offset, pos[2] + r[2][0] * offset)
+        nose = (x + r00 * offset, y + r10 * offset, z + r20 * offset)
         ax, ay, az = self._hull_axes
-        half_height = math.sqrt((ax * r[2][0]) ** 2 + (ay * r[2][1]) ** 2 + (az * r[2][2]) ** 2)
+        half_height = math.sqrt((ax * r20) ** 2 + (ay * r21) ** 2 + (az * r22) ** 2)
         return {
             "position": pos,
             "euler": euler,
-            "velocity": vel,
-            "pixels": pixels,
-            "visible": visible,
-            "n_visible": int(np.count_nonzero(visible)),
+            "velocity": velocity,
+            "pixels": np.array(pixels),
+            "visible": np.array(visible),
+            "visible_pixels": [
+                p if v else (0.0, 0.0) for p, v in zip(pixels, visible, strict=True)
+            ],
+            "n_visible": sum(visible),
             "longitudinal": nose[0],
             "lateral": nose[1],
             "vertical": nose[2],
             "heading": float(euler[2]),
             "distance": math.sqrt(nose[0] ** 2 + nose[1] ** 2 + nose[2] ** 2),
-            "seabed_clearance": float(pos[2]) - half_height - phys.seabed_z,
+            "seabed_clearance": z - half_height - phys.seabed_z,
         }
 
     @staticmethod
@@ -612,7 +652,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     def _sensors(self, truth: dict) -> dict:
         rng = self.np_random
         cal = self.calibration
-        vel = truth["velocity"][[0, 1, 2, 5]].copy()
+        u, v, w, _, _, r = truth["velocity"]
+        vel = np.array((u, v, w, r))
         euler = truth["euler"].copy()
         if cal.velocity_noise_std > 0:
             vel[:3] += rng.normal(0.0, cal.velocity_noise_std, size=3)
@@ -623,25 +664,27 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
     def _observation(self, truth: dict):
         if self.obs_mode == "state":
-            yaw = truth["euler"][2]
-            return np.concatenate(
+            roll, pitch, yaw = truth["euler"].tolist()
+            return np.array(
                 [
-                    truth["position"],
-                    truth["euler"][:2],
-                    [math.cos(yaw), math.sin(yaw)],
-                    truth["velocity"],
-                    self._episode.current,
-                ]
-            ).astype(np.float32)
+                    *truth["position"], roll, pitch, math.cos(yaw), math.sin(yaw),
+                    *truth["velocity"], *self._episode.current.tolist(),
+                ],
+                dtype=np.float32,
+            )
         sensors = self._sensors(truth)
         if self.obs_mode == "features":
             visible = truth["visible"]
+            # Noise on the masked true pixels (zero, not NaN, where not visible),
+            # masked again: the same draws and values as noising the raw pixels.
             noisy = add_pixel_noise(
-                truth["pixels"], self.calibration.pixel_noise_std, self.np_random
+                np.array(truth["visible_pixels"]), self.calibration.pixel_noise_std,
+                self.np_random,
             )
-            pixels = np.where(visible[:, None], noisy, 0.0)
+            if not visible.all():
+                noisy[~visible] = 0.0
             space = self.observation_space["pixels"]
-            pixels = np.clip(pixels, space.low, space.high).astype(np.float32)
+            pixels = np.clip(noisy, space.low, space.high).astype(np.float32)
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
         return {"image": self._render_camera(), **sensors}
 
@@ -665,15 +708,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "violation_seabed": violations["seabed"],
             "failure_reason": ep.failure_reason,
             "time": ep.steps * self._dt,
-            "true_position": truth["position"],
+            "true_position": np.array(truth["position"]),
             "true_euler": truth["euler"],
-            "true_velocity": truth["velocity"],
-            "true_pixels": np.where(truth["visible"][:, None], truth["pixels"], 0.0),
+            "true_velocity": np.array(truth["velocity"]),
+            "true_pixels": np.array(truth["visible_pixels"]),
             "true_visible": truth["visible"],
             "current": ep.current.copy(),
         }
-        for name in self.reward_terms:
-            info[f"reward_{name}"] = float(terms[name])
+        for name, key in self._reward_keys:
+            info[key] = float(terms[name])
         return info
 
     def _episode_metrics(self, truth: dict) -> dict:
