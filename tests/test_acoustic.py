@@ -343,3 +343,38 @@ def test_bad_acoustic_arguments():
         env.unwrapped.calibration.array.measure(np.random.default_rng(0), [[np.nan, 0, 0]],
                                                 np.zeros(8))
     env.close()
+
+
+def test_tcfe_order_two_hand_worked():
+    # Steps 0, 0, 1, 0, 0 -> second differences 0, 1, -1, 0: two in bin 0, two in bin 1.
+    x = np.array([[0.0], [0.0], [0.0], [1.0], [1.0], [1.0]])
+    assert metrics.tcfe(x, bin_width=1.0, order=2) == pytest.approx(math.log(2))
+    # Constant acceleration: steps 0.5, 1.5, 2.5 span bins 0-2; second differences all 1.
+    y = 0.5 * np.arange(4.0)[:, None] ** 2
+    assert metrics.tcfe(y, bin_width=1.0) == pytest.approx(math.log(3))
+    assert metrics.tcfe(y, bin_width=1.0, order=2) == 0.0
+    with pytest.raises(ValueError, match="at least three"):
+        metrics.tcfe(x[:2], order=2)
+    with pytest.raises(ValueError, match="order"):
+        metrics.tcfe(x, order=3)
+
+
+def test_episode_tcfe_scores_the_estimate_fluctuation_not_the_motion():
+    """The truth as the estimate scores 0; 1 cm white jitter on it scores well above 0."""
+    rng = np.random.default_rng(0)
+    scores, sent = {}, {}
+    for name, jitter in (("truth", 0.0), ("jitter", 0.01)):
+        env = make(obs_mode="state", time_limit=3.0, disturbance="high")
+        _, info = env.reset(seed=1)
+        truncated, actions = False, []
+        while not truncated:
+            actions.append((info["true_position"] + rng.normal(0.0, jitter, 3))
+                           .astype(np.float32))
+            _, _, _, truncated, info = env.step(actions[-1])
+        scores[name], sent[name] = info["episode_metrics"], np.array(actions, np.float64)
+        env.close()
+    assert scores["truth"]["tcfe"] == 0.0
+    assert scores["jitter"]["tcfe"] > 1.0
+    for name, m in scores.items():  # the literal first-difference reading is kept
+        assert m["tcfe_steps"] == pytest.approx(metrics.tcfe(sent[name]))
+        assert m["tcfe"] == pytest.approx(metrics.tcfe(sent[name], order=2))
