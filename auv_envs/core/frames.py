@@ -52,10 +52,36 @@ def rotation_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
 def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """ZYX Euler angles ``(roll, pitch, yaw)`` of a body-to-world rotation."""
     r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
-    pitch = -math.asin(min(1.0, max(-1.0, r[2][0])))
-    roll = math.atan2(r[2][1], r[2][2])
-    yaw = math.atan2(r[1][0], r[0][0])
-    return np.array([roll, pitch, yaw])
+    return np.array(euler_floats(r))
+
+
+def euler_floats(rows) -> tuple[float, float, float]:
+    """:func:`euler_from_rotation` in Python floats, for per-step use.
+
+    Args:
+        rows: the rotation as 3 rows of 3 floats (nested sequences).
+    """
+    pitch = -math.asin(min(1.0, max(-1.0, rows[2][0])))
+    roll = math.atan2(rows[2][1], rows[2][2])
+    yaw = math.atan2(rows[1][0], rows[0][0])
+    return roll, pitch, yaw
+
+
+def compose_rows(a, b) -> tuple:
+    """Product ``a @ b`` of two 3x3 rotations given as 3 rows of 3 floats, in Python floats.
+
+    For per-step use, where NumPy's call overhead exceeds the 27 products.
+    """
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = b
+    return (
+        (a00 * b00 + a01 * b10 + a02 * b20, a00 * b01 + a01 * b11 + a02 * b21,
+         a00 * b02 + a01 * b12 + a02 * b22),
+        (a10 * b00 + a11 * b10 + a12 * b20, a10 * b01 + a11 * b11 + a12 * b21,
+         a10 * b02 + a11 * b12 + a12 * b22),
+        (a20 * b00 + a21 * b10 + a22 * b20, a20 * b01 + a21 * b11 + a22 * b21,
+         a20 * b02 + a21 * b12 + a22 * b22),
+    )
 
 
 def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -74,7 +100,9 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 def wrap_angle(angle):
-    """Wrap an angle (or array of angles) to ``[-pi, pi)``."""
+    """Wrap an angle (or array of angles) to ``[-pi, pi)``; a Python float stays a float."""
+    if type(angle) is float:  # per-step scalar path: no NumPy round trip
+        return (angle + math.pi) % (2.0 * math.pi) - math.pi
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 

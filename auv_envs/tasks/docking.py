@@ -237,20 +237,34 @@ class _Physics:
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
         mujoco.mj_forward(self.model, self.data)
 
-    def occluded(self, origin, target) -> bool:
-        """Whether static scenery blocks the line of sight from ``origin`` to ``target``.
+    def unoccluded(self, origin, targets, candidates) -> list[bool]:
+        """Which candidate targets static scenery does not hide from ``origin``.
 
-        One ``mj_ray`` per call: for a few rays it is several times cheaper
-        than ``mj_multiRay``, whose set-up covers every geom whatever the rays.
+        One ``mj_ray`` per candidate (``False`` entries cast no ray): for a few
+        rays it is several times cheaper than ``mj_multiRay``, whose set-up
+        covers every geom whatever the rays.
+
+        Args:
+            origin: ray origin (3 floats), e.g. the camera centre.
+            targets: target points, each 3 floats.
+            candidates: per target, whether to test it at all.
+
+        Returns:
+            Per target: candidate and line of sight clear.
         """
-        self._ray_origin[:] = origin
-        vec = self._ray_vec
-        vec[0], vec[1], vec[2] = target[0] - origin[0], target[1] - origin[1], target[2] - origin[2]
-        dist = mujoco.mj_ray(
-            self.model, self.data, self._ray_origin, vec, self.ray_groups, 1,
-            self.hull_body, self._ray_geom,
-        )
-        return 0.0 <= dist < 1.0 - 1e-6
+        model, data, groups, exclude = self.model, self.data, self.ray_groups, self.hull_body
+        start, vec, geom = self._ray_origin, self._ray_vec, self._ray_geom
+        ox, oy, oz = origin
+        start[0], start[1], start[2] = ox, oy, oz
+        out = []
+        for candidate, (x, y, z) in zip(candidates, targets, strict=True):
+            if candidate:
+                vec[0], vec[1], vec[2] = x - ox, y - oy, z - oz
+                dist = mujoco.mj_ray(model, data, start, vec, groups, 1, exclude, geom)
+                # dist is in units of |vec|: below 1, something is hit before the target.
+                candidate = not 0.0 <= dist < 1.0 - 1e-6
+            out.append(candidate)
+        return out
 
 
 @dataclasses.dataclass
@@ -439,7 +453,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         )
         # Per-step constants as Python floats (the step path works in floats).
         self._thrust = tuple(float(t) for t in self._params.thrust_limits)
-        self._cam_rot_body = self.calibration.extrinsics.rotation_matrix
+        self._cam_rot_body = self.calibration.extrinsics.rotation
         self._cam_pos_body = self.calibration.extrinsics.position
         self._lights = [tuple(p) for p in light_positions.tolist()]
         self._hull_axes = (nose, self._params.diameter / 2, self._params.diameter / 2)
@@ -447,6 +461,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.observation_space = self._make_observation_space(n_lights, width, height)
+        if obs_mode == "features":
+            space = self.observation_space["pixels"]
+            self._pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
         self._renderer: CameraRenderer | None = None
         if obs_mode == "image" or render_mode == "rgb_array":
             self._renderer = CameraRenderer(model, (self._physics.camera_name,), width, height)
@@ -514,7 +531,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")
         a_list = a.tolist()
-        x, y, z, n = (ai * ti for ai, ti in zip(a_list, self._thrust, strict=True))
+        ax, ay, az, an = a_list
+        tx, ty, tz, tn = self._thrust
+        x, y, z, n = ax * tx, ay * ty, az * tz, an * tn
         tau = (x, y, z, 0.0, 0.0, n)
         current = ep.current.tolist()
         model, data = self._physics.model, self._physics.data
@@ -549,7 +568,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         potential = self._potential(truth)
         terms = {
             "progress": ep.prev_potential - potential,
-            "control": -0.001 * sum(ai * ai for ai in a_list),
+            "control": -0.001 * (ax * ax + ay * ay + az * az + an * an),
             "visibility": -0.01 if fov_violation else 0.0,
             "success": 10.0 if docked else 0.0,
             "failure": -10.0 if failure else 0.0,
@@ -605,16 +624,13 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             y + r10 * bx + r11 * by + r12 * bz,
             z + r20 * bx + r21 * by + r22 * bz,
         )
-        cam_rot = (phys._rot.reshape(3, 3) @ self._cam_rot_body).tolist()
+        rows = ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22))
+        cam_rot = frames.compose_rows(rows, self._cam_rot_body)
         pixels, in_image = project_few(
             self.calibration.intrinsics, self._lights, cam_pos, cam_rot
         )
-        visible = [
-            ok and not phys.occluded(cam_pos, light)
-            for ok, light in zip(in_image, self._lights, strict=True)
-        ]
-        rows = [[r00, r01, r02], [r10, r11, r12], [r20, r21, r22]]
-        euler = frames.euler_from_rotation(rows)
+        visible = phys.unoccluded(cam_pos, self._lights, in_image)
+        euler = frames.euler_floats(rows)
         offset = self.calibration.nose_offset
         nose = (x + r00 * offset, y + r10 * offset, z + r20 * offset)
         ax, ay, az = self._hull_axes
@@ -625,14 +641,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "velocity": velocity,
             "pixels": np.array(pixels),
             "visible": np.array(visible),
-            "visible_pixels": [
-                p if v else (0.0, 0.0) for p, v in zip(pixels, visible, strict=True)
-            ],
+            # The observation/info convention: zero where not visible.
+            "visible_pixels": np.array(
+                [p if v else (0.0, 0.0) for p, v in zip(pixels, visible, strict=True)]
+            ),
             "n_visible": sum(visible),
             "longitudinal": nose[0],
             "lateral": nose[1],
             "vertical": nose[2],
-            "heading": float(euler[2]),
+            "heading": euler[2],
             "distance": math.sqrt(nose[0] ** 2 + nose[1] ** 2 + nose[2] ** 2),
             "seabed_clearance": z - half_height - phys.seabed_z,
         }
@@ -653,18 +670,21 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         rng = self.np_random
         cal = self.calibration
         u, v, w, _, _, r = truth["velocity"]
-        vel = np.array((u, v, w, r))
-        euler = truth["euler"].copy()
+        roll, pitch, yaw = truth["euler"]
         if cal.velocity_noise_std > 0:
-            vel[:3] += rng.normal(0.0, cal.velocity_noise_std, size=3)
-            vel[3] += rng.normal(0.0, cal.yaw_rate_noise_std)
-            euler += rng.normal(0.0, cal.attitude_noise_std, size=3)
-        euler[2] = frames.wrap_angle(euler[2])
-        return {"velocity": vel.astype(np.float32), "attitude": euler.astype(np.float32)}
+            du, dv, dw = rng.normal(0.0, cal.velocity_noise_std, size=3).tolist()
+            dr = float(rng.normal(0.0, cal.yaw_rate_noise_std))
+            droll, dpitch, dyaw = rng.normal(0.0, cal.attitude_noise_std, size=3).tolist()
+            u, v, w, r = u + du, v + dv, w + dw, r + dr
+            roll, pitch, yaw = roll + droll, pitch + dpitch, yaw + dyaw
+        return {
+            "velocity": np.array((u, v, w, r), dtype=np.float32),
+            "attitude": np.array((roll, pitch, frames.wrap_angle(yaw)), dtype=np.float32),
+        }
 
     def _observation(self, truth: dict):
         if self.obs_mode == "state":
-            roll, pitch, yaw = truth["euler"].tolist()
+            roll, pitch, yaw = truth["euler"]
             return np.array(
                 [
                     *truth["position"], roll, pitch, math.cos(yaw), math.sin(yaw),
@@ -677,14 +697,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             visible = truth["visible"]
             # Noise on the masked true pixels (zero, not NaN, where not visible),
             # masked again: the same draws and values as noising the raw pixels.
-            noisy = add_pixel_noise(
-                np.array(truth["visible_pixels"]), self.calibration.pixel_noise_std,
-                self.np_random,
-            )
-            if not visible.all():
-                noisy[~visible] = 0.0
-            space = self.observation_space["pixels"]
-            pixels = np.clip(noisy, space.low, space.high).astype(np.float32)
+            pixels = truth["visible_pixels"]
+            if self.calibration.pixel_noise_std > 0:
+                pixels = add_pixel_noise(pixels, self.calibration.pixel_noise_std, self.np_random)
+                pixels[~visible] = 0.0
+            low, high = self._pixel_bounds
+            pixels = np.minimum(np.maximum(pixels, low), high).astype(np.float32)
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
         return {"image": self._render_camera(), **sensors}
 
@@ -709,9 +727,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "failure_reason": ep.failure_reason,
             "time": ep.steps * self._dt,
             "true_position": np.array(truth["position"]),
-            "true_euler": truth["euler"],
+            "true_euler": np.array(truth["euler"]),
             "true_velocity": np.array(truth["velocity"]),
-            "true_pixels": np.array(truth["visible_pixels"]),
+            "true_pixels": truth["visible_pixels"],  # observations build their own arrays
             "true_visible": truth["visible"],
             "current": ep.current.copy(),
         }
