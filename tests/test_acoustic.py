@@ -295,6 +295,7 @@ def test_oracle_and_biased_estimates_score_as_expected():
     assert m["steps"] == 200
     assert m["rmse"] == pytest.approx(0.5, abs=1e-5)
     assert m["max_error"] == pytest.approx(0.5, abs=1e-5)
+    assert m["error_bias"] == pytest.approx(0.5, abs=1e-5)  # a constant offset is all bias
     assert m["tfc"] == 0 and m["success"] is False
     assert m["mean_ospa"] == pytest.approx(metrics.ospa([[0.0, 0.0, 0.0]], [offset], 5.0, 1.0),
                                            abs=1e-5)

@@ -304,7 +304,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     :mod:`auv_envs.core.acoustics`: -1 padding, 0 source, 1 surface ghost,
     2 bottom ghost, 3 false alarm), ``time``. At episode end also
     ``episode_metrics``: RMSE, maximum error, TFC, TCFE and mean OSPA of the
-    estimates (:mod:`auv_envs.metrics`) and ``success``. ``tcfe`` is the
+    estimates (:mod:`auv_envs.metrics`), ``error_bias`` (the norm of the mean
+    error vector, the systematic part of the RMSE) and ``success``. ``tcfe`` is the
     entropy of the estimate's second differences in 1 cm bins (``TCFE_ORDER``,
     ``TCFE_BIN_WIDTH``: the fluctuation of the tracking curve, 0 for the true
     motion); ``tcfe_steps`` is the literal first-difference reading, which
@@ -550,6 +551,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         out = {
             "rmse": rmse,
             "max_error": metrics.max_error(est, truth),
+            # The systematic part of the error: rmse^2 = error_bias^2 + (random part)^2.
+            "error_bias": float(np.linalg.norm(np.mean(est - truth, axis=0))),
             "tfc": metrics.track_fragmentation_count(labels),
             # Seed 004 §3.4's TCFE on the fluctuation of the estimated curve (second
             # differences): the literal first differences mostly measure the true
