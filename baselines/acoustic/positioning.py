@@ -55,6 +55,9 @@ WEIGHTINGS = ("noise", "none")
 class PositionFixes:
     """Position fixes of a batch of detections (leading axes ``...``).
 
+    Entries that are not real detections (``mask`` False) are NaN in
+    ``position``, ``covariance`` and ``chi2`` and never valid.
+
     Attributes:
       position: (..., 3) estimated positions in the tank frame (m).
       covariance: (..., 3, 3) position covariance of the weighted solve
