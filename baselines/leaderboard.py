@@ -46,6 +46,7 @@ HEADLINE_METRICS: dict[str, tuple[str, str, str]] = {
     "max_error": ("max error m", ".3f", "lower"),
     "tfc": ("TFC", ".1f", "lower"),
     "tcfe": ("TCFE", ".3f", "lower"),
+    "tcfe_fluctuation": ("TCFE 2nd diff", ".3f", "lower"),
     "mean_ospa": ("OSPA m", ".3f", "lower"),
     "control_effort": ("energy (control effort)", ".1f", "lower"),
 }

@@ -11,9 +11,10 @@
    the episode's mean error) and the rest; then the same episodes with the
    hydrophone clock offsets switched off (``clock_offset_std = 0``), the one
    error source the environment applies alike to every band.
-3. TCFE at low / medium / high current: ``tcfe`` (entropy of the estimate's
-   second differences, the environment's reported metric) and ``tcfe_steps``
-   (the literal first differences). Every agent sees the same episodes.
+3. TCFE at low / medium / high current: ``tcfe`` (seed 004's definition, the
+   entropy of the estimate's consecutive differences) and ``tcfe_fluctuation``
+   (the same on second differences, 0 for the true motion). Every agent sees
+   the same episodes.
 """
 
 from __future__ import annotations
@@ -93,8 +94,8 @@ def main() -> None:
     print("\n## The same episodes without clock offsets (clock_offset_std = 0)")
     dynamic_table({a: [episode(a, 1000 + s, "medium", args.time_limit, no_clock)
                        for s in range(args.seeds)] for a in AGENTS})
-    for key, what in (("tcfe", "second differences, the env's metric"),
-                      ("tcfe_steps", "first differences, the literal reading")):
+    for key, what in (("tcfe", "first differences, seed 004's definition"),
+                      ("tcfe_fluctuation", "second differences, 0 for the true motion")):
         print(f"\n## {key} (nats; {what}; 1 cm bins) by current level "
               f"(paper gmphd-gci: 0.05 / 0.07 / 0.09)")
         print("| agent | " + " | ".join(LEVELS) + " |\n|---|---|---|---|")
