@@ -49,9 +49,11 @@ def validate_action(action, space: spaces.Box) -> np.ndarray:
     # Fast path, in Python floats (a handful of NumPy reductions cost more than
     # the env's physics): every entry finite and inside its bounds. NaN fails
     # every comparison and +-inf fails the finite range, so both take the slow path.
-    bounds = zip(a.ravel().tolist(), space.low.ravel().tolist(), space.high.ravel().tolist(),
-                 strict=True)
-    if all(low <= x <= high and -_FLOAT_MAX <= x <= _FLOAT_MAX for x, low, high in bounds):
+    lows, highs = space.low.ravel().tolist(), space.high.ravel().tolist()
+    for x, low, high in zip(a.ravel().tolist(), lows, highs, strict=True):
+        if not (low <= x <= high and -_FLOAT_MAX <= x <= _FLOAT_MAX):
+            break
+    else:
         return a
     # min/max propagate NaN, and are finite only if every entry is.
     if not (math.isfinite(a.min()) and math.isfinite(a.max())):

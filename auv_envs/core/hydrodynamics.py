@@ -105,10 +105,9 @@ class HullForceModel:
         self.params = params
         self.body_id = body_id
         self.qvel_adr = qvel_adr
-        self._m_lin = tuple(params.mass + a for a in params.added_mass[:3])
-        self._m_ang = tuple(
-            i + a for i, a in zip(params.inertia, params.added_mass[3:], strict=True)
-        )
+        m_lin = tuple(params.mass + a for a in params.added_mass[:3])
+        m_ang = tuple(i + a for i, a in zip(params.inertia, params.added_mass[3:], strict=True))
+        self._rigid = (params.mass, m_lin, m_ang, params.inertia)
         # Views into the last MjData seen by apply() (MjData's array properties
         # build a new view on every access, which costs more than the arithmetic).
         self._views: tuple | None = None
@@ -150,10 +149,7 @@ class HullForceModel:
         t0, t1, t2, t3, t4, t5 = tau_body
         f0, f1, f2, f3, f4, f5 = t0 + f0, t1 + f1, t2 + f2, t3 + f3, t4 + f4, t5 + f5
         a0, a1, a2, a3, a4, a5 = p.added_mass
-        m = p.mass
-        ml0, ml1, ml2 = self._m_lin
-        ma0, ma1, ma2 = self._m_ang
-        i0, i1, i2 = p.inertia
+        m, (ml0, ml1, ml2), (ma0, ma1, ma2), (i0, i1, i2) = self._rigid
         iw0, iw1, iw2 = i0 * wx, i1 * wy, i2 * wz
         # nu_c_dot = -w x vc
         cd0 = -(wy * c2 - wz * c1)

@@ -631,6 +631,13 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         )
         visible = phys.unoccluded(cam_pos, self._lights, in_image)
         euler = frames.euler_floats(rows)
+        pixel_array = np.array(pixels)
+        visible_array = np.array(visible)
+        # The observation/info convention: zero (not NaN) where not visible.
+        if all(visible):
+            visible_pixels = pixel_array.copy()
+        else:
+            visible_pixels = np.where(visible_array[:, None], pixel_array, 0.0)
         offset = self.calibration.nose_offset
         nose = (x + r00 * offset, y + r10 * offset, z + r20 * offset)
         ax, ay, az = self._hull_axes
@@ -639,12 +646,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "position": pos,
             "euler": euler,
             "velocity": velocity,
-            "pixels": np.array(pixels),
-            "visible": np.array(visible),
-            # The observation/info convention: zero where not visible.
-            "visible_pixels": np.array(
-                [p if v else (0.0, 0.0) for p, v in zip(pixels, visible, strict=True)]
-            ),
+            "pixels": pixel_array,
+            "visible": visible_array,
+            "visible_pixels": visible_pixels,
             "n_visible": sum(visible),
             "longitudinal": nose[0],
             "lateral": nose[1],
@@ -697,12 +701,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             visible = truth["visible"]
             # Noise on the masked true pixels (zero, not NaN, where not visible),
             # masked again: the same draws and values as noising the raw pixels.
+            # Without noise the bounds hold already (visible pixels lie inside
+            # the image, the others are zero), so only noisy pixels are clipped.
             pixels = truth["visible_pixels"]
             if self.calibration.pixel_noise_std > 0:
                 pixels = add_pixel_noise(pixels, self.calibration.pixel_noise_std, self.np_random)
                 pixels[~visible] = 0.0
-            low, high = self._pixel_bounds
-            pixels = np.minimum(np.maximum(pixels, low), high).astype(np.float32)
+                low, high = self._pixel_bounds
+                np.minimum(np.maximum(pixels, low, out=pixels), high, out=pixels)
+            pixels = pixels.astype(np.float32)
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
         return {"image": self._render_camera(), **sensors}
 
