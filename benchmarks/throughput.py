@@ -23,6 +23,7 @@ import time
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402
 
@@ -44,14 +45,19 @@ class Stepper:
         env.reset(seed=0)
 
     def rate(self) -> float:
-        """Steps per second over one pass through the actions."""
+        """Steps per second (wall clock) over one pass through the actions."""
+        return self.rates()[0]
+
+    def rates(self) -> tuple[float, float]:
+        """Steps per wall-clock second and per CPU second of this process, over one pass."""
         env = self.env
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         for action in self.actions:
             _, _, terminated, truncated, _ = env.step(action)
             if terminated or truncated:
                 env.reset()
-        return len(self.actions) / (time.perf_counter() - start)
+        wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
+        return len(self.actions) / wall, len(self.actions) / cpu
 
 
 def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
@@ -60,18 +66,22 @@ def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
     return max(stepper.rate() for _ in range(repeats))
 
 
-def paired_rates(subject: Stepper, reference: Stepper, repeats: int) -> tuple[float, float]:
+def paired_rates(subject: Stepper, reference: Stepper, repeats: int) -> np.ndarray:
     """Best-of-``repeats`` steps/s of ``subject`` and ``reference``, timed alternately.
 
     Alternating the two, pass by pass, makes them share the machine's load
     (other processes on a shared machine change it from second to second), so
     their ratio means more than two figures taken a minute apart.
+
+    Returns:
+        ``[[subject wall, subject CPU], [reference wall, reference CPU]]``
+        steps per second, each the best pass.
     """
-    best_subject = best_reference = 0.0
+    best = np.zeros((2, 2))
     for _ in range(repeats):
-        best_reference = max(best_reference, reference.rate())
-        best_subject = max(best_subject, subject.rate())
-    return best_subject, best_reference
+        best[1] = np.maximum(best[1], reference.rates())
+        best[0] = np.maximum(best[0], subject.rates())
+    return best
 
 
 def main(argv=None) -> None:
@@ -85,9 +95,12 @@ def main(argv=None) -> None:
     reference_env = gym.make("HalfCheetah-v5")
     reference = Stepper(reference_env, args.steps)
     print("Each row times its env and HalfCheetah-v5 alternately "
-          f"(best of {args.repeats} passes each; image modes: the reference's best so far).\n")
-    print("| env | obs_mode | steps/s | HalfCheetah-v5 steps/s | ratio | target | met |")
-    print("|---|---|---|---|---|---|---|")
+          f"(best of {args.repeats} passes each; image modes: the reference's best so far).")
+    print("steps/s and ratio: wall clock (the target); CPU ratio: per CPU second of this "
+          "process, less sensitive to other processes' load.\n")
+    print("| env | obs_mode | steps/s | HalfCheetah-v5 steps/s | ratio | CPU ratio | target "
+          "| met |")
+    print("|---|---|---|---|---|---|---|---|")
     best_reference = 0.0
     for env_id in args.envs:
         for mode in declared_obs_modes(env_id):
@@ -96,11 +109,15 @@ def main(argv=None) -> None:
             n = max(200, args.steps // 10) if image else args.steps
             env = gym.make(env_id, obs_mode=mode, **kwargs)
             subject = Stepper(env, n)
+            cpu_ratio = None
             if image:  # its target is absolute; pairing would only slow the run
                 rate = max(subject.rate() for _ in range(min(args.repeats, 3)))
                 ref_rate = best_reference or max(reference.rate() for _ in range(args.repeats))
             else:
-                rate, ref_rate = paired_rates(subject, reference, args.repeats)
+                (rate, cpu_rate), (ref_rate, ref_cpu_rate) = paired_rates(
+                    subject, reference, args.repeats
+                )
+                cpu_ratio = cpu_rate / ref_cpu_rate
             best_reference = max(best_reference, ref_rate)
             env.close()
             ratio = rate / ref_rate
@@ -110,8 +127,9 @@ def main(argv=None) -> None:
                 target, met = "100 steps/s @320x240", rate >= 100
             else:
                 target, met = "0.5x", ratio >= 0.5
-            print(f"| {env_id} | {mode} | {rate:,.0f} | {ref_rate:,.0f} | {ratio:.2f} | {target} "
-                  f"| {'-' if met is None else 'yes' if met else 'NO'} |")
+            cpu = "-" if cpu_ratio is None else f"{cpu_ratio:.2f}"
+            print(f"| {env_id} | {mode} | {rate:,.0f} | {ref_rate:,.0f} | {ratio:.2f} | {cpu} "
+                  f"| {target} | {'-' if met is None else 'yes' if met else 'NO'} |")
     reference_env.close()
 
 
