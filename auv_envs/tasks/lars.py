@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 
 import gymnasium as gym
 import mujoco
@@ -39,6 +40,7 @@ from auv_envs.tasks.lars_scene import (
     MarkerGeometry,
     build_lars_model,
     sample_motion,
+    uniform_draws,
 )
 
 OBS_MODES = ("state", "features", "stereo")
@@ -392,6 +394,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._q_half = 0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0])
         self._ws_lo = tuple(self.calibration.workspace[:, 0].tolist())
         self._ws_hi = tuple(self.calibration.workspace[:, 1].tolist())
+        tol = self.calibration.tolerances
+        self._tolerance = (tol.position, tol.speed)
+        self._reward_keys = tuple(f"reward_{name}" for name in self.reward_terms)
         self._kp, self._kd = POSITION_GAINS
         self._tau = np.zeros(3)
         self._hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
@@ -456,7 +461,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         # The arm end 0.8 m above the AUV's top (seed 000 tracks at about
         # 0.8 m), the cameras over the AUV: within 1 m of the AUV's CG.
         top = self._auv_position(0.0)[2] + AUV_DIAMETER / 2.0
-        offset = (rng.uniform(-0.2, 0.2), rng.uniform(-0.1, 0.1))
+        offset = uniform_draws(rng, ((-0.2, 0.2), (-0.1, 0.1)))
         end = np.array(
             [motion.x0 + offset[0], motion.y0 - CAMERA_MOUNT_IN_END[1] + offset[1], top + 0.8]
         )
@@ -465,7 +470,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._episode.prev_error = truth["capture_error"]
         self._episode.min_error = truth["capture_error"]
         obs = self._observation(truth)
-        info = self._info(truth, dict.fromkeys(self.reward_terms, 0.0), False, False)
+        info = self._info(truth, (0.0,) * len(self.reward_terms), False, False)
         return obs, info
 
     def step(self, action):
@@ -473,34 +478,34 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        model, data = self._physics.model, self._physics.data
+        effort = float(a @ a)
         if self.control == "torque":
+            data = self._physics.data
             data.ctrl[:] = a
-            mujoco.mj_step(model, data, FRAME_SKIP)
-            ep.control_effort += float(a @ a) * self._dt
+            mujoco.mj_step(self._physics.model, data, FRAME_SKIP)
+            ep.control_effort += effort * self._dt
         else:
             self._track_position(self._q_mid + a * self._q_half)
         ep.steps += 1
         truth = self._truth()
-        tol = self.calibration.tolerances
 
         error = truth["capture_error"]
-        captured = error <= tol.position and truth["relative_speed"] <= tol.speed
+        captured = error <= self._tolerance[0] and truth["relative_speed"] <= self._tolerance[1]
         collision = (not captured) and truth["tip_in_hull"]
-        workspace = not all(
-            lo <= v <= hi for v, lo, hi in zip(truth["end"], self._ws_lo, self._ws_hi, strict=True)
-        )
+        (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = truth["end"], self._ws_lo, self._ws_hi
+        workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
         failure = "collision" if collision else ("workspace" if workspace else "")
 
-        terms = {
-            "progress": ep.prev_error - error,
-            "control": -0.001 * float(a @ a),
-            "success": 10.0 if captured else 0.0,
-            "failure": -10.0 if failure else 0.0,
-        }
+        # In reward_terms order: progress, control, success, failure.
+        terms = (
+            ep.prev_error - error,
+            -0.001 * effort,
+            10.0 if captured else 0.0,
+            -10.0 if failure else 0.0,
+        )
         ep.prev_error = error
         ep.min_error = min(ep.min_error, error)
-        reward = terms["progress"] + terms["control"] + terms["success"] + terms["failure"]
+        reward = terms[0] + terms[1] + terms[2] + terms[3]
         terminated = captured or bool(failure)
         truncated = (not terminated) and ep.steps * self._dt >= self._time_limit - 1e-9
         if captured:
@@ -540,6 +545,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "capture": tuple((rot @ cp).tolist()),
             "axis": tuple(rot[:, 0].tolist()),
             "z_centre": AUV_FREEBOARD - AUV_DIAMETER / 2.0,
+            "omega": motion.omega,
         }
 
     def _auv_position(self, t: float) -> tuple[float, float, float]:
@@ -566,7 +572,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         """Ground truth after a step, computed once and shared by obs, reward and info.
 
         Plain-float arithmetic on purpose: three corners in two cameras cost
-        less as scalars than as many tiny numpy operations.
+        less as scalars than as many tiny numpy operations. ``corners`` (9)
+        and ``pixels`` (12: left u, v of A1, A2, A3, then right) are flat
+        lists, shaped once when they become arrays.
         """
         data = self._physics.data
         ep = self._episode
@@ -577,7 +585,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ex, ey, ez, evx, evy, evz = self._arm.end_state(q, qd)
         c, s = math.cos(q[0]), math.sin(q[0])
         m = ep.motion
-        level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase)
+        level, rate = heave(t, m.heave_amplitude, g["omega"], m.heave_phase)
         px, py, pz = m.x0 + m.surge * t, m.y0, level + g["z_centre"]
         lx, ly, lz = self._left_in_end
         camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
@@ -589,7 +597,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         corners, left, right, vis_left, vis_right = [], [], [], [], []
         for ox, oy, oz in g["corners"]:
             wx, wy, wz = px + ox, py + oy, pz + oz
-            corners.append((wx, wy, wz))
+            corners += (wx, wy, wz)
             rx, ry, depth = wx - camx, wy - camy, camz - wz
             if depth > 1e-6:
                 inv = 1.0 / depth
@@ -603,9 +611,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                 u = v = ur = math.nan
                 vis_left.append(False)
                 vis_right.append(False)
-            left.append((u, v))
-            right.append((ur, v))
-        visible = [vis_left, vis_right]
+            left += (u, v)
+            right += (ur, v)
 
         occluded = False
         distractors = 0
@@ -614,12 +621,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             if crest is not None and (any(vis_left) or any(vis_right)):
                 cams = np.array([[camx, camy, camz],
                                  [camx + self._baseline * c, camy + self._baseline * s, camz]])
-                hidden = segments_cross_box(
-                    cams[:, None, :], np.array(corners)[None], crest, ep.wash.half_size
+                hidden_left, hidden_right = segments_cross_box(
+                    cams[:, None, :], np.array(corners).reshape(1, 3, 3), crest,
+                    ep.wash.half_size,
                 ).tolist()
-                occluded = any(hidden[0]) or any(hidden[1])
-                visible = [[v and not h for v, h in zip(vv, hh, strict=True)]
-                           for vv, hh in zip(visible, hidden, strict=True)]
+                occluded = any(hidden_left) or any(hidden_right)
+                vis_left = [v and not h for v, h in zip(vis_left, hidden_left, strict=True)]
+                vis_right = [v and not h for v, h in zip(vis_right, hidden_right, strict=True)]
             distractors = self._count_distractors(t, (px, py, pz), (camx, camy, camz), c, s)
 
         # Capture tip vs the AUV: capture point offset and hull penetration.
@@ -641,9 +649,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "velocity": (m.surge, 0.0, rate),
             "level": level,
             "corners": corners,
-            "pixels": [left, right],
-            "visible": visible,
-            "n_visible": sum(a and b for a, b in zip(*visible, strict=True)),
+            "pixels": left + right,
+            "visible": [vis_left, vis_right],
+            "n_visible": sum(map(operator.and_, vis_left, vis_right)),
             "occluded": occluded,
             "distractors": distractors,
             "offset": offset,
@@ -701,19 +709,17 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                 dtype=np.float32,
             )
         if self.obs_mode == "features":
-            visible = truth["visible"]
+            vis_left, vis_right = visible = truth["visible"]
+            true_pixels = truth["pixels"]
             std = self.calibration.pixel_noise_std
-            noise = iter(self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12)
+            # Drawn always, whatever is visible: the same noise stream every step.
+            noise = self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
             lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
-            pixels = []
-            for cam_pixels, cam_visible in zip(truth["pixels"], visible, strict=True):
-                for (u, v), seen in zip(cam_pixels, cam_visible, strict=True):
-                    nu, nv = next(noise), next(noise)  # drawn always: same stream
-                    if seen:
-                        pixels.append(min(hi_u, max(lo_u, u + nu)))
-                        pixels.append(min(hi_v, max(lo_v, v + nv)))
-                    else:
-                        pixels += (0.0, 0.0)
+            pixels = [0.0] * 12
+            for i, seen in zip(range(0, 12, 2), vis_left + vis_right, strict=True):
+                if seen:
+                    pixels[i] = min(hi_u, max(lo_u, true_pixels[i] + noise[i]))
+                    pixels[i + 1] = min(hi_v, max(lo_v, true_pixels[i + 1] + noise[i + 1]))
             return {
                 "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
                 "visible": np.array(visible, dtype=np.int8),
@@ -760,7 +766,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._pose_scene()
         return self._renderer.render(self._physics.data)
 
-    def _info(self, truth: dict, terms: dict, collision: bool, workspace: bool) -> dict:
+    def _info(self, truth: dict, terms: tuple, collision: bool, workspace: bool) -> dict:
+        """The step's info; ``terms`` are the reward terms in ``reward_terms`` order."""
         ep = self._episode
         m = ep.motion
         (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
@@ -781,14 +788,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "true_velocity": np.array(truth["velocity"]),
             "true_pitch": m.pitch,
             "true_yaw": m.yaw,
-            "true_corners": np.array(truth["corners"]),
-            "true_pixels": np.array(truth["pixels"]),
+            "true_corners": np.array(truth["corners"]).reshape(3, 3),
+            "true_pixels": np.array(truth["pixels"]).reshape(2, 3, 2),
             "true_visible": np.array(truth["visible"]),
             "end_position": np.array(truth["end"]),
             "water_level": truth["level"],
         }
-        for name in self.reward_terms:
-            info[f"reward_{name}"] = float(terms[name])
+        info.update(zip(self._reward_keys, terms, strict=True))
         return info
 
     def _episode_metrics(self, truth: dict) -> dict:

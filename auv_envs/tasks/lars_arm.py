@@ -116,7 +116,7 @@ class ArmModel:
             ValueError: if the position is non-finite or out of reach.
         """
         p = np.asarray(position, dtype=float)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
+        if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
             raise ValueError(f"position must be a finite (3,) vector, got {position!r}")
         dx, dy, dz = (p - self.shoulder).tolist()
         reach = math.hypot(dx, dy)

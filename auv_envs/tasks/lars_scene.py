@@ -156,6 +156,21 @@ MOTION_RANGES = {
 }
 
 
+def uniform_draws(rng: np.random.Generator, bounds) -> list[float]:
+    """One uniform draw in each ``(low, high)`` of ``bounds``, as Python floats.
+
+    ``Generator.uniform(low, high)`` is ``low + (high - low) * random()``, so
+    these are the values (and the stream position) of successive scalar
+    ``rng.uniform`` calls, drawn in one call: a reset draws about ten, and
+    each scalar call costs more than the arithmetic.
+    """
+    draws = rng.random(len(bounds)).tolist()
+    return [lo + (hi - lo) * u for (lo, hi), u in zip(bounds, draws, strict=True)]
+
+
+_MOTION_BOUNDS = tuple(MOTION_RANGES.values())
+
+
 def sample_motion(rng: np.random.Generator, overrides: dict | None = None) -> AUVMotion:
     """Draw an :class:`AUVMotion` in :data:`MOTION_RANGES`; ``overrides`` pins fields."""
     overrides = dict(overrides or {})
@@ -165,8 +180,8 @@ def sample_motion(rng: np.random.Generator, overrides: dict | None = None) -> AU
             f"unknown motion option(s) {sorted(unknown)}; valid: {sorted(MOTION_RANGES)}"
         )
     values = {}
-    for name, (lo, hi) in MOTION_RANGES.items():
-        drawn = rng.uniform(lo, hi)  # always draw: pinning keeps the rest of the stream
+    # Always draw every field: pinning one keeps the rest of the stream.
+    for name, drawn in zip(MOTION_RANGES, uniform_draws(rng, _MOTION_BOUNDS), strict=True):
         values[name] = float(overrides.get(name, drawn))
         if not math.isfinite(values[name]):
             raise ValueError(f"motion option {name} must be finite, got {values[name]}")
