@@ -716,10 +716,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             noise = self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
             lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
             pixels = [0.0] * 12
-            for i, seen in zip(range(0, 12, 2), vis_left + vis_right, strict=True):
-                if seen:
-                    pixels[i] = min(hi_u, max(lo_u, true_pixels[i] + noise[i]))
-                    pixels[i + 1] = min(hi_v, max(lo_v, true_pixels[i + 1] + noise[i + 1]))
+            i = 0  # u of the corner; v at i + 1
+            for seen in vis_left + vis_right:
+                if seen:  # finite; clipped by comparisons (cheaper than min/max)
+                    u, v = true_pixels[i] + noise[i], true_pixels[i + 1] + noise[i + 1]
+                    pixels[i] = lo_u if u < lo_u else (hi_u if u > hi_u else u)
+                    pixels[i + 1] = lo_v if v < lo_v else (hi_v if v > hi_v else v)
+                i += 2
             return {
                 "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
                 "visible": np.array(visible, dtype=np.int8),
