@@ -16,8 +16,14 @@ NLP::
 so no analytic steady state is needed; the stage cost penalises ``x_k - x_s``
 and ``u_k - u_s``. With ``d_hat`` equal to the true constant disturbance the
 closed loop settles at ``r`` with zero offset. (The pose part of ``x_s`` is
-written as ``r`` itself, so the second condition holds by construction; the
-velocity part of ``x_s`` and ``u_s`` are decision variables.)
+written as ``r`` itself, so the second condition holds by construction. A
+state whose pose stays at ``r`` is at rest, so the velocity part of ``x_s`` is
+zero and the equilibrium reduces to the four velocity rows of the model at
+``(r, 0)``, ``f_nu(r, 0, u_s, d_hat) = 0``, with ``u_s`` the decision
+variable; the pose rows, ``J(psi) 0``, vanish identically. Carrying four
+fewer target variables through the horizon makes each solve cheaper than
+with the velocity target as free variables, which the solver drove to zero
+anyway.)
 
 Constraints (seed 003 eq. 10, Fig. 6): input limits (hard); soft, with one
 slack per stage and an exact L1 penalty: the nose not behind the entrance
@@ -244,15 +250,15 @@ class OffsetFreeNMPC:
 
     # ------------------------------------------------------------------ NLP
     # Stage-wise layout, what FATROP's structure detection needs (IPOPT does
-    # not care): stage k holds chi_k = (X_k, t) and v_k = (U_k, s_k), where
-    # t = (velocity part of x_s, u_s) is carried unchanged along the horizon
-    # (chi_{k+1}[8:] = chi_k[8:]). The pose part of x_s is the reference r
-    # itself, so H x_s = r holds by construction and the equilibrium
-    # x_s = F(x_s, u_s, d) is imposed once, at stage 0.
+    # not care): stage k holds chi_k = (X_k, u_s) and v_k = (U_k, s_k), where
+    # the target input u_s is carried unchanged along the horizon
+    # (chi_{k+1}[8:] = chi_k[8:]). x_s = (r, 0): the reference pose at rest,
+    # so H x_s = r holds by construction, and the equilibrium (the velocity
+    # rows of the model at x_s) is imposed once, at stage 0.
     def _build(self) -> None:
         cfg = self.config
         n, ts = cfg.horizon, cfg.shooting_interval
-        nx, nu = N_STATE + 4 + N_INPUT, N_INPUT + 1
+        nx, nu = N_STATE + N_INPUT, N_INPUT + 1
         chi = [ca.SX.sym(f"chi{k}", nx) for k in range(n + 1)]
         v = [ca.SX.sym(f"v{k}", nu) for k in range(n)]
         x0 = ca.SX.sym("x0", N_STATE)
@@ -275,7 +281,7 @@ class OffsetFreeNMPC:
             equality.extend([lo == hi] * expr.size1())
 
         def split(c):
-            return c[:N_STATE], ca.vertcat(ref, c[N_STATE : N_STATE + 4]), c[N_STATE + 4 :]
+            return c[:N_STATE], ca.vertcat(ref, ca.SX.zeros(4)), c[N_STATE:]
 
         for k in range(n):
             x, xs, us = split(chi[k])
@@ -285,7 +291,8 @@ class OffsetFreeNMPC:
             add(chi[k + 1] - ca.vertcat(step(x, u, d), chi[k][N_STATE:]), 0.0, 0.0)
             if k == 0:
                 add(x - x0, 0.0, 0.0)
-                add(xs - step(xs, us, d), 0.0, 0.0)  # target condition (equilibrium)
+                # Target condition: x_s = (r, 0) is an equilibrium (velocity rows).
+                add(ca.vertcat(*self.model.derivatives(xs, us, d, ops=ca)[4:]), 0.0, 0.0)
             add(soft(x) + s, 0.0, np.inf)
         x, xs, _ = split(chi[n])
         cost += cfg.terminal_scale * ca.bilin(q, x - xs, x - xs)
@@ -310,7 +317,7 @@ class OffsetFreeNMPC:
             u0 = k * stride + nx
             lbx[u0 : u0 + N_INPUT], ubx[u0 : u0 + N_INPUT] = -self.limits, self.limits
             lbx[u0 + N_INPUT] = 0.0
-        us0 = N_STATE + 4
+        us0 = N_STATE
         lbx[us0 : us0 + N_INPUT], ubx[us0 : us0 + N_INPUT] = -self.limits, self.limits
         self._lbx, self._ubx = lbx, ubx
         self._stride, self._nx = stride, nx
@@ -436,7 +443,7 @@ class OffsetFreeNMPC:
         """Initial guess: the last plan shifted in time by its age, else the state held."""
         n, ts = self.config.horizon, self.config.shooting_interval
         if self._solution is None:
-            chi = np.concatenate([state, np.zeros(4), np.zeros(N_INPUT)])
+            chi = np.concatenate([state, np.zeros(N_INPUT)])
             stage = np.concatenate([chi, np.zeros(N_INPUT + 1)])
             return np.concatenate([np.tile(stage, n), chi])
         chi, v = self._stages(self._solution)
