@@ -396,7 +396,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._ws_hi = tuple(self.calibration.workspace[:, 1].tolist())
         tol = self.calibration.tolerances
         self._tolerance = (tol.position, tol.speed)
-        self._reward_keys = tuple(f"reward_{name}" for name in self.reward_terms)
+        self._marker_corners = self.calibration.marker.corners
+        self._capture_point = self.calibration.capture_point_body
         self._kp, self._kd = POSITION_GAINS
         self._tau = np.zeros(3)
         self._hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
@@ -478,7 +479,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")
-        effort = float(a @ a)
+        a0, a1, a2 = a.tolist()
+        effort = a0 * a0 + a1 * a1 + a2 * a2  # |a|^2 in floats: a @ a costs more than the sum
         if self.control == "torque":
             data = self._physics.data
             data.ctrl[:] = a
@@ -535,14 +537,14 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
+        """The AUV's per-episode geometry in world axes, as floats for the per-step code.
+
+        The body quaternion is left to :meth:`_pose_scene`: only rendering needs it.
+        """
         rot = motion.rotation()
-        marker = self.calibration.marker
-        cp = np.asarray(CAPTURE_POINT_BODY)
         self._geom = {
-            "rotation": rot,
-            "quat": frames.quat_from_euler(0.0, -motion.pitch, motion.yaw),
-            "corners": [tuple(v) for v in (marker.corners @ rot.T).tolist()],  # world axes
-            "capture": tuple((rot @ cp).tolist()),
+            "corners": [tuple(v) for v in (self._marker_corners @ rot.T).tolist()],
+            "capture": tuple((rot @ self._capture_point).tolist()),
             "axis": tuple(rot[:, 0].tolist()),
             "z_centre": AUV_FREEBOARD - AUV_DIAMETER / 2.0,
             "omega": motion.omega,
@@ -637,7 +639,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         dx, dy, dz = tx - px, ty - py, tz - pz
         ax, ay, az = g["axis"]
         half = self._hull_half
-        along = max(-half, min(half, dx * ax + dy * ay + dz * az))
+        along = dx * ax + dy * ay + dz * az
+        along = -half if along < -half else (half if along > half else along)
         radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
         dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
         return {
@@ -748,7 +751,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         level = pos[2] - self._geom["z_centre"]
         q = phys.data.qpos
         phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
-        phys.pose("auv", pos, self._geom["quat"])
+        m = ep.motion
+        phys.pose("auv", pos, frames.quat_from_euler(0.0, -m.pitch, m.yaw))
         half = 0.5 * float(q[0])
         phys.pose(
             "head", self._arm.forward_kinematics(q), (math.cos(half), 0.0, 0.0, math.sin(half))
@@ -796,8 +800,12 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "true_visible": np.array(truth["visible"]),
             "end_position": np.array(truth["end"]),
             "water_level": truth["level"],
+            # The reward terms, in reward_terms order.
+            "reward_progress": terms[0],
+            "reward_control": terms[1],
+            "reward_success": terms[2],
+            "reward_failure": terms[3],
         }
-        info.update(zip(self._reward_keys, terms, strict=True))
         return info
 
     def _episode_metrics(self, truth: dict) -> dict:
