@@ -21,6 +21,7 @@ from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
+    get_physics_state,
     validate_action,
 )
 from auv_envs.core.rendering import CameraRenderer
@@ -162,9 +163,19 @@ class _Physics:
             name: int(model.body(name).mocapid[0])
             for name in ("water", "crest", "head", "auv", "analog_0", "analog_1")
         }
+        self._initial = get_physics_state(model, self.data)  # a new MjData is reset
 
     def reset(self, q) -> None:
-        mujoco.mj_resetData(self.model, self.data)
+        """The model's initial integration state (time, velocities, warm start,
+        controls, applied forces, mocap poses) with joint angles ``q``.
+
+        Restored from a copy rather than by ``mj_resetData``, which clears all
+        of MjData and cost several times more in a training loop: the next
+        ``mj_step`` is the same, and derived quantities are recomputed by it
+        (or by :meth:`refresh_kinematics`) before anything reads them.
+        """
+        mujoco.mj_setState(self.model, self.data, self._initial,
+                           mujoco.mjtState.mjSTATE_INTEGRATION)
         self.data.qpos[:] = q
 
     def pose(self, name: str, position, quat) -> None:
