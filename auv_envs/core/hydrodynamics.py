@@ -107,7 +107,7 @@ class HullForceModel:
         self.qvel_adr = qvel_adr
         m_lin = tuple(params.mass + a for a in params.added_mass[:3])
         m_ang = tuple(i + a for i, a in zip(params.inertia, params.added_mass[3:], strict=True))
-        self._rigid = (params.mass, m_lin, m_ang, params.inertia)
+        self._rigid = (m_lin, m_ang)
         # Views into the last MjData seen by apply() (MjData's array properties
         # build a new view on every access, which costs more than the arithmetic).
         self._views: tuple | None = None
@@ -149,22 +149,23 @@ class HullForceModel:
         t0, t1, t2, t3, t4, t5 = tau_body
         f0, f1, f2, f3, f4, f5 = t0 + f0, t1 + f1, t2 + f2, t3 + f3, t4 + f4, t5 + f5
         a0, a1, a2, a3, a4, a5 = p.added_mass
-        m, (ml0, ml1, ml2), (ma0, ma1, ma2), (i0, i1, i2) = self._rigid
-        iw0, iw1, iw2 = i0 * wx, i1 * wy, i2 * wz
+        (ml0, ml1, ml2), (ma0, ma1, ma2) = self._rigid
+        # C_RB(nu) nu = [m w x v; w x (I w)] on the ground-relative velocity.
+        k0, k1, k2, k3, k4, k5 = rigid_body_coriolis(p, (v0, v1, v2, wx, wy, wz))
         # nu_c_dot = -w x vc
         cd0 = -(wy * c2 - wz * c1)
         cd1 = -(wz * c0 - wx * c2)
         cd2 = -(wx * c1 - wy * c0)
-        acc0 = (f0 - m * (wy * v2 - wz * v1) + a0 * cd0) / ml0
-        acc1 = (f1 - m * (wz * v0 - wx * v2) + a1 * cd1) / ml1
-        acc2 = (f2 - m * (wx * v1 - wy * v0) + a2 * cd2) / ml2
+        acc0 = (f0 - k0 + a0 * cd0) / ml0
+        acc1 = (f1 - k1 + a1 * cd1) / ml1
+        acc2 = (f2 - k2 + a2 * cd2) / ml2
         return (
             f0 - a0 * (acc0 - cd0),
             f1 - a1 * (acc1 - cd1),
             f2 - a2 * (acc2 - cd2),
-            f3 - a3 * (f3 - (wy * iw2 - wz * iw1)) / ma0,
-            f4 - a4 * (f4 - (wz * iw0 - wx * iw2)) / ma1,
-            f5 - a5 * (f5 - (wx * iw1 - wy * iw0)) / ma2,
+            f3 - a3 * (f3 - k3) / ma0,
+            f4 - a4 * (f4 - k4) / ma1,
+            f5 - a5 * (f5 - k5) / ma2,
         )
 
     def apply(self, model, data, tau_body: Sequence, current_world: Sequence) -> None:
