@@ -37,29 +37,42 @@ def reject_unknown_kwargs(unknown: dict, valid: Iterable[str], env_name: str) ->
         )
 
 
-def validate_action(action, space: spaces.Box) -> np.ndarray:
-    """Check and clip an action to a Box space.
+class ActionValidator:
+    """Checks and clips actions for one fixed Box space (an env builds it once).
 
     Non-finite entries raise ``ValueError``; finite out-of-range entries are
-    clipped to the bounds (documented behaviour of every ``auv_envs`` env).
+    clipped to the bounds (documented behaviour of every ``auv_envs`` env). The
+    bounds are read into Python floats here, not on every step.
     """
-    a = np.array(action, dtype=np.float64)  # always a copy: never alias the caller's array
-    if a.shape != space.shape:
-        raise ValueError(f"action has shape {a.shape}, expected {space.shape}")
-    # Fast path, in Python floats (a handful of NumPy reductions cost more than
-    # the env's physics): every entry finite and inside its bounds. NaN fails
-    # every comparison and +-inf fails the finite range, so both take the slow path.
-    lows, highs = space.low.ravel().tolist(), space.high.ravel().tolist()
-    for x, low, high in zip(a.ravel().tolist(), lows, highs, strict=True):
-        if not (low <= x <= high and -_FLOAT_MAX <= x <= _FLOAT_MAX):
-            break
-    else:
+
+    def __init__(self, space: spaces.Box):
+        self.space = space
+        self._bounds = tuple(zip(space.low.ravel().tolist(), space.high.ravel().tolist(),
+                                 strict=True))
+
+    def __call__(self, action) -> np.ndarray:
+        space = self.space
+        a = np.array(action, dtype=np.float64)  # always a copy: never alias the caller's array
+        if a.shape != space.shape:
+            raise ValueError(f"action has shape {a.shape}, expected {space.shape}")
+        # Fast path, in Python floats (a handful of NumPy reductions cost more than
+        # the env's physics): every entry finite and inside its bounds. NaN fails
+        # every comparison and +-inf fails the finite range, so both take the slow path.
+        for x, (low, high) in zip(a.ravel().tolist(), self._bounds, strict=True):
+            if not (low <= x <= high and -_FLOAT_MAX <= x <= _FLOAT_MAX):
+                break
+        else:
+            return a
+        # min/max propagate NaN, and are finite only if every entry is.
+        if not (math.isfinite(a.min()) and math.isfinite(a.max())):
+            raise ValueError(f"action must be finite, got {a.tolist()}")
+        np.clip(a, space.low, space.high, out=a)
         return a
-    # min/max propagate NaN, and are finite only if every entry is.
-    if not (math.isfinite(a.min()) and math.isfinite(a.max())):
-        raise ValueError(f"action must be finite, got {a.tolist()}")
-    np.clip(a, space.low, space.high, out=a)
-    return a
+
+
+def validate_action(action, space: spaces.Box) -> np.ndarray:
+    """:class:`ActionValidator` for a single call (the envs keep one per action space)."""
+    return ActionValidator(space)(action)
 
 
 def get_physics_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:

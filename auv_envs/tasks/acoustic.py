@@ -28,9 +28,9 @@ from auv_envs import metrics
 from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray, Measurements
 from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
+    ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
-    validate_action,
 )
 
 OBS_MODES = ("state", "measurements")
@@ -396,6 +396,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         self._source_offset = self._physics.source_offset(NOMINAL_POSTURE)
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
+        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(array)
         self._episode = _Episode()
 
@@ -451,7 +452,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         return self._observation(0), self._info(0, float("nan"), 0.0)
 
     def step(self, action):
-        a = validate_action(action, self.action_space)
+        a = self._validate_action(action)
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")

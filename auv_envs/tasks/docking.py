@@ -28,9 +28,9 @@ from auv_envs.core.camera import (
     project_few,
 )
 from auv_envs.core.env import (
+    ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
-    validate_action,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.rendering import CameraRenderer
@@ -464,6 +464,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._heading_tolerance = math.radians(self.calibration.tolerances.heading_deg)
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(n_lights, width, height)
         if obs_mode == "features":
             space = self.observation_space["pixels"]
@@ -530,7 +531,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         return obs, info
 
     def step(self, action):
-        a = validate_action(action, self.action_space)
+        a = self._validate_action(action)
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")

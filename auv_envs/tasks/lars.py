@@ -19,10 +19,10 @@ from gymnasium import spaces
 from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.env import (
+    ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
     get_physics_state,
-    validate_action,
 )
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
@@ -417,6 +417,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ), float(analog_marker.corners[:, 2].mean())
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(width, height)
         self._width, self._height = width, height
         self._renderer: CameraRenderer | None = None
@@ -486,7 +487,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         return obs, info
 
     def step(self, action):
-        a = validate_action(action, self.action_space)
+        a = self._validate_action(action)
         ep = self._episode
         if ep.done:
             raise RuntimeError("step() called after the episode ended; call reset()")
