@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import frames
-from auv_envs.core.camera import CameraIntrinsics
+from auv_envs.core.camera import CameraIntrinsics, project_few
 from auv_envs.core.env import (
     ActionValidator,
     ReconstructingPickleMixin,
@@ -397,7 +397,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         # Constants of the per-step geometry, precomputed once.
         self._left_in_end = tuple(left_t.tolist())
         self._tip_z = CAPTURE_TIP_IN_END[2]
-        self._intrinsics = (intr.fx, intr.fy, intr.cx, intr.cy)
+        self._intrinsics = intr
         # The features pixel space: [-W, 2W] x [-H, 2H] (noise can leave the image).
         self._pixel_bounds = (-float(width), -float(height), 2.0 * width, 2.0 * height)
         self._baseline = float(baseline)
@@ -604,29 +604,17 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         lx, ly, lz = self._left_in_end
         camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
 
-        # World -> left camera (OpenCV axes): x = c dx + s dy, y = s dx - c dy, z = -dz.
-        fx, fy, cx, cy = self._intrinsics
-        width, height = self._width, self._height
-        fb = fx * self._baseline
-        corners, left, right, vis_left, vis_right = [], [], [], [], []
-        for ox, oy, oz in g["corners"]:
-            wx, wy, wz = px + ox, py + oy, pz + oz
-            corners += (wx, wy, wz)
-            rx, ry, depth = wx - camx, wy - camy, camz - wz
-            if depth > 1e-6:
-                inv = 1.0 / depth
-                u = fx * (c * rx + s * ry) * inv + cx
-                v = fy * (s * rx - c * ry) * inv + cy
-                ur = u - fb * inv
-                row = 0.0 <= v < height
-                vis_left.append(row and 0.0 <= u < width)
-                vis_right.append(row and 0.0 <= ur < width)
-            else:
-                u = v = ur = math.nan
-                vis_left.append(False)
-                vis_right.append(False)
-            left += (u, v)
-            right += (ur, v)
+        # Camera -> world rows (OpenCV axes): x = (c, s, 0), y = (s, -c, 0), z = down; the
+        # right camera sits one baseline along the left camera's x axis.
+        rows = self._camera_rows(c, s)
+        points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in g["corners"]]
+        corners = [x for point in points for x in point]
+        b = self._baseline
+        left_px, vis_left = project_few(self._intrinsics, points, (camx, camy, camz), rows)
+        right_px, vis_right = project_few(self._intrinsics, points,
+                                          (camx + b * c, camy + b * s, camz), rows)
+        left = [x for uv in left_px for x in uv]
+        right = [x for uv in right_px for x in uv]
 
         occluded = False
         distractors = 0
@@ -692,20 +680,17 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
     def _count_distractors(self, t, pos, cam, c, s) -> int:
         """Analogs whose marker centre projects into the left image."""
-        count = 0
         mx, mz = self._analog_centre
-        fx, fy, cx, cy = self._intrinsics
+        centres = []
         for analog in self._episode.analogs:
             (ax, ay, az), yaw = self._analog_pose(analog, t, pos)
-            rx = ax + mx * math.cos(yaw) - cam[0]
-            ry = ay + mx * math.sin(yaw) - cam[1]
-            depth = cam[2] - az - mz
-            if depth <= 1e-6:
-                continue
-            u = fx * (c * rx + s * ry) / depth + cx
-            v = fy * (s * rx - c * ry) / depth + cy
-            count += 0.0 <= u < self._width and 0.0 <= v < self._height
-        return count
+            centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
+        return sum(project_few(self._intrinsics, centres, cam, self._camera_rows(c, s))[1])
+
+    @staticmethod
+    def _camera_rows(c: float, s: float) -> tuple:
+        """Left camera -> world rotation rows of the downward head at slew ``(cos, sin)``."""
+        return ((c, s, 0.0), (s, -c, 0.0), (0.0, 0.0, -1.0))
 
     def _joints(self, truth: dict) -> dict:
         return {
