@@ -132,3 +132,10 @@ def test_calibration_is_a_frozen_dataclass_with_read_only_arrays(env):
         value = getattr(cal, f.name)
         if isinstance(value, np.ndarray):
             assert not value.flags.writeable, f.name
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+@pytest.mark.parametrize("size, match", [((4, 4), "at least 8x8"), ((64, 48, 3), "width, height")])
+def test_docking_rejects_a_bad_image_size(env_id, size, match):
+    with pytest.raises(ValueError, match=match):
+        make_env(env_id, "image", image_size=size)

@@ -12,6 +12,7 @@ import dataclasses
 import math
 
 import numpy as np
+from gymnasium import spaces
 
 from auv_envs.core.frames import R_MJCAM_TO_CV
 
@@ -142,6 +143,18 @@ def project_few(
             pixels.append((math.nan, math.nan))
             in_image.append(False)
     return pixels, in_image
+
+
+def pixel_space(width: int, height: int, shape: tuple[int, ...]) -> spaces.Box:
+    """The observation space of feature pixels ``(*shape, 2)``: ``[-W, 2W] x [-H, 2H]``.
+
+    Wider than the image because pixel noise can push a visible point out of it;
+    the environments clip their noisy pixels to these bounds.
+    """
+    bound = np.array([width, height], dtype=np.float32)
+    full = (*shape, 2)
+    return spaces.Box(np.broadcast_to(-bound, full).copy(),
+                      np.broadcast_to(2 * bound, full).copy(), dtype=np.float32)
 
 
 def add_pixel_noise(pixels: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:

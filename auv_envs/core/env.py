@@ -37,6 +37,18 @@ def reject_unknown_kwargs(unknown: dict, valid: Iterable[str], env_name: str) ->
         )
 
 
+def check_image_size(image_size) -> tuple[int, int]:
+    """``(width, height)`` of an ``image_size`` argument; ``ValueError`` unless it is two
+    sizes of at least 8 pixels."""
+    size = tuple(image_size)
+    if len(size) != 2:
+        raise ValueError(f"image_size must be (width, height), got {image_size!r}")
+    width, height = (int(v) for v in size)
+    if width < 8 or height < 8:
+        raise ValueError(f"image_size must be at least 8x8 pixels, got {width}x{height}")
+    return width, height
+
+
 class ActionValidator:
     """Checks and clips actions for one fixed Box space (an env builds it once).
 

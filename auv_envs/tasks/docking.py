@@ -25,12 +25,14 @@ from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
     add_pixel_noise,
+    pixel_space,
     project_few,
 )
 from auv_envs.core.env import (
     ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
+    check_image_size,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.rendering import CameraRenderer
@@ -401,7 +403,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             min_visible_lights=min_visible_lights, render_mode=render_mode,
         )
         check_choice("scenario", scenario, SCENARIOS)
-        width, height = (int(s) for s in image_size)
+        width, height = check_image_size(image_size)
         if time_limit <= 0 or lights_lost_timeout <= 0:
             raise ValueError("time_limit and lights_lost_timeout must be positive")
         if current_direction is not None and not math.isfinite(current_direction):
@@ -484,14 +486,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "attitude": spaces.Box(-np.pi - 1.0, np.pi + 1.0, shape=(3,), dtype=np.float32),
         }
         if self.obs_mode == "features":
-            bound = np.array([width, height], dtype=np.float32)
             return spaces.Dict(
                 {
-                    "pixels": spaces.Box(
-                        np.broadcast_to(-bound, (n, 2)).copy(),
-                        np.broadcast_to(2 * bound, (n, 2)).copy(),
-                        dtype=np.float32,
-                    ),
+                    "pixels": pixel_space(width, height, (n,)),
                     "visible": spaces.MultiBinary(n),
                     **sensors,
                 }

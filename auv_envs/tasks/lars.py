@@ -17,11 +17,12 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import frames
-from auv_envs.core.camera import CameraIntrinsics, project_few
+from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
+    check_image_size,
     get_physics_state,
 )
 from auv_envs.core.rendering import CameraRenderer
@@ -334,11 +335,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         )
         check_choice("sea_state", sea_state, SEA_STATES)
         check_choice("control", control, CONTROLS)
-        if len(tuple(image_size)) != 2:
-            raise ValueError(f"image_size must be (width, height), got {image_size!r}")
-        width, height = (int(v) for v in image_size)
-        if width < 8 or height < 8:
-            raise ValueError(f"image_size must be at least 8x8 pixels, got {width}x{height}")
+        width, height = check_image_size(image_size)
         if not (math.isfinite(baseline) and 0.0 < baseline <= 1.0):
             raise ValueError(f"baseline must be in (0, 1] m, got {baseline}")
         if focal_length is None:
@@ -398,8 +395,6 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._left_in_end = tuple(left_t.tolist())
         self._tip_z = CAPTURE_TIP_IN_END[2]
         self._intrinsics = intr
-        # The features pixel space: [-W, 2W] x [-H, 2H] (noise can leave the image).
-        self._pixel_bounds = (-float(width), -float(height), 2.0 * width, 2.0 * height)
         self._baseline = float(baseline)
         self._q_mid = arm.joint_limits.mean(axis=1)
         self._q_half = 0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0])
@@ -419,6 +414,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(width, height)
+        if obs_mode == "features":  # noisy pixels are clipped to the space's bounds
+            pixels = self.observation_space["pixels"]
+            self._pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
         self._width, self._height = width, height
         self._renderer: CameraRenderer | None = None
         if obs_mode == "stereo" or render_mode == "rgb_array":
@@ -439,14 +437,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "joint_velocity": spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float32),
         }
         if self.obs_mode == "features":
-            bound = np.array([width, height], dtype=np.float32)
             return spaces.Dict(
                 {
-                    "pixels": spaces.Box(
-                        np.broadcast_to(-bound, (2, 3, 2)).copy(),
-                        np.broadcast_to(2 * bound, (2, 3, 2)).copy(),
-                        dtype=np.float32,
-                    ),
+                    "pixels": pixel_space(width, height, (2, 3)),
                     "visible": spaces.MultiBinary((2, 3)),
                     **joints,
                 }
