@@ -149,12 +149,7 @@ def load_hyperparams(algo: str, hyperparams_dir: Path | None = None) -> dict:
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
     path = Path(hyperparams_dir or HYPERPARAMS_DIR) / f"{algo}.yml"
-    if not path.is_file():
-        raise ConfigError(f"hyperparameter file missing: {path}")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"cannot parse {path}: {exc}") from exc
+    data = _read_yaml(path, "hyperparameter file")
     if not isinstance(data, dict) or not isinstance(data.get("default"), dict):
         raise ConfigError(f"{path} must map env ids to settings and have a 'default' entry")
     return data
@@ -352,11 +347,15 @@ def save_config(config: TrainConfig, path: Path) -> None:
 
 def read_config(path: Path) -> TrainConfig:
     """A config written by :func:`save_config`; clear errors when missing or corrupt."""
-    path = Path(path)
+    return TrainConfig.from_dict(_read_yaml(Path(path), "config file"))
+
+
+def _read_yaml(path: Path, what: str):
+    """The parsed YAML at ``path``; :class:`ConfigError` naming ``what`` when it is
+    missing or cannot be parsed."""
     if not path.is_file():
-        raise ConfigError(f"config file missing: {path}")
+        raise ConfigError(f"{what} missing: {path}")
     try:
-        data = yaml.safe_load(path.read_text())
+        return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
-        raise ConfigError(f"config file {path} is corrupt: {exc}") from exc
-    return TrainConfig.from_dict(data)
+        raise ConfigError(f"{what} {path} is corrupt: {exc}") from exc
