@@ -38,6 +38,17 @@ solved again with the weighted rows. The weighted chi-square of the residuals
 gates each fix, and fixes outside the tank (multipath mirror images lie above
 the surface or below the bottom) are marked invalid.
 
+**Clock offsets** (our addition; seed 004 only notes TDOA's "sensitivity to
+synchronization errors", §1.3): each node's clock offset against node 1 is
+constant over an episode, so it biases every TDOA fix alike and no fusion of
+bands removes it. :class:`ClockOffsetEstimator` estimates the offsets online
+from the DOA rows, which do not depend on the clocks: for each valid fix it
+solves the DOA-only position, predicts the TDOAs there and averages the
+residuals per node, weighted by their first-order variance (DOA position
+covariance plus TDOA noise) and gated. ``solve(..., clock=estimator.clock)``
+then subtracts the estimated offsets and weights the TDOA rows with what is
+left of their uncertainty.
+
 Everything is vectorised over arbitrary leading axes (bands x detections).
 """
 
@@ -178,18 +189,30 @@ class LeastSquaresPositioner:
         self._high = np.array([sx + margin, sy + margin, margin])
         # Per-band noise stds at the work-area centre (calibration, not state).
         model = calibration.array.model(work_area_centre(calibration))
-        clock = calibration.config.clock_offset_std
-        self.range_diff_std = self._c * np.hypot(model["tdoa_std"], clock)  # (Q, N-1) m
+        self.tdoa_std = model["tdoa_std"]  # (Q, N-1) s, without the clock offsets
+        self.clock_offset_std = float(calibration.config.clock_offset_std)
         self.azimuth_std = model["azimuth_std"]  # (Q, N)
         self.elevation_std = model["elevation_std"]  # (Q, N)
-        # Per band, the factor multiplying each row's range (see _row_std).
-        scale = {"fused": (2.0 * self.range_diff_std, self.azimuth_std, self.elevation_std),
-                 "tdoa": (2.0 * self.range_diff_std,),
-                 "doa": (self.azimuth_std, self.elevation_std)}[method]
-        self._row_scale = np.concatenate(scale, axis=-1)  # (Q, rows)
+        self._row_scale = self._row_scales(self.clock_offset_std)  # (Q, rows)
         self.n_unknowns = 3 if method == "doa" else 4
         rows = {"fused": 3 * self._n - 1, "tdoa": self._n - 1, "doa": 2 * self._n}[method]
         self.dof = rows - self.n_unknowns
+
+    def range_diff_std(self, clock_std) -> np.ndarray:
+        """(Q, N-1) std of the measured range differences (m) with clock errors of ``clock_std``.
+
+        ``clock_std`` (s) is a scalar or one value per TDOA (N-1,): the spread of
+        the clock offsets left in the TDOAs (the calibration's
+        ``clock_offset_std`` when nothing corrects them).
+        """
+        return self._c * np.hypot(self.tdoa_std, clock_std)
+
+    def _row_scales(self, clock_std) -> np.ndarray:
+        """Per band, the factor multiplying each row's range (see :meth:`_row_std`)."""
+        tdoa = 2.0 * self.range_diff_std(clock_std)
+        angles = (self.azimuth_std, self.elevation_std)
+        blocks = {"fused": (tdoa, *angles), "tdoa": (tdoa,), "doa": angles}[self.method]
+        return np.concatenate(blocks, axis=-1)
 
     # ------------------------------------------------------------------ systems
     def _system(self, tdoa, azimuth, elevation):
@@ -206,7 +229,7 @@ class LeastSquaresPositioner:
             parts_b.append(N_)
         return np.concatenate(parts_A, axis=-2), np.concatenate(parts_b, axis=-1)
 
-    def _row_std(self, p: np.ndarray, band: np.ndarray) -> np.ndarray:
+    def _row_std(self, p: np.ndarray, band: np.ndarray, row_scale: np.ndarray) -> np.ndarray:
         """First-order residual stds (M, rows) of each row at positions p (M, 3) in bands (M,)."""
         diff = p[:, None, :] - self._nodes  # (M, N, 3)
         horizontal = np.maximum(np.hypot(diff[..., 0], diff[..., 1]), 1.0)
@@ -216,9 +239,9 @@ class LeastSquaresPositioner:
             parts.append(ranges[:, 1:])
         if self.method in ("fused", "doa"):
             parts += [horizontal, ranges]
-        return np.concatenate(parts, axis=-1) * self._row_scale[band]
+        return np.concatenate(parts, axis=-1) * row_scale[band]
 
-    def solve(self, tdoa, azimuth, elevation, mask=None) -> PositionFixes:
+    def solve(self, tdoa, azimuth, elevation, mask=None, clock=None) -> PositionFixes:
         """Fix every detection of a measurement set.
 
         Only the real detections (``mask``) are solved, in one batch; the
@@ -229,6 +252,10 @@ class LeastSquaresPositioner:
             axis must be the band axis (its noise model is per band); any
             number of leading axes ``(Q, ...)`` works.
           mask: (Q, K) real-detection flags (default: all real).
+          clock: ``(offset, std)`` of the clock offsets, each (N-1,) s, e.g.
+            from a :class:`ClockOffsetEstimator`: ``offset`` is subtracted from
+            every TDOA and ``std`` replaces the calibration's
+            ``clock_offset_std`` in the row weights. Default: no correction.
 
         Returns:
           :class:`PositionFixes` over the leading axes.
@@ -250,10 +277,18 @@ class LeastSquaresPositioner:
         if mask.shape != lead:
             raise ValueError(f"mask must have shape {lead}, got {mask.shape}")
         sel = np.nonzero(mask)
-        A, b = self._system(tdoa[sel], azimuth[sel], elevation[sel])
+        tdoa_sel, row_scale = tdoa[sel], self._row_scale
+        if clock is not None:
+            offset, std = (np.asarray(v, dtype=np.float64) for v in clock)
+            if offset.shape != (self._n - 1,) or std.shape != (self._n - 1,):
+                raise ValueError(f"clock offset and std must each have shape ({self._n - 1},), "
+                                 f"got {offset.shape} and {std.shape}")
+            tdoa_sel = tdoa_sel - offset
+            row_scale = self._row_scales(std)
+        A, b = self._system(tdoa_sel, azimuth[sel], elevation[sel])
         x, inv, rss = _solve_normal(A, b)
         if self.weighting == "noise":
-            w = 1.0 / self._row_std(x[:, :3], sel[0])  # x is centred; sel[0]: the band
+            w = 1.0 / self._row_std(x[:, :3], sel[0], row_scale)  # x centred; sel[0]: band
             x, inv, rss = _solve_normal(A * w[..., None], b * w)
         position = x[:, :3] + self._centre
         ok = np.all(np.isfinite(position), axis=-1)
@@ -267,3 +302,73 @@ class LeastSquaresPositioner:
         out_position[sel], out_covariance[sel] = position, inv[:, :3, :3]
         chi2[sel], valid[sel] = rss, ok
         return PositionFixes(out_position, out_covariance, chi2, self.dof, valid)
+
+
+class ClockOffsetEstimator:
+    """Online estimate of the nodes' clock offsets against node 1 (see the module docstring).
+
+    The offsets ``b`` (N-1,) enter the TDOAs as ``tau_1i + b_i``. Each update
+    takes the detections whose fused fix was valid, fixes them again from
+    their DOA rows only (``p``, covariance ``P``), and forms the residuals
+    ``r_i = tau_1i - (|p - h_i| - |p - h_1|) / c`` with first-order variance
+    ``g_i^T P g_i / c^2 + std(tau_1i)^2`` (``g_i`` the difference of the unit
+    vectors from nodes 1 and i to ``p``). Residuals within ``gate`` standard
+    deviations of the current estimate update a per-node information-weighted
+    mean that starts from the prior ``N(0, clock_offset_std^2)``. The nodes
+    are treated independently (their residuals share the DOA error of ``p``;
+    ignoring that loses some efficiency, not consistency).
+
+    Args:
+      calibration: the environment's ``AcousticCalibration``.
+      gate: residual gate in standard deviations.
+    """
+
+    def __init__(self, calibration, gate: float = 4.0):
+        if not gate > 0:
+            raise ValueError(f"gate must be positive, got {gate}")
+        self.gate = float(gate)
+        self._doa = LeastSquaresPositioner(calibration, "doa")
+        self._nodes = np.asarray(calibration.hydrophone_positions, dtype=np.float64)
+        self._c = float(calibration.sound_speed)
+        self._tdoa_var = self._doa.tdoa_std ** 2  # (Q, N-1)
+        self._prior_precision = 1.0 / max(self._doa.clock_offset_std, 1e-9) ** 2
+        self.reset()
+
+    def reset(self) -> None:
+        n = len(self._nodes) - 1
+        self.offset = np.zeros(n)
+        self._precision = np.full(n, self._prior_precision)
+        self.samples = 0
+
+    @property
+    def std(self) -> np.ndarray:
+        """(N-1,) standard deviation of the offset estimates (s)."""
+        return 1.0 / np.sqrt(self._precision)
+
+    @property
+    def clock(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(offset, std)`` for :meth:`LeastSquaresPositioner.solve`'s ``clock``."""
+        return self.offset, self.std
+
+    def update(self, tdoa, azimuth, elevation, valid) -> None:
+        """Fold in the detections flagged ``valid`` (Q, K) of one measurement set."""
+        fixes = self._doa.solve(tdoa, azimuth, elevation, valid)
+        sel = np.nonzero(fixes.valid)
+        if not len(sel[0]):
+            return
+        p = fixes.position[sel]  # (M, 3)
+        diff = p[:, None, :] - self._nodes  # (M, N, 3)
+        ranges = np.linalg.norm(diff, axis=-1)
+        units = diff / ranges[..., None]
+        predicted = (ranges[:, 1:] - ranges[:, :1]) / self._c
+        residual = np.asarray(tdoa, dtype=np.float64)[sel] - predicted
+        g = units[:, 1:] - units[:, :1]  # (M, N-1, 3)
+        variance = (np.einsum("mni,mij,mnj->mn", g, fixes.covariance[sel], g) / self._c ** 2
+                    + self._tdoa_var[sel[0]])
+        innovation = residual - self.offset
+        keep = innovation ** 2 <= self.gate ** 2 * (variance + 1.0 / self._precision)
+        information = np.where(keep, 1.0 / variance, 0.0)
+        precision = self._precision + information.sum(axis=0)
+        self.offset = self.offset + np.sum(information * innovation, axis=0) / precision
+        self._precision = precision
+        self.samples += int(np.count_nonzero(keep))
