@@ -228,7 +228,11 @@ class LSKalmanAgent:
             if d2[i] <= self.gate:
                 gain = np.linalg.solve(S[i], self._P[:3]).T  # P H^T S^-1
                 self._x = self._x + gain @ nu[i]
-                self._P = self._P - gain @ self._P[:3]
+                # Joseph form, as in gmphd_update: P - K H P loses positive
+                # definiteness within seconds once the fixes are centimetre-precise.
+                IKH = np.eye(6)
+                IKH[:, :3] -= gain
+                self._P = IKH @ self._P @ IKH.T + gain @ R[i] @ gain.T
                 self._misses = 0
             else:
                 self._misses += 1
