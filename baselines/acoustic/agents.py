@@ -47,8 +47,9 @@ from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/AcousticTracking-v0",)
 OBS_KEYS = ("tdoa", "azimuth", "elevation", "mask")
-#: Floor added to each fix covariance's diagonal (m^2): the clock offsets bias
-#: all fixes of an episode alike, which the per-fix LS covariance ignores.
+#: Floor added to each fix covariance's diagonal (m^2): the clock offsets (or,
+#: with the clock calibration, the error left in their estimates) bias all
+#: fixes of an episode alike, which the per-fix LS covariance ignores.
 FIX_VARIANCE_FLOOR = 1e-4
 
 
