@@ -1,9 +1,10 @@
 """LARS capture speed: stereo vs mono render cost, stereo and features env steps/s.
 
 Measured in one run (these machines are noisy, so only same-run ratios mean
-much). Targets (issue 3): a stereo pair <= 1.3x a single view of the same
-size; ``stereo`` at 640x480 >= 50 env steps/s; ``features`` >= 0.5x
-Gymnasium ``HalfCheetah-v5`` env steps/s.
+much); the single view and the pair are timed in alternating blocks.
+Targets (issue 3): a stereo pair <= 1.3x a single view of the same size;
+``stereo`` at 640x480 >= 50 env steps/s; ``features`` >= 0.5x Gymnasium
+``HalfCheetah-v5`` env steps/s.
 
     python benchmarks/lars_speed.py [--steps N] [--repeats R]
 """
@@ -24,22 +25,32 @@ from auv_envs.core.rendering import CameraRenderer  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 
 
-def render_seconds(env: LARSCaptureEnv, cameras: tuple[str, ...], size, n: int, repeats: int):
-    """Best mean seconds per render of ``cameras`` at ``size`` on the env's scene."""
-    renderer = CameraRenderer(env._physics.model, cameras, *size)
+def render_seconds(env: LARSCaptureEnv, views, size, n: int, repeats: int):
+    """Best mean wall and CPU seconds per render for each camera tuple in ``views``.
+
+    The renderers are timed in alternating blocks of ``n`` renders (``repeats``
+    rounds), so that load drifting during the run affects them alike; CPU time
+    is the process's, which includes llvmpipe's rasteriser threads.
+    """
+    renderers = [CameraRenderer(env._physics.model, cams, *size) for cams in views]
     try:
         env._pose_scene()
         data = env._physics.data
-        renderer.render(data)
-        best = float("inf")
+        wall = [float("inf")] * len(views)
+        cpu = [float("inf")] * len(views)
+        for renderer in renderers:
+            renderer.render(data)
         for _ in range(repeats):
-            start = time.perf_counter()
-            for _ in range(n):
-                renderer.render(data)
-            best = min(best, (time.perf_counter() - start) / n)
-        return best
+            for i, renderer in enumerate(renderers):
+                start, start_cpu = time.perf_counter(), time.process_time()
+                for _ in range(n):
+                    renderer.render(data)
+                wall[i] = min(wall[i], (time.perf_counter() - start) / n)
+                cpu[i] = min(cpu[i], (time.process_time() - start_cpu) / n)
+        return wall, cpu
     finally:
-        renderer.close()
+        for renderer in renderers:
+            renderer.close()
 
 
 def main(argv=None) -> None:
@@ -58,8 +69,8 @@ def main(argv=None) -> None:
 
     env = LARSCaptureEnv(obs_mode="stereo", image_size=size)
     env.reset(seed=0)
-    mono = render_seconds(env, ("left",), size, 60, args.repeats)
-    pair = render_seconds(env, ("left", "right"), size, 60, args.repeats)
+    (mono, pair), (mono_cpu, pair_cpu) = render_seconds(
+        env, (("left",), ("left", "right")), size, 20, 3 * args.repeats)
     stereo = steps_per_second(env, 200, args.repeats)
     env.close()
 
@@ -70,6 +81,8 @@ def main(argv=None) -> None:
     print(f"| single view 640x480 | {mono * 1e3:.2f} ms | | |")
     print(f"| stereo pair 640x480 (one buffer) | {pair * 1e3:.2f} ms | | |")
     print(f"| stereo / single | {ratio:.2f}x | <= 1.3x | {'yes' if ratio <= 1.3 else 'NO'} |")
+    print(f"| stereo / single, CPU time | {pair_cpu / mono_cpu:.2f}x "
+          f"({pair_cpu * 1e3:.2f} / {mono_cpu * 1e3:.2f} ms) | | |")
     print(f"| stereo env 640x480 | {stereo:,.0f} steps/s | >= 50 | "
           f"{'yes' if stereo >= 50 else 'NO'} |")
     print(f"| features env | {features:,.0f} steps/s ({features / reference:.2f}x) | >= 0.5x | "
