@@ -7,7 +7,9 @@
 Writes ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json``
 and ``episodes.json`` under ``--out`` and prints the Markdown tables.
 Finished episodes are cached under ``--out``/episodes (one file each), so a
-rerun, or a run after an interruption, only runs what is missing.
+rerun, or a run after an interruption, only runs what is missing. The cache
+key includes a fingerprint of the package code and assets, so episodes of
+edited agents or environments run again.
 
 Default run (the README's main command): every environment, every
 registered agent in its default obs mode, 3 episodes on the frozen seeds
@@ -91,9 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cache-dir", type=str, default=None,
                         help="episode cache (default OUT/episodes)")
     parser.add_argument("--no-cache", action="store_true",
-                        help="run every episode again and refresh the cache (do this after "
-                             "changing an agent or environment: the cache key is the task and "
-                             "the package version, not the code)")
+                        help="run every episode again and refresh the cache (the key already "
+                             "covers the task and the code and assets of auv_envs and baselines; "
+                             "use this e.g. after upgrading a dependency)")
     parser.add_argument("--backend", choices=BACKENDS, default="local",
                         help="local processes (default) or Ray tasks")
     parser.add_argument("--ray-address", type=str, default=None,

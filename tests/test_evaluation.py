@@ -389,3 +389,33 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
         evaluation.atomic_write(target, "newer")
     assert target.read_text() == "new"
     assert [p.name for p in target.parent.iterdir()] == ["file.json"]  # no temp file left
+
+
+def test_source_fingerprint_sees_every_change_that_matters(tmp_path):
+    root = tmp_path / "pkg"
+    (root / "sub").mkdir(parents=True)
+    (root / "a.py").write_text("x = 1\n")
+    (root / "sub" / "b.xml").write_text("<mujoco/>")
+    (root / "leaderboard.py").write_text("TITLE = 'one'\n")
+    base = evaluation.source_fingerprint([root], ("leaderboard.py",))
+    assert evaluation.source_fingerprint([root], ("leaderboard.py",)) == base
+    (root / "__pycache__").mkdir()
+    (root / "__pycache__" / "a.cpython-311.pyc").write_bytes(b"\0\1")
+    (root / "leaderboard.py").write_text("TITLE = 'two'\n")
+    assert evaluation.source_fingerprint([root], ("leaderboard.py",)) == base  # ignored
+    (root / "sub" / "b.xml").write_text("<mujoco model='x'/>")
+    edited = evaluation.source_fingerprint([root], ("leaderboard.py",))
+    assert edited != base
+    (root / "sub" / "b.xml").rename(root / "sub" / "c.xml")
+    assert evaluation.source_fingerprint([root], ("leaderboard.py",)) != edited  # renamed
+
+
+def test_cached_episodes_of_other_code_run_again(tmp_path, monkeypatch):
+    args = dict(env_ids=[DOCK], agents=["random"], seeds=[1], cache_dir=tmp_path)
+    first = evaluate_all(**args)
+    assert first.stats.ran == 1
+    assert evaluate_all(**args).stats.cached == 1
+    monkeypatch.setattr(evaluation, "code_fingerprint", lambda: "edited-code")
+    again = evaluate_all(**args)
+    assert again.stats.ran == 1 and again.stats.cached == 0
+    assert [_comparable(r) for r in again.rows] == [_comparable(r) for r in first.rows]
