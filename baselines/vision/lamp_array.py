@@ -51,7 +51,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from auv_envs.core.camera import CameraIntrinsics
+from auv_envs.core.camera import CameraIntrinsics, pixel_space
 from auv_envs.core.frames import rotation_from_euler
 from baselines.docking.observers import joseph_covariance, kalman_gain
 
@@ -647,6 +647,9 @@ class LampArrayFrontEnd:
         self._dt = float(calibration.control_period)
         self._n = len(labels)
         self._image_shape = (self.intrinsics.height, self.intrinsics.width, 3)
+        # The bounds of the env's features ``pixels`` space, which the output must lie in.
+        pixels = pixel_space(self.intrinsics.width, self.intrinsics.height, (self._n,))
+        self._pixel_bounds = (pixels.low, pixels.high)
         self._pose = CameraPositionFilter(self.intrinsics, self._points)
         self._transition = BlobEKF.transition(self._dt, self.params.accel_sigma,
                                               self.params.size_accel_sigma)
@@ -976,9 +979,7 @@ class LampArrayFrontEnd:
             for i in np.flatnonzero(reported):
                 pixels[i] = self._tracks[i].position
             visible[reported] = 1
-            # The env's features space bounds pixels to [-W, 2W] x [-H, 2H].
-            k = self.intrinsics
-            np.clip(pixels, (-k.width, -k.height), (2 * k.width, 2 * k.height), out=pixels)
+            np.clip(pixels, *self._pixel_bounds, out=pixels)
         return {
             "pixels": pixels,
             "visible": visible,
