@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import itertools
 import math
 import time
@@ -47,7 +48,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from sklearn.linear_model import RidgeClassifier
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from auv_envs.core.stereo import StereoRig, triangulate
 from baselines.lars.siamese import (
@@ -438,6 +439,17 @@ class _FrameFeatures:
         return (None if dist[nearest] > reach else nearest), dist
 
 
+@functools.cache
+def _thread_pools() -> ThreadpoolController:
+    """The process's BLAS/OpenMP thread pools, found once.
+
+    ``threadpool_limits`` scans the loaded libraries on every call (about
+    13 ms here, more than the ridge solve); the controller scans them at its
+    first use, by which time numpy, scipy, scikit-learn and torch are loaded.
+    """
+    return ThreadpoolController()
+
+
 class OnlineDetector:
     """A window classifier learnt during the episode (seed 000 §2.1.2's online detector).
 
@@ -543,7 +555,7 @@ class OnlineDetector:
         clf = RidgeClassifier(alpha=self.params.alpha, class_weight="balanced")
         # A few hundred samples: one BLAS thread. Several threads on a busy
         # 2-core machine made this solve 20x slower (measured).
-        with threadpool_limits(limits=1):
+        with _thread_pools().limit(limits=1):
             self.classifier = clf.fit(x, y)
         self.fits += 1
         self._since_fit = 0
