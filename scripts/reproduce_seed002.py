@@ -120,18 +120,9 @@ def run_sequence(seed: int, frames: int, scenario: str, env_id: str = ENV_ID) ->
         state_env.close()
 
 
-def score(seq: dict, threshold: float, start: int) -> dict:
-    tp, tv = seq["true_pixels"][start:], seq["true_visible"][start:]
-    ep, ev = seq["pixels"][start:], seq["visible"][start:]
-    mot = clear_mot_labelled(tp, tv, ep, ev, threshold)
-    err = np.linalg.norm(ep - tp, axis=-1)[tv & ev]
-    return {"mot": mot, "frames": len(tv), "lamp_frames": tv.size,
-            "occluded": 1.0 - tv.mean(), "within_13px": float(np.mean(err <= PRECISION_PLOT_PX))
-            if err.size else math.nan}
-
-
 def pooled(seqs: list[dict], threshold: float, from_init: bool) -> dict:
-    """CLEAR MOT over all sequences as one (frames concatenated; no identity carried over)."""
+    """CLEAR MOT over all sequences as one (frames concatenated; no identity carried over);
+    one sequence's score is ``pooled([seq], ...)``."""
     parts = []
     for seq in seqs:
         start = seq["init_frame"] if from_init else 0
@@ -157,8 +148,8 @@ def pooled(seqs: list[dict], threshold: float, from_init: bool) -> dict:
     err = np.linalg.norm(ep - tp, axis=-1)[tv & ev]
     lamp_frames = sum(p["true_visible"].size for p in parts)
     hidden = sum((~p["true_visible"]).sum() for p in parts)
-    return {"mot": mot, "occluded": hidden / max(lamp_frames, 1),
-            "lamp_frames": lamp_frames, "within_13px": float(np.mean(err <= PRECISION_PLOT_PX))}
+    return {"mot": mot, "occluded": hidden / max(lamp_frames, 1), "lamp_frames": lamp_frames,
+            "within_13px": float(np.mean(err <= PRECISION_PLOT_PX)) if err.size else math.nan}
 
 
 def _row(name: str, r: dict) -> str:
@@ -192,7 +183,7 @@ def main() -> None:
         if start is None:
             print(f"{label:22s} never initialised")
             continue
-        print(_row(label, score(seq, args.threshold, start)))
+        print(_row(label, pooled([seq], args.threshold, from_init=True)))
     total_init = pooled(seqs, args.threshold, from_init=True)
     total_all = pooled(seqs, args.threshold, from_init=False)
     print(_row("all, from init", total_init))
