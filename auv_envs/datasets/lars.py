@@ -47,7 +47,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from auv_envs.core.camera import points_in_camera, project  # noqa: E402
-from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, LARSCaptureEnv  # noqa: E402
+from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv  # noqa: E402
 from auv_envs.tasks.lars_scene import auv_rotation  # noqa: E402
 
 FORMAT_VERSION = 1
@@ -102,7 +102,7 @@ def export_sequence(
     (out_dir / "right").mkdir(parents=True, exist_ok=True)
     env = LARSCaptureEnv(
         obs_mode="stereo", sea_state=sea_state, control="position",
-        image_size=tuple(image_size), time_limit=max(steps, 1) * 0.04 + 1.0,
+        image_size=tuple(image_size), time_limit=max(steps, 1) * CONTROL_PERIOD + 1.0,
     )
     try:
         obs, info = env.reset(seed=seed)
