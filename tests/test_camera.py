@@ -21,6 +21,7 @@ from auv_envs.core.camera import (
     CameraIntrinsics,
     add_pixel_noise,
     inside_image,
+    pixel_space,
     project,
 )
 from auv_envs.core.frames import rotation_from_euler
@@ -253,6 +254,19 @@ def test_inside_image_boundaries():
     np.testing.assert_array_equal(
         inside_image(intr, pm, margin=10.0), [False, True, True, False, True, False]
     )
+
+
+def test_pixel_space_bounds_twice_the_image_each_way():
+    space = pixel_space(640, 480, (2, 3))
+    assert space.shape == (2, 3, 2) and space.dtype == np.float32
+    np.testing.assert_array_equal(space.low[1, 2], [-640.0, -480.0])
+    np.testing.assert_array_equal(space.high[0, 0], [1280.0, 960.0])
+    assert (space.low == space.low[0, 0]).all() and (space.high == space.high[0, 0]).all()
+    # Bounds are the space's own arrays (not broadcast views of one row).
+    assert space.low.flags.writeable and not np.shares_memory(space.low[0], space.low[1])
+    corners = np.array([[0.0, 0.0], [639.9, 479.9], [-640.0, 960.0]], np.float32)
+    assert space.contains(np.broadcast_to(corners, (2, 3, 2)).copy())
+    assert not space.contains(np.full((2, 3, 2), 1280.5, np.float32))
 
 
 def test_add_pixel_noise_zero_std_returns_copy():
