@@ -875,8 +875,9 @@ def find_marker_pair(extractor: MarkerCornerExtractor, left: np.ndarray, right: 
     smallest size error wins; the 0.8x analogs fail the size check.
     """
     best, best_err = None, math.inf
+    right_candidates = extractor.candidates(right)  # searched once, not per left candidate
     for cl in extractor.candidates(left):
-        for cr in extractor.candidates(right):
+        for cr in right_candidates:
             if not match_stereo(cl, cr, rig, sides, row_tolerance, size_tolerance):
                 continue
             err = marker_size_error(cl, cr, rig, sides)
