@@ -12,10 +12,11 @@ whose marker lies outside the image are left out.
 * precision(t): fraction of frames with a centre error <= t px; the value at
   20 px ranks trackers.
 
-Three rows: the Siamese tracker alone (same network, same template update),
-LTAT as shipped, and LTAT with its boxes left as the tracker's (never
-snapped to the verified corners), which isolates what re-detection alone
-adds.
+Three rows: the Siamese tracker alone (same network; its own template
+update: every frame a view scores >= ``TrackerParams.update_score``), LTAT as
+shipped (templates updated on every ``sample_every``-th confident, verified
+frame), and LTAT with its boxes left as the tracker's (never snapped to the
+verified corners), which isolates what re-detection alone adds.
 
 Sequences come from the LARS exporter (:mod:`auv_envs.datasets.lars`) with
 evaluation seeds >= 100000 (the tracker trained on seeds 1000-2011). The
