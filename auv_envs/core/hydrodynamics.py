@@ -105,9 +105,8 @@ class HullForceModel:
         self.params = params
         self.body_id = body_id
         self.qvel_adr = qvel_adr
-        m_lin = tuple(params.mass + a for a in params.added_mass[:3])
-        m_ang = tuple(i + a for i, a in zip(params.inertia, params.added_mass[3:], strict=True))
-        self._rigid = (m_lin, m_ang)
+        total = params.inertia_with_added_mass
+        self._rigid = (total[:3], total[3:])
         # Views into the last MjData seen by apply() (MjData's array properties
         # build a new view on every access, which costs more than the arithmetic).
         self._views: tuple | None = None
@@ -214,11 +213,8 @@ class NominalModel:
 
     def __init__(self, params: VehicleParams):
         self.params = params
-        self.inertia_diag = tuple(
-            (params.mass + params.added_mass[i]) if i < 3 else
-            (params.inertia[2] + params.added_mass[5])
-            for i in (0, 1, 2, 5)
-        )
+        total = params.inertia_with_added_mass
+        self.inertia_diag = tuple(total[i] for i in DOF4)
 
     def derivatives(self, x, tau, d=None, ops=math) -> list:
         """Continuous-time ``x_dot`` as a list of 8 scalars."""

@@ -103,6 +103,14 @@ class VehicleParams:
         """B = W + (B - W), N."""
         return self.weight + self.net_buoyancy
 
+    @property
+    def inertia_with_added_mass(self) -> tuple[float, float, float, float, float, float]:
+        """Diagonal of ``M_RB + M_A`` at the CG: ``(m + A_x, m + A_y, m + A_z, I_x + A_p,
+        I_y + A_q, I_z + A_r)`` (kg, kg m^2); the plant and the nominal model divide by it."""
+        m, (ax, ay, az, ap, aq, ar) = self.mass, self.added_mass
+        ix, iy, iz = self.inertia
+        return (m + ax, m + ay, m + az, ix + ap, iy + aq, iz + ar)
+
 
 def with_damping_mismatch(params: VehicleParams, scale: tuple[float, ...]) -> VehicleParams:
     """The same vehicle with both damping diagonals scaled elementwise.
