@@ -10,7 +10,13 @@ import pytest
 
 from auv_envs.core.stereo import triangulate
 from auv_envs.tasks.lars import LARSCaptureEnv
-from auv_envs.tasks.lars_scene import MARKER_SIDES, MarkerGeometry, marker_pitch_yaw
+from auv_envs.tasks.lars_scene import (
+    MARKER_SIDES,
+    MOTION_RANGES,
+    MarkerGeometry,
+    marker_pitch_yaw,
+    uniform_draws,
+)
 
 
 def _left_camera_to_world(env, points_left):
@@ -138,3 +144,16 @@ def test_bad_motion_options_raise():
         env.reset(seed=0, options={"motion": {"roll": 0.1}})
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(seed=0, options={"speed": 1.0})
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_uniform_draws_are_the_scalar_uniform_stream(seed):
+    """One vectorised draw gives the values and the stream position of per-field
+    ``rng.uniform(lo, hi)`` calls, so seeded resets are unchanged."""
+    bounds = (*MOTION_RANGES.values(), (-0.2, 0.2), (-0.1, 0.1))
+    scalar, batched = np.random.default_rng(seed), np.random.default_rng(seed)
+    expected = [scalar.uniform(lo, hi) for lo, hi in bounds]
+    drawn = uniform_draws(batched, bounds)
+    assert drawn == expected  # bit-identical, Python floats
+    assert all(type(v) is float for v in drawn)
+    assert batched.random() == scalar.random()
