@@ -58,6 +58,12 @@ from baselines.docking.observers import joseph_covariance, kalman_gain
 #: Track status codes (:attr:`LampTracks.status`).
 UNINITIALISED, DETECTED, MERGED, PREDICTED = 0, 1, 2, 3
 STATUS_NAMES = ("uninitialised", "detected", "merged", "predicted")
+#: A disc cut by a straight edge (an occluder, the image border) keeps its centre iff more than
+#: half of it is left, which is then also its enclosing circle's share: the least fill of a
+#: blob whose centre is trusted.
+MIN_FILL = 0.5
+#: Noise scale of the centre of a blob cut by the image border (its circle may be biased).
+BORDER_SIGMA_SCALE = 4.0
 
 
 # --------------------------------------------------------------------------- segmentation
@@ -113,6 +119,11 @@ class Blobs:
 
     def __len__(self) -> int:
         return len(self.radii)
+
+    @property
+    def fill(self) -> np.ndarray:
+        """(m,) share of each blob's enclosing circle that the blob covers."""
+        return self.areas / (math.pi * self.radii**2)
 
 
 def _empty_blobs() -> Blobs:
@@ -755,8 +766,8 @@ class LampArrayFrontEnd:
         need = self._n if self.identity == "l-shape" else min(p.ring_init_min, self._n)
         if not need <= k <= self._n or blobs.on_border.any():
             return
-        fill = blobs.areas / (math.pi * blobs.radii**2)
-        if (fill < 0.5).any() or not all(self._centre_is_bright(gray, c) for c in blobs.centres):
+        if ((blobs.fill < MIN_FILL).any()
+                or not all(self._centre_is_bright(gray, c) for c in blobs.centres)):
             return  # a lamp is partly hidden: its centre is not reliable yet
         if self.identity == "l-shape":
             order = identify_l_shape(blobs.centres, self._points)
@@ -850,7 +861,7 @@ class LampArrayFrontEnd:
             pose.update(*self._pose_measurements(blobs, members, others))
             test_points = pose.project()[0]
             lit = [i for i in lamps if self._centre_is_bright(gray, test_points[i])]
-            if lit and not (len(lamps) == 1 and blobs.on_border[j] and self._fill(blobs, j) < 0.5):
+            if lit and not (len(lamps) == 1 and blobs.on_border[j] and blobs.fill[j] < MIN_FILL):
                 seen[j] = lit
         pose.restore(prior)
         pose.update(*self._pose_measurements(blobs, members, seen))
@@ -887,7 +898,8 @@ class LampArrayFrontEnd:
             groups.append(np.array(lamps))
             pixels.append(blobs.centres[j])
             if len(lamps) == 1:
-                sigmas.append(self.params.pixel_sigma * (4.0 if blobs.on_border[j] else 1.0))
+                scale = BORDER_SIGMA_SCALE if blobs.on_border[j] else 1.0
+                sigmas.append(self.params.pixel_sigma * scale)
             else:
                 sigmas.append(max(blobs.radii[j] / 2.0, self.params.pixel_sigma))
         return groups, np.array(pixels).reshape(-1, 2), np.array(sigmas)
@@ -909,11 +921,6 @@ class LampArrayFrontEnd:
             if gap[j] <= margin:
                 members.setdefault(j, []).append(k)
         return members
-
-    @staticmethod
-    def _fill(blobs: Blobs, j: int) -> float:
-        """Share of blob ``j``'s enclosing circle that the blob covers."""
-        return float(blobs.areas[j] / (math.pi * blobs.radii[j] ** 2))
 
     def _centre_is_bright(self, gray: np.ndarray, uv: np.ndarray) -> bool:
         """Whether every pixel within ``centre_halo`` px of ``uv`` is lamp-bright and inside
@@ -958,7 +965,7 @@ class LampArrayFrontEnd:
                      (2.0 * math.pi * s * sigma_edge + 2.0) ** 2, 1.5**2, 1.5**2])
         if blobs.on_border[j]:
             # A blob cut by the image border: its size says nothing, its centre little.
-            R[:2, :2] *= 16.0
+            R[:2, :2] *= BORDER_SIGMA_SCALE**2
             track.update(z, R, rows=[0, 1])
         else:
             track.update(z, R)
