@@ -433,12 +433,14 @@ class MHEConfig:
         horizon: number of measurements N in the window.
         input_change_std: random-walk std of the input deviation ``w`` per
             control period (N, N, N, N m): the smoothness that keeps ``w`` (the
-            disturbance estimate) from chasing noise.
+            disturbance estimate) from chasing noise. ``None``: the observer
+            noise's ``disturbance`` (:class:`ObserverNoise`), the random walk the
+            EKF assumes for ``d``.
         max_iter: IPOPT iteration cap per solve.
     """
 
     horizon: int = 10
-    input_change_std: tuple[float, float, float, float] = (1.5, 1.5, 1.5, 0.5)
+    input_change_std: tuple[float, float, float, float] | None = None
     max_iter: int = 30
 
 
@@ -483,8 +485,12 @@ class DockingMHE:
         self.model = nominal_model or calibration.nominal_model
         self.dt = calibration.control_period
         self._aug = augmented_transition(self.model, self.dt)
+        change_std = self.config.input_change_std
+        self._input_change_std = np.asarray(
+            self.noise.disturbance if change_std is None else change_std, dtype=float
+        )
         q = self.noise.process_cov().copy()
-        q[N_STATE:, N_STATE:] = np.diag(np.asarray(self.config.input_change_std) ** 2)
+        q[N_STATE:, N_STATE:] = np.diag(self._input_change_std**2)
         self._arrival = ExtendedKalmanFilter(self._aug, q)
         self._meas_std = self.noise.measurement_std(self.visual.n_lights)
         self._d0_cov = np.diag(np.asarray(initial_disturbance_std, dtype=float) ** 2)
@@ -507,7 +513,7 @@ class DockingMHE:
         h = self.visual.measurement
         residuals = [chol @ (ca.vertcat(xs[:, 0], ws[:, 0]) - prior)]
         g = []
-        w_scale = ca.DM(1.0 / np.asarray(self.config.input_change_std))
+        w_scale = ca.DM(1.0 / self._input_change_std)
         for j in range(m):
             hj = h(xs[:, j], rp[:, j])[0]
             residuals.append(weight[:, j] * (y[:, j] - hj))
