@@ -38,9 +38,10 @@ control problems, shipped with CasADi) through ``nlpsol`` on an ``SX`` graph
 laid out stage by stage, warm-started with the previous solution shifted in
 time by one control period; IPOPT on the same NLP is an option
 (``OFNMPCConfig(solver="ipopt")``, primal-dual warm start). Measured on this
-project's machine, an ``ofnmpc-ekf`` step took about half the CPU time with
-FATROP than with IPOPT (``benchmarks/ofnmpc_speed.py --ipopt``), and compiling
-the NLP's functions to C saves about another third. Compiling is the default:
+project's machine (``benchmarks/ofnmpc_speed.py --ipopt``, median CPU time per
+``ofnmpc-ekf`` step, two runs), FATROP took about two thirds of IPOPT's time
+(0.66-0.68, both uncompiled), and compiling the NLP's functions to C halved
+FATROP's again (0.49-0.52). Compiling is the default:
 the first controller of a given problem (horizon, weights, calibration)
 generates C code and builds it once with the system compiler (about half a
 minute to a minute at ``-O1``), and every later controller, in any process,
@@ -102,8 +103,8 @@ class OFNMPCConfig:
         tol, mu_init: solver tolerance and initial barrier parameter.
         compile: generate C code for the NLP's functions and derivatives and
             compile it with the system C compiler, once per problem (cached
-            across processes, see :func:`compiled_nlpsol`); about 1.6x as fast
-            per solve and the same iterates. Without a compiler it warns and
+            across processes, see :func:`compiled_nlpsol`); about twice as
+            fast per step and the same iterates. Without a compiler it warns and
             evaluates in CasADi's virtual machine (``False``: always do that).
         compile_flags: compiler optimisation flags.
     """
