@@ -12,6 +12,7 @@ from baselines.acoustic.gmphd import (
     GaussianMixture,
     MixtureReducer,
     gmphd_update,
+    joseph_covariance,
 )
 
 
@@ -261,3 +262,21 @@ def test_gci_of_three_gaussians_is_covariance_intersection():
                                           for mu, s, w, o in params]), -20, 20)
     got = GeneralizedCovarianceIntersection(om)(one_d).weights[0]
     assert got == pytest.approx(expected, rel=1e-9)
+
+
+def test_joseph_covariance_equals_the_short_form_and_broadcasts():
+    """With the optimal gain the Joseph form equals P - K H P (to round-off); batched
+    calls equal one call per leading index."""
+    rng = np.random.default_rng(12)
+    P = np.stack([_random_spd(rng, 6, 0.6) for _ in range(3)])  # (3, 6, 6)
+    R = np.stack([_random_spd(rng, 3, 0.4) for _ in range(2)])  # (2, 3, 3)
+    S = P[:, None, :3, :3] + R[None]  # (3, 2, 3, 3)
+    gain = np.swapaxes(P[:, None, :3, :], -1, -2) @ np.linalg.inv(S)  # (3, 2, 6, 3)
+    batched = joseph_covariance(P[:, None], gain, R[None])
+    assert batched.shape == (3, 2, 6, 6)
+    for i in range(3):
+        for k in range(2):
+            short = P[i] - gain[i, k] @ P[i, :3]
+            np.testing.assert_allclose(batched[i, k], short, rtol=1e-10, atol=1e-12)
+            np.testing.assert_allclose(joseph_covariance(P[i], gain[i, k], R[k]),
+                                       batched[i, k], rtol=1e-13, atol=1e-15)

@@ -37,6 +37,7 @@ from baselines.acoustic.gmphd import (
     ConstantVelocityModel,
     GaussianMixturePHDBank,
     MixtureReducer,
+    joseph_covariance,
 )
 from baselines.acoustic.positioning import (
     ClockOffsetEstimator,
@@ -229,11 +230,9 @@ class LSKalmanAgent:
             if d2[i] <= self.gate:
                 gain = np.linalg.solve(S[i], self._P[:3]).T  # P H^T S^-1
                 self._x = self._x + gain @ nu[i]
-                # Joseph form, as in gmphd_update: P - K H P loses positive
-                # definiteness after ~23 s of an episode with centimetre-precise fixes.
-                IKH = np.eye(6)
-                IKH[:, :3] -= gain
-                self._P = IKH @ self._P @ IKH.T + gain @ R[i] @ gain.T
+                # Joseph form: P - K H P loses positive definiteness after
+                # ~23 s of an episode with centimetre-precise fixes.
+                self._P = joseph_covariance(self._P, gain, R[i])
                 self._misses = 0
             else:
                 self._misses += 1

@@ -128,6 +128,29 @@ class AdaptiveBirth:
         return weights, means, np.broadcast_to(self.covariance, (len(ids), 6, 6)).copy()
 
 
+def joseph_covariance(covariances, gain, R):
+    """Updated covariance of a position fix (``H = [I_3, 0]``) in Joseph form.
+
+    ``(I - K H) P (I - K H)^T + K R K^T``: equal to ``P - K H P`` in exact
+    arithmetic, but stays positive definite when P's position-velocity block is
+    nearly singular (tiny process noise over 10 ms steps). Shared by
+    :func:`gmphd_update` and the ``ls-kf`` agent's Kalman filter.
+
+    Args:
+      covariances: (..., 6, 6) predicted P; gain: (..., 6, 3) K; R: (..., 3, 3);
+        the leading axes broadcast against ``gain``'s.
+
+    Returns:
+      (..., 6, 6) updated covariances, with ``gain``'s leading axes.
+    """
+    IKH = np.empty(gain.shape[:-2] + (STATE_DIM, STATE_DIM))
+    IKH[...] = np.eye(STATE_DIM)
+    IKH[..., :3] -= gain
+    P = IKH @ covariances @ np.swapaxes(IKH, -1, -2)
+    P += gain @ R @ np.swapaxes(gain, -1, -2)
+    return P
+
+
 def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_density):
     """The GM-PHD corrector (Vo & Ma 2006, Table I, steps 3-4), batched over bands.
 
@@ -161,16 +184,9 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     out_m = np.empty((q_, j_ * (k_ + 1), STATE_DIM))
     out_m[:, :j_] = means
     out_m[:, j_:] = (means[:, :, None] + (HPt @ S_inv_nu)[..., 0]).reshape(q_, -1, STATE_DIM)
-    # Joseph form (I - K H) P (I - K H)^T + K R K^T: equal to P - K H P in exact
-    # arithmetic, but stays positive definite when P's position-velocity block is
-    # nearly singular (tiny process noise over 10 ms steps).
-    IKH = np.empty(gain.shape[:3] + (STATE_DIM, STATE_DIM))
-    IKH[...] = np.eye(STATE_DIM)
-    IKH[..., :3] -= gain
     out_P = np.empty((q_, j_ * (k_ + 1), STATE_DIM, STATE_DIM))
     out_P[:, :j_] = covariances
-    P_upd = IKH @ covariances[:, :, None] @ np.swapaxes(IKH, -1, -2)
-    P_upd += gain @ R[:, None] @ np.swapaxes(gain, -1, -2)
+    P_upd = joseph_covariance(covariances[:, :, None], gain, R[:, None])
     out_P[:, j_:] = P_upd.reshape(q_, -1, STATE_DIM, STATE_DIM)
     num = (pd * w)[:, :, None] * np.where(valid[:, None, :], likelihood, 0.0)  # (Q, J, K)
     out_w = np.empty((q_, j_ * (k_ + 1)))
