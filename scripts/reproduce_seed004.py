@@ -31,16 +31,12 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
-from baselines.acoustic.agents import GMPHDGCIAgent, LSKalmanAgent, single_band_agent
 from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode
-from baselines.registry import make_agent
+from baselines.registry import agent_spec
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
-#: The agents' constructors, to run them with ``clock_calibration=False``.
-RAW_TDOA_AGENTS = {"gmphd-gci": GMPHDGCIAgent, "gmphd-single": single_band_agent,
-                   "ls-kf": LSKalmanAgent}
 LEVELS = ("low", "medium", "high")
 
 
@@ -74,10 +70,8 @@ def episode(name: str, seed: int, disturbance: str, time_limit: float,
             acoustic: AcousticConfig | None = None, clock_calibration: bool = True) -> dict:
     env = gym.make(ENV_ID, disturbance=disturbance, time_limit=time_limit, acoustic=acoustic)
     try:
-        if clock_calibration:
-            agent = make_agent(name, env)
-        else:
-            agent = RAW_TDOA_AGENTS[name](env.unwrapped, clock_calibration=False)
+        # The registered factories take the agents' keyword arguments.
+        agent = agent_spec(name).factory(env.unwrapped, clock_calibration=clock_calibration)
         return run_episode(env, agent, seed, ENV_ID, name).metrics
     finally:
         env.close()
