@@ -33,7 +33,7 @@ import gymnasium as gym
 import numpy as np
 
 import auv_envs  # noqa: F401
-from baselines.acoustic.gmphd import gmphd_update
+from baselines.acoustic.gmphd import compact_fixes, gmphd_update
 from baselines.registry import make_agent
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
@@ -68,8 +68,9 @@ def update_inputs(env, data, seed: int, count: int = 200):
     """Inputs of the bank's GM-PHD update along a ``gmphd-gci`` run, all bands.
 
     Returns up to ``count`` steps' (weights, means, covariances, fixes z, R,
-    valid, p_detect (Q,), kappa), the fixes compacted to the largest number of
-    valid fixes in a band, exactly as ``GaussianMixturePHDBank.update`` passes them.
+    valid, p_detect (Q,), kappa), the fixes compacted by
+    :func:`~baselines.acoustic.gmphd.compact_fixes`, as ``GaussianMixturePHDBank.update``
+    passes them.
     """
     agent = make_agent("gmphd-gci", env)
     agent.reset(seed)
@@ -80,13 +81,8 @@ def update_inputs(env, data, seed: int, count: int = 200):
         predicted = bank.predict(z, valid)
         w, m, P, _ = predicted
         if len(steps) < count and valid.any() and w.shape[1]:
-            k = int(valid.sum(axis=1).max())
-            first = np.argsort(~valid, axis=1, kind="stable")[:, :k]
-            steps.append((w.copy(), m.copy(), P.copy(),
-                          np.take_along_axis(z, first[..., None], 1),
-                          np.take_along_axis(R, first[..., None, None], 1),
-                          np.take_along_axis(valid, first, 1), bank.p_detect,
-                          bank.clutter_density))
+            steps.append((w.copy(), m.copy(), P.copy(), *compact_fixes(z, R, valid),
+                          bank.p_detect, bank.clutter_density))
         bank.update(predicted, z, R, valid)
     return steps
 

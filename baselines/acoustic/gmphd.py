@@ -196,6 +196,25 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     return out_w, out_m, out_P, source
 
 
+def compact_fixes(z: np.ndarray, R: np.ndarray, valid: np.ndarray):
+    """Each band's real fixes moved to the front, padded to the largest count over bands.
+
+    Only the real fixes matter to :func:`gmphd_update`; this is what
+    :meth:`GaussianMixturePHDBank.update` hands it.
+
+    Args:
+      z: (Q, K, 3) position fixes; R: (Q, K, 3, 3); valid: (Q, K).
+
+    Returns:
+      (z (Q, k, 3), R (Q, k, 3, 3), valid (Q, k)) with k the most valid fixes of a band.
+    """
+    k = int(valid.sum(axis=1).max(initial=0))
+    first = np.argsort(~valid, axis=1, kind="stable")[:, :k]
+    return (np.take_along_axis(z, first[..., None], 1),
+            np.take_along_axis(R, first[..., None, None], 1),
+            np.take_along_axis(valid, first, 1))
+
+
 class MixtureReducer:
     """Pruning, merging and capping (Vo & Ma 2006, Table II), batched over bands.
 
@@ -360,13 +379,8 @@ class GaussianMixturePHDBank:
         w, m, P, labels = predicted
         if w.shape[1] == 0:
             return
-        # Only the real fixes matter: move them to the front of each band.
-        k = int(valid.sum(axis=1).max(initial=0))
-        first = np.argsort(~valid, axis=1, kind="stable")[:, :k]
-        uw, um, uP, source = gmphd_update(
-            w, m, P, np.take_along_axis(z, first[..., None], 1),
-            np.take_along_axis(R, first[..., None, None], 1),
-            np.take_along_axis(valid, first, 1), self.p_detect, self.clutter_density)
+        uw, um, uP, source = gmphd_update(w, m, P, *compact_fixes(z, R, valid),
+                                          self.p_detect, self.clutter_density)
         self.weights, self.means, self.covariances, self.labels = self.reducer.reduce(
             uw, um, uP, labels[:, source])
 
