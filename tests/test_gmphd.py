@@ -7,13 +7,14 @@ import pytest
 
 from baselines.acoustic.gci import GeneralizedCovarianceIntersection, LabelledExtractor
 from baselines.acoustic.gmphd import (
+    POSITION_H,
     AdaptiveBirth,
     ConstantVelocityModel,
     GaussianMixture,
     MixtureReducer,
     gmphd_update,
-    joseph_covariance,
 )
+from baselines.kalman import joseph_covariance
 
 
 def _random_spd(rng, n, scale):
@@ -272,11 +273,11 @@ def test_joseph_covariance_equals_the_short_form_and_broadcasts():
     R = np.stack([_random_spd(rng, 3, 0.4) for _ in range(2)])  # (2, 3, 3)
     S = P[:, None, :3, :3] + R[None]  # (3, 2, 3, 3)
     gain = np.swapaxes(P[:, None, :3, :], -1, -2) @ np.linalg.inv(S)  # (3, 2, 6, 3)
-    batched = joseph_covariance(P[:, None], gain, R[None])
+    batched = joseph_covariance(P[:, None], gain, POSITION_H, R[None])
     assert batched.shape == (3, 2, 6, 6)
     for i in range(3):
         for k in range(2):
             short = P[i] - gain[i, k] @ P[i, :3]
             np.testing.assert_allclose(batched[i, k], short, rtol=1e-10, atol=1e-12)
-            np.testing.assert_allclose(joseph_covariance(P[i], gain[i, k], R[k]),
+            np.testing.assert_allclose(joseph_covariance(P[i], gain[i, k], POSITION_H, R[k]),
                                        batched[i, k], rtol=1e-13, atol=1e-15)

@@ -33,17 +33,18 @@ import numpy as np
 
 from baselines.acoustic.gci import GeneralizedCovarianceIntersection, LabelledExtractor
 from baselines.acoustic.gmphd import (
+    POSITION_H,
     AdaptiveBirth,
     ConstantVelocityModel,
     GaussianMixturePHDBank,
     MixtureReducer,
-    joseph_covariance,
 )
 from baselines.acoustic.positioning import (
     ClockOffsetEstimator,
     LeastSquaresPositioner,
     work_area_centre,
 )
+from baselines.kalman import joseph_covariance
 from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/AcousticTracking-v0",)
@@ -232,7 +233,7 @@ class LSKalmanAgent:
                 self._x = self._x + gain @ nu[i]
                 # Joseph form: P - K H P loses positive definiteness after
                 # ~23 s of an episode with centimetre-precise fixes.
-                self._P = joseph_covariance(self._P, gain, R[i])
+                self._P = joseph_covariance(self._P, gain, POSITION_H, R[i])
                 self._misses = 0
             else:
                 self._misses += 1

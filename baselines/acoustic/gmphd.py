@@ -24,7 +24,11 @@ import math
 import numpy as np
 from sklearn.cluster import DBSCAN
 
+from baselines.kalman import constant_velocity_blocks, joseph_covariance
+
 STATE_DIM = 6
+#: The measurement matrix of a position fix, ``H = [I_3, 0]``.
+POSITION_H = np.hstack([np.eye(3), np.zeros((3, 3))])
 TWO_PI_CUBED = (2.0 * math.pi) ** 3
 
 
@@ -65,8 +69,7 @@ class ConstantVelocityModel:
     def __init__(self, dt: float, accel_std: float):
         if not (dt > 0 and accel_std >= 0):
             raise ValueError(f"need dt > 0 and accel_std >= 0, got {dt}, {accel_std}")
-        f = np.array([[1.0, dt], [0.0, 1.0]])
-        q = accel_std**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+        f, q = constant_velocity_blocks(dt, accel_std)
         eye = np.eye(3)
         # State order (x, y, z, vx, vy, vz): kron over (position/velocity, axis).
         self.F = np.kron(f, eye)
@@ -128,29 +131,6 @@ class AdaptiveBirth:
         return weights, means, np.broadcast_to(self.covariance, (len(ids), 6, 6)).copy()
 
 
-def joseph_covariance(covariances, gain, R):
-    """Updated covariance of a position fix (``H = [I_3, 0]``) in Joseph form.
-
-    ``(I - K H) P (I - K H)^T + K R K^T``: equal to ``P - K H P`` in exact
-    arithmetic, but stays positive definite when P's position-velocity block is
-    nearly singular (tiny process noise over 10 ms steps). Shared by
-    :func:`gmphd_update` and the ``ls-kf`` agent's Kalman filter.
-
-    Args:
-      covariances: (..., 6, 6) predicted P; gain: (..., 6, 3) K; R: (..., 3, 3);
-        the leading axes broadcast against ``gain``'s.
-
-    Returns:
-      (..., 6, 6) updated covariances, with ``gain``'s leading axes.
-    """
-    IKH = np.empty(gain.shape[:-2] + (STATE_DIM, STATE_DIM))
-    IKH[...] = np.eye(STATE_DIM)
-    IKH[..., :3] -= gain
-    P = IKH @ covariances @ np.swapaxes(IKH, -1, -2)
-    P += gain @ R @ np.swapaxes(gain, -1, -2)
-    return P
-
-
 def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_density):
     """The GM-PHD corrector (Vo & Ma 2006, Table I, steps 3-4), batched over bands.
 
@@ -186,7 +166,7 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     out_m[:, j_:] = (means[:, :, None] + (HPt @ S_inv_nu)[..., 0]).reshape(q_, -1, STATE_DIM)
     out_P = np.empty((q_, j_ * (k_ + 1), STATE_DIM, STATE_DIM))
     out_P[:, :j_] = covariances
-    P_upd = joseph_covariance(covariances[:, :, None], gain, R[:, None])
+    P_upd = joseph_covariance(covariances[:, :, None], gain, POSITION_H, R[:, None])
     out_P[:, j_:] = P_upd.reshape(q_, -1, STATE_DIM, STATE_DIM)
     num = (pd * w)[:, :, None] * np.where(valid[:, None, :], likelihood, 0.0)  # (Q, J, K)
     out_w = np.empty((q_, j_ * (k_ + 1)))

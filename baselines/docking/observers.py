@@ -38,6 +38,7 @@ from scipy.optimize import least_squares
 
 from auv_envs.core.frames import rotation_from_euler, wrap_angle
 from auv_envs.core.hydrodynamics import NominalModel
+from baselines.kalman import joseph_covariance, kalman_gain
 
 N_STATE = 8
 N_INPUT = 4
@@ -215,24 +216,6 @@ def augmented_transition(model: NominalModel, dt: float) -> ca.Function:
     return ca.Function(
         "augmented_step", [z, tau], [z_next, ca.jacobian(z_next, z)], ["z", "tau"], ["z_next", "A"]
     )
-
-
-def kalman_gain(cov: np.ndarray, jacobian: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
-    """``K = P H^T (H P H^T + R)^-1`` (seed 003 eqs. 26-28), by a linear solve."""
-    s = jacobian @ cov @ jacobian.T + noise_cov
-    return np.linalg.solve(s, jacobian @ cov).T
-
-
-def joseph_covariance(cov: np.ndarray, gain: np.ndarray, jacobian: np.ndarray,
-                      noise_cov: np.ndarray) -> np.ndarray:
-    """Updated covariance in Joseph form, ``(I - K H) P (I - K H)^T + K R K^T``.
-
-    The same as ``(I - K H) P`` in exact arithmetic; stays symmetric positive
-    definite in floating point. Shared by the EKF here and the lamp-array
-    filters of :mod:`baselines.vision.lamp_array`.
-    """
-    i_kh = np.eye(len(cov)) - gain @ jacobian
-    return i_kh @ cov @ i_kh.T + gain @ noise_cov @ gain.T
 
 
 class ExtendedKalmanFilter:

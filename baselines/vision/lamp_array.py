@@ -53,7 +53,7 @@ from scipy.optimize import linear_sum_assignment
 
 from auv_envs.core.camera import CameraIntrinsics, pixel_space
 from auv_envs.core.frames import rotation_from_euler
-from baselines.docking.observers import joseph_covariance, kalman_gain
+from baselines.kalman import constant_velocity_blocks, joseph_covariance, kalman_gain
 
 #: Track status codes (:attr:`LampTracks.status`).
 UNINITIALISED, DETECTED, MERGED, PREDICTED = 0, 1, 2, 3
@@ -322,13 +322,6 @@ def ring_labelings(centres: np.ndarray, ring_order: np.ndarray) -> list[np.ndarr
 # --------------------------------------------------------------------------- filters
 
 
-def _cv_blocks(dt: float, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-velocity transition and white-noise-acceleration covariance of one axis."""
-    f = np.array([[1.0, dt], [0.0, 1.0]])
-    q = sigma**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-    return f, q
-
-
 class BlobEKF:
     """EKF on one lamp's blob features (seed 002 §2.2.3 1)).
 
@@ -355,8 +348,8 @@ class BlobEKF:
     def transition(dt: float, accel_sigma: float,
                    size_accel_sigma: float) -> tuple[np.ndarray, np.ndarray]:
         """Transition matrix F and process noise Q over ``dt`` s (accelerations in px/s^2)."""
-        f_pos, q_pos = _cv_blocks(dt, accel_sigma)
-        f_size, q_size = _cv_blocks(dt, size_accel_sigma)
+        f_pos, q_pos = constant_velocity_blocks(dt, accel_sigma)
+        f_size, q_size = constant_velocity_blocks(dt, size_accel_sigma)
         F = np.zeros((6, 6))
         Q = np.zeros((6, 6))
         for idx, (f, q) in zip(((0, 2), (1, 3), (4, 5)), ((f_pos, q_pos), (f_pos, q_pos),
