@@ -166,3 +166,16 @@ def test_r_mjcam_to_cv_is_involution_and_flips_view_axis():
     np.testing.assert_allclose(r @ [0.0, 0.0, -1.0], [0.0, 0.0, 1.0])
     np.testing.assert_allclose(r @ [0.0, 1.0, 0.0], [0.0, -1.0, 0.0])
     np.testing.assert_allclose(r @ [1.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+
+
+def test_rotation_from_euler_casadi_equals_numpy():
+    """The CasADi form (the docking observers' camera model) is the same rotation."""
+    import casadi as ca
+
+    angles = ca.SX.sym("a", 3)
+    rotation = ca.Function("R", [angles], [frames.rotation_from_euler(angles[0], angles[1],
+                                                                      angles[2], ops=ca)])
+    rng = np.random.default_rng(2)
+    for roll, pitch, yaw in rng.uniform(-3.0, 3.0, (20, 3)):
+        np.testing.assert_allclose(np.array(rotation([roll, pitch, yaw])),
+                                   frames.rotation_from_euler(roll, pitch, yaw), atol=1e-15)

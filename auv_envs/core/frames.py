@@ -35,18 +35,25 @@ R_MJCAM_TO_CV = np.diag([1.0, -1.0, -1.0])
 GRAVITY = 9.81
 
 
-def rotation_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Body-to-world rotation matrix for ZYX Euler angles (radians)."""
-    cr, sr = np.cos(roll), np.sin(roll)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+def rotation_from_euler(roll, pitch, yaw, ops=np):
+    """Body-to-world rotation matrix for ZYX Euler angles (radians).
+
+    ``ops`` is ``numpy`` (the default; returns a (3, 3) array) or ``casadi``
+    (symbolic angles; returns a 3x3 CasADi matrix), as in
+    :mod:`auv_envs.core.hydrodynamics`: one definition for the environments and
+    the CasADi observers.
+    """
+    cr, sr = ops.cos(roll), ops.sin(roll)
+    cp, sp = ops.cos(pitch), ops.sin(pitch)
+    cy, sy = ops.cos(yaw), ops.sin(yaw)
+    rows = [
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ]
+    if ops is np:
+        return np.array(rows)
+    return ops.vertcat(*(ops.horzcat(*row) for row in rows))
 
 
 def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:

@@ -48,19 +48,6 @@ PSI = 3
 N_SENSOR = 5
 
 
-def rotation_zyx(roll, pitch, yaw):
-    """Body-to-world rotation for ZYX Euler angles, CasADi version of
-    :func:`auv_envs.core.frames.rotation_from_euler` (same convention)."""
-    cr, sr = ca.cos(roll), ca.sin(roll)
-    cp, sp = ca.cos(pitch), ca.sin(pitch)
-    cy, sy = ca.cos(yaw), ca.sin(yaw)
-    return ca.vertcat(
-        ca.horzcat(cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-        ca.horzcat(sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-        ca.horzcat(-sp, cp * sr, cp * cr),
-    )
-
-
 class VisualObservationModel:
     """Pixel coordinates of the DS lights as a function of the 4-DOF state (seed 003 eq. 33).
 
@@ -94,7 +81,7 @@ class VisualObservationModel:
 
     def camera_points_expr(self, x, roll, pitch):
         """(3, n) CasADi expression: the lights in the OpenCV camera frame."""
-        rot_wb = rotation_zyx(roll, pitch, x[PSI])
+        rot_wb = rotation_from_euler(roll, pitch, x[PSI], ops=ca)
         rel = ca.DM(self.lights.T) - ca.repmat(x[0:3], 1, self.n_lights)
         in_body = rot_wb.T @ rel - ca.repmat(ca.DM(self.camera_position), 1, self.n_lights)
         return ca.DM(self.camera_rotation.T) @ in_body
