@@ -15,8 +15,10 @@ from auv_envs.core.acoustics import (
     ORIGIN_CLUTTER,
     ORIGIN_SURFACE,
     ORIGIN_TARGET,
+    SEED004_FLOW_NOISE_LEVEL,
     AcousticConfig,
     ambient_noise_level,
+    flow_noise_level,
     thorp_absorption,
 )
 from auv_envs.tasks import acoustic
@@ -38,7 +40,7 @@ def geometric(position, hydrophones, c):
     return tdoa, azimuth, elevation
 
 
-def documented_model(config, hydrophones, position):
+def documented_model(config, hydrophones, position, current_speed=0.0):
     """The noise model exactly as documented in auv_envs.core.acoustics, coded independently.
 
     Returns per band (Q, ...): TDOA std (N-1), azimuth std (N), elevation std (N), P_D.
@@ -49,7 +51,13 @@ def documented_model(config, hydrophones, position):
         fk = f / 1000.0
         thorp = 0.11 * fk**2 / (1 + fk**2) + 44 * fk**2 / (4100 + fk**2) + 2.75e-4 * fk**2 + 0.003
         wind, thermal = 50 - 18 * math.log10(fk), -15 + 20 * math.log10(fk)
-        noise = 10 * math.log10(10 ** (wind / 10) + 10 ** (thermal / 10)) + 10 * math.log10(b)
+        power = 10 ** (wind / 10) + 10 ** (thermal / 10)
+        if config.flow_noise_level is not None and current_speed > 0:
+            # Ross: 60 log10(U / 1 m/s) - 20 log10(f / 1 kHz) on the reference level.
+            flow = (config.flow_noise_level + 60 * math.log10(current_speed)
+                    - 20 * math.log10(fk))
+            power += 10 ** (flow / 10)
+        noise = 10 * math.log10(power) + 10 * math.log10(b)
         snrs, t_std, a_std, e_std = [], [], [], []
         for h in hydrophones:
             d = np.asarray(position) - h
@@ -380,3 +388,108 @@ def test_episode_tcfe_fluctuation_scores_the_estimate_not_the_motion():
     for name, m in scores.items():
         assert m["tcfe"] == pytest.approx(metrics.tcfe(sent[name]))
         assert m["tcfe_fluctuation"] == pytest.approx(metrics.tcfe(sent[name], order=2))
+
+
+# --------------------------------------------------------------------------- flow noise
+
+FLOW = AcousticConfig(flow_noise_level=SEED004_FLOW_NOISE_LEVEL)
+
+
+def test_flow_noise_model_matches_the_documented_formula():
+    env = make(acoustic=FLOW)
+    cal = env.unwrapped.calibration
+    env.close()
+    h, p = cal.hydrophone_positions, np.array([150.0, 150.0, -15.0])
+    for speed in (0.0, 0.1, 0.3, 0.5):
+        model = cal.array.model(p, current_speed=speed)
+        tdoa_std, az_std, el_std, pd = documented_model(FLOW, h, p, speed)
+        np.testing.assert_allclose(model["tdoa_std"], tdoa_std, rtol=1e-9)
+        np.testing.assert_allclose(model["azimuth_std"], az_std, rtol=1e-9)
+        np.testing.assert_allclose(model["detection_probability"], pd, rtol=1e-9)
+    # At rest the flow model is the calm one; the noise rise follows 60 log10 U
+    # once the flow dominates (a doubling adds 18.06 dB) and hits low bands hardest.
+    calm = make().unwrapped.calibration.array
+    assert calm.model(p)["snr_db"] == pytest.approx(cal.array.model(p, 0.0)["snr_db"], abs=0)
+    rise = cal.array.flow_noise_rise([0.0, 0.5, 4.0, 8.0])
+    assert np.all(rise[0] == 0) and np.all(np.diff(rise[1]) < 0)
+    np.testing.assert_allclose(rise[3] - rise[2], 60 * math.log10(2), atol=1e-3)
+    np.testing.assert_allclose(
+        rise[1], 10 * np.log10(1 + 10 ** ((flow_noise_level(cal.band_centres, 0.5, 94.0)
+                                          - ambient_noise_level(cal.band_centres)) / 10)))
+    # No flow-noise level: nothing rises whatever the current.
+    assert np.all(calm.flow_noise_rise(0.5) == 0)
+
+
+def test_flow_noise_statistics_in_measure():
+    # Many periods at one position and a strong current: detection rate and TDOA
+    # spread per band against the documented model at that speed.
+    env = make(acoustic=dataclasses.replace(FLOW, clock_offset_std=0.0, multipath=False,
+                                            clutter_rate=0.0))
+    array = env.unwrapped.calibration.array
+    env.close()
+    p, speed, n = np.array([200.0, 120.0, -12.0]), 0.4, 3000
+    m = array.measure(np.random.default_rng(5), np.tile(p, (n, 1)), np.zeros(8), speed)
+    model = array.model(p, speed)
+    pd = model["detection_probability"]
+    assert 0.05 < pd.min() and pd.max() < 0.999  # informative
+    hits = m.mask.sum(axis=-1)  # (n, Q): the source is the only possible detection
+    np.testing.assert_array_less(np.abs(hits.mean(axis=0) - pd),
+                                 4.5 * np.sqrt(pd * (1 - pd) / n) + 1e-3)
+    truth = geometric(p, array.positions, array.config.sound_speed)[0]
+    for q in range(array.config.n_bands):
+        found = m.tdoa[:, q][m.mask[:, q].astype(bool)]
+        ratio = (found - truth).std(axis=0) / model["tdoa_std"][q]
+        assert np.all(np.abs(ratio - 1) < 5 / np.sqrt(2 * len(found))), (q, ratio)
+
+
+def test_flow_noise_needs_the_current_and_checks_it():
+    env = make(acoustic=FLOW)
+    array = env.unwrapped.calibration.array
+    env.close()
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="current_speed"):
+        array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8))
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="current_speed"):
+            array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8), bad)
+    for bad in (float("inf"), True, "94"):
+        with pytest.raises(ValueError, match="flow_noise_level"):
+            AcousticConfig(flow_noise_level=bad)
+    # Without flow noise the current is ignored: the same draws either way.
+    calm = make().unwrapped.calibration.array
+    a = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8))
+    b = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8), 0.5)
+    assert all(np.array_equal(getattr(a, f.name), getattr(b, f.name))
+               for f in dataclasses.fields(a))
+
+
+def test_env_flow_noise_follows_the_episode_current():
+    # The env measures with the current of each sample period: over a high-current
+    # episode the source detections per band match the model's P_D summed over the
+    # steps at the logged current speeds; the physics (state observation) is the
+    # calm episode's, bit for bit.
+    kwargs = dict(disturbance="high", time_limit=8.0)
+    env = make(obs_mode="measurements", acoustic=FLOW, **kwargs)
+    state_env = make(obs_mode="state", acoustic=FLOW, **kwargs)
+    calm_env = make(obs_mode="state", **kwargs)
+    obs, info = env.reset(seed=7)
+    states = [state_env.reset(seed=7)[0]]
+    calm_states = [calm_env.reset(seed=7)[0]]
+    array = env.unwrapped.calibration.array
+    hits, expected, variance = 0.0, 0.0, 0.0
+    truncated = False
+    while not truncated:
+        speed = float(np.linalg.norm(info["current"]))
+        pd = array.model(info["true_position"], speed)["detection_probability"]
+        hits += (info["detection_origin"] == ORIGIN_TARGET).sum(axis=1)
+        expected += pd
+        variance += pd * (1 - pd)
+        action = info["true_position"]
+        obs, _, _, truncated, info = env.step(action)
+        states.append(state_env.step(action)[0])
+        calm_states.append(calm_env.step(action)[0])
+    for e in (env, state_env, calm_env):
+        e.close()
+    assert np.array_equal(np.array(states), np.array(calm_states))
+    assert expected.min() < 0.8 * len(states)  # the flow noise costs detections here
+    np.testing.assert_array_less(np.abs(hits - expected), 4.5 * np.sqrt(variance) + 1)

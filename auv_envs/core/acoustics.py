@@ -40,6 +40,17 @@ its fields):
   ``sigma_theta / max(sin(theta), 0.05)`` (azimuth is ill defined
   straight above or below a node). Noisy azimuths are wrapped to (-pi, pi]
   and elevations clipped to [0, pi].
+* **Flow noise** (off unless ``flow_noise_level`` is set; our addition to
+  seed 004, whose tank currents come from three current generators): the
+  generators' radiated noise fills the tank as a uniform reverberant field
+  whose spectrum level follows Ross's classical source-spectrum model
+  (Ross, *Mechanics of Underwater Noise*, 1976; as summarised by Wales &
+  Heitmeyer, JASA 111(3), 2002): a baseline spectrum falling 20 dB per decade
+  of frequency, scaled by ``60 log10`` of the flow speed,
+  ``NL_flow = flow_noise_level + 60 log10(U / 1 m/s) - 20 log10(f / 1 kHz)``.
+  It adds to the ambient noise in power, so a stronger current lowers every
+  SNR, most in the low bands. The flow speed ``U`` is the current's speed in
+  the sample period (:meth:`HydrophoneArray.measure`'s ``current_speed``).
 * **Clock offsets**: each node's clock is offset from node 1's by a constant
   per episode (``clock_offset_std``, node 1 is the reference), biasing every
   TDOA of that node.
@@ -80,6 +91,28 @@ def thorp_absorption(frequency_hz) -> np.ndarray:
     return 0.11 * f2 / (1.0 + f2) + 44.0 * f2 / (4100.0 + f2) + 2.75e-4 * f2 + 0.003
 
 
+#: Reference flow speed (m/s) and frequency (Hz) of ``AcousticConfig.flow_noise_level``.
+FLOW_NOISE_REF_SPEED = 1.0
+FLOW_NOISE_REF_FREQUENCY = 1000.0
+#: The flow-noise level the seed 004 reproduction uses (dB re 1 uPa^2/Hz at
+#: 1 m/s and 1 kHz). Our choice, as ``source_level`` is: at 0.5 m/s, the top of
+#: seed 004's high current range, it raises the noise of the 20 kHz band by
+#: 23 dB and of the 110 kHz band by 10 dB; at 0.15 m/s, the top of the low
+#: range, by 0.6 and 0.0 dB (see :func:`flow_noise_level`).
+SEED004_FLOW_NOISE_LEVEL = 94.0
+
+
+def flow_noise_level(frequency_hz, speed, level: float) -> np.ndarray:
+    """Flow-noise spectrum level, dB re 1 uPa^2/Hz (module docstring; -inf at rest).
+
+    Broadcasts ``frequency_hz`` (Hz) against ``speed`` (m/s, >= 0).
+    """
+    f = np.asarray(frequency_hz, dtype=np.float64) / FLOW_NOISE_REF_FREQUENCY
+    u = np.asarray(speed, dtype=np.float64) / FLOW_NOISE_REF_SPEED
+    with np.errstate(divide="ignore"):
+        return level + 60.0 * np.log10(u) - 20.0 * np.log10(f)
+
+
 def ambient_noise_level(frequency_hz) -> np.ndarray:
     """Ambient noise spectrum level, dB re 1 uPa^2/Hz: wind/shipping plus thermal."""
     log_f = np.log10(np.asarray(frequency_hz, dtype=np.float64) / 1000.0)
@@ -96,6 +129,9 @@ class AcousticConfig:
     Q = 10 as in seed 004's experiments; c = 1500 m/s. The source level,
     aperture, floors, clock offsets and clutter rate are our choices, set so
     that detections fade and get noisier with range in the high bands.
+    ``flow_noise_level`` (dB re 1 uPa^2/Hz at 1 m/s and 1 kHz) switches the
+    current generators' flow noise on; None (the default) leaves it out, and
+    ``SEED004_FLOW_NOISE_LEVEL`` is the level seed 004's reproduction uses.
     """
 
     sound_speed: float = 1500.0
@@ -113,6 +149,7 @@ class AcousticConfig:
     snr50: float = 10.0
     snr_slope: float = 2.0
     clutter_rate: float = 1.0
+    flow_noise_level: float | None = None
     multipath: bool = True
     ideal_detection: bool = False
     max_detections: int = 8
@@ -129,6 +166,11 @@ class AcousticConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"AcousticConfig.{name} must be >= 0, got {value}")
+        level = self.flow_noise_level
+        if level is not None and (isinstance(level, bool) or not isinstance(level, (int, float))
+                                  or not math.isfinite(level)):
+            raise ValueError(f"AcousticConfig.flow_noise_level must be None or a finite "
+                             f"level in dB, got {level!r}")
         if not self.band_centres or any(not f > 0 for f in self.band_centres):
             raise ValueError("AcousticConfig.band_centres must be positive frequencies")
         if self.max_detections < 1:
@@ -195,6 +237,12 @@ class HydrophoneArray:
         processing_gain = 10.0 * math.log10(c.bandwidth / c.sample_rate)
         band_noise = ambient_noise_level(f) + 10.0 * math.log10(c.bandwidth)
         self._snr_offset = (c.source_level - band_noise + processing_gain)[:, None, None]
+        # With flow noise the noise power per band is ambient + flow * U^6: the
+        # SNR offset becomes _snr_offset - 10 log10(1 + _flow_ratio * U^6).
+        self._flow_ratio = None
+        if c.flow_noise_level is not None:
+            flow = flow_noise_level(f, FLOW_NOISE_REF_SPEED, c.flow_noise_level)
+            self._flow_ratio = 10.0 ** ((flow - ambient_noise_level(f)) / 10.0)
         self._path_loss = np.array([0.0, c.surface_loss, c.bottom_loss])[:, None]
         # Noise-std constants with noise_scale and the sqrt(2 snr) factor folded in.
         s2 = c.noise_scale / math.sqrt(2.0)
@@ -246,10 +294,30 @@ class HydrophoneArray:
         return tdoa, azimuth, elevation
 
     # ------------------------------------------------------------ noise model
-    def snr_db(self, ranges: np.ndarray, path_loss) -> np.ndarray:
-        """Per-band SNR (Q, P, N) in dB for path ranges (P, N) with boundary losses (P, 1)."""
+    def flow_noise_rise(self, current_speed) -> np.ndarray:
+        """How much the flow noise raises each band's noise, dB: (..., Q) for speeds (...).
+
+        Zero everywhere when the config has no ``flow_noise_level``.
+        """
+        u = np.asarray(current_speed, dtype=np.float64)
+        if not np.all(np.isfinite(u)) or np.any(u < 0):
+            raise ValueError(f"current_speed must be finite and >= 0, got {current_speed!r}")
+        if self._flow_ratio is None:
+            return np.zeros(u.shape + self.band_centres.shape)
+        u = u[..., None] / FLOW_NOISE_REF_SPEED
+        return 10.0 * np.log10(1.0 + self._flow_ratio * u**6)
+
+    def snr_db(self, ranges: np.ndarray, path_loss, noise_rise=None) -> np.ndarray:
+        """Per-band SNR (Q, P, N) in dB for path ranges (P, N) with boundary losses (P, 1).
+
+        ``noise_rise`` (Q,) dB, e.g. :meth:`flow_noise_rise`, lowers every SNR
+        of its band (broadcast against (..., Q) leading axes as (..., Q, 1, 1)).
+        """
         spreading = 20.0 * np.log10(np.maximum(ranges, 1.0))
-        return self._snr_offset - spreading - self._absorption * ranges - path_loss
+        snr = self._snr_offset - spreading - self._absorption * ranges - path_loss
+        if noise_rise is not None:
+            snr = snr - np.asarray(noise_rise)[..., None, None]
+        return snr
 
     def noise_std(self, snr_db: np.ndarray, elevation: np.ndarray):
         """Arrival-time, azimuth and elevation standard deviations for an SNR array."""
@@ -266,8 +334,11 @@ class HydrophoneArray:
         array_snr = snr_db.mean(axis=-1)
         return 1.0 / (1.0 + np.exp(-(array_snr - self.config.snr50) / self.config.snr_slope))
 
-    def model(self, position) -> dict[str, np.ndarray]:
+    def model(self, position, current_speed: float = 0.0) -> dict[str, np.ndarray]:
         """The documented noise model at a source position, per band (for users and tests).
+
+        ``current_speed`` (m/s) matters only with flow noise (the default 0
+        gives the calm-water model).
 
         Returns ``snr_db`` (Q, N), ``arrival_std`` (Q, N), ``tdoa_std`` (Q, N-1),
         ``azimuth_std`` (Q, N), ``elevation_std`` (Q, N) and
@@ -276,7 +347,7 @@ class HydrophoneArray:
         """
         sources = self.image_sources(position)
         ranges, _, elevation = self.geometry(sources)
-        snr = self.snr_db(ranges, self._path_loss)
+        snr = self.snr_db(ranges, self._path_loss, self.flow_noise_rise(current_speed))
         timing, azimuth, theta = self.noise_std(snr, elevation)
         pd = self.detection_probability(snr)
         return {
@@ -295,7 +366,8 @@ class HydrophoneArray:
         offsets[0] = 0.0
         return offsets
 
-    def measure(self, rng: np.random.Generator, positions, clock_offsets) -> Measurements:
+    def measure(self, rng: np.random.Generator, positions, clock_offsets,
+                current_speed=None) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
@@ -304,6 +376,9 @@ class HydrophoneArray:
             for a single period; the result then has no leading axis).
           clock_offsets: (N,) clock offsets of the nodes (see
             :meth:`draw_clock_offsets`).
+          current_speed: (B,) current speed per period (m/s; a scalar for all
+            of them). Required when the config has a ``flow_noise_level``
+            (a ``ValueError`` otherwise), ignored without one.
 
         Returns:
           :class:`Measurements` with arrays (B, Q, K, ...). The number of
@@ -317,9 +392,14 @@ class HydrophoneArray:
             raise ValueError(f"positions must be finite (B, 3), got shape {positions.shape}")
         n, p, k = self.n_nodes, self._n_paths, self.config.max_detections
         q, b = self.config.n_bands, len(positions)
+        rise = None
+        if self._flow_ratio is not None:
+            if current_speed is None:
+                raise ValueError("the config has flow noise: measure() needs current_speed")
+            rise = self.flow_noise_rise(np.broadcast_to(current_speed, (b,)))  # (B, Q)
         sources = self.image_sources(positions[:, None, :])[:, :p]  # (B, P, 3)
         ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
-        snr = self.snr_db(ranges[:, None], self._path_loss[:p])  # (B, Q, P, N)
+        snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
         timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
         pd = self.detection_probability(snr)  # (B, Q, P)
 

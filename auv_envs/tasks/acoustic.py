@@ -260,7 +260,12 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     reports a set of detections (TDOAs against node 1, per-node azimuth and
     elevation) with band-dependent noise and misses, multipath ghosts from
     the surface and the bottom, Poisson false alarms and clock offsets: see
-    :mod:`auv_envs.core.acoustics` for the documented model.
+    :mod:`auv_envs.core.acoustics` for the documented model. By default the
+    current moves the arm but leaves the measurements alone; with
+    ``acoustic=AcousticConfig(flow_noise_level=...)`` (e.g.
+    ``SEED004_FLOW_NOISE_LEVEL``) the current generators' flow noise grows
+    with the current's speed in each sample period and lowers every band's
+    SNR, most in the low bands (noisier delays and angles, more misses).
 
     **Action space.** ``Box([0, 0, -30], [300, 300, 0], (3,), float32)``: the
     agent's estimate of the end effector's position (tank frame, m) at the
@@ -319,7 +324,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
 
     **Version history.** v0: initial release. Metric additions (dynamics,
     observations and reward unchanged): ``episode_metrics`` gained
-    ``tcfe_fluctuation`` and ``error_bias``.
+    ``tcfe_fluctuation`` and ``error_bias``. Opt-in addition:
+    ``AcousticConfig.flow_noise_level`` (off by default, so the default
+    observations are unchanged, bit for bit).
     """
 
     metadata = {"render_modes": [], "render_fps": 100}
@@ -505,7 +512,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         ep.positions = positions
         ep.velocities = velocities
         ep.measurements = self.calibration.array.measure(
-            self.np_random, positions, ep.clock_offsets
+            self.np_random, positions, ep.clock_offsets,
+            np.linalg.norm(ep.current[start:start + count], axis=1),
         )
 
     def _observation(self, k: int):
