@@ -149,8 +149,9 @@ def flow_level(text: str) -> float | None:
         return None
     try:
         return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a level in dB or 'off', got {text!r}")
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(
+            f"expected a level in dB or 'off', got {text!r}") from exc
 
 
 def tcfe_tables(runs: dict, truth: dict, what_water: str) -> None:
