@@ -44,7 +44,7 @@ from baselines.acoustic.positioning import (
     LeastSquaresPositioner,
     work_area_centre,
 )
-from baselines.kalman import joseph_covariance
+from baselines.kalman import joseph_covariance, kalman_gain
 from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/AcousticTracking-v0",)
@@ -229,7 +229,7 @@ class LSKalmanAgent:
             d2 = np.einsum("ni,nij,nj->n", nu, np.linalg.inv(S), nu)
             i = int(np.argmin(d2))
             if d2[i] <= self.gate:
-                gain = np.linalg.solve(S[i], self._P[:3]).T  # P H^T S^-1
+                gain = kalman_gain(self._P, POSITION_H, R[i])
                 self._x = self._x + gain @ nu[i]
                 # Joseph form: P - K H P loses positive definiteness after
                 # ~23 s of an episode with centimetre-precise fixes.
