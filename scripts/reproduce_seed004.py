@@ -38,6 +38,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import SEED004_FLOW_NOISE_LEVEL, AcousticConfig
+from auv_envs.tasks.acoustic import TCFE_BIN_WIDTH
 from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode
 from baselines.registry import agent_spec
@@ -160,8 +161,8 @@ def tcfe_tables(runs: dict, truth: dict, what_water: str) -> None:
             "truth": [truth[lvl] for lvl in LEVELS]}
     for key, what in (("tcfe", "first differences, seed 004's definition"),
                       ("tcfe_fluctuation", "second differences, 0 for the true motion")):
-        print(f"\n## {key}, {what_water} (nats; {what}; 1 cm bins) by current level "
-              f"(paper gmphd-gci: 0.05 / 0.07 / 0.09)")
+        print(f"\n## {key}, {what_water} (nats; {what}; {100 * TCFE_BIN_WIDTH:g} cm bins) "
+              f"by current level (paper gmphd-gci: 0.05 / 0.07 / 0.09)")
         print("| agent | " + " | ".join(LEVELS) + " |\n|---|---|---|---|")
         for a, per_level in rows.items():
             print(f"| {a} | " + " | ".join(
