@@ -413,9 +413,9 @@ def test_flow_noise_model_matches_the_documented_formula():
     rise = cal.array.flow_noise_rise([0.0, 0.5, 4.0, 8.0])
     assert np.all(rise[0] == 0) and np.all(np.diff(rise[1]) < 0)
     np.testing.assert_allclose(rise[3] - rise[2], 60 * math.log10(2), atol=1e-3)
+    flow = flow_noise_level(cal.band_centres, 0.5, SEED004_FLOW_NOISE_LEVEL)
     np.testing.assert_allclose(
-        rise[1], 10 * np.log10(1 + 10 ** ((flow_noise_level(cal.band_centres, 0.5, 94.0)
-                                          - ambient_noise_level(cal.band_centres)) / 10)))
+        rise[1], 10 * np.log10(1 + 10 ** ((flow - ambient_noise_level(cal.band_centres)) / 10)))
     # No flow-noise level: nothing rises whatever the current.
     assert np.all(calm.flow_noise_rise(0.5) == 0)
 

@@ -98,7 +98,7 @@ FLOW_NOISE_REF_FREQUENCY = 1000.0
 #: 1 m/s and 1 kHz). Our choice, as ``source_level`` is: at 0.5 m/s, the top of
 #: seed 004's high current range, it raises the noise of the 20 kHz band by
 #: 23 dB and of the 110 kHz band by 10 dB; at 0.15 m/s, the top of the low
-#: range, by 0.6 and 0.0 dB (see :func:`flow_noise_level`).
+#: range, by 0.6 and 0.0 dB (:meth:`HydrophoneArray.flow_noise_rise`).
 SEED004_FLOW_NOISE_LEVEL = 94.0
 
 
