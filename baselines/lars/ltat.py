@@ -142,12 +142,8 @@ class MarkerCornerExtractor:
             if x1 - x0 < 4 or y1 - y0 < 4:
                 return []
             roi = image[y0:y1, x0:x1]
-        mask = self.red_mask(roi)
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        contours = [c for c in contours if cv2.contourArea(c) >= self.params.min_area]
-        contours.sort(key=cv2.contourArea, reverse=True)
         out = []
-        for contour in contours:
+        for contour in self.red_blobs(roi):
             bx, by, bw, bh = cv2.boundingRect(contour)
             if ((bx == 0 < x0) or (by == 0 < y0) or (bx + bw == x1 - x0 and x1 < w)
                     or (by + bh == y1 - y0 and y1 < h)):
@@ -157,6 +153,15 @@ class MarkerCornerExtractor:
                 # OpenCV pixel indices -> continuous coordinates (centres at +0.5).
                 out.append(corners + (x0 + 0.5, y0 + 0.5))
         return out
+
+    def red_blobs(self, roi: np.ndarray) -> list[np.ndarray]:
+        """Outer contours of the red mask of ``roi`` of at least ``params.min_area``,
+        largest first (ties in the order OpenCV found them)."""
+        contours, _ = cv2.findContours(self.red_mask(roi), cv2.RETR_EXTERNAL,
+                                       cv2.CHAIN_APPROX_NONE)
+        contours = [c for c in contours if cv2.contourArea(c) >= self.params.min_area]
+        contours.sort(key=cv2.contourArea, reverse=True)
+        return contours
 
     def find(self, image: np.ndarray, box, pad: float | None = None) -> np.ndarray | None:
         """Corners (3, 2) of the largest triangle in ``box`` (grown by ``pad``), or None."""
@@ -305,13 +310,10 @@ class MarkerCornerExtractor:
         y1 = min(h, int(math.ceil(pred[:, 1].max() + pad)))
         if x1 - x0 < 4 or y1 - y0 < 4:
             return None
-        mask = self.red_mask(image[y0:y1, x0:x1])
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-        if not contours:
+        blobs = self.red_blobs(image[y0:y1, x0:x1])
+        if not blobs:
             return None
-        contour = max(contours, key=cv2.contourArea)
-        if cv2.contourArea(contour) < self.params.min_area:
-            return None
+        contour = blobs[0]
         offset = np.array([x0 + 0.5, y0 + 0.5])
         local = pred - offset
         fits = self._corner_fits(contour.reshape(-1, 2).astype(float), local[2], local[0],
