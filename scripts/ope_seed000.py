@@ -19,9 +19,10 @@ frame), and LTAT with its boxes left as the tracker's (never snapped to the
 verified corners), which isolates what re-detection alone adds.
 
 Sequences come from the LARS exporter (:mod:`auv_envs.datasets.lars`) with
-evaluation seeds >= 100000 (the tracker trained on seeds 1000-2011). The
-severe sequences are the first seeds from 100000 whose labels show both a
-wash-over (a corner hidden by a crest) and an analog in view.
+evaluation seeds >= 100000 (the tracker trained on seeds 1000-2011): the
+calm sequences are the first seeds from 100000 whose marker is in view at
+frame 0, the severe ones the first seeds from 150000 whose labels also show
+a wash-over (a corner hidden by a crest) and an analog in view.
 
     python scripts/ope_seed000.py [--sequences 4] [--steps 250] [--out results/ope_seed000]
 
