@@ -12,9 +12,17 @@ import numpy as np
 
 
 def kalman_gain(cov: np.ndarray, jacobian: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
-    """``K = P H^T (H P H^T + R)^-1`` (seed 003 eqs. 26-28), by a linear solve."""
-    s = jacobian @ cov @ jacobian.T + noise_cov
-    return np.linalg.solve(s, jacobian @ cov).T
+    """``K = P H^T (H P H^T + R)^-1`` (seed 003 eqs. 26-28), by a linear solve.
+
+    Args:
+      cov: (..., n, n) predicted P; jacobian: (..., m, n) H; noise_cov: (..., m, m) R.
+        Leading axes broadcast.
+
+    Returns:
+      (..., n, m) gains.
+    """
+    s = jacobian @ cov @ np.swapaxes(jacobian, -1, -2) + noise_cov
+    return np.swapaxes(np.linalg.solve(s, jacobian @ cov), -1, -2)
 
 
 def joseph_covariance(cov: np.ndarray, gain: np.ndarray, jacobian: np.ndarray,

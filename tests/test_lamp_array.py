@@ -14,6 +14,7 @@ import auv_envs  # noqa: F401
 from auv_envs.core.camera import CameraIntrinsics, points_in_camera, project
 from auv_envs.core.frames import rotation_from_euler
 from baselines.frontend import FrontEndAgent
+from baselines.kalman import kalman_gain
 from baselines.registry import agent_spec, make_agent
 from baselines.vision.lamp_array import (
     DETECTED,
@@ -286,6 +287,22 @@ def test_blob_ekf_position_update_is_the_kalman_update():
     x = np.array([10.0, 20.0, 1.0, 0.0, 5.0, 0.0]) + K @ np.array([2.0, -3.0])
     np.testing.assert_allclose(ekf.x, x, atol=1e-12)
     np.testing.assert_allclose(ekf.P, (np.eye(6) - K @ H) @ P, atol=1e-12)
+
+
+def test_kalman_gain_broadcasts_over_a_bank_of_filters():
+    """The shared gain (BlobEKF, CameraPositionFilter, the docking EKF) on a stack of filters
+    equals the gain of each filter alone, ``P H^T (H P H^T + R)^-1``."""
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(5, 6, 6))
+    P = a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(6)
+    H = rng.normal(size=(5, 2, 6))
+    R = np.diag([1.0, 2.0])
+    K = kalman_gain(P, H, R)
+    assert K.shape == (5, 6, 2)
+    for i in range(5):
+        expected = P[i] @ H[i].T @ np.linalg.inv(H[i] @ P[i] @ H[i].T + R)
+        np.testing.assert_allclose(K[i], expected, rtol=1e-10, atol=1e-12)
+        np.testing.assert_array_equal(kalman_gain(P[i], H[i], R), K[i])
 
 
 def test_blob_ekf_predict_moves_with_constant_velocity():
