@@ -19,12 +19,13 @@ marks an empty slot) so that prediction and update run once for all bands.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
 from sklearn.cluster import DBSCAN
 
-from baselines.kalman import constant_velocity_blocks, joseph_covariance
+from baselines.kalman import constant_velocity_blocks
 
 STATE_DIM = 6
 #: The measurement matrix of a position fix, ``H = [I_3, 0]``.
@@ -149,31 +150,39 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     """
     w = np.asarray(weights, dtype=np.float64)
     q_, j_ = w.shape
-    k_ = z.shape[1]
     pd = np.asarray(p_detect, dtype=np.float64)
-    pd = pd[:, None] if pd.ndim else pd
-    HPt = np.swapaxes(covariances[:, :, None, :3, :], -1, -2)  # P H^T: (Q, J, 1, 6, 3)
-    S = covariances[:, :, None, :3, :3] + R[:, None]  # (Q, J, K, 3, 3)
+    if pd.ndim:
+        pd = pd[:, None]
+    P = covariances[:, :, None]  # (Q, J, 1, 6, 6)
+    HPt = np.swapaxes(P[..., :3, :], -1, -2)  # P H^T: (Q, J, 1, 6, 3)
+    S = P[..., :3, :3] + R[:, None]  # (Q, J, K, 3, 3)
     S_inv = np.linalg.inv(S)
-    nu = (z[:, None] - means[:, :, None, :3])[..., None]  # (Q, J, K, 3, 1)
+    nu = z[:, None, :, :, None] - means[:, :, None, :3, None]  # (Q, J, K, 3, 1)
     S_inv_nu = S_inv @ nu
     maha = (np.swapaxes(nu, -1, -2) @ S_inv_nu)[..., 0, 0]
     # N(z; H m, S) = exp(-maha / 2) / sqrt((2 pi)^3 det S)
     likelihood = np.exp(-0.5 * maha) / np.sqrt(TWO_PI_CUBED * np.linalg.det(S))
-    gain = HPt @ S_inv  # P H^T S^-1: (Q, J, K, 6, 3)
-    out_m = np.empty((q_, j_ * (k_ + 1), STATE_DIM))
-    out_m[:, :j_] = means
-    out_m[:, j_:] = (means[:, :, None] + (HPt @ S_inv_nu)[..., 0]).reshape(q_, -1, STATE_DIM)
-    out_P = np.empty((q_, j_ * (k_ + 1), STATE_DIM, STATE_DIM))
-    out_P[:, :j_] = covariances
-    P_upd = joseph_covariance(covariances[:, :, None], gain, POSITION_H, R[:, None])
-    out_P[:, j_:] = P_upd.reshape(q_, -1, STATE_DIM, STATE_DIM)
-    num = (pd * w)[:, :, None] * np.where(valid[:, None, :], likelihood, 0.0)  # (Q, J, K)
-    out_w = np.empty((q_, j_ * (k_ + 1)))
-    out_w[:, :j_] = (1.0 - pd) * w
-    out_w[:, j_:] = (num / (clutter_density + num.sum(axis=1, keepdims=True))).reshape(q_, -1)
-    source = np.concatenate([np.arange(j_), np.repeat(np.arange(j_), k_)])
-    return out_w, out_m, out_P, source
+    gain = HPt @ S_inv  # K = P H^T S^-1: (Q, J, K, 6, 3)
+    upd_m = means[:, :, None] + (HPt @ S_inv_nu)[..., 0]
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T (as baselines.kalman.joseph_covariance),
+    # regrouped for H = [I_3, 0] so that H P and A H^T are slices:
+    # A = (I - K H) P = P - K (H P), then A (I - K H)^T + K R K^T = A - (A H^T - K R) K^T.
+    A = P - gain @ P[..., :3, :]
+    upd_P = A - (A[..., :3] - gain @ R[:, None]) @ np.swapaxes(gain, -1, -2)
+    num = (pd * w)[:, :, None] * (likelihood * valid[:, None, :])  # (Q, J, K)
+    upd_w = num / (clutter_density + num.sum(axis=1, keepdims=True))
+    out_w = np.concatenate([(1.0 - pd) * w, upd_w.reshape(q_, -1)], axis=1)
+    out_m = np.concatenate([means, upd_m.reshape(q_, -1, STATE_DIM)], axis=1)
+    out_P = np.concatenate([covariances, upd_P.reshape(q_, -1, STATE_DIM, STATE_DIM)], axis=1)
+    return out_w, out_m, out_P, _update_sources(j_, upd_w.shape[2])
+
+
+@functools.lru_cache(maxsize=256)
+def _update_sources(j: int, k: int) -> np.ndarray:
+    """The predicted component of each :func:`gmphd_update` output term (read-only)."""
+    source = np.concatenate([np.arange(j), np.repeat(np.arange(j), k)])
+    source.flags.writeable = False
+    return source
 
 
 def compact_fixes(z: np.ndarray, R: np.ndarray, valid: np.ndarray):
