@@ -17,16 +17,23 @@
    ``PHDUpdater`` (with a ``KalmanUpdater``, one ``LinearGaussian``
    measurement model per fix carrying that fix's covariance; hypotheses are
    built outside its timer, so Stone Soup is timed on its update alone).
-   Every output is checked equal to Stone Soup's. Two cases, median ms:
-   *all bands* (ours: the bank's one call for the Q bands of a step; Stone
-   Soup: one update per band, summed) and *one band* (band 0 alone; ours
-   called with Q = 1). Issue 7's target: ours >= 10x faster per band.
+   Every output is checked equal to Stone Soup's. Two cases, median over
+   steps in ms: *all bands* (ours: the bank's one call for the Q bands of a
+   step; Stone Soup: one update per band, summed) and *one band* (band 0
+   alone; ours called with Q = 1). The speed of these shared machines drifts
+   by 2x within a minute, so each step's inputs go through 5 rounds of Stone
+   Soup and ours back to back, each side is timed by its fastest round (the
+   ``timeit`` convention), and the ratio printed is the median over steps of
+   the per-step ratio. Stone Soup gets fresh hypotheses every round (it
+   caches measurement predictions in them). Issue 7's target: ours >= 10x
+   faster per band.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import math
 import time
 
 import gymnasium as gym
@@ -92,6 +99,9 @@ def stone_soup_update(w, m, P, z, R, pd, kappa):
 
     Args: the band's predicted weights (J,), means (J, 6), covariances
     (J, 6, 6), its valid fixes z (K, 3) with covariances R (K, 3, 3), p_D, kappa.
+    The hypotheses are built fresh for every call, outside the timer: the
+    updater stores each hypothesis's measurement prediction in it, and a
+    second call on the same ones would skip that work.
     """
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.types.detection import Detection, MissedDetection
@@ -121,12 +131,11 @@ def stone_soup_update(w, m, P, z, R, pd, kappa):
             np.array([np.asarray(c.covar, float) for c in out]))
 
 
-def _timed_update(args, repeats: int):
-    """Mean seconds of ``gmphd_update(*args)`` over ``repeats`` calls, and its output."""
+def _timed_update(args):
+    """Seconds of one ``gmphd_update(*args)`` call, and its output."""
     t0 = time.perf_counter()
-    for _ in range(repeats):
-        out = gmphd_update(*args)
-    return (time.perf_counter() - t0) / repeats, out
+    out = gmphd_update(*args)
+    return time.perf_counter() - t0, out
 
 
 def _check_equal(ours, theirs, j: int, k: int) -> None:
@@ -140,36 +149,52 @@ def _check_equal(ours, theirs, j: int, k: int) -> None:
     np.testing.assert_allclose(oP[order], sP, rtol=1e-6, atol=1e-9)
 
 
-def compare_updates(steps, band: int = 0, repeats: int = 20):
-    """Median ms of the GM-PHD update, ours vs Stone Soup, on the same inputs.
+def compare_updates(steps, band: int = 0, rounds: int = 5):
+    """The GM-PHD update, ours vs Stone Soup, on the same inputs.
 
-    Returns ``{"one band": (ours, theirs), "all bands": (ours, theirs)}``:
+    Returns ``{"one band": (ours, theirs, ratio), "all bands": (...)}``:
     band ``band`` alone (ours called with Q = 1), and all Q bands of a step
-    (ours: the bank's one batched call; Stone Soup: one update per band).
-    Every output is checked equal to Stone Soup's.
+    (ours: the bank's one batched call; Stone Soup: one update per band,
+    summed). ``ours`` and ``theirs`` are median ms over steps, ``ratio`` the
+    median over steps of theirs / ours. Each step's inputs go through
+    ``rounds`` rounds of Stone Soup, our batched call and our one-band call
+    back to back, and each is timed by its fastest round, so that both sides
+    see the same machine load. Every output is checked equal to Stone Soup's.
     """
-    single, batched = ([], []), ([], [])
+    times = {"one band": ([], []), "all bands": ([], [])}
     for w, m, P, z, R, valid, pd, kappa in steps:
         j = w.shape[1]
-        t_all, (ow, om, oP, _) = _timed_update((w, m, P, z, R, valid, pd, kappa), repeats)
-        t_ss = 0.0
-        for q in range(len(w)):
-            use = valid[q]
-            ref = stone_soup_update(w[q], m[q], P[q], z[q][use], R[q][use], pd[q], kappa)
-            t_ss += ref[0]
-            # Our band output without the (zero) terms of padded, invalid fixes.
-            keep = np.concatenate([np.ones(j, bool), np.tile(use, j)])
-            _check_equal((ow[q][keep], om[q][keep], oP[q][keep]), ref, j, int(use.sum()))
-            if q == band and use.any():
-                zb, Rb = z[q][use][None], R[q][use][None]
-                args = (w[q:q + 1], m[q:q + 1], P[q:q + 1], zb, Rb,
-                        np.ones(zb.shape[:2], bool), pd[q:q + 1], kappa)
-                single[0].append(_timed_update(args, repeats)[0])
-                single[1].append(ref[0])
-        batched[0].append(t_all)
-        batched[1].append(t_ss)
-    return {name: (1000.0 * np.median(a), 1000.0 * np.median(b))
-            for name, (a, b) in (("one band", single), ("all bands", batched))}
+        use_b = valid[band]
+        band_args = (w[band:band + 1], m[band:band + 1], P[band:band + 1], z[band][use_b][None],
+                     R[band][use_b][None], np.ones((1, int(use_b.sum())), bool),
+                     pd[band:band + 1], kappa)
+        ow, om, oP, _ = gmphd_update(w, m, P, z, R, valid, pd, kappa)
+        best = np.full(4, math.inf)  # theirs all, theirs band, ours all, ours band
+        for r in range(rounds):
+            t_ss = 0.0
+            for q in range(len(w)):
+                use = valid[q]
+                ref = stone_soup_update(w[q], m[q], P[q], z[q][use], R[q][use], pd[q], kappa)
+                t_ss += ref[0]
+                if q == band:
+                    best[1] = min(best[1], ref[0])
+                if r == 0:
+                    # Our band output without the (zero) terms of padded, invalid fixes.
+                    keep = np.concatenate([np.ones(j, bool), np.tile(use, j)])
+                    _check_equal((ow[q][keep], om[q][keep], oP[q][keep]), ref, j,
+                                 int(use.sum()))
+            best[0] = min(best[0], t_ss)
+            best[2] = min(best[2], _timed_update((w, m, P, z, R, valid, pd, kappa))[0])
+            if use_b.any():
+                best[3] = min(best[3], _timed_update(band_args)[0])
+        times["all bands"][0].append(best[2])
+        times["all bands"][1].append(best[0])
+        if use_b.any():
+            times["one band"][0].append(best[3])
+            times["one band"][1].append(best[1])
+    return {name: (1000.0 * np.median(ours), 1000.0 * np.median(theirs),
+                   float(np.median(np.divide(theirs, ours))))
+            for name, (ours, theirs) in times.items()}
 
 
 def main() -> None:
@@ -193,10 +218,10 @@ def main() -> None:
     print(f"\n## GM-PHD update, ours vs Stone Soup's PHDUpdater on the same inputs, "
           f"{len(steps)} steps (components per band J median {np.median(sizes[:, 0]):g}, "
           f"max fixes per band median {np.median(sizes[:, 1]):g}; every output checked "
-          f"equal; median ms)")
-    print("| case | ours | Stone Soup | ratio |\n|---|---|---|---|")
-    for name, (ours, theirs) in compare_updates(steps).items():
-        print(f"| {name} | {ours:.4f} | {theirs:.4f} | {theirs / ours:.1f}x |")
+          f"equal; median over steps of each update's fastest of 5 interleaved rounds, ms)")
+    print("| case | ours | Stone Soup | ratio (median of per-step ratios) |\n|---|---|---|---|")
+    for name, (ours, theirs, ratio) in compare_updates(steps).items():
+        print(f"| {name} | {ours:.4f} | {theirs:.4f} | {ratio:.1f}x |")
     env.close()
 
 

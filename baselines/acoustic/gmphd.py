@@ -154,12 +154,12 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     if pd.ndim:
         pd = pd[:, None]
     P = covariances[:, :, None]  # (Q, J, 1, 6, 6)
-    HPt = np.swapaxes(P[..., :3, :], -1, -2)  # P H^T: (Q, J, 1, 6, 3)
+    HPt = P[..., :3, :].swapaxes(-1, -2)  # P H^T: (Q, J, 1, 6, 3)
     S = P[..., :3, :3] + R[:, None]  # (Q, J, K, 3, 3)
     S_inv = np.linalg.inv(S)
     nu = z[:, None, :, :, None] - means[:, :, None, :3, None]  # (Q, J, K, 3, 1)
     S_inv_nu = S_inv @ nu
-    maha = (np.swapaxes(nu, -1, -2) @ S_inv_nu)[..., 0, 0]
+    maha = (nu.swapaxes(-1, -2) @ S_inv_nu)[..., 0, 0]
     # N(z; H m, S) = exp(-maha / 2) / sqrt((2 pi)^3 det S)
     likelihood = np.exp(-0.5 * maha) / np.sqrt(TWO_PI_CUBED * np.linalg.det(S))
     gain = HPt @ S_inv  # K = P H^T S^-1: (Q, J, K, 6, 3)
@@ -168,7 +168,7 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     # regrouped for H = [I_3, 0] so that H P and A H^T are slices:
     # A = (I - K H) P = P - K (H P), then A (I - K H)^T + K R K^T = A - (A H^T - K R) K^T.
     A = P - gain @ P[..., :3, :]
-    upd_P = A - (A[..., :3] - gain @ R[:, None]) @ np.swapaxes(gain, -1, -2)
+    upd_P = A - (A[..., :3] - gain @ R[:, None]) @ gain.swapaxes(-1, -2)
     num = (pd * w)[:, :, None] * (likelihood * valid[:, None, :])  # (Q, J, K)
     upd_w = num / (clutter_density + num.sum(axis=1, keepdims=True))
     out_w = np.concatenate([(1.0 - pd) * w, upd_w.reshape(q_, -1)], axis=1)
