@@ -139,3 +139,17 @@ def test_calibration_is_a_frozen_dataclass_with_read_only_arrays(env):
 def test_docking_rejects_a_bad_image_size(env_id, size, match):
     with pytest.raises(ValueError, match=match):
         make_env(env_id, "image", image_size=size)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 0.0, -1.0])
+def test_time_limit_must_be_a_positive_finite_number(env_id, bad):
+    with pytest.raises(ValueError, match="time_limit must be"):
+        make_env(env_id, "state", time_limit=bad)
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 0.0])
+def test_docking_lights_lost_timeout_must_be_a_positive_finite_number(env_id, bad):
+    with pytest.raises(ValueError, match="lights_lost_timeout must be"):
+        make_env(env_id, "state", lights_lost_timeout=bad)

@@ -404,8 +404,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         )
         check_choice("scenario", scenario, SCENARIOS)
         width, height = check_image_size(image_size)
-        if time_limit <= 0 or lights_lost_timeout <= 0:
-            raise ValueError("time_limit and lights_lost_timeout must be positive")
+        for name, value in (("time_limit", time_limit),
+                            ("lights_lost_timeout", lights_lost_timeout)):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
         if current_direction is not None and not math.isfinite(current_direction):
             raise ValueError(f"current_direction must be finite, got {current_direction}")
 
