@@ -281,3 +281,24 @@ def test_joseph_covariance_equals_the_short_form_and_broadcasts():
             np.testing.assert_allclose(batched[i, k], short, rtol=1e-10, atol=1e-12)
             np.testing.assert_allclose(joseph_covariance(P[i], gain[i, k], POSITION_H, R[k]),
                                        batched[i, k], rtol=1e-13, atol=1e-15)
+
+
+def test_update_covariances_are_the_joseph_form():
+    """gmphd_update regroups the Joseph form for H = [I_3, 0]; its covariances equal
+    joseph_covariance with the same gain, also for centimetre fixes against a metre prior
+    (the regime the Joseph form is there for), and stay symmetric positive definite."""
+    for seed, r_scale in ((3, 0.5), (4, 0.01)):
+        w, m, P, z, _ = _case(seed, J=3, K=4)
+        rng = np.random.default_rng(seed)
+        R = np.stack([_random_spd(rng, 3, r_scale) for _ in range(4)])  # (K, 3, 3)
+        _, _, oP, _ = gmphd_update(w[None], m[None], P[None], z[None], R[None],
+                                   np.ones((1, 4), bool), 0.9, 1e-3)
+        S = P[:, None, :3, :3] + R[None]
+        gain = np.swapaxes(P[:, None, :3, :], -1, -2) @ np.linalg.inv(S)  # (J, K, 6, 3)
+        expected = joseph_covariance(P[:, None], gain, POSITION_H, R[None])
+        updated = oP[0, len(w):].reshape(3, 4, 6, 6)
+        scale = np.abs(expected).max()
+        np.testing.assert_allclose(updated, expected, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(updated, np.swapaxes(updated, -1, -2), rtol=0,
+                                   atol=1e-12 * scale)
+        assert np.all(np.linalg.eigvalsh(updated) > 0)
