@@ -381,6 +381,9 @@ def test_bad_configuration_raises(lamp_front_end):
         LampArrayFrontEnd(cal, identity="l-shape")
     with pytest.raises(ValueError, match="odd"):
         SegmentationParams(block_size=30)
+    for bad in (math.nan, math.inf, "25"):
+        with pytest.raises(ValueError, match="offset"):
+            SegmentationParams(offset=bad)
     with pytest.raises(ValueError, match="gate_px"):
         TrackerParams(gate_px=math.inf)
     with pytest.raises(ValueError, match="lost_after"):

@@ -95,6 +95,8 @@ class SegmentationParams:
             raise ValueError(f"block_size must be odd and >= 3, got {self.block_size}")
         if not 0 < self.min_peak <= 255:
             raise ValueError(f"min_peak must be in (0, 255], got {self.min_peak}")
+        if not (isinstance(self.offset, int | float) and math.isfinite(self.offset)):
+            raise ValueError(f"offset must be a finite number of grey levels, got {self.offset!r}")
         if self.min_area < 1 or self.margin < 1 or self.kernel < 1:
             raise ValueError("min_area, margin and kernel must be >= 1")
 
