@@ -88,11 +88,17 @@ def test_update_hand_computed_single_component():
 def test_invalid_detections_are_ignored():
     w, m, P, z, R = _case(1)
     valid = np.array([[True, False, True, False, True]])
-    full = gmphd_update(w[None], m[None], P[None], z[None], np.broadcast_to(R, (1, 5, 3, 3)),
-                        valid, 0.9, 1e-4)[0]
+    R5 = np.broadcast_to(R, (1, 5, 3, 3))
+    full = gmphd_update(w[None], m[None], P[None], z[None], R5, valid, 0.9, 1e-4)[0]
     J = len(w)
     dropped = full[0, J:].reshape(J, 5)[:, ~valid[0]]
     assert np.all(dropped == 0)
+    # Whatever a padded fix holds (NaN here), it weighs 0 and leaves the real terms alone.
+    z_nan = z.copy()
+    z_nan[~valid[0]] = np.nan
+    padded = gmphd_update(w[None], m[None], P[None], z_nan[None], R5, valid, 0.9, 1e-4)[0]
+    assert np.all(padded[0, J:].reshape(J, 5)[:, ~valid[0]] == 0)
+    np.testing.assert_array_equal(padded, full)
 
 
 def _mix(m, P, w=1.0, label=0):

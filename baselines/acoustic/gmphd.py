@@ -169,7 +169,8 @@ def gmphd_update(weights, means, covariances, z, R, valid, p_detect, clutter_den
     # A = (I - K H) P = P - K (H P), then A (I - K H)^T + K R K^T = A - (A H^T - K R) K^T.
     A = P - gain @ P[..., :3, :]
     upd_P = A - (A[..., :3] - gain @ R[:, None]) @ gain.swapaxes(-1, -2)
-    num = (pd * w)[:, :, None] * (likelihood * valid[:, None, :])  # (Q, J, K)
+    # np.where, not a product: padded fixes may hold anything (NaN too) and must weigh 0.
+    num = (pd * w)[:, :, None] * np.where(valid[:, None, :], likelihood, 0.0)  # (Q, J, K)
     upd_w = num / (clutter_density + num.sum(axis=1, keepdims=True))
     out_w = np.concatenate([(1.0 - pd) * w, upd_w.reshape(q_, -1)], axis=1)
     out_m = np.concatenate([means, upd_m.reshape(q_, -1, STATE_DIM)], axis=1)
