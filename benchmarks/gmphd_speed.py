@@ -40,17 +40,21 @@ import gymnasium as gym
 import numpy as np
 
 import auv_envs  # noqa: F401
+from auv_envs.core.acoustics import AcousticConfig
 from baselines.acoustic.gmphd import compact_fixes, gmphd_update
 from baselines.registry import make_agent
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 WARMUP = 100
+#: Interleaved rounds of Stone Soup and ours per step of the update comparison.
+ROUNDS = 5
 
 
 def record_episode(steps: int, seed: int):
     """The environment and ``steps + WARMUP`` (observation, info) pairs of a seeded episode."""
-    env = gym.make(ENV_ID, time_limit=(steps + WARMUP + 1) / 100.0)
+    # The env's default measurement config sets its sample rate.
+    env = gym.make(ENV_ID, time_limit=(steps + WARMUP + 1) / AcousticConfig().sample_rate)
     obs, info = env.reset(seed=seed)
     data = []
     for _ in range(steps + WARMUP):
@@ -149,7 +153,7 @@ def _check_equal(ours, theirs, j: int, k: int) -> None:
     np.testing.assert_allclose(oP[order], sP, rtol=1e-6, atol=1e-9)
 
 
-def compare_updates(steps, band: int = 0, rounds: int = 5):
+def compare_updates(steps, band: int = 0, rounds: int = ROUNDS):
     """The GM-PHD update, ours vs Stone Soup, on the same inputs.
 
     Returns ``{"one band": (ours, theirs, ratio), "all bands": (...)}``:
@@ -218,7 +222,7 @@ def main() -> None:
     print(f"\n## GM-PHD update, ours vs Stone Soup's PHDUpdater on the same inputs, "
           f"{len(steps)} steps (components per band J median {np.median(sizes[:, 0]):g}, "
           f"max fixes per band median {np.median(sizes[:, 1]):g}; every output checked "
-          f"equal; median over steps of each update's fastest of 5 interleaved rounds, ms)")
+          f"equal; median over steps of each update's fastest of {ROUNDS} interleaved rounds, ms)")
     print("| case | ours | Stone Soup | ratio (median of per-step ratios) |\n|---|---|---|---|")
     for name, (ours, theirs, ratio) in compare_updates(steps).items():
         print(f"| {name} | {ours:.4f} | {theirs:.4f} | {ratio:.1f}x |")
