@@ -216,10 +216,14 @@ def max_error(estimates, truth, *, allow_missing: bool = False) -> float:
 # --------------------------------------------------------------------------- TFC
 
 
-def _previous_index(last_ids: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Per object, the index in this frame's ``ids`` of the id it was last matched to, or -1."""
+def _previous_index(last_ids: np.ndarray, ids: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Per object, the index in this frame's ``ids`` of the id it was last matched to, or -1.
+
+    ``known`` marks the objects that have a last id (any integer, -1 included: CLEAR-MOT
+    hypothesis ids may be negative, so ``NO_TRACK`` cannot mean "none" there).
+    """
     out = np.full(last_ids.shape[0], -1, dtype=np.int64)
-    for j in np.flatnonzero(last_ids != NO_TRACK):
+    for j in np.flatnonzero(known):
         k = np.flatnonzero(ids == last_ids[j])
         if k.size:
             out[j] = k[0]
@@ -320,7 +324,8 @@ def assign_track_labels(estimates: Sequence, labels: Sequence, truth, gate: floa
         if pts.shape[1] != dim:
             raise ValueError(f"estimates[{t}] has dimension {pts.shape[1]}, truth has {dim}")
 
-        matched = _match_frame(cdist(tru[t], pts), _previous_index(last, lab), gate)
+        matched = _match_frame(cdist(tru[t], pts),
+                               _previous_index(last, lab, last != NO_TRACK), gate)
         out[t, matched >= 0] = lab[matched[matched >= 0]]
         assigned = out[t] != NO_TRACK
         last[assigned] = out[t, assigned]
@@ -686,13 +691,14 @@ def clear_mot(gt_ids: Sequence, gt_points: Sequence, hyp_ids: Sequence, hyp_poin
         n_objects += oids.size
         matched_hyp = np.full(oids.size, -1)
         if oids.size and hids.size:
-            previous = np.array([last.get(o, NO_TRACK) for o in oids.tolist()], dtype=np.int64)
-            matched_hyp = _match_frame(cdist(opts, hpts), _previous_index(previous, hids),
+            known = np.array([o in last for o in oids.tolist()], dtype=bool)
+            previous = np.array([last.get(o, 0) for o in oids.tolist()], dtype=np.int64)
+            matched_hyp = _match_frame(cdist(opts, hpts), _previous_index(previous, hids, known),
                                        threshold)
             # A match to another hypothesis than the object's last one is a switch (a kept
             # correspondence never is).
             for i in np.flatnonzero(matched_hyp >= 0):
-                n_switches += int(previous[i] != NO_TRACK and previous[i] != hids[matched_hyp[i]])
+                n_switches += int(known[i] and previous[i] != hids[matched_hyp[i]])
         for i, o in enumerate(oids.tolist()):
             k = matched_hyp[i]
             tracked_runs.setdefault(o, []).append(k >= 0)

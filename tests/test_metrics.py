@@ -431,3 +431,19 @@ def test_box_iou_hand_worked_and_nan_boxes_score_zero():
     assert metrics.box_iou([0, 0, 1, 1], [2, 2, 3, 3]) == 0.0
     with pytest.raises(ValueError, match="boxes"):
         metrics.box_iou([0, 0, 1], [0, 0, 1, 1])
+
+
+def test_clear_mot_hypothesis_id_minus_one_is_an_ordinary_id():
+    """Hypothesis ids may be any integers: -1 (``NO_TRACK`` elsewhere) is kept by rule 1
+    like any other id, and leaving it for another hypothesis is a switch (py-motmetrics 1.4
+    gives the same: ids 0, MOTP 0.2333 for the first case)."""
+    gt_ids = [[0], [0], [0]]
+    gt = [[[0.0, 0.0]]] * 3
+    kept = metrics.clear_mot(gt_ids, gt, [[-1], [5, -1], [5, -1]],
+                             [[[0.1, 0.0]], [[0.0, 0.0], [0.3, 0.0]], [[0.0, 0.0], [0.3, 0.0]]],
+                             1.0)
+    assert (kept.ids, kept.fp, kept.num_matches) == (0, 2, 3)
+    assert kept.motp == pytest.approx((0.1 + 0.3 + 0.3) / 3)
+    switched = metrics.clear_mot(gt_ids, gt, [[-1], [5], [5]],
+                                 [[[0.1, 0.0]], [[0.2, 0.0]], [[0.2, 0.0]]], 1.0)
+    assert switched.ids == 1
