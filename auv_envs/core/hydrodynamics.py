@@ -66,8 +66,7 @@ def hydrodynamic_force(params: VehicleParams, nu_r: Sequence, gravity_body: Sequ
     dl0, dl1, dl2, dl3, dl4, dl5 = params.linear_damping
     dq0, dq1, dq2, dq3, dq4, dq5 = params.quadratic_damping
     # Restoring: weight at the CG, buoyancy at the CB, both along gravity.
-    weight = params.weight
-    buoyancy = weight + params.net_buoyancy
+    weight, buoyancy = params.weight, params.buoyancy
     gx, gy, gz = gravity_body
     bx, by, bz = -buoyancy * gx, -buoyancy * gy, -buoyancy * gz
     xb, yb, zb = params.cb_offset
