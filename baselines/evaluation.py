@@ -49,7 +49,7 @@ import numpy as np
 import auv_envs
 from auv_envs.core.assets import asset_root, sha256_file
 from baselines import registry
-from baselines.registry import agent_names, agent_spec, env_entry_point
+from baselines.registry import agent_names, agent_spec
 
 #: Evaluation seeds start here; training seeds (train.py) stay below it, so the
 #: two sets never overlap.
@@ -598,7 +598,7 @@ def env_parameters(env_id: str) -> tuple[str, ...]:
     Raises:
         KeyError: ``env_id`` is not registered with Gymnasium.
     """
-    params = inspect.signature(env_entry_point(env_id)).parameters.values()
+    params = inspect.signature(auv_envs.env_class(env_id)).parameters.values()
     return tuple(p.name for p in params
                  if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "obs_mode")
 

@@ -103,18 +103,13 @@ class AgentSpec:
         return self.skip_reason(env_id) is None
 
 
-def env_entry_point(env_id: str):
-    """The class Gymnasium has registered for ``env_id`` (see :func:`auv_envs.env_class`)."""
-    return auv_envs.env_class(env_id)
-
-
 def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
     """The observation modes environment ``env_id`` declares (``None``: not declared).
 
     Raises:
         KeyError: ``env_id`` is not registered with Gymnasium.
     """
-    modes = getattr(env_entry_point(env_id), "obs_modes", None)
+    modes = getattr(auv_envs.env_class(env_id), "obs_modes", None)
     return tuple(modes) if modes else None
 
 

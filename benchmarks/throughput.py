@@ -26,13 +26,9 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402
+from baselines.registry import env_obs_modes  # noqa: E402
 
 IMAGE_MODES = ("image", "stereo")
-
-
-def declared_obs_modes(env_id: str) -> tuple[str, ...]:
-    """The observation modes an environment class declares (its ``obs_modes``)."""
-    return tuple(auv_envs.env_class(env_id).obs_modes)
 
 
 class Stepper:
@@ -103,7 +99,7 @@ def main(argv=None) -> None:
     print("|---|---|---|---|---|---|---|---|")
     best_reference = 0.0
     for env_id in args.envs:
-        for mode in declared_obs_modes(env_id):
+        for mode in env_obs_modes(env_id):
             image = mode in IMAGE_MODES
             kwargs = {"image_size": (320, 240)} if image else {}
             n = max(200, args.steps // 10) if image else args.steps
