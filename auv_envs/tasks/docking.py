@@ -477,7 +477,6 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         if obs_mode == "image" or render_mode == "rgb_array":
             self._renderer = CameraRenderer(model, (self._physics.camera_name,), width, height)
         self._episode = _EpisodeState()
-        self._last_obs_parts: dict | None = None
 
     # ------------------------------------------------------------------ spaces
     def _make_observation_space(self, n: int, width: int, height: int) -> spaces.Space:
