@@ -128,7 +128,7 @@ def export_sequence(
             records["corners_visible"].append(info["true_visible"])
             records["corners_world"].append(info["true_corners"])
             records["corners_left_cam"].append(
-                (info["true_corners"] - left_pose[:3, 3]) @ left_pose[:3, :3]
+                points_in_camera(info["true_corners"], left_pose[:3, 3], left_pose[:3, :3])
             )
             records["occluded"].append(info["marker_occluded"])
             records["distractors"].append(info["distractors_in_view"])
