@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import cv2
+import mujoco
 import numpy as np
 import pytest
 
@@ -15,6 +16,7 @@ from auv_envs.tasks.lars_scene import (
     MOTION_RANGES,
     MarkerGeometry,
     marker_pitch_yaw,
+    sample_motion,
     uniform_draws,
 )
 
@@ -157,3 +159,15 @@ def test_uniform_draws_are_the_scalar_uniform_stream(seed):
     assert drawn == expected  # bit-identical, Python floats
     assert all(type(v) is float for v in drawn)
     assert batched.random() == scalar.random()
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_auv_quaternion_is_its_rotation(seed):
+    """``AUVMotion.quaternion`` (the rendered hull's pose) is ``rotation()`` (the marker and
+    capture point's), nose-up pitch included."""
+    motion = sample_motion(np.random.default_rng(seed))
+    mat = np.empty(9)
+    mujoco.mju_quat2Mat(mat, motion.quaternion())
+    np.testing.assert_allclose(mat.reshape(3, 3), motion.rotation(), atol=1e-12)
+    # Nose up (positive pitch): the bow (body +x) rises.
+    assert np.sign(motion.rotation()[2, 0]) == np.sign(motion.pitch) != 0

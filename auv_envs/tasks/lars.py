@@ -16,7 +16,6 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
@@ -603,9 +602,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in g["corners"]]
         corners = [x for point in points for x in point]
         b = self._baseline
-        left_px, vis_left = project_few(self._intrinsics, points, (camx, camy, camz), rows)
-        right_px, vis_right = project_few(self._intrinsics, points,
-                                          (camx + b * c, camy + b * s, camz), rows)
+        left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
+        left_px, vis_left = project_few(self._intrinsics, points, left_cam, rows)
+        right_px, vis_right = project_few(self._intrinsics, points, right_cam, rows)
         left = [x for uv in left_px for x in uv]
         right = [x for uv in right_px for x in uv]
 
@@ -614,8 +613,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         if ep.wash is not None:
             crest = self._crest_centre(t, (px, py, pz), level)
             if crest is not None and (any(vis_left) or any(vis_right)):
-                cams = np.array([[camx, camy, camz],
-                                 [camx + self._baseline * c, camy + self._baseline * s, camz]])
+                cams = np.array([left_cam, right_cam])
                 hidden_left, hidden_right = segments_cross_box(
                     cams[:, None, :], np.array(corners).reshape(1, 3, 3), crest,
                     ep.wash.half_size,
@@ -623,7 +621,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                 occluded = any(hidden_left) or any(hidden_right)
                 vis_left = [v and not h for v, h in zip(vis_left, hidden_left, strict=True)]
                 vis_right = [v and not h for v, h in zip(vis_right, hidden_right, strict=True)]
-            distractors = self._count_distractors(t, (px, py, pz), (camx, camy, camz), c, s)
+            distractors = self._count_distractors(t, (px, py, pz), left_cam, rows)
 
         # Capture tip vs the AUV: capture point offset and hull penetration.
         tx, ty, tz = ex, ey, ez + self._tip_z
@@ -671,14 +669,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                   level + self._geom["z_centre"])
         return centre, analog.yaw
 
-    def _count_distractors(self, t, pos, cam, c, s) -> int:
-        """Analogs whose marker centre projects into the left image."""
+    def _count_distractors(self, t, pos, cam, rows) -> int:
+        """Analogs whose marker centre projects into the left image (camera centre ``cam``,
+        camera -> world ``rows`` of :meth:`_camera_rows`)."""
         mx, mz = self._analog_centre
         centres = []
         for analog in self._episode.analogs:
             (ax, ay, az), yaw = self._analog_pose(analog, t, pos)
             centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
-        return sum(project_few(self._intrinsics, centres, cam, self._camera_rows(c, s))[1])
+        return sum(project_few(self._intrinsics, centres, cam, rows)[1])
 
     @staticmethod
     def _camera_rows(c: float, s: float) -> tuple:
@@ -741,8 +740,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         level = pos[2] - self._geom["z_centre"]
         q = phys.data.qpos
         phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
-        m = ep.motion
-        phys.pose("auv", pos, frames.quat_from_euler(0.0, -m.pitch, m.yaw))
+        phys.pose("auv", pos, ep.motion.quaternion())
         half = 0.5 * float(q[0])
         phys.pose(
             "head", self._arm.forward_kinematics(q), (math.cos(half), 0.0, 0.0, math.sin(half))

@@ -141,6 +141,10 @@ class AUVMotion:
         """Body-to-world rotation (see :func:`auv_rotation`)."""
         return auv_rotation(self.pitch, self.yaw)
 
+    def quaternion(self) -> np.ndarray:
+        """The same rotation as a MuJoCo ``(w, x, y, z)`` quaternion (same pitch sign)."""
+        return frames.quat_from_euler(0.0, -self.pitch, self.yaw)
+
 
 #: Documented randomisation ranges of :class:`AUVMotion` (``reset`` draws
 #: uniformly; ``options`` may pin any of them).
