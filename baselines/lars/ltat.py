@@ -880,9 +880,12 @@ def find_marker_pair(extractor: MarkerCornerExtractor, left: np.ndarray, right: 
     right_candidates = extractor.candidates(right)  # searched once, not per left candidate
     for cl in extractor.candidates(left):
         for cr in right_candidates:
-            if not match_stereo(cl, cr, rig, sides, row_tolerance, size_tolerance):
+            # match_stereo's checks, with the size error (a triangulation) computed once
+            if rectified_check(cl, cr, rig, row_tolerance) != "ok":
                 continue
             err = marker_size_error(cl, cr, rig, sides)
+            if err > size_tolerance:
+                continue
             if err < best_err:
                 best, best_err = np.stack([cl, cr]), err
     return best
