@@ -4,7 +4,7 @@ Importing the package registers every environment::
 
     import gymnasium as gym
     import auv_envs  # noqa: F401
-    env = gym.make("auv_envs/DockingStation-v0", obs_mode="features")
+    env = gym.make("auv_envs/DockingStation-v1", obs_mode="features")
 """
 
 from __future__ import annotations
@@ -24,17 +24,33 @@ __version__ = "0.1.0"
 
 #: Every environment id this package registers, with its entry point.
 ENVIRONMENTS = {
-    "auv_envs/DockingStation-v0": "auv_envs.tasks.docking:DockingStationEnv",
-    "auv_envs/LampArrayDocking-v0": "auv_envs.tasks.docking:LampArrayDockingEnv",
+    "auv_envs/DockingStation-v1": "auv_envs.tasks.docking:DockingStationEnv",
+    "auv_envs/LampArrayDocking-v1": "auv_envs.tasks.docking:LampArrayDockingEnv",
     "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic:AcousticTrackingEnv",
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars:LARSCaptureEnv",
 }
 
-for _env_id, _entry_point in ENVIRONMENTS.items():
+#: Superseded versions, still registered so that published results stay
+#: reproducible: id -> (entry point, the keywords that give the old behaviour).
+#: Agents, the leaderboard and the tests use :data:`ENVIRONMENTS`.
+PREVIOUS_VERSIONS = {
+    # v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
+    "auv_envs/DockingStation-v0": (
+        "auv_envs.tasks.docking:DockingStationEnv", {"integrator": "euler", "physics_substeps": 2}
+    ),
+    "auv_envs/LampArrayDocking-v0": (
+        "auv_envs.tasks.docking:LampArrayDockingEnv", {"integrator": "euler", "physics_substeps": 2}
+    ),
+}
+
+for _env_id, (_entry_point, _kwargs) in {
+    **{env_id: (entry, {}) for env_id, entry in ENVIRONMENTS.items()},
+    **PREVIOUS_VERSIONS,
+}.items():
     if _env_id not in registry:
         # Time limits are handled inside each env so that the episode summary
         # in ``info`` is written on truncation too.
-        register(id=_env_id, entry_point=_entry_point, disable_env_checker=False)
+        register(id=_env_id, entry_point=_entry_point, kwargs=_kwargs, disable_env_checker=False)
 
 
 def env_class(env_id: str):

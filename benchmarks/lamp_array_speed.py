@@ -29,7 +29,7 @@ from baselines.registry import make_agent  # noqa: E402
 from baselines.vision.lamp_array import LampArrayFrontEnd, segment_lamps  # noqa: E402
 
 TARGET_FPS = 100.0
-ENV_IDS = ("auv_envs/LampArrayDocking-v0", "auv_envs/DockingStation-v0")
+ENV_IDS = ("auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1")
 
 
 def approach_frames(env_id: str, frames: int, seed: int = 100_000) -> tuple[list[dict], object]:

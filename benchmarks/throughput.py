@@ -10,8 +10,8 @@ noisy, so only the ratio means much). Targets
 
     python benchmarks/throughput.py [--steps N] [--repeats R] [--envs ID ...]
 
-The issue's check: ``--steps 2000 --envs auv_envs/DockingStation-v0
-auv_envs/LampArrayDocking-v0``.
+The issue's check: ``--steps 2000 --envs auv_envs/DockingStation-v1
+auv_envs/LampArrayDocking-v1``.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """Reproduce seed 002's tracking evaluation: the lamp-array front end under occlusion, CLEAR MOT.
 
     PYTHONPATH=. python scripts/reproduce_seed002.py [--seeds 5] [--frames 600]
-        [--scenario mismatch] [--threshold 20] [--env auv_envs/LampArrayDocking-v0]
+        [--scenario mismatch] [--threshold 20] [--env auv_envs/LampArrayDocking-v1]
 
 Seed 002 §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
 were out of view and reported PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px (Table 4).
 
-Here each sequence is a seeded ``LampArrayDocking-v0`` episode in ``image`` mode (640x480).
+Here each sequence is a seeded ``LampArrayDocking-v1`` episode in ``image`` mode (640x480).
 A privileged pilot -- the ``pd-state`` reference controller steered to seeded waypoints and
 headings (see :func:`pilot_action`) -- first closes to the array from above, then makes
 excursions that turn and drop the camera so that lamps leave the view and come back. The
@@ -17,7 +17,7 @@ station); the tracker's hypotheses are the lamps it reports visible, with their 
 
 Two scores are printed: from the frame where the front end initialised its tracks (seed 002
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
-(the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v0``
+(the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v1``
 runs the same evaluation on the six docking lights (the ring identity rule).
 """
 
@@ -35,8 +35,8 @@ from auv_envs.metrics import clear_mot_labelled
 from baselines.agents.pd_docking import DockingPDAgent
 from baselines.vision.lamp_array import LampArrayFrontEnd
 
-ENV_ID = "auv_envs/LampArrayDocking-v0"
-ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v0")
+ENV_ID = "auv_envs/LampArrayDocking-v1"
+ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v1")
 #: Seed 002 Table 4 (targets) and its precision-plot threshold (Fig. 11: > 90 % at 13 px).
 PAPER = {"prcn": 0.9976, "mota": 0.8465, "motp_px": 13.24, "occluded": 0.3306}
 PRECISION_PLOT_PX = 13.0

@@ -3,7 +3,7 @@
     PYTHONPATH=. python scripts/reproduce_seed003.py [--out results/seed003] [--seed 100000]
 
 Scenario 1 (``scenario="mismatch"``: damping mismatch only, no noise, no
-current), ``DockingStation-v0`` (``--env`` picks ``LampArrayDocking-v0``):
+current), ``DockingStation-v1`` (``--env`` picks ``LampArrayDocking-v1``):
 
 * both agents dock; plots of the 3-D trajectories, the outputs (x, y, z, psi
   against time, with the allowable deviations) and the disturbance estimates
@@ -51,7 +51,7 @@ from auv_envs.tasks.docking import (  # noqa: E402
 from baselines.docking.agents import OFNMPCAgent  # noqa: E402
 from baselines.registry import agent_names, make_agent  # noqa: E402
 
-ENV_ID = "auv_envs/DockingStation-v0"
+ENV_ID = "auv_envs/DockingStation-v1"
 OBSERVERS = ("ekf", "mhe")
 DIRECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)
 
@@ -270,7 +270,7 @@ def plot_disturbances(traces: dict, path: Path,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/seed003"))
-    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v0"])
+    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v1"])
     parser.add_argument("--seed", type=int, default=100_000)
     parser.add_argument("--hold", type=float, default=40.0,
                         help="station-keeping seconds for the steady-state estimate")

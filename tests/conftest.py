@@ -17,7 +17,7 @@ import pytest  # noqa: E402
 import auv_envs  # noqa: E402
 
 ENV_IDS = tuple(auv_envs.ENVIRONMENTS)
-DOCKING_IDS = ("auv_envs/DockingStation-v0", "auv_envs/LampArrayDocking-v0")
+DOCKING_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
 #: Observation modes that render images; the tests shrink them.
 IMAGE_MODES = ("image", "stereo")
 #: Small images keep the image-mode tests fast; the pipeline is the same.

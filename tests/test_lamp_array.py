@@ -30,7 +30,7 @@ from baselines.vision.lamp_array import (
 )
 from tests.conftest import DOCKING_IDS
 
-LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v0", "auv_envs/DockingStation-v0"
+LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1"
 N_FRAMES = 24
 
 

@@ -68,7 +68,7 @@ def test_tiny_run_writes_every_output(tiny_run):
     md = (tiny_run / "leaderboard.md").read_text()
     assert f"## {DOCK}" in md and f"## {LARS}" in md
     assert "| pd-state | state | time_limit=20 | 2 |" in md
-    assert "supports only" in md and "(plots/DockingStation-v0.png)" in md
+    assert "supports only" in md and "(plots/DockingStation-v1.png)" in md
     for env_id in (DOCK, LARS):
         png = tiny_run / "plots" / f"{env_id.split('/')[1]}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -26,8 +26,8 @@ from auv_envs.core.camera import (
 from auv_envs.core.env import validate_action
 from tests.conftest import make_env
 
-SIX = "auv_envs/DockingStation-v0"
-LAMPS = "auv_envs/LampArrayDocking-v0"
+SIX = "auv_envs/DockingStation-v1"
+LAMPS = "auv_envs/LampArrayDocking-v1"
 
 
 def _random_rotation(rng):

@@ -7,12 +7,19 @@ The equations of motion (Fossen 2021, eq. 10.1, body frame, origin at the CG)::
 
 with ``nu_r = nu - nu_c`` the velocity relative to an irrotational current.
 MuJoCo integrates the rigid body (``M_RB``, ``C_RB``) itself. Everything else
-is computed here and applied as an external wrench, including the added-mass
+is computed here and added as a generalized force, including the added-mass
 *acceleration* term ``-M_A nu_r_dot``, which MuJoCo never applies: because
 ``M_A`` is diagonal and constant, the body acceleration that the full equation
-implies can be solved in closed form at every physics step before the wrench
-is applied (:meth:`HullForceModel.apply`), so the acceleration term is exact
-rather than lagged by one step.
+implies can be solved in closed form from the state before the wrench is
+applied (:meth:`HullForceModel.wrench`), so the acceleration term is exact
+rather than lagged.
+
+Integration: the plant steps with MuJoCo's classical RK4 and the wrench is
+re-evaluated at every stage through MuJoCo's passive-force callback
+(:meth:`HullForceModel.passive_force`, dispatched per ``MjData`` by
+:mod:`auv_envs.core.passive`), so the plant is a fourth-order integration of
+the equation above. ``docs/physics.md`` gives the step and its measured error
+against an independent reference.
 
 :func:`hydrodynamic_force` and :func:`rigid_body_coriolis` are written with
 scalar arithmetic and an ``ops`` module (``math``, ``numpy`` or ``casadi``)
@@ -72,7 +79,7 @@ def hydrodynamic_force(params: VehicleParams, nu_r: Sequence, gravity_body: Sequ
     xb, yb, zb = params.cb_offset
     w_minus_b = weight - buoyancy
     # restoring - coriolis - damping, written out per DOF (a loop over the six
-    # costs more than the arithmetic when this runs twice per env step).
+    # costs more than the arithmetic when this runs four times per env step).
     return (
         w_minus_b * gx - coriolis[0] - (dl0 + dq0 * abs(u)) * u,
         w_minus_b * gy - coriolis[1] - (dl1 + dq1 * abs(v)) * v,
@@ -95,7 +102,8 @@ def rigid_body_coriolis(params: VehicleParams, nu: Sequence) -> tuple:
 class HullForceModel:
     """Computes and applies the hydrodynamic wrench on one free MuJoCo body.
 
-    The body must have a free joint, its inertial frame at the body origin,
+    The body must carry a free joint (its own or its parent's, with the body's
+    frame at the joint's frame), its inertial frame at the body origin,
     ``gravcomp="1"`` (weight and buoyancy are applied here as restoring
     forces) and mass/inertia equal to ``params``.
     """
@@ -106,9 +114,11 @@ class HullForceModel:
         self.qvel_adr = qvel_adr
         total = params.inertia_with_added_mass
         self._rigid = (total[:3], total[3:])
-        # Views into the last MjData seen by apply() (MjData's array properties
+        # Views into the last MjData seen by passive_force() (MjData's array properties
         # build a new view on every access, which costs more than the arithmetic).
         self._views: tuple | None = None
+        self._tau: Sequence = (0.0,) * 6
+        self._current: Sequence = (0.0,) * 3
 
     def wrench(
         self, rotation: Sequence, qvel6: Sequence, tau_body: Sequence, current_world: Sequence
@@ -116,7 +126,8 @@ class HullForceModel:
         """Total body-frame wrench (thrust + hydrodynamics incl. acceleration term).
 
         Pure-Python float arithmetic, written out per axis: at this size it is
-        several times faster than NumPy or a loop, and it runs twice per env step.
+        several times faster than NumPy or a loop, and it runs at every stage of
+        the integrator (four times per env step).
 
         With ``f = tau + f_h`` (:func:`hydrodynamic_force`) and ``nu_c_dot =
         -w x nu_c`` (a constant world current seen from the rotating body), the
@@ -166,25 +177,44 @@ class HullForceModel:
             f5 - a5 * (f5 - k5) / ma2,
         )
 
-    def apply(self, model, data, tau_body: Sequence, current_world: Sequence) -> None:
-        """Write the wrench for the state in ``data`` (after ``mj_step1``) to ``xfrc_applied``."""
+    def command(self, tau_body: Sequence, current_world: Sequence) -> None:
+        """Hold a commanded generalized force and a current for the next step(s).
+
+        Args:
+            tau_body: commanded generalized force in the body frame (6 floats).
+            current_world: uniform current velocity in the world frame (3 floats).
+        """
+        self._tau = tau_body
+        self._current = current_world
+
+    def passive_force(self, model, data) -> None:
+        """Add the wrench at the state in ``data`` to ``data.qfrc_passive``.
+
+        The ``mjcb_passive`` hook (:mod:`auv_envs.core.passive`): MuJoCo calls
+        it at every evaluation of the dynamics, so with ``integrator="RK4"``
+        the hull wrench is re-evaluated at each of the four stages. For the
+        free joint the generalized force is the world-frame force at the CG
+        (translational dofs) and the body-frame torque (rotational dofs).
+        """
         del model
         views = self._views
         if views is None or views[0] is not data:
             adr, body = self.qvel_adr, self.body_id
-            views = (data, data.xmat[body], data.qvel[adr : adr + 6], data.xfrc_applied[body])
+            views = (data, data.xmat[body], data.qvel[adr : adr + 6],
+                     data.qfrc_passive[adr : adr + 6])
             self._views = views
-        _, xmat, qvel, xfrc = views
+        _, xmat, qvel, qfrc = views
         rot = xmat.tolist()
-        f0, f1, f2, m0, m1, m2 = self.wrench(rot, qvel.tolist(), tau_body, current_world)
+        f0, f1, f2, m0, m1, m2 = self.wrench(rot, qvel.tolist(), self._tau, self._current)
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
-        xfrc[:] = (
-            r00 * f0 + r01 * f1 + r02 * f2,
-            r10 * f0 + r11 * f1 + r12 * f2,
-            r20 * f0 + r21 * f1 + r22 * f2,
-            r00 * m0 + r01 * m1 + r02 * m2,
-            r10 * m0 + r11 * m1 + r12 * m2,
-            r20 * m0 + r21 * m1 + r22 * m2,
+        g0, g1, g2, g3, g4, g5 = qfrc.tolist()
+        qfrc[:] = (
+            g0 + r00 * f0 + r01 * f1 + r02 * f2,
+            g1 + r10 * f0 + r11 * f1 + r12 * f2,
+            g2 + r20 * f0 + r21 * f1 + r22 * f2,
+            g3 + m0,
+            g4 + m1,
+            g5 + m2,
         )
 
 

@@ -27,7 +27,7 @@ Our choices where seed 002 is silent, each measured on this package's renders:
 * The lamp centre is the centre of the blob's minimum enclosing circle, not its first moment: a
   lamp is a sphere whose silhouette is a disc, and the circle through its outermost points is
   unchanged when a structure hides less than half of it (the rail under the lamps of
-  ``LampArrayDocking-v0`` clips their lower edge; the first moment was then 1.1-1.2 px off the
+  ``LampArrayDocking-v1`` clips their lower edge; the first moment was then 1.1-1.2 px off the
   projected centre, the circle centre <= 0.5 px).
 * The rigid-array prediction comes from a small EKF on the camera position, fed by the INS
   attitude and DVL velocity that the observation carries and by the tracked lamps; each update
