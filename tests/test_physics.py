@@ -419,3 +419,36 @@ def test_full_thrust_for_100_s_stays_bounded(plant, action):
     assert max_tilt < math.radians(30.0), math.degrees(max_tilt)
     # Surge terminal speed with 80 N alone is ~1.48 m/s; nothing runs away.
     assert max_speed < 2.0
+
+
+# ------------------------------------------------------------------ i. contact gate
+def _funnel_run(env, gate: bool):
+    """A run from open water into a funnel plate; per step (qpos, qvel, contacts, gated)."""
+    phys = env._physics
+    phys.set_state((-4.0, 0.55, 0.0), (0.0, 0.0, 0.0), (0.6, 0.0, 0.0, 0.0, 0.0, 0.0))
+    rows = []
+    for _ in range(60):
+        if gate:
+            phys.skip_contacts_if_clear(env.dt)
+        else:
+            phys.model.opt.disableflags = 0
+        _substeps(env, (60.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        rows.append((phys.data.qpos.copy(), phys.data.qvel.copy(), phys.data.ncon,
+                     bool(phys.model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)))
+    return rows
+
+
+def test_contact_gate_is_exact_and_opens_near_the_station(plant):
+    gated = _funnel_run(plant, gate=True)
+    plant.reset(seed=0)
+    ungated = _funnel_run(plant, gate=False)
+    # The hull reaches the funnel: contacts happen, and the gate is open at those steps.
+    contact_steps = [k for k, row in enumerate(ungated) if row[2] > 0]
+    assert contact_steps
+    assert not any(gated[k][3] for k in contact_steps)
+    # Far from the station (the first steps) the collision stage is skipped ...
+    assert gated[0][3]
+    # ... and the trajectory is the same to the bit.
+    for (q1, v1, *_), (q2, v2, *_) in zip(gated, ungated, strict=True):
+        np.testing.assert_array_equal(q1, q2)
+        np.testing.assert_array_equal(v1, v2)

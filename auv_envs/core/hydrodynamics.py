@@ -38,10 +38,6 @@ import numpy as np
 from auv_envs.core.vehicle import VehicleParams
 
 
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
 def hydrodynamic_force(params: VehicleParams, nu_r: Sequence, gravity_body: Sequence) -> tuple:
     """Applied hydrodynamic + restoring wrench, without the added-mass acceleration term.
 
@@ -91,12 +87,21 @@ def hydrodynamic_force(params: VehicleParams, nu_r: Sequence, gravity_body: Sequ
 
 
 def rigid_body_coriolis(params: VehicleParams, nu: Sequence) -> tuple:
-    """``C_RB(nu) nu`` with the origin at the CG: ``[m w x v; w x (I w)]``."""
-    lin, ang = nu[0:3], nu[3:6]
+    """``C_RB(nu) nu`` with the origin at the CG: ``[m w x v; w x (I w)]``.
+
+    The cross products are written out: this runs at every integrator stage.
+    """
+    u, v, w, p, q, r = nu
     m = params.mass
-    i_w = (params.inertia[0] * ang[0], params.inertia[1] * ang[1], params.inertia[2] * ang[2])
-    c_lin = _cross(ang, lin)
-    return (m * c_lin[0], m * c_lin[1], m * c_lin[2], *_cross(ang, i_w))
+    ix, iy, iz = params.inertia
+    return (
+        m * (q * w - r * v),
+        m * (r * u - p * w),
+        m * (p * v - q * u),
+        (iz - iy) * q * r,
+        (ix - iz) * r * p,
+        (iy - ix) * p * q,
+    )
 
 
 class HullForceModel:

@@ -15,6 +15,7 @@ of a slender body are neglected; documented simplification).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 from auv_envs.core.frames import GRAVITY
@@ -93,12 +94,14 @@ class VehicleParams:
     thrust_limits: tuple[float, float, float, float]
     rho: float = SEAWATER_DENSITY
 
-    @property
+    # Cached: the plant reads both at every integrator stage (a frozen dataclass
+    # keeps them valid; dataclasses.replace builds a new instance).
+    @functools.cached_property
     def weight(self) -> float:
         """W = m g, N."""
         return self.mass * GRAVITY
 
-    @property
+    @functools.cached_property
     def buoyancy(self) -> float:
         """B = W + (B - W), N."""
         return self.weight + self.net_buoyancy
