@@ -11,7 +11,11 @@ the 0.3 m/s current; measured 1e-5 m, 0.001 deg, 1e-4 m/s (docs/physics.md).
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import gymnasium as gym
+import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401  (registers the environments)
@@ -75,3 +79,22 @@ def test_plant_error_falls_at_the_order_of_its_integrator():
         assert 1.6 < errors["euler", k] / errors["euler", 2 * k] < 2.5, errors
     # The v0 plant (euler, 2 substeps) is centimetres off; v1 a thousand times closer.
     assert errors["euler", 2] > 1e3 * errors["rk4", 1]
+
+
+def test_v0_ids_keep_the_first_plant():
+    """``-v0`` still integrates as the first release did (semi-implicit Euler,
+    two 0.05 s steps): states recorded with that release's code (commit fd64f73)."""
+    recorded = json.loads((Path(__file__).parent / "data" / "docking_v0_plant.json").read_text())
+    for run in recorded["runs"]:
+        env = gym.make(run["env_id"], obs_mode="state", scenario=run["scenario"])
+        try:
+            env.reset(seed=run["seed"])
+            states = []
+            for action in np.array(run["actions"], dtype=np.float32):
+                _, _, _, _, info = env.step(action)
+                states.append(np.concatenate(
+                    [info["true_position"], info["true_euler"], info["true_velocity"]]))
+        finally:
+            env.close()
+        # Round-off only: the wrench now enters as a generalized force, not xfrc_applied.
+        np.testing.assert_allclose(np.array(states), np.array(run["states"]), rtol=0, atol=1e-11)

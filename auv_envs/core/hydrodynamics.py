@@ -17,9 +17,8 @@ rather than lagged.
 Integration: the plant steps with MuJoCo's classical RK4 and the wrench is
 re-evaluated at every stage through MuJoCo's passive-force callback
 (:meth:`HullForceModel.passive_force`, dispatched per ``MjData`` by
-:mod:`auv_envs.core.passive`), so the plant is a fourth-order integration of
-the equation above. ``docs/physics.md`` gives the step and its measured error
-against an independent reference.
+:mod:`auv_envs.core.passive`). ``docs/physics.md`` gives the step, the order
+of convergence and the measured error against an independent reference.
 
 :func:`hydrodynamic_force` and :func:`rigid_body_coriolis` are written with
 scalar arithmetic and an ``ops`` module (``math``, ``numpy`` or ``casadi``)

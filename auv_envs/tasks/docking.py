@@ -60,8 +60,8 @@ SCENARIO_ATTITUDE_NOISE = math.radians(0.2)
 #: stage; ``docs/physics.md`` gives its error against an independent reference.
 CONTROL_PERIOD = 0.1
 #: Plant integrators: ``"rk4"`` (v1) and ``"euler"`` (MuJoCo's semi-implicit
-#: Euler, the v0 plant: first order, 0.1-0.5 m from the converged solution
-#: after 10 s at its 0.05 s step).
+#: Euler, the v0 plant: first order, centimetres and degrees from the converged
+#: solution after 10 s at its 0.05 s step; ``docs/physics.md``).
 INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4, "euler": mujoco.mjtIntegrator.mjINT_EULER}
 
 
@@ -197,8 +197,10 @@ class _StaticScenery:
     def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, hull_body: int):
         hull_root = model.body_rootid[hull_body]
         collidable = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+        # Radius about the hull's origin (the CG) of a sphere holding every hull geom.
         self.hull_radius = float(
-            max(model.geom_rbound[g] for g in range(model.ngeom)
+            max(np.linalg.norm(model.geom_pos[g]) + model.geom_rbound[g]
+                for g in range(model.ngeom)
                 if model.body_rootid[model.geom_bodyid[g]] == hull_root and collidable[g])
         )
         self.planes: list[tuple[float, ...]] = []  # (nx, ny, nz, offset): n . p - offset
@@ -284,7 +286,7 @@ class _Physics:
 
         With no contact possible the constraint stage has nothing to do: the
         step is the same to the bit, and each of RK4's four stages skips
-        collision detection (a sixth of an env step's cost).
+        collision detection (about a fifth of the plant's cost).
         """
         x, y, z = self._pos.tolist()
         vx, vy, vz, wx, wy, wz = self._qvel.tolist()
@@ -453,9 +455,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
 
     **Version history.** v1: the plant integrates its equations with
     classical RK4 (one 0.1 s step, hull wrench re-evaluated at every stage)
-    instead of semi-implicit Euler at 0.05 s, which was 0.1-0.5 m and up to
-    several degrees from their converged solution after 10 s. v0: initial
-    release; still registered (``integrator="euler"``, ``physics_substeps=2``).
+    instead of semi-implicit Euler at 0.05 s, which was centimetres and
+    degrees from their converged solution after 10 s (``docs/physics.md``).
+    v0: initial release; still registered (``integrator="euler"``,
+    ``physics_substeps=2``).
     """
 
     metadata = {
