@@ -153,3 +153,16 @@ def test_time_limit_must_be_a_positive_finite_number(env_id, bad):
 def test_docking_lights_lost_timeout_must_be_a_positive_finite_number(env_id, bad):
     with pytest.raises(ValueError, match="lights_lost_timeout must be"):
         make_env(env_id, "state", lights_lost_timeout=bad)
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+@pytest.mark.parametrize("bad", [0, -1, 1.5, 2.0, True, "2", None])
+def test_docking_physics_substeps_must_be_a_positive_integer(env_id, bad):
+    with pytest.raises(ValueError, match="physics_substeps must be a positive integer"):
+        make_env(env_id, "state", physics_substeps=bad)
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_docking_rejects_an_unknown_integrator(env_id):
+    with pytest.raises(ValueError, match="unknown integrator 'implicit'.*'rk4', 'euler'"):
+        make_env(env_id, "state", integrator="implicit")

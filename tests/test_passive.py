@@ -100,6 +100,36 @@ def test_envs_stepping_in_threads_match_sequential_runs():
         np.testing.assert_array_equal(got, want)
 
 
+def test_models_compile_in_one_thread_while_another_steps():
+    """MuJoCo's compiler evaluates passive forces on internal data with no
+    Python object: without the shared lock it fails while a docking env steps."""
+    stop = threading.Event()
+    errors: list = []
+
+    def stepping():
+        env = gym.make(DOCKING_IDS[0], obs_mode="state")
+        try:
+            env.reset(seed=0)
+            while not stop.is_set():
+                _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                if terminated or truncated:
+                    env.reset()
+        except Exception as exc:  # reported below, not lost in the thread
+            errors.append(exc)
+        finally:
+            env.close()
+
+    thread = threading.Thread(target=stepping)
+    thread.start()
+    try:
+        for env_id in (*DOCKING_IDS, "auv_envs/AcousticTracking-v0") * 3:
+            gym.make(env_id, obs_mode="state").close()
+    finally:
+        stop.set()
+        thread.join()
+    assert not errors, errors
+
+
 def test_no_callback_left_installed_for_other_models():
     env = gym.make(DOCKING_IDS[0], obs_mode="state")
     try:

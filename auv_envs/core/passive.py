@@ -12,6 +12,14 @@ is being stepped, and the dispatcher looks the force up by the ``MjData``
 being integrated: several environments in one process, vector envs and
 threads each get their own force, and every other MuJoCo model in the
 process (e.g. Gymnasium's own environments) never sees the callback.
+
+One process-wide lock is held for each such step and for every model
+``auv_envs`` compiles (:func:`compile_model`): MuJoCo's compiler evaluates
+passive forces on internal data that has no Python object, and an installed
+callback cannot be called with it (the compile fails). So ``auv_envs`` envs
+may be built and stepped from several threads. Code outside ``auv_envs`` that
+compiles MuJoCo models, or runs ``mujoco.rollout``, in another thread *while*
+a docking env steps is not covered by the lock.
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ import mujoco
 #: A force callback: ``force(model, data)`` adds to ``data.qfrc_passive``.
 PassiveForce = Callable[[mujoco.MjModel, mujoco.MjData], None]
 
+#: Held while a model steps with a passive force and while auv_envs compiles a model.
 _LOCK = threading.Lock()
 #: id(MjData) -> the force of the model being stepped with that data.
 _FORCES: dict[int, PassiveForce] = {}
@@ -36,42 +45,49 @@ def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
 
 
 def _register(data: mujoco.MjData, force: PassiveForce) -> int:
+    """Install the dispatcher for ``data``'s force; the caller holds ``_LOCK``."""
     key = id(data)
-    with _LOCK:
-        if key in _FORCES:
-            raise RuntimeError("this MjData is already being stepped with a passive force")
-        if not _FORCES:
-            installed = mujoco.get_mjcb_passive()
-            if installed is not None and installed is not _dispatch:
-                raise RuntimeError(
-                    "another mjcb_passive callback is installed in this process; "
-                    "auv_envs' hydrodynamic plants need it (auv_envs.core.passive)"
-                )
-            mujoco.set_mjcb_passive(_dispatch)
-        _FORCES[key] = force
+    if key in _FORCES:
+        raise RuntimeError("this MjData is already being stepped with a passive force")
+    if not _FORCES:
+        installed = mujoco.get_mjcb_passive()
+        if installed is not None and installed is not _dispatch:
+            raise RuntimeError(
+                "another mjcb_passive callback is installed in this process; "
+                "auv_envs' hydrodynamic plants need it (auv_envs.core.passive)"
+            )
+        mujoco.set_mjcb_passive(_dispatch)
+    _FORCES[key] = force
     return key
 
 
 def _unregister(key: int) -> None:
-    with _LOCK:
-        del _FORCES[key]
-        if not _FORCES:
-            mujoco.set_mjcb_passive(None)
+    del _FORCES[key]
+    if not _FORCES:
+        mujoco.set_mjcb_passive(None)
 
 
 def step(model: mujoco.MjModel, data: mujoco.MjData, force: PassiveForce, nstep: int = 1) -> None:
     """``mj_step`` ``nstep`` times with ``force`` evaluated at every stage of the integrator."""
-    key = _register(data, force)
-    try:
-        mujoco.mj_step(model, data, nstep)
-    finally:
-        _unregister(key)
+    with _LOCK:
+        key = _register(data, force)
+        try:
+            mujoco.mj_step(model, data, nstep)
+        finally:
+            _unregister(key)
 
 
 def forward(model: mujoco.MjModel, data: mujoco.MjData, force: PassiveForce) -> None:
     """``mj_forward`` with ``force``: ``data.qacc`` is then the state's full acceleration."""
-    key = _register(data, force)
-    try:
-        mujoco.mj_forward(model, data)
-    finally:
-        _unregister(key)
+    with _LOCK:
+        key = _register(data, force)
+        try:
+            mujoco.mj_forward(model, data)
+        finally:
+            _unregister(key)
+
+
+def compile_model(xml: str, assets: dict | None = None) -> mujoco.MjModel:
+    """``MjModel.from_xml_string``, never while one of our models steps (see the module doc)."""
+    with _LOCK:
+        return mujoco.MjModel.from_xml_string(xml, assets=assets)

@@ -25,6 +25,7 @@ from dm_control import mjcf
 from gymnasium import spaces
 
 from auv_envs import metrics
+from auv_envs.core import passive
 from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray, Measurements
 from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
@@ -76,7 +77,7 @@ def build_tank_model() -> mujoco.MjModel:
     rig = mjcf.from_path(str(asset_path("acoustic/carrier_arm.xml")))
     rig.model = "rig"
     tank.worldbody.attach(rig)
-    return mujoco.MjModel.from_xml_string(tank.to_xml_string(), assets=tank.get_assets())
+    return passive.compile_model(tank.to_xml_string(), assets=tank.get_assets())
 
 
 @dataclasses.dataclass(frozen=True)

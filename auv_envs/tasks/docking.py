@@ -177,7 +177,7 @@ def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.
     arena.worldbody.attach(station)
     arena.worldbody.attach(vehicle).add("freejoint")
     xml = arena.to_xml_string()
-    return mujoco.MjModel.from_xml_string(xml, assets=arena.get_assets())
+    return passive.compile_model(xml, assets=arena.get_assets())
 
 
 #: Margins of :meth:`_Physics.skip_contacts_if_clear`: a speed the hull cannot
