@@ -91,7 +91,7 @@ class LearnerInfo(gym.Wrapper):
     SB3's ``DummyVecEnv`` deep-copies every info dict on every step, and the
     ``auv_envs`` infos carry ground truth for metrics (pixels, positions,
     per-step errors) that training never reads; copying it cost about an
-    eighth of PPO's time on ``DockingStation-v1`` (``benchmarks/ppo_speed.py``).
+    eighth of PPO's time on ``DockingStation-v0`` (``benchmarks/ppo_speed.py``).
     Only the training vector env uses this wrapper; evaluation sees full infos.
     """
 
