@@ -98,3 +98,25 @@ def test_v0_ids_keep_the_first_plant():
             env.close()
         # Round-off only: the wrench now enters as a generalized force, not xfrc_applied.
         np.testing.assert_allclose(np.array(states), np.array(run["states"]), rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_seabed_contact_still_ends_the_episode(env_id):
+    """Full downward thrust: the episode ends with a seabed failure when the hull
+    reaches the seabed, not before and not after passing through it."""
+    env = gym.make(env_id, obs_mode="state")
+    try:
+        _, info = env.reset(seed=91005)
+        seabed = env.unwrapped.calibration.seabed_z
+        radius = env.unwrapped.vehicle.diameter / 2.0
+        for _ in range(600):
+            _, _, terminated, truncated, info = env.step(np.array([0, 0, -1, 0], np.float32))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert terminated and not truncated
+    assert info["failure_reason"] == "seabed" and info["violation_seabed"]
+    # Level hull (roll, pitch small): its lowest point is within a few cm of the seabed.
+    lowest = info["true_position"][2] - radius
+    assert seabed - 0.05 < lowest <= seabed + 1e-9, (lowest, seabed)
