@@ -327,3 +327,26 @@ def env_plant_error(env, seed: int, command_seed: int, duration: float = 10.0) -
         travel=float(np.linalg.norm(position - start[0], axis=1).max()),
         steps=len(rows),
     )
+
+
+def acoustic_truth(disturbance: str, seed: int, duration: float, substeps: int) -> np.ndarray:
+    """The acoustic end effector's true positions over one episode (``info`` only).
+
+    Its plant is MuJoCo's own fluid model, for which this module has no
+    independent reference: it is compared with finer steps of itself.
+    """
+    import gymnasium as gym
+
+    env = gym.make("auv_envs/AcousticTracking-v0", obs_mode="state", disturbance=disturbance,
+                   time_limit=duration, physics_substeps=substeps)
+    try:
+        _, info = env.reset(seed=seed)
+        rows = [info["true_position"].copy()]
+        while True:
+            # The action is the agent's estimate; it does not act on the physics.
+            _, _, terminated, truncated, info = env.step(rows[-1].astype(np.float32))
+            rows.append(info["true_position"].copy())
+            if terminated or truncated:
+                return np.array(rows)
+    finally:
+        env.close()

@@ -37,6 +37,13 @@ def reject_unknown_kwargs(unknown: dict, valid: Iterable[str], env_name: str) ->
         )
 
 
+def check_positive_int(name: str, value) -> int:
+    """``value`` when it is an ``int`` of at least 1 (not a bool), else ``ValueError``."""
+    if isinstance(value, bool) or not (isinstance(value, int) and value >= 1):
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
 def check_image_size(image_size) -> tuple[int, int]:
     """``(width, height)`` of an ``image_size`` argument; ``ValueError`` unless it is two
     sizes of at least 8 pixels."""

@@ -33,6 +33,7 @@ from auv_envs.core.env import (
     ReconstructingPickleMixin,
     check_choice,
     check_image_size,
+    check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.rendering import CameraRenderer
@@ -511,12 +512,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
                             ("lights_lost_timeout", lights_lost_timeout)):
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
-        if isinstance(physics_substeps, bool) or not (
-            isinstance(physics_substeps, int) and physics_substeps >= 1
-        ):
-            raise ValueError(
-                f"physics_substeps must be a positive integer, got {physics_substeps!r}"
-            )
+        check_positive_int("physics_substeps", physics_substeps)
         if current_direction is not None and not math.isfinite(current_direction):
             raise ValueError(f"current_direction must be finite, got {current_direction}")
 
