@@ -5,7 +5,9 @@
                        [--out DIR] [--backend local|ray] [--ray-address ADDR] [--workers N]
 
 Writes ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json``
-and ``episodes.json`` under ``--out`` and prints the Markdown tables.
+and ``episodes.json`` under ``--out`` and prints one compact Markdown table per
+environment (``--verbose``: every column and the skipped pairs). Each cell is a
+mean with its 95 % interval; agents whose success intervals overlap share a rank.
 Finished episodes are cached under ``--out``/episodes (one file each), so a
 rerun, or a run after an interruption, only runs what is missing. The cache
 key includes a fingerprint of the package code and assets, so episodes of
@@ -106,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--agent-module", nargs="+", default=[], metavar="MODULE",
                         help="modules to import first (and in every worker) that register agents")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--verbose", action="store_true",
+                        help="print every headline column and the skipped pairs (the files "
+                             "always have them)")
     parser.add_argument("--list", action="store_true",
                         help="list the environments and agents (where each applies) and exit")
     return parser
@@ -194,7 +199,8 @@ def _main(argv=None) -> int:
         "auv_envs version": auv_envs.__version__,
     }
     paths = leaderboard.write(args.out, summary, run.skipped, run.rows, meta)
-    print(leaderboard.markdown(summary, run.skipped))
+    print(leaderboard.markdown(summary, run.skipped if args.verbose else (),
+                               compact=not args.verbose))
     stats = run.stats
     print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache, "
           f"{stats.failed} failed; wrote {paths['leaderboard.html']} and "

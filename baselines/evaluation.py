@@ -50,6 +50,7 @@ import auv_envs
 from auv_envs.core.assets import asset_root, sha256_file
 from baselines import registry
 from baselines.registry import agent_names, agent_spec
+from baselines.stats import bootstrap_interval, wilson_interval
 
 #: Evaluation seeds start here; training seeds (train.py) stay below it, so the
 #: two sets never overlap.
@@ -785,20 +786,35 @@ def evaluate(
 
 
 # --------------------------------------------------------------- aggregation
-def _stat(values: Sequence[float]) -> dict:
+#: Episode metrics that are signed deviations (either side of the target is a
+#: miss): the leaderboard averages their magnitudes, as ``<key>_abs``, so that a
+#: miss to the left does not cancel a miss to the right.
+SIGNED_METRICS = ("final_lateral_error", "final_vertical_error", "final_heading_error_deg")
+
+
+def _stat(values: Sequence[float], success: bool = False) -> dict:
+    """Mean, population std, n and a 95 % interval of the mean (Wilson for a
+    success rate, percentile bootstrap otherwise; ``None`` ends for one value)."""
     arr = np.asarray(values, dtype=float)
-    return {"mean": float(arr.mean()), "std": float(arr.std()), "n": int(arr.size)}
+    if success:
+        ci = wilson_interval(int(round(arr.sum())), arr.size)
+    else:
+        ci = bootstrap_interval(arr)
+    return {"mean": float(arr.mean()), "std": float(arr.std()), "n": int(arr.size),
+            "ci": [None if math.isnan(c) else c for c in ci]}
 
 
 def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
     """One leaderboard row per (env, obs mode, scenario, agent), in first-seen order.
 
-    ``metrics`` maps a name to ``{"mean", "std", "n"}`` (population std over
-    the ``n`` episodes that report it): ``success`` over every episode (a
+    ``metrics`` maps a name to ``{"mean", "std", "n", "ci"}`` (population std
+    over the ``n`` episodes that report it; ``ci`` the 95 % interval of the
+    mean, :func:`_stat`): ``success`` over every episode (a
     failed episode counts as no success), ``return`` and ``length`` and each
     numeric episode metric over the completed episodes (``docking_time`` only
     exists on success, so its ``n`` is the successful episodes). Booleans
-    count as 0/1. ``status`` is ``ok``, ``partial`` (some episodes failed) or
+    count as 0/1. Each of :data:`SIGNED_METRICS` also gets ``<key>_abs``, the
+    statistics of its magnitude. ``status`` is ``ok``, ``partial`` (some episodes failed) or
     ``failed``; ``errors`` lists the distinct errors.
     """
     groups: dict[tuple, list[EpisodeRow]] = {}
@@ -815,6 +831,8 @@ def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
             for key, value in r.metrics.items():
                 if _is_number(value) and math.isfinite(float(value)) and key != "success":
                     values.setdefault(key, []).append(float(value))
+                    if key in SIGNED_METRICS:
+                        values.setdefault(f"{key}_abs", []).append(abs(float(value)))
         failed = len(items) - len(done)
         reasons = collections.Counter(r.failure_reason for r in done if r.failure_reason)
         summary.append({
@@ -829,6 +847,6 @@ def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
             "errors": list(dict.fromkeys(r.error for r in items if r.error)),
             "failure_reasons": dict(sorted(reasons.items())),
             "env_kwargs": items[0].env_kwargs,
-            "metrics": {k: _stat(v) for k, v in values.items()},
+            "metrics": {k: _stat(v, success=k == "success") for k, v in values.items()},
         })
     return summary

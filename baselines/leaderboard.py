@@ -27,18 +27,20 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from baselines.evaluation import atomic_write, jsonable, row_to_dict
+from baselines.stats import tied_ranks
 
 #: Metrics shown in the tables and plots when an environment reports them:
-#: key -> (label, format, which way is better). The final deviations are
-#: signed (as the environments report them): closer to 0 is better.
+#: key -> (label, format, which way is better). The final deviations appear as
+#: magnitudes (``<key>_abs``, :data:`baselines.evaluation.SIGNED_METRICS`): a
+#: signed mean would let a miss to the left cancel a miss to the right.
 HEADLINE_METRICS: dict[str, tuple[str, str, str]] = {
     "success": ("success", ".0%", "higher"),
     "return": ("return", ".2f", "higher"),
     "docking_time": ("docking time s", ".1f", "lower"),
     "capture_time": ("capture time s", ".1f", "lower"),
-    "final_lateral_error": ("final lateral m", ".3f", "closer to 0"),
-    "final_vertical_error": ("final vertical m", ".3f", "closer to 0"),
-    "final_heading_error_deg": ("final heading deg", ".1f", "closer to 0"),
+    "final_lateral_error_abs": ("|final lateral| m", ".3f", "lower"),
+    "final_vertical_error_abs": ("|final vertical| m", ".3f", "lower"),
+    "final_heading_error_deg_abs": ("|final heading| deg", ".1f", "lower"),
     "final_capture_error": ("capture error m", ".3f", "lower"),
     "estimate_error_mean": ("estimate error mean m", ".3f", "lower"),
     "estimate_error_max": ("estimate error max m", ".3f", "lower"),
@@ -84,32 +86,87 @@ def _format(key: str, value: float) -> str:
 
 
 def cell_text(row: Mapping, key: str) -> str:
-    """``mean ± std`` of ``row``'s metric ``key`` (``–`` when not reported)."""
+    """``mean [95 % interval]`` of ``row``'s metric ``key`` (``–`` when not reported).
+
+    Success: ``rate (k/n) [Wilson interval]``; a metric of one episode has no
+    interval.
+    """
     stat = row["metrics"].get(key)
     if stat is None:
         return "–"
+    low, high = stat.get("ci") or (None, None)
     if key == "success":
-        return f"{stat['mean']:.0%} ({round(stat['mean'] * stat['n'])}/{stat['n']})"
-    if stat["n"] == 1:
+        text = f"{stat['mean']:.0%} ({round(stat['mean'] * stat['n'])}/{stat['n']})"
+        return text if low is None else f"{text} [{low:.0%}, {high:.0%}]"
+    if low is None:
         return _format(key, stat["mean"])
-    return f"{_format(key, stat['mean'])} ± {_format(key, stat['std'])}"
+    return f"{_format(key, stat['mean'])} [{_format(key, low)}, {_format(key, high)}]"
+
+
+#: What ranks an environment's agents: the first of these its rows report, with
+#: the direction that is better. Tracking tasks rank by RMSE (every tracker
+#: "succeeds" at following the target); the others by success rate.
+RANK_METRICS = (("rmse", "lower"), ("success", "higher"))
+
+
+def rank_metric(rows: Sequence[Mapping]) -> tuple[str, str]:
+    """``(metric, better)`` that ranks ``rows`` (one environment's)."""
+    present = {k for r in rows for k in r["metrics"]}
+    return next(((k, d) for k, d in RANK_METRICS if k in present), ("success", "higher"))
+
+
+def _interval(row: Mapping, key: str) -> list[float]:
+    stat = row["metrics"].get(key)
+    if stat is None:  # not reported: ranks after every row that reports it
+        return [math.inf, math.inf]
+    low, high = stat.get("ci") or (None, None)
+    return [stat["mean"], stat["mean"]] if low is None else [low, high]
+
+
+def rank_labels(rows: Sequence[Mapping]) -> list[str]:
+    """Rank of each of an environment's rows (sorted best first by :func:`by_env`).
+
+    By :func:`rank_metric`: a row whose 95 % interval overlaps the one above it
+    shares its rank, marked ``tie``; failed rows have no rank.
+    """
+    key, _ = rank_metric(rows)
+    ok = [r for r in rows if r["status"] != "failed"]
+    ranks = iter(tied_ranks([_interval(r, key) for r in ok]))
+    labels = []
+    for row in rows:
+        if row["status"] == "failed":
+            labels.append("–")
+            continue
+        rank, tied = next(ranks)
+        labels.append(f"{rank} (tie)" if tied else str(rank))
+    return labels
 
 
 def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
     """Rows grouped per environment (first-seen order), best first.
 
-    Best: higher success rate, then higher mean return; failed rows last.
+    Best: better mean of the environment's :func:`rank_metric` (success rate,
+    or RMSE for tracking), then higher success rate and mean return; failed
+    rows last.
     """
     groups: dict[str, list[Mapping]] = {}
     for row in summary:
         groups.setdefault(row["env_id"], []).append(row)
 
-    def rank(row):
-        metrics = row["metrics"]
-        ret = metrics.get("return", {}).get("mean", -math.inf)
-        return (row["status"] == "failed", -metrics["success"]["mean"], -ret, row["agent"])
+    def order(rows):
+        key, better = rank_metric(rows)
 
-    return {env_id: sorted(rows, key=rank) for env_id, rows in groups.items()}
+        def rank(row):
+            metrics = row["metrics"]
+            value = metrics.get(key, {}).get("mean", math.inf if better == "lower" else -math.inf)
+            primary = value if better == "lower" else -value
+            ret = metrics.get("return", {}).get("mean", -math.inf)
+            return (row["status"] == "failed", primary, -metrics["success"]["mean"], -ret,
+                    row["agent"])
+
+        return sorted(rows, key=rank)
+
+    return {env_id: order(rows) for env_id, rows in groups.items()}
 
 
 def _short(env_id: str) -> str:
@@ -126,19 +183,36 @@ def _row_name(row: Mapping, rows: Sequence[Mapping]) -> str:
 
 
 # ------------------------------------------------------------------ markdown
+#: The columns of the terminal's compact tables, where an environment reports them.
+COMPACT_METRICS = ("success", "docking_time", "final_capture_error", "rmse", "max_error",
+                   "estimate_error_mean")
+
+INTERVAL_NOTE = ("Each cell: mean [95 % interval] over the episodes (success: Wilson; "
+                 "others: percentile bootstrap of the mean). Rank by success rate (tracking: "
+                 "by RMSE); rows whose intervals overlap share a rank (tie).")
+
+
 def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
-             plots: Mapping[str, str] | None = None, meta: Mapping | None = None) -> str:
-    """The leaderboard as Markdown: one table per environment, then the skipped pairs."""
+             plots: Mapping[str, str] | None = None, meta: Mapping | None = None,
+             compact: bool = False) -> str:
+    """The leaderboard as Markdown: one table per environment, then the skipped pairs.
+
+    ``compact``: only :data:`COMPACT_METRICS` (the terminal's view).
+    """
     lines = ["# Leaderboard", ""]
     if meta:
         lines += [f"- {k}: `{v}`" for k, v in meta.items()] + [""]
+    lines += [INTERVAL_NOTE, ""]
     for env_id, rows in by_env(summary).items():
         keys = headline_keys(rows)
+        if compact:
+            keys = [k for k in COMPACT_METRICS if k in keys]
         lines += [f"## {env_id}", ""]
-        header = ["agent", "obs mode", "scenario", "episodes"] + [metric_label(k) for k in keys]
+        header = ["rank", "agent", "obs mode", "scenario", "episodes"]
+        header += [metric_label(k) for k in keys]
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        for row in rows:
-            cells = [row["agent"], row["obs_mode"], row["scenario"], str(row["episodes"])]
+        for row, rank in zip(rows, rank_labels(rows), strict=True):
+            cells = [rank, row["agent"], row["obs_mode"], row["scenario"], str(row["episodes"])]
             cells += [cell_text(row, k) for k in keys]
             lines.append("| " + " | ".join(cells) + " |")
         failed = [r for r in rows if r["failed"]]
@@ -162,25 +236,39 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
 
 # ----------------------------------------------------------------------- csv
 def csv_text(summary: Sequence[Mapping]) -> str:
-    """One line per leaderboard row; ``<metric>_mean`` / ``<metric>_std`` for every metric."""
+    """One line per leaderboard row; ``<metric>_mean``, ``_std``, ``_ci_low`` and
+    ``_ci_high`` for every metric (the interval empty for a single episode)."""
     keys = headline_keys(summary)
     keys += sorted({k for r in summary for k in r["metrics"]} - set(keys))
     fields = ["env_id", "obs_mode", "scenario", "agent", "episodes", "failed", "status", "errors"]
+    parts = ("mean", "std", "ci_low", "ci_high")
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(fields + [f"{k}_{s}" for k in keys for s in ("mean", "std")])
+    writer.writerow(fields + [f"{k}_{s}" for k in keys for s in parts])
     for row in summary:
         values = [row[f] for f in fields[:-1]] + ["; ".join(row["errors"])]
         for key in keys:
             stat = row["metrics"].get(key)
-            values += [repr(stat["mean"]), repr(stat["std"])] if stat else ["", ""]
+            if stat is None:
+                values += [""] * len(parts)
+                continue
+            ci = [("" if c is None else repr(c)) for c in stat.get("ci") or (None, None)]
+            values += [repr(stat["mean"]), repr(stat["std"]), *ci]
         writer.writerow(values)
     return buffer.getvalue()
 
 
 # --------------------------------------------------------------------- plots
+def _interval_error(stat: Mapping | None) -> tuple[float, float]:
+    """Error-bar lengths (below, above the mean) of a metric's interval; 0 without one."""
+    if stat is None or not stat.get("ci") or stat["ci"][0] is None:
+        return 0.0, 0.0
+    low, high = stat["ci"]
+    return max(0.0, stat["mean"] - low), max(0.0, high - stat["mean"])
+
+
 def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
-    """PNG: one horizontal bar chart (mean ± std over episodes) per headline metric."""
+    """PNG: one horizontal bar chart (mean and 95 % interval) per headline metric."""
     keys = [k for k in headline_keys(rows) if any(k in r["metrics"] for r in rows)]
     ncols = min(3, len(keys))
     nrows = math.ceil(len(keys) / ncols)
@@ -200,9 +288,10 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax, key in zip(axes, keys, strict=False):
         means = [r["metrics"][key]["mean"] if key in r["metrics"] else math.nan for r in rows]
-        stds = [r["metrics"][key]["std"] if key in r["metrics"] else 0.0 for r in rows]
+        errors = [_interval_error(r["metrics"].get(key)) for r in rows]
         positions = list(range(len(rows)))
-        ax.barh(positions, means, xerr=stds, color="#4477aa", ecolor="#222222", capsize=3)
+        ax.barh(positions, means, xerr=list(zip(*errors, strict=True)), color="#4477aa",
+                ecolor="#222222", capsize=3)
         finite = [m for m in means if math.isfinite(m)]
         if finite and min(finite) > 0 and max(finite) / min(finite) > 100:
             ax.set_xscale("log")  # e.g. random next to trackers: keep both readable
@@ -279,18 +368,20 @@ def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
     if meta:
         out.append("<ul>" + "".join(f"<li>{esc(str(k))}: <code>{esc(str(v))}</code></li>"
                                     for k, v in meta.items()) + "</ul>")
-    out.append("<p>Mean ± standard deviation over the evaluation episodes; click a column "
-               "header to sort.</p>")
+    out.append(f"<p>{esc(INTERVAL_NOTE)} Click a column header to sort.</p>")
     for env_id, rows in by_env(summary).items():
         keys = headline_keys(rows)
         out.append(f"<h2>{esc(env_id)}</h2>")
         out.append(f'<table class="leaderboard" data-env="{esc(env_id)}"><thead><tr>')
-        header = ["agent", "obs mode", "scenario", "episodes", "failed"]
+        header = ["rank", "agent", "obs mode", "scenario", "episodes", "failed"]
         header += [metric_label(k) for k in keys] + ["errors"]
         out.append("".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>")
-        for row in rows:
+        for row, rank in zip(rows, rank_labels(rows), strict=True):
             cls = ' class="failed"' if row["failed"] else ""
-            cells = [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
+            number = rank.split(" ")[0]
+            cells = [f'<td class="num" data-value="{"" if number == "–" else number}">'
+                     f"{esc(rank)}</td>"]
+            cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
             cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
                       for f in ("episodes", "failed")]
             for key in keys:

@@ -61,7 +61,9 @@ def test_evaluate_is_deterministic_and_summarises():
     rows2 = run_evaluation([DOCK], ["pd-state", "random"], [10, 11])
     assert [r.episode_return for r in rows1] == [r.episode_return for r in rows2]
     summary = {s["agent"]: s for s in summarise(rows1)}
-    assert summary["pd-state"]["metrics"]["success"] == {"mean": 1.0, "std": 0.0, "n": 2}
+    success = summary["pd-state"]["metrics"]["success"]
+    assert {k: success[k] for k in ("mean", "std", "n")} == {"mean": 1.0, "std": 0.0, "n": 2}
+    assert success["ci"][1] == 1.0 and 0.3 < success["ci"][0] < 0.4  # Wilson of 2/2
     assert summary["random"]["metrics"]["success"]["mean"] == 0.0
     assert summary["pd-state"]["episodes"] == 2
     returns = [r.episode_return for r in rows1 if r.agent == "random"]
@@ -261,16 +263,30 @@ def test_summarise_aggregates_mean_std_n_and_partial_failures():
         return EpisodeRow(DOCK, "x", seed, "state", "default", 1.0 * seed, 10, success, "",
                           metrics or {}, 0.1, status)
 
-    rows = [row(1, True, metrics={"docking_time": 40.0, "final_distance": 0.1}),
-            row(2, False, metrics={"docking_time": None, "final_distance": 0.3}),
+    rows = [row(1, True, metrics={"docking_time": 40.0, "final_distance": 0.1,
+                                  "final_lateral_error": -0.1}),
+            row(2, False, metrics={"docking_time": None, "final_distance": 0.3,
+                                   "final_lateral_error": 0.1}),
             row(3, False, status="failed")]
     (s,) = summarise(rows)
     assert s["status"] == "partial" and s["failed"] == 1 and s["episodes"] == 3
-    assert s["metrics"]["success"] == {"mean": pytest.approx(1 / 3), "std": pytest.approx(
-        np.std([1, 0, 0])), "n": 3}
-    assert s["metrics"]["docking_time"] == {"mean": 40.0, "std": 0.0, "n": 1}
+    success = s["metrics"]["success"]
+    assert {k: success[k] for k in ("mean", "std", "n")} == {
+        "mean": pytest.approx(1 / 3), "std": pytest.approx(np.std([1, 0, 0])), "n": 3}
+    # Wilson (1927) score interval of 1/3 at 95 %, from its closed form.
+    z, n, p = 1.959963984540054, 3, 1 / 3
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    assert success["ci"] == pytest.approx([centre - half, centre + half], abs=1e-12)
+    # One episode has no interval.
+    assert s["metrics"]["docking_time"] == {"mean": 40.0, "std": 0.0, "n": 1,
+                                            "ci": [None, None]}
     assert s["metrics"]["final_distance"]["mean"] == pytest.approx(0.2)
-    assert s["metrics"]["return"] == {"mean": 1.5, "std": 0.5, "n": 2}
+    # Two returns 1 and 2: bootstrap means are 1, 1.5 or 2; the 2.5/97.5 % points 1 and 2.
+    assert s["metrics"]["return"] == {"mean": 1.5, "std": 0.5, "n": 2, "ci": [1.0, 2.0]}
+    # A signed deviation: misses to either side do not cancel in its _abs statistics.
+    assert s["metrics"]["final_lateral_error"]["mean"] == pytest.approx(0.0)
+    assert s["metrics"]["final_lateral_error_abs"]["mean"] == pytest.approx(0.1)
 
 
 # --------------------------------------------------------------------- cache

@@ -15,6 +15,7 @@ import pytest
 import evaluate
 from baselines import leaderboard
 from baselines.evaluation import evaluate_all, row_to_dict, summarise
+from baselines.stats import wilson_interval
 from tests.conftest import DOCKING_IDS
 
 DOCK = DOCKING_IDS[0]
@@ -48,7 +49,7 @@ def test_tiny_run_writes_every_output(tiny_run):
         assert row["episodes"] == 2 and row["obs_mode"] == "state"
         assert row["scenario"] == "time_limit=20" and row["seeds"] == [100000, 100001]
         for stat in row["metrics"].values():
-            assert set(stat) == {"mean", "std", "n"}
+            assert set(stat) == {"mean", "std", "n", "ci"}
     by_pair = {(r["env_id"], r["agent"]): r for r in rows}
     assert "control_effort" in by_pair[DOCK, "random"]["metrics"]
     assert "violation_fov_steps" in by_pair[DOCK, "random"]["metrics"]
@@ -68,6 +69,8 @@ def test_tiny_run_writes_every_output(tiny_run):
     md = (tiny_run / "leaderboard.md").read_text()
     assert f"## {DOCK}" in md and f"## {LARS}" in md
     assert "| pd-state | state | time_limit=20 | 2 |" in md
+    # 0/2 successes for both docking agents: Wilson [0 %, 66 %] each, a tie.
+    assert "| 1 (tie) | pd-state |" in md and "0% (0/2) [0%, 66%]" in md
     assert "supports only" in md and "(plots/DockingStation-v1.png)" in md
     for env_id in (DOCK, LARS):
         png = tiny_run / "plots" / f"{env_id.split('/')[1]}.png"
@@ -163,7 +166,7 @@ def _chromium_page(url: str):
             page.wait_for_load_state("load")
             rows = page.eval_on_selector_all(
                 "table.leaderboard tbody tr",
-                "rows => rows.map(r => [r.closest('table').dataset.env, r.cells[0].textContent])")
+                "rows => rows.map(r => [r.closest('table').dataset.env, r.cells[1].textContent])")
             images = page.eval_on_selector_all(
                 "img.plot", "imgs => imgs.map(i => i.complete && i.naturalWidth > 0)")
             table = f'table.leaderboard[data-env="{DOCK}"]'
@@ -234,3 +237,32 @@ def test_a_run_where_nothing_applies_says_why(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "skipped pd-state on auv_envs/AcousticTracking-v0: supports only" in err
     assert "nothing evaluated" in err
+
+
+def _summary_row(env_id, agent, successes, n, rmse=None, status="ok"):
+    metrics = {"success": {"mean": successes / n, "std": 0.0, "n": n,
+                           "ci": list(wilson_interval(successes, n))}}
+    if rmse is not None:
+        mean, low, high = rmse
+        metrics["rmse"] = {"mean": mean, "std": 0.0, "n": n, "ci": [low, high]}
+    return {"env_id": env_id, "agent": agent, "obs_mode": "state", "scenario": "default",
+            "episodes": n, "failed": 0 if status == "ok" else n, "status": status,
+            "errors": [], "metrics": metrics}
+
+
+def test_ranks_tie_where_intervals_overlap_and_tracking_ranks_by_rmse():
+    docking = [_summary_row(DOCK, "a", 30, 30), _summary_row(DOCK, "b", 28, 30),
+               _summary_row(DOCK, "c", 5, 30), _summary_row(DOCK, "d", 0, 30, status="failed")]
+    rows = leaderboard.by_env(docking)[DOCK]
+    assert [r["agent"] for r in rows] == ["a", "b", "c", "d"]
+    # 30/30 and 28/30 overlap (a tie); 5/30 is clearly below; a failed row has no rank.
+    assert leaderboard.rank_labels(rows) == ["1 (tie)", "1 (tie)", "3", "–"]
+
+    acoustic = "auv_envs/AcousticTracking-v0"
+    tracking = [_summary_row(acoustic, "slow", 3, 3, rmse=(0.05, 0.04, 0.06)),
+                _summary_row(acoustic, "best", 3, 3, rmse=(0.006, 0.005, 0.008)),
+                _summary_row(acoustic, "close", 3, 3, rmse=(0.045, 0.035, 0.05))]
+    assert leaderboard.rank_metric(tracking) == ("rmse", "lower")
+    rows = leaderboard.by_env(tracking)[acoustic]
+    assert [r["agent"] for r in rows] == ["best", "close", "slow"]
+    assert leaderboard.rank_labels(rows) == ["1", "2 (tie)", "2 (tie)"]
