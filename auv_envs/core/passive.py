@@ -13,13 +13,15 @@ being integrated: several environments in one process, vector envs and
 threads each get their own force, and every other MuJoCo model in the
 process (e.g. Gymnasium's own environments) never sees the callback.
 
-One process-wide lock is held for each such step and for every model
-``auv_envs`` compiles (:func:`compile_model`): MuJoCo's compiler evaluates
-passive forces on internal data that has no Python object, and an installed
-callback cannot be called with it (the compile fails). So ``auv_envs`` envs
-may be built and stepped from several threads. Code outside ``auv_envs`` that
-compiles MuJoCo models, or runs ``mujoco.rollout``, in another thread *while*
-a docking env steps is not covered by the lock.
+One process-wide lock, :data:`MUJOCO_LOCK`, is held for each such step, for
+every model ``auv_envs`` compiles (:func:`compile_model`) and around every
+other MuJoCo call of ``auv_envs`` that evaluates dynamics (``mj_forward``,
+``mj_step``): MuJoCo's compiler evaluates passive forces on internal data that
+has no Python object, which an installed callback cannot be called with, and a
+call that enters the callback while another thread uninstalls it fails. So
+``auv_envs`` envs may be built and stepped from several threads. Code outside
+``auv_envs`` that runs MuJoCo in another thread *while* a docking env steps is
+not covered by the lock.
 """
 
 from __future__ import annotations
@@ -32,8 +34,9 @@ import mujoco
 #: A force callback: ``force(model, data)`` adds to ``data.qfrc_passive``.
 PassiveForce = Callable[[mujoco.MjModel, mujoco.MjData], None]
 
-#: Held while a model steps with a passive force and while auv_envs compiles a model.
-_LOCK = threading.Lock()
+#: Held while a model steps with a passive force, while auv_envs compiles a
+#: model, and around every other MuJoCo call of auv_envs that evaluates dynamics.
+MUJOCO_LOCK = threading.Lock()
 #: id(MjData) -> the force of the model being stepped with that data.
 _FORCES: dict[int, PassiveForce] = {}
 
@@ -45,7 +48,7 @@ def _dispatch(model: mujoco.MjModel, data: mujoco.MjData) -> None:
 
 
 def _register(data: mujoco.MjData, force: PassiveForce) -> int:
-    """Install the dispatcher for ``data``'s force; the caller holds ``_LOCK``."""
+    """Install the dispatcher for ``data``'s force; the caller holds :data:`MUJOCO_LOCK`."""
     key = id(data)
     if key in _FORCES:
         raise RuntimeError("this MjData is already being stepped with a passive force")
@@ -67,27 +70,27 @@ def _unregister(key: int) -> None:
         mujoco.set_mjcb_passive(None)
 
 
-def step(model: mujoco.MjModel, data: mujoco.MjData, force: PassiveForce, nstep: int = 1) -> None:
-    """``mj_step`` ``nstep`` times with ``force`` evaluated at every stage of the integrator."""
-    with _LOCK:
+def _call_with_force(function, model: mujoco.MjModel, data: mujoco.MjData,
+                     force: PassiveForce, *args) -> None:
+    with MUJOCO_LOCK:
         key = _register(data, force)
         try:
-            mujoco.mj_step(model, data, nstep)
+            function(model, data, *args)
         finally:
             _unregister(key)
+
+
+def step(model: mujoco.MjModel, data: mujoco.MjData, force: PassiveForce, nstep: int = 1) -> None:
+    """``mj_step`` ``nstep`` times with ``force`` evaluated at every stage of the integrator."""
+    _call_with_force(mujoco.mj_step, model, data, force, nstep)
 
 
 def forward(model: mujoco.MjModel, data: mujoco.MjData, force: PassiveForce) -> None:
     """``mj_forward`` with ``force``: ``data.qacc`` is then the state's full acceleration."""
-    with _LOCK:
-        key = _register(data, force)
-        try:
-            mujoco.mj_forward(model, data)
-        finally:
-            _unregister(key)
+    _call_with_force(mujoco.mj_forward, model, data, force)
 
 
 def compile_model(xml: str, assets: dict | None = None) -> mujoco.MjModel:
     """``MjModel.from_xml_string``, never while one of our models steps (see the module doc)."""
-    with _LOCK:
+    with MUJOCO_LOCK:
         return mujoco.MjModel.from_xml_string(xml, assets=assets)

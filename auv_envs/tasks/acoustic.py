@@ -461,7 +461,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         mujoco.mj_resetData(model, data)
         data.qpos[physics.carrier_qpos] = ep.carrier_ref[0]
         data.qpos[physics.arm_qpos] = ep.arm_ref[0]
-        mujoco.mj_forward(model, data)
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_forward(model, data)
         self._episode = ep
         self._simulate_block(0)
         return self._observation(0), self._info(0, float("nan"), 0.0)
@@ -506,16 +507,17 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         velocities = np.empty((count, 3))
         wind = model.opt.wind
         ctrl = data.ctrl
-        for j in range(count):
-            k = start + j
-            if k > 0:
-                ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
-                ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
-                ctrl[physics.arm_act] = ep.arm_ref[k]
-                wind[:] = ep.current[k - 1]
-                mujoco.mj_step(model, data, self._physics_substeps)
-                mujoco.mj_kinematics(model, data)
-            positions[j], velocities[j] = physics.source_state()
+        with passive.MUJOCO_LOCK:
+            for j in range(count):
+                k = start + j
+                if k > 0:
+                    ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
+                    ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
+                    ctrl[physics.arm_act] = ep.arm_ref[k]
+                    wind[:] = ep.current[k - 1]
+                    mujoco.mj_step(model, data, self._physics_substeps)
+                    mujoco.mj_kinematics(model, data)
+                positions[j], velocities[j] = physics.source_state()
         ep.block_start = start
         ep.positions = positions
         ep.velocities = velocities

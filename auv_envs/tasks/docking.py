@@ -259,7 +259,8 @@ class _Physics:
         cam_mat = np.zeros(9)
         mujoco.mju_quat2Mat(cam_mat, model.cam_quat[cam.id])
         self.camera_mat_body = cam_mat.reshape(3, 3)
-        mujoco.mj_forward(model, self.data)
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_forward(model, self.data)
         self.light_positions = np.array(
             [self.data.site(f"station/light_{i}").xpos for i in range(n_lights)]
         )
@@ -333,7 +334,8 @@ class _Physics:
         rot = frames.rotation_from_euler(*euler)
         self.data.qvel[self.qvel_adr : self.qvel_adr + 3] = rot @ np.asarray(body_velocity[0:3])
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
-        mujoco.mj_forward(self.model, self.data)
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_forward(self.model, self.data)
 
     def unoccluded(self, origin, targets, candidates) -> list[bool]:
         """Which candidate targets static scenery does not hide from ``origin``.
@@ -833,7 +835,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         return {"image": self._render_camera(), **sensors}
 
     def _render_camera(self) -> np.ndarray:
-        mujoco.mj_forward(self._physics.model, self._physics.data)
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_forward(self._physics.model, self._physics.data)
         return self._renderer.render(self._physics.data)
 
     def _info(self, truth: dict, terms: dict, violations: dict) -> dict:

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from auv_envs.core import passive
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
@@ -488,7 +489,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         if self.control == "torque":
             data = self._physics.data
             data.ctrl[:] = a
-            mujoco.mj_step(self._physics.model, data, FRAME_SKIP)
+            with passive.MUJOCO_LOCK:
+                mujoco.mj_step(self._physics.model, data, FRAME_SKIP)
             ep.control_effort += effort * self._dt
         else:
             self._track_position(self._q_mid + a * self._q_half)
@@ -565,14 +567,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         model, data = self._physics.model, self._physics.data
         limits = self.calibration.torque_limits
         tau = self._tau
-        for _ in range(FRAME_SKIP):
-            mujoco.mj_step1(model, data)
-            accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
-            mujoco.mj_mulM(model, data, tau, accel)
-            tau += data.qfrc_bias
-            np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
-            self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
-            mujoco.mj_step2(model, data)
+        with passive.MUJOCO_LOCK:
+            for _ in range(FRAME_SKIP):
+                mujoco.mj_step1(model, data)
+                accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
+                mujoco.mj_mulM(model, data, tau, accel)
+                tau += data.qfrc_bias
+                np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
+                self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
+                mujoco.mj_step2(model, data)
 
     def _truth(self) -> dict:
         """Ground truth after a step, computed once and shared by obs, reward and info.
