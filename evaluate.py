@@ -7,7 +7,8 @@
 Writes ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json``
 and ``episodes.json`` under ``--out`` and prints one compact Markdown table per
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
-mean with its 95 % interval; agents whose success intervals overlap share a rank.
+mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
+and agents whose intervals overlap share a rank.
 Finished episodes are cached under ``--out``/episodes (one file each), so a
 rerun, or a run after an interruption, only runs what is missing. The cache
 key includes a fingerprint of the package code and assets, so episodes of

@@ -85,6 +85,14 @@ def _format(key: str, value: float) -> str:
     return format(value, spec)
 
 
+def metric_interval(stat: Mapping | None) -> tuple[float, float] | None:
+    """The 95 % interval of a summarised metric; None when unreported or a single episode."""
+    if stat is None or not stat.get("ci") or stat["ci"][0] is None:
+        return None
+    low, high = stat["ci"]
+    return low, high
+
+
 def cell_text(row: Mapping, key: str) -> str:
     """``mean [95 % interval]`` of ``row``'s metric ``key`` (``–`` when not reported).
 
@@ -94,13 +102,14 @@ def cell_text(row: Mapping, key: str) -> str:
     stat = row["metrics"].get(key)
     if stat is None:
         return "–"
-    low, high = stat.get("ci") or (None, None)
+    interval = metric_interval(stat)
     if key == "success":
         text = f"{stat['mean']:.0%} ({round(stat['mean'] * stat['n'])}/{stat['n']})"
-        return text if low is None else f"{text} [{low:.0%}, {high:.0%}]"
-    if low is None:
+        return text if interval is None else f"{text} [{interval[0]:.0%}, {interval[1]:.0%}]"
+    if interval is None:
         return _format(key, stat["mean"])
-    return f"{_format(key, stat['mean'])} [{_format(key, low)}, {_format(key, high)}]"
+    low, high = (_format(key, end) for end in interval)
+    return f"{_format(key, stat['mean'])} [{low}, {high}]"
 
 
 #: What ranks an environment's agents: the first of these its rows report, with
@@ -115,31 +124,29 @@ def rank_metric(rows: Sequence[Mapping]) -> tuple[str, str]:
     return next(((k, d) for k, d in RANK_METRICS if k in present), ("success", "higher"))
 
 
-def _interval(row: Mapping, key: str) -> list[float]:
+def _rank_interval(row: Mapping, key: str) -> tuple[float, float]:
     stat = row["metrics"].get(key)
     if stat is None:  # not reported: ranks after every row that reports it
-        return [math.inf, math.inf]
-    low, high = stat.get("ci") or (None, None)
-    return [stat["mean"], stat["mean"]] if low is None else [low, high]
+        return math.inf, math.inf
+    return metric_interval(stat) or (stat["mean"], stat["mean"])
 
 
-def rank_labels(rows: Sequence[Mapping]) -> list[str]:
-    """Rank of each of an environment's rows (sorted best first by :func:`by_env`).
+def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
+    """``(rank, tied)`` of each of an environment's rows (sorted best first by
+    :func:`by_env`); None for a failed row.
 
     By :func:`rank_metric`: a row whose 95 % interval overlaps the one above it
-    shares its rank, marked ``tie``; failed rows have no rank.
+    shares its rank (a tie).
     """
     key, _ = rank_metric(rows)
     ok = [r for r in rows if r["status"] != "failed"]
-    ranks = iter(tied_ranks([_interval(r, key) for r in ok]))
-    labels = []
-    for row in rows:
-        if row["status"] == "failed":
-            labels.append("–")
-            continue
-        rank, tied = next(ranks)
-        labels.append(f"{rank} (tie)" if tied else str(rank))
-    return labels
+    ranked = iter(tied_ranks([_rank_interval(r, key) for r in ok]))
+    return [None if row["status"] == "failed" else next(ranked) for row in rows]
+
+
+def rank_labels(rows: Sequence[Mapping]) -> list[str]:
+    """:func:`ranks` as table text: ``"2"``, ``"2 (tie)"``, ``"–"`` for a failed row."""
+    return ["–" if r is None else f"{r[0]} (tie)" if r[1] else str(r[0]) for r in ranks(rows)]
 
 
 def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
@@ -252,7 +259,8 @@ def csv_text(summary: Sequence[Mapping]) -> str:
             if stat is None:
                 values += [""] * len(parts)
                 continue
-            ci = [("" if c is None else repr(c)) for c in stat.get("ci") or (None, None)]
+            interval = metric_interval(stat)
+            ci = ["", ""] if interval is None else [repr(c) for c in interval]
             values += [repr(stat["mean"]), repr(stat["std"]), *ci]
         writer.writerow(values)
     return buffer.getvalue()
@@ -261,10 +269,10 @@ def csv_text(summary: Sequence[Mapping]) -> str:
 # --------------------------------------------------------------------- plots
 def _interval_error(stat: Mapping | None) -> tuple[float, float]:
     """Error-bar lengths (below, above the mean) of a metric's interval; 0 without one."""
-    if stat is None or not stat.get("ci") or stat["ci"][0] is None:
+    interval = metric_interval(stat)
+    if interval is None:
         return 0.0, 0.0
-    low, high = stat["ci"]
-    return max(0.0, stat["mean"] - low), max(0.0, high - stat["mean"])
+    return max(0.0, stat["mean"] - interval[0]), max(0.0, interval[1] - stat["mean"])
 
 
 def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
@@ -376,11 +384,10 @@ def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
         header = ["rank", "agent", "obs mode", "scenario", "episodes", "failed"]
         header += [metric_label(k) for k in keys] + ["errors"]
         out.append("".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>")
-        for row, rank in zip(rows, rank_labels(rows), strict=True):
+        for row, rank, label in zip(rows, ranks(rows), rank_labels(rows), strict=True):
             cls = ' class="failed"' if row["failed"] else ""
-            number = rank.split(" ")[0]
-            cells = [f'<td class="num" data-value="{"" if number == "–" else number}">'
-                     f"{esc(rank)}</td>"]
+            cells = [f'<td class="num" data-value="{"" if rank is None else rank[0]}">'
+                     f"{esc(label)}</td>"]
             cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
             cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
                       for f in ("episodes", "failed")]

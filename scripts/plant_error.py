@@ -34,9 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import auv_envs  # noqa: E402
-from tests.plant_reference import acoustic_truth, env_plant_error  # noqa: E402
+from tests.plant_reference import LIMITS, acoustic_truth, env_plant_error  # noqa: E402
 
-LIMITS = {"position_m": 0.02, "attitude_deg": 0.5, "velocity": 0.01}
 DEFAULT_ENVS = (
     "auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v0",
 )

@@ -254,6 +254,11 @@ def smooth_commands(rng: np.random.Generator, duration, period, limits) -> np.nd
     return commands
 
 
+#: The converged-physics limits a plant keeps over 10 s of full-range commands:
+#: CG position (m), attitude (degrees), any body-velocity component (m/s, rad/s).
+LIMITS = {"position_m": 0.02, "attitude_deg": 0.5, "velocity": 0.01}
+
+
 @dataclasses.dataclass
 class PlantError:
     """The largest deviations of an env's plant from the reference over one run.

@@ -28,6 +28,7 @@ from baselines.evaluation import evaluate as run_evaluation
 from baselines.registry import AgentSpec, agent_spec, make_agent
 from tests import leaderboard_agents
 from tests.conftest import DOCKING_IDS, make_env
+from tests.test_stats import wilson_closed_form
 
 DOCK = DOCKING_IDS[0]
 LARS = "auv_envs/LARSCapture-v0"
@@ -273,11 +274,8 @@ def test_summarise_aggregates_mean_std_n_and_partial_failures():
     success = s["metrics"]["success"]
     assert {k: success[k] for k in ("mean", "std", "n")} == {
         "mean": pytest.approx(1 / 3), "std": pytest.approx(np.std([1, 0, 0])), "n": 3}
-    # Wilson (1927) score interval of 1/3 at 95 %, from its closed form.
-    z, n, p = 1.959963984540054, 3, 1 / 3
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
-    assert success["ci"] == pytest.approx([centre - half, centre + half], abs=1e-12)
+    # The Wilson interval of 1/3 at 95 % (checked against its closed form in test_stats.py).
+    assert success["ci"] == pytest.approx(list(wilson_closed_form(1, 3)), abs=1e-12)
     # One episode has no interval.
     assert s["metrics"]["docking_time"] == {"mean": 40.0, "std": 0.0, "n": 1,
                                             "ci": [None, None]}

@@ -20,11 +20,11 @@ import pytest
 
 import auv_envs  # noqa: F401  (registers the environments)
 from tests.conftest import DOCKING_IDS
-from tests.plant_reference import acoustic_truth, env_plant_error
+from tests.plant_reference import LIMITS, acoustic_truth, env_plant_error
 
-POSITION_LIMIT = 0.02
-ATTITUDE_LIMIT_DEG = 0.5
-VELOCITY_LIMIT = 0.01
+POSITION_LIMIT = LIMITS["position_m"]
+ATTITUDE_LIMIT_DEG = LIMITS["attitude_deg"]
+VELOCITY_LIMIT = LIMITS["velocity"]
 DURATION = 10.0
 #: The comparison needs the whole 10 s: no lights-lost failure while the
 #: commands turn the vehicle away from the station.

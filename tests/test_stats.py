@@ -13,7 +13,7 @@ from baselines.stats import bootstrap_interval, overlap, tied_ranks, wilson_inte
 Z95 = scipy_stats.norm.ppf(0.975)
 
 
-def _wilson_closed_form(k: int, n: int) -> tuple[float, float]:
+def wilson_closed_form(k: int, n: int) -> tuple[float, float]:
     """Wilson (1927): (p + z^2/2n +- z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)."""
     p, z = k / n, Z95
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
@@ -24,7 +24,7 @@ def _wilson_closed_form(k: int, n: int) -> tuple[float, float]:
 @pytest.mark.parametrize("k, n", [(0, 3), (3, 3), (1, 3), (17, 20), (0, 30), (15, 30), (29, 30)])
 def test_wilson_interval_is_the_closed_form(k, n):
     low, high = wilson_interval(k, n)
-    expected = _wilson_closed_form(k, n)
+    expected = wilson_closed_form(k, n)
     # At k = 0 and k = n the closed form's end is 0 or 1 only up to round-off.
     assert (low, high) == pytest.approx(expected, abs=1e-12)
     assert 0.0 <= low <= k / n <= high <= 1.0
