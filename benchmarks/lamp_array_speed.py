@@ -39,7 +39,7 @@ def approach_frames(env_id: str, frames: int, seed: int = 100_000) -> tuple[list
     (the env is deterministic). The observation is rebuilt from ``info`` as the noise-free
     ``mismatch`` scenario's image observation would be.
     """
-    env = gym.make(env_id, obs_mode="state", render_mode="rgb_array")
+    env = gym.make(env_id, obs_mode="state", render_mode="rgb_array", render_camera="onboard")
     try:
         agent = make_agent("pd-state", env)
         lengths = []

@@ -58,7 +58,7 @@ def _lamps_apart(info: dict, intrinsics: CameraIntrinsics, min_gap: float = 25.0
 def _render_sequence(env_id: str, seed: int = 100_000) -> tuple[list, object]:
     """``pd-state`` docks a state env (no rendering, fast); from the first step with every
     lamp visible and apart, ``N_FRAMES`` frames are rendered at 640x480."""
-    env = gym.make(env_id, obs_mode="state", render_mode="rgb_array")
+    env = gym.make(env_id, obs_mode="state", render_mode="rgb_array", render_camera="onboard")
     try:
         agent = make_agent("pd-state", env)
         obs, info = env.reset(seed=seed)

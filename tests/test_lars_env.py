@@ -181,7 +181,8 @@ def test_state_and_stereo_observations():
     env = LARSCaptureEnv(obs_mode="state")
     obs, info = env.reset(seed=0)
     np.testing.assert_allclose(obs[12:15], info["relative_position"], rtol=1e-6)
-    stereo = LARSCaptureEnv(obs_mode="stereo", image_size=(64, 48), render_mode="rgb_array")
+    stereo = LARSCaptureEnv(obs_mode="stereo", image_size=(64, 48), render_mode="rgb_array",
+                            render_camera="stereo", render_size=(64, 48))
     try:
         obs, _ = stereo.reset(seed=0)
         assert set(obs) == {"left", "right", "joint_position", "joint_velocity"}

@@ -7,6 +7,7 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from tests.conftest import DOCKING_IDS, make_env
 
@@ -40,13 +41,130 @@ def test_image_is_dark_water_with_bright_lamps():
         env.close()
 
 
-def test_render_mode_rgb_array_matches_image_observation():
-    env = make_env(DOCKING_IDS[0], "image", render_mode="rgb_array")
+def test_onboard_render_matches_image_observation():
+    env = make_env(DOCKING_IDS[0], "image", image_size=(96, 72), render_mode="rgb_array",
+                   render_camera="onboard", render_size=(96, 72))
     try:
         obs, _ = env.reset(seed=2)
         np.testing.assert_array_equal(env.render(), obs["image"])
     finally:
         env.close()
+
+
+def _hull_mask(frame: np.ndarray) -> np.ndarray:
+    """The docking vehicle's orange paint: red well above green, little blue."""
+    r, g, b = (frame[..., k].astype(int) for k in range(3))
+    return (r > 90) & (r > g + 30) & (b < 70)
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_chase_view_shows_vehicle_station_and_water(env_id):
+    env = make_env(env_id, "state", render_mode="rgb_array", render_size=(320, 240))
+    try:
+        env.reset(seed=5)
+        frame = env.render()
+        assert frame.shape == (240, 320, 3) and frame.dtype == np.uint8
+        # Readable: lit, neither black nor washed out; open water is the water's colour.
+        assert 20 < frame.mean() < 120
+        water = frame[:20].reshape(-1, 3).mean(axis=0)
+        assert water[2] > water[0] + 10  # blue-green, not black
+        hull = _hull_mask(frame)
+        assert hull.sum() > 300  # the vehicle is in view, large enough to see
+        # The station's grey steel (grey: balanced channels, brighter than the water).
+        grey = (np.ptp(frame.astype(int), axis=2) < 25) & (frame.mean(axis=2) > 70)
+        assert grey.sum() > 30
+    finally:
+        env.close()
+
+
+def test_chase_view_follows_the_vehicle_and_shows_its_turn():
+    env = make_env(DOCKING_IDS[0], "state", render_mode="rgb_array", render_size=(320, 240))
+    try:
+        env.reset(seed=5)
+        before = _hull_mask(env.render())
+        station_before = (np.ptp(env.render().astype(int), axis=2) < 25).sum()
+        for _ in range(40):  # surge towards the station while yawing hard
+            env.step(np.array([1.0, 0.0, 0.0, 1.0]))
+        frame = env.render()
+        after = _hull_mask(frame)
+        overlap = (before & after).sum() / (before | after).sum()
+        assert overlap < 0.8  # the hull's pixels moved: the picture shows the turn
+        # The camera follows the vehicle: its hull stays near the image centre.
+        rows, cols = np.nonzero(after)
+        assert abs(cols.mean() - 160) < 60 and abs(rows.mean() - 120) < 60
+        assert station_before != (np.ptp(frame.astype(int), axis=2) < 25).sum()
+    finally:
+        env.close()
+
+
+def _auv_centroid(frame: np.ndarray) -> np.ndarray:
+    """Centre of the LARS AUV's white hull below the horizon (lower two thirds)."""
+    lower = frame[frame.shape[0] // 3:].astype(int)
+    white = (lower.min(axis=2) > 150) & (np.ptp(lower, axis=2) < 40)
+    rows, cols = np.nonzero(white)
+    assert rows.size > 30, "the AUV is not in view"
+    return np.array([rows.mean(), cols.mean()])
+
+
+def test_lars_side_view_shows_ship_arm_auv_and_sea():
+    env = make_env("auv_envs/LARSCapture-v0", "state", render_mode="rgb_array",
+                   render_size=(320, 240))
+    try:
+        env.reset(seed=7)
+        first = env.render()
+        assert first.shape == (240, 320, 3)
+        assert 60 < first.mean() < 200
+        sky, sea = first[:10].reshape(-1, 3).mean(0), first[-10:].reshape(-1, 3).mean(0)
+        assert sky.mean() > 150 and sea[2] > sea[0] + 30  # light sky above, blue sea below
+        yellow = (first[..., 0] > 150) & (first[..., 1] > 120) & (first[..., 2] < 80)
+        assert yellow.sum() > 100  # the arm
+        start = _auv_centroid(first)
+        for _ in range(60):  # 2.4 s, or until the idle arm hits something
+            *_, terminated, truncated, _ = env.step(np.zeros(env.action_space.shape))
+            if terminated or truncated:
+                break
+        assert np.linalg.norm(_auv_centroid(env.render()) - start) > 2.0  # it drifts
+    finally:
+        env.close()
+
+
+def test_lars_stereo_render_is_the_observation_pair():
+    env = make_env("auv_envs/LARSCapture-v0", "stereo", image_size=(64, 48),
+                   render_mode="rgb_array", render_camera="stereo", render_size=(64, 48))
+    try:
+        obs, _ = env.reset(seed=3)
+        np.testing.assert_array_equal(env.render(), np.hstack([obs["left"], obs["right"]]))
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", [*DOCKING_IDS, "auv_envs/LARSCapture-v0"])
+def test_render_arguments_are_checked(env_id):
+    with pytest.raises(ValueError, match="render_camera"):
+        make_env(env_id, "state", render_camera="periscope")
+    with pytest.raises(ValueError, match="render_size|image_size"):
+        make_env(env_id, "state", render_mode="rgb_array", render_size=(4, 4))
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_rendering_leaves_image_observations_unchanged(env_id):
+    # The chase view draws fog and the skybox; the observation camera must not.
+    plain = make_env(env_id, "image", image_size=(64, 48))
+    viewed = make_env(env_id, "image", image_size=(64, 48), render_mode="rgb_array",
+                      render_size=(64, 48))
+    try:
+        a, _ = plain.reset(seed=4)
+        b, _ = viewed.reset(seed=4)
+        for _ in range(5):
+            np.testing.assert_array_equal(a["image"], b["image"])
+            viewed.render()
+            action = np.array([0.5, 0.1, 0.0, 0.2])
+            a, *_ = plain.step(action)
+            b, *_ = viewed.step(action)
+        np.testing.assert_array_equal(a["image"], b["image"])
+    finally:
+        plain.close()
+        viewed.close()
 
 
 def test_interpreter_exit_without_close_prints_no_egl_traceback():

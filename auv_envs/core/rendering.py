@@ -38,7 +38,24 @@ class CameraRenderer:
     ``mjr_readPixels`` call (FACTS.md: faster than two renderer passes).
     """
 
-    def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int):
+    def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int,
+                 headlight: tuple[float, float] | None = None, fog: bool = False,
+                 skybox: bool = False):
+        """Args:
+            model: the compiled model (its ``vis`` offscreen size grows if needed).
+            cameras: names of the model's cameras, drawn left to right.
+            width, height: size of each camera's image, pixels.
+            headlight: ``(ambient, diffuse)`` grey levels of the headlight for
+                this renderer only (e.g. a brighter view for a person than the
+                vehicle's camera gets); None keeps the model's headlight. The
+                model is not changed, so other renderers see the same scene.
+            fog: draw the model's fog (``visual/map`` fogstart/fogend times the
+                model's extent, ``visual/rgba`` fog colour): objects fade into
+                the water's colour with distance, as in turbid water.
+            skybox: draw the model's skybox texture (where no geom is).
+                Fog and skybox belong to views for people; the cameras of
+                observations draw neither.
+        """
         global _HOOKED
         if not cameras:
             raise ValueError("need at least one camera")
@@ -57,6 +74,8 @@ class CameraRenderer:
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
         self._scene = mujoco.MjvScene(model, maxgeom=1000)
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = fog
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
         self._option = mujoco.MjvOption()
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)
@@ -65,6 +84,9 @@ class CameraRenderer:
             for k in range(len(cameras))
         ]
         self._full = mujoco.MjrRect(0, 0, total_width, self._height)
+        if headlight is not None and not model.vis.headlight.active:
+            raise ValueError("headlight given, but the model's headlight is off")
+        self._headlight = headlight
         _LIVE.add(self)
         if not _HOOKED:
             atexit.register(_close_all)
@@ -89,6 +111,11 @@ class CameraRenderer:
                 self._model, data, self._option, self._perturb, cam,
                 mujoco.mjtCatBit.mjCAT_ALL, self._scene,
             )
+            if self._headlight is not None:
+                # mjv_updateScene makes the headlight the scene's first light.
+                light = self._scene.lights[0]
+                light.ambient[:] = self._headlight[0]
+                light.diffuse[:] = self._headlight[1]
             mujoco.mjr_render(viewport, self._scene, self._ctx)
         mujoco.mjr_readPixels(self._buffer, None, self._full, self._ctx)
 

@@ -65,6 +65,21 @@ CONTROL_PERIOD = 0.1
 #: solution after 10 s at its 0.05 s step; ``docs/physics.md``).
 INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4, "euler": mujoco.mjtIntegrator.mjINT_EULER}
 
+#: ``render_camera`` values: ``"chase"`` follows the vehicle from behind and
+#: above (a view for people), ``"onboard"`` is the forward camera the
+#: ``image`` observation uses.
+RENDER_CAMERAS = ("chase", "onboard")
+#: The chase camera: offset from the CG in the world frame (m; it follows the
+#: vehicle's position, not its attitude), downward pitch (deg), vertical field
+#: of view (deg).
+CHASE_OFFSET = (-3.6, 0.0, 1.4)
+CHASE_PITCH_DEG = 18.0
+CHASE_FOVY_DEG = 60.0
+#: Headlight of the chase view (ambient, diffuse): the water stays the model's
+#: (fog colour and visibility), but the view is lit as by a survey lamp. The
+#: onboard camera keeps the model's dim headlight.
+CHASE_HEADLIGHT = (0.45, 0.6)
+
 
 @dataclasses.dataclass(frozen=True)
 class StationLayout:
@@ -175,6 +190,13 @@ def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.
     # MuJoCo camera x = -body y; camera y (image up) tilted down by pitch.
     camera.xyaxes = [0.0, -1.0, 0.0, math.sin(pitch), 0.0, math.cos(pitch)]
 
+    # The chase camera (renders only): "track" keeps its world-frame offset from
+    # the hull and its world orientation, so it neither rolls nor yaws with the vehicle.
+    chase_pitch = math.radians(CHASE_PITCH_DEG)
+    hull.add("camera", name="chase", mode="track", pos=list(CHASE_OFFSET),
+             xyaxes=[0.0, -1.0, 0.0, math.sin(chase_pitch), 0.0, math.cos(chase_pitch)],
+             fovy=CHASE_FOVY_DEG)
+
     arena.worldbody.attach(station)
     arena.worldbody.attach(vehicle).add("freejoint")
     xml = arena.to_xml_string()
@@ -255,6 +277,7 @@ class _Physics:
         self.qvel_adr = joint.dofadr[0]
         cam = model.camera("hovering_auv/nose_camera")
         self.camera_name = cam.name
+        self.camera_id = cam.id
         self.camera_pos_body = model.cam_pos[cam.id].copy()
         cam_mat = np.zeros(9)
         mujoco.mju_quat2Mat(cam_mat, model.cam_quat[cam.id])
@@ -454,14 +477,22 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     (``"rk4"``, default; ``"euler"``: the v0 plant), ``physics_substeps``
     (plant steps per 0.1 s control period, default 1: RK4 is then already
     within 0.1 mm of the converged solution, see ``docs/physics.md``),
-    ``render_mode`` (``"rgb_array"``: the forward camera).
+    ``render_mode`` (``"rgb_array"``), ``render_camera`` (``"chase"``,
+    default: behind and above the vehicle, following its position, the
+    station, its lights and the seabed in view, the water's colour and
+    visibility those of the model, lit by a survey lamp; ``"onboard"``: the
+    forward camera of the ``image`` observation), ``render_size`` (W, H of
+    ``render()``'s frame, default 640x480).
 
     **Version history.** v1: the plant integrates its equations with
     classical RK4 (one 0.1 s step, hull wrench re-evaluated at every stage)
     instead of semi-implicit Euler at 0.05 s, which was centimetres and
     degrees from their converged solution after 10 s (``docs/physics.md``).
     v0: initial release; still registered (``integrator="euler"``,
-    ``physics_substeps=2``).
+    ``physics_substeps=2``). Rendering (both versions; dynamics, observations
+    and rewards unchanged): ``render()`` draws the chase camera by default
+    (``render_camera``, ``render_size``); it drew the forward camera at
+    ``image_size`` before.
     """
 
     metadata = {
@@ -496,6 +527,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         integrator: str = "rk4",
         physics_substeps: int = 1,
         render_mode: str | None = None,
+        render_camera: str = "chase",
+        render_size: tuple[int, int] = (640, 480),
         **unknown,
     ):
         self._accept_arguments(
@@ -506,8 +539,11 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, integrator=integrator,
             physics_substeps=physics_substeps, render_mode=render_mode,
+            render_camera=render_camera, render_size=tuple(render_size),
         )
         check_choice("scenario", scenario, SCENARIOS)
+        check_choice("render_camera", render_camera, RENDER_CAMERAS)
+        render_width, render_height = check_image_size(render_size)
         check_choice("integrator", integrator, INTEGRATORS)
         width, height = check_image_size(image_size)
         for name, value in (("time_limit", time_limit),
@@ -555,7 +591,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         target = np.array([-nose, 0.0, 0.0])
         target.setflags(write=False)
         self.calibration = DockingCalibration(
-            intrinsics=CameraIntrinsics.from_fovy(width, height, float(model.cam_fovy[0])),
+            intrinsics=CameraIntrinsics.from_fovy(
+                width, height, float(model.cam_fovy[self._physics.camera_id])
+            ),
             extrinsics=CameraExtrinsics.from_mujoco(
                 self._physics.camera_pos_body, self._physics.camera_mat_body
             ),
@@ -588,9 +626,19 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         if obs_mode == "features":
             space = self.observation_space["pixels"]
             self._pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
+        # One renderer for the image observation, one for render(): they differ
+        # in camera, size or lighting.
         self._renderer: CameraRenderer | None = None
-        if obs_mode == "image" or render_mode == "rgb_array":
+        if obs_mode == "image":
             self._renderer = CameraRenderer(model, (self._physics.camera_name,), width, height)
+        self._view: CameraRenderer | None = None
+        if render_mode == "rgb_array":
+            chase = render_camera == "chase"
+            self._view = CameraRenderer(
+                model, ("hovering_auv/chase" if chase else self._physics.camera_name,),
+                render_width, render_height, headlight=CHASE_HEADLIGHT if chase else None,
+                fog=chase, skybox=chase,
+            )
         self._episode = _EpisodeState()
 
     # ------------------------------------------------------------------ spaces
@@ -709,12 +757,13 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        return self._render_camera()
+        return self._render_camera(self._view)
 
     def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for renderer in (self._renderer, self._view):
+            if renderer is not None:
+                renderer.close()
+        self._renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
@@ -832,12 +881,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
                 np.minimum(np.maximum(pixels, low, out=pixels), high, out=pixels)
             pixels = pixels.astype(np.float32)
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
-        return {"image": self._render_camera(), **sensors}
+        return {"image": self._render_camera(self._renderer), **sensors}
 
-    def _render_camera(self) -> np.ndarray:
+    def _render_camera(self, renderer: CameraRenderer) -> np.ndarray:
         with passive.MUJOCO_LOCK:
             mujoco.mj_forward(self._physics.model, self._physics.data)
-        return self._renderer.render(self._physics.data)
+        return renderer.render(self._physics.data)
 
     def _info(self, truth: dict, terms: dict, violations: dict) -> dict:
         ep = self._episode

@@ -61,6 +61,10 @@ POSITION_GAINS = (160.0, 20.0)
 #: the stereo pair sits outboard of it looking straight down.
 CAPTURE_TIP_IN_END = (0.0, 0.0, -0.35)
 CAMERA_MOUNT_IN_END = (0.0, 0.25, -0.065)
+#: ``render_camera`` values: ``"side"`` (a person's view of the ship's side,
+#: the arm and the AUV) or ``"stereo"`` (the capture head's pair).
+RENDER_CAMERAS = ("side", "stereo")
+
 #: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
 #: image x along end x, image y down = end -y).
 R_END_CV = np.diag([1.0, -1.0, -1.0])
@@ -297,10 +301,16 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``features``; the paper used 1280x960), ``baseline`` (m, default 0.12),
     ``focal_length`` (px at ``image_size``; default: 60 deg vertical field
     of view), ``pixel_noise_std`` (px, default 1.0), ``tolerances``,
-    ``time_limit`` (s, default 30), ``render_mode`` (``"rgb_array"``: the
-    stereo pair side by side).
+    ``time_limit`` (s, default 30), ``render_mode`` (``"rgb_array"``),
+    ``render_camera`` (``"side"``, default: from outboard and astern, the
+    ship's side, the arm, the AUV and the sea surface, which heaves with the
+    local wave; ``"stereo"``: the stereo pair side by side, each camera at
+    ``render_size``), ``render_size`` (W, H, default 640x480).
 
-    **Version history.** v0: initial release.
+    **Version history.** v0: initial release. Rendering (dynamics,
+    observations and rewards unchanged): ``render()`` draws the side view by
+    default (``render_camera``, ``render_size``); it drew the stereo pair at
+    ``image_size`` before.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
@@ -324,6 +334,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         tolerances: CaptureTolerances | None = None,
         time_limit: float = 30.0,
         render_mode: str | None = None,
+        render_camera: str = "side",
+        render_size: tuple[int, int] = (640, 480),
         **unknown,
     ):
         self._accept_arguments(
@@ -331,9 +343,12 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             obs_mode=obs_mode, sea_state=sea_state, control=control,
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
-            render_mode=render_mode,
+            render_mode=render_mode, render_camera=render_camera,
+            render_size=tuple(render_size),
         )
         check_choice("sea_state", sea_state, SEA_STATES)
+        check_choice("render_camera", render_camera, RENDER_CAMERAS)
+        render_width, render_height = check_image_size(render_size)
         check_choice("control", control, CONTROLS)
         width, height = check_image_size(image_size)
         if not (math.isfinite(baseline) and 0.0 < baseline <= 1.0):
@@ -418,9 +433,17 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             pixels = self.observation_space["pixels"]
             self._pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
         self._width, self._height = width, height
+        # One renderer for the stereo observation, one for render().
         self._renderer: CameraRenderer | None = None
-        if obs_mode == "stereo" or render_mode == "rgb_array":
+        if obs_mode == "stereo":
             self._renderer = CameraRenderer(model, ("left", "right"), width, height)
+        self._view: CameraRenderer | None = None
+        if render_mode == "rgb_array":
+            side = render_camera == "side"
+            self._view = CameraRenderer(
+                model, ("side",) if side else ("left", "right"), render_width, render_height,
+                skybox=side,
+            )
         self._episode = _EpisodeState()
         self._geom: dict = {}
 
@@ -534,12 +557,14 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        return self._render_pair()
+        self._pose_scene()
+        return self._view.render(self._physics.data)
 
     def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        for renderer in (self._renderer, self._view):
+            if renderer is not None:
+                renderer.close()
+        self._renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
