@@ -18,7 +18,7 @@ if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
-from gymnasium.envs.registration import register, registry  # noqa: E402
+from gymnasium.envs.registration import WrapperSpec, register, registry  # noqa: E402
 
 __version__ = "0.1.0"
 
@@ -42,14 +42,36 @@ PREVIOUS_VERSIONS = {
     ),
 }
 
+#: Steps in each family's default episode: its default ``time_limit`` divided
+#: by its step period (docking 100 s at 0.1 s, LARS 30 s at 0.04 s, acoustic
+#: 60 s at 0.01 s; a test checks them against the classes). Registered as
+#: ``max_episode_steps``, so ``TimeLimit``-aware tools see them.
+MAX_EPISODE_STEPS = {
+    "DockingStation": 1000,
+    "LampArrayDocking": 1000,
+    "AcousticTracking": 6000,
+    "LARSCapture": 750,
+}
+
+#: Applied by ``gym.make`` above its ``TimeLimit``: the episode summary on a
+#: truncation from outside the env (``auv_envs.core.env.EpisodeSummary``).
+_SUMMARY = WrapperSpec("EpisodeSummary", "auv_envs.core.env:EpisodeSummary", {})
+
+
+def max_episode_steps(env_id: str) -> int:
+    """The registered episode length of ``env_id`` (any version), in steps."""
+    return MAX_EPISODE_STEPS[env_id.split("/")[-1].rsplit("-v", 1)[0]]
+
+
 for _env_id, (_entry_point, _kwargs) in {
     **{env_id: (entry, {}) for env_id, entry in ENVIRONMENTS.items()},
     **PREVIOUS_VERSIONS,
 }.items():
     if _env_id not in registry:
-        # Time limits are handled inside each env so that the episode summary
-        # in ``info`` is written on truncation too.
-        register(id=_env_id, entry_point=_entry_point, kwargs=_kwargs, disable_env_checker=False)
+        # Each env also truncates at its own time_limit (writing its episode
+        # summary); TimeLimit truncates on the same step by default.
+        register(id=_env_id, entry_point=_entry_point, kwargs=_kwargs, disable_env_checker=False,
+                 max_episode_steps=max_episode_steps(_env_id), additional_wrappers=(_SUMMARY,))
 
 
 def env_class(env_id: str):

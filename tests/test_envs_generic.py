@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import pickle
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -205,3 +209,28 @@ def test_env_class_docstring_documents_the_contract(env_id):
     for section in ("Description", "Action space", "Observation space", "Rewards",
                     "Starting state", "Episode end", "Info", "Arguments", "Version history"):
         assert f"**{section}" in doc, f"{env_id} docstring lacks '{section}'"
+
+
+def test_constructing_any_environment_prints_nothing():
+    # Every current id in every obs mode, rendering on: no Python warning and
+    # nothing on stdout or stderr (MuJoCo's compiler deprecations included).
+    script = textwrap.dedent(
+        f"""
+        import warnings
+        warnings.simplefilter("always")
+        import gymnasium as gym, auv_envs
+        from tests.conftest import obs_modes
+        for env_id in {list(ENV_IDS)!r}:
+            for mode in obs_modes(env_id):
+                kwargs = {{"image_size": (64, 48)}} if mode in ("image", "stereo") else {{}}
+                env = gym.make(env_id, obs_mode=mode, render_mode="rgb_array",
+                               render_size=(64, 48), **kwargs)
+                env.reset(seed=0)
+                env.render()
+                env.close()
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "" and result.stderr == ""

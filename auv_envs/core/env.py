@@ -1,4 +1,5 @@
-"""Small helpers every environment shares: argument checks, action validation, pickling.
+"""Small helpers every environment shares: argument checks, action validation, pickling,
+the episode summary on an outside time limit.
 
 Deliberately functions and one mixin rather than a base class of empty hooks.
 """
@@ -10,6 +11,7 @@ import math
 import sys
 from collections.abc import Iterable
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
@@ -46,15 +48,18 @@ def check_positive_int(name: str, value) -> int:
     return value
 
 
-def check_image_size(image_size) -> tuple[int, int]:
-    """``(width, height)`` of an ``image_size`` argument; ``ValueError`` unless it is two
-    sizes of at least 8 pixels."""
-    size = tuple(image_size)
-    if len(size) != 2:
-        raise ValueError(f"image_size must be (width, height), got {image_size!r}")
-    width, height = (int(v) for v in size)
+def check_image_size(image_size, name: str = "image_size") -> tuple[int, int]:
+    """``(width, height)`` of an ``image_size``-like argument called ``name``; ``ValueError``
+    unless it is two whole sizes of at least 8 pixels."""
+    try:
+        width, height = (int(v) for v in tuple(image_size))
+        whole = all(float(v) == int(v) for v in image_size)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be (width, height), got {image_size!r}") from exc
+    if not whole:
+        raise ValueError(f"{name} must be whole pixels, got {image_size!r}")
     if width < 8 or height < 8:
-        raise ValueError(f"image_size must be at least 8x8 pixels, got {width}x{height}")
+        raise ValueError(f"{name} must be at least 8x8 pixels, got {width}x{height}")
     return width, height
 
 
@@ -167,3 +172,46 @@ class ReconstructingPickleMixin:
             self._np_random = rng
             self._np_random_seed = state["rng_seed"]
         self._set_runtime_state(state["runtime"])
+
+
+class EpisodeSummary(gym.Wrapper):
+    """Puts the episode's summary in ``info`` when a wrapper below truncated the episode.
+
+    Every ``auv_envs`` env writes ``info["episode_metrics"]`` on the step that
+    ends its episode, including truncation at its own ``time_limit``. Each id
+    also registers that limit as ``max_episode_steps``, so Gymnasium's
+    ``TimeLimit`` (which ``gym.make`` puts below this wrapper) truncates on the
+    same step. When ``gym.make(id, max_episode_steps=N)`` asks for a shorter
+    episode, ``TimeLimit`` truncates first and the env has written no summary;
+    this wrapper then adds ``env.unwrapped.episode_metrics()``, so an episode
+    truncated from outside is summarised like one the env truncated itself.
+
+    The other way round, an env built with a longer ``time_limit`` than its
+    default (``gym.make(id, time_limit=200)``) lengthens the ``TimeLimit``
+    below to its own ``max_episode_steps`` when that limit is still the
+    registered default: the env's keyword sets its episode length, and an
+    explicit ``max_episode_steps=N`` still wins.
+    """
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        unwrapped = env.unwrapped
+        if unwrapped.spec is None:
+            return
+        registered = gym.spec(unwrapped.spec.id).max_episode_steps
+        own = unwrapped.max_episode_steps
+        layer = env
+        while isinstance(layer, gym.Wrapper):
+            if isinstance(layer, gym.wrappers.TimeLimit):
+                # TimeLimit keeps its limit in this attribute (Gymnasium 1.x).
+                if layer._max_episode_steps == registered and own != registered:
+                    layer._max_episode_steps = own
+                    layer._cached_spec = None
+                break
+            layer = layer.env
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if (terminated or truncated) and "episode_metrics" not in info:
+            info = {**info, "episode_metrics": self.env.unwrapped.episode_metrics()}
+        return obs, reward, terminated, truncated, info

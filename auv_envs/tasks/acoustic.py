@@ -32,6 +32,7 @@ from auv_envs.core.env import (
     ActionValidator,
     ReconstructingPickleMixin,
     check_choice,
+    check_image_size,
     check_positive_int,
 )
 
@@ -70,6 +71,9 @@ CARRIER_SPEED = (0.2, 0.8)
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
               "tool_roll")
 CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
+#: Seconds of the end effector's path that ``render()`` draws, and of estimates in its close-up.
+RENDER_TRAIL = 10.0
+RENDER_CLOSEUP = 2.0
 
 
 def build_tank_model() -> mujoco.MjModel:
@@ -324,17 +328,44 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     ``error_clip`` (m, default 5), ``track_gate`` (m, default 1),
     ``success_radius`` (m, default 0.5), ``physics_substeps`` (physics steps
     per 0.01 s sample period, default 1; the end effector then stays within
-    6 mm of a 16x finer integration over 20 s, ``docs/physics.md``).
+    6 mm of a 16x finer integration over 20 s, ``docs/physics.md``),
+    ``render_mode`` (None or ``"rgb_array"``), ``render_size`` ((width,
+    height) of the rendered frames in pixels, default (640, 480), at least
+    8x8; ``ValueError`` otherwise).
+
+    **Rendering.** With ``render_mode="rgb_array"``, ``render()`` returns an
+    (H, W, 3) uint8 frame of ``render_size`` drawn with matplotlib's Agg
+    canvas (:class:`auv_envs.tasks.acoustic_render.TankPlot`): a top view
+    (x-y) and a side view (x-z, depth stretched) of the tank with the eight
+    nodes, the work area, the end effector's path over the last 10 s and its
+    position now, the agent's latest estimate (the last action) joined to it
+    by a line, and the current observation's real detections: each a 3-D ray
+    from its node along its azimuth and elevation, drawn until it leaves the
+    water and coloured by ``detection_origin`` (the source's rays meet at the
+    end effector; a ghost's ray ends at its reflection point on the surface
+    or the bottom); plus a close-up of the last 2 s around the end effector
+    (the estimate's error at its own scale), time, error (the last step's
+    ``estimate_error``), running RMSE, source depth and detection counts by
+    origin. The picture is drawn from the episode's own record, so rendering
+    changes no observation, reward, info or random draw. Before the first
+    ``reset()`` the unwrapped env draws the empty tank (``gym.make``'s
+    order-enforcing wrapper raises instead). The figure is built on the first
+    ``render()`` (about 0.5 s; then about 15 ms a 640x480 frame) and freed by
+    ``close()`` (a later ``render()`` builds it again); ``render()`` returns
+    None when ``render_mode`` is None.
 
     **Version history.** v0: initial release. Metric additions (dynamics,
     observations and reward unchanged): ``episode_metrics`` gained
     ``tcfe_fluctuation`` and ``error_bias``. Opt-in addition:
     ``AcousticConfig.flow_noise_level`` (off by default, so the default
     observations are unchanged, bit for bit). Opt-in addition:
-    ``physics_substeps`` (default 1, the v0 plant).
+    ``physics_substeps`` (default 1, the v0 plant). Rendering:
+    ``render_mode="rgb_array"`` draws a top view, a side view and a close-up
+    of the tank with the nodes, the true path, the estimate and the current
+    detections (``render_size``; observations, dynamics, rewards unchanged).
     """
 
-    metadata = {"render_modes": [], "render_fps": 100}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
 
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
@@ -354,6 +385,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         success_radius: float = 0.5,
         physics_substeps: int = 1,
         render_mode: str | None = None,
+        render_size: tuple[int, int] = (640, 480),
         **unknown,
     ):
         self._accept_arguments(
@@ -362,7 +394,10 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
             physics_substeps=physics_substeps, render_mode=render_mode,
+            render_size=render_size,
         )
+        self._render_size = check_image_size(render_size, "render_size")
+        self._init_kwargs["render_size"] = self._render_size
         check_positive_int("physics_substeps", physics_substeps)
         check_choice("disturbance", disturbance, tuple(DISTURBANCES))
         check_choice("trajectory", trajectory, TRAJECTORIES)
@@ -386,6 +421,10 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         self._physics.model.opt.timestep = self._dt / physics_substeps
         self._physics_substeps = physics_substeps
         self._horizon = int(round(time_limit * config.sample_rate))
+        #: Step period, s (one env step).
+        self.dt = self._dt
+        #: Steps of an episode (it always runs to its ``time_limit``).
+        self.max_episode_steps = self._horizon
         self._error_clip = float(error_clip)
         self._track_gate = float(track_gate)
         self._success_radius = float(success_radius)
@@ -414,6 +453,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(array)
         self._episode = _Episode()
+        self._plot = None  # the TankPlot, built on the first render()
 
     def _make_observation_space(self, array: HydrophoneArray) -> spaces.Space:
         if self.obs_mode == "state":
@@ -491,10 +531,53 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         return obs, reward, False, truncated, info
 
     def render(self):
-        return None
+        """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``), else None.
+
+        Drawn from the episode's own record (true positions, estimates and the
+        current detections), so rendering changes no observation, reward, info
+        or random draw. Before the first reset it draws the empty tank.
+        """
+        if self.render_mode != "rgb_array":
+            return None
+        if self._plot is None:
+            from auv_envs.tasks.acoustic_render import TankPlot  # matplotlib only when drawing
+
+            self._plot = TankPlot(self.calibration, self._render_size,
+                                  track_gate=self._track_gate, trail_seconds=RENDER_TRAIL,
+                                  closeup_seconds=RENDER_CLOSEUP)
+        ep = self._episode
+        if ep.positions is None:  # no episode yet
+            return self._plot.frame()
+        k = ep.steps
+        j = k - ep.block_start
+        trail_steps = int(round(RENDER_TRAIL / self._dt))
+        first = max(0, k - trail_steps)
+        trail = np.concatenate([ep.truths[first:k], ep.positions[j : j + 1]])
+        m = ep.measurements
+        mask = m.mask[j].ravel()
+        n = self.calibration.array.n_nodes
+        estimate, error, rmse = None, float("nan"), float("nan")
+        if k:
+            estimate = ep.estimates[k - 1]
+            error = float(np.linalg.norm(estimate - ep.truths[k - 1]))
+            rmse = math.sqrt(ep.squared_error_sum / k)
+        closeup_steps = int(round(RENDER_CLOSEUP / self._dt))
+        return self._plot.frame(
+            time=k * self._dt,
+            trail=trail,
+            estimate=estimate,
+            estimate_trail=ep.estimates[max(0, k - closeup_steps) : k],
+            azimuth=m.azimuth[j].reshape(-1, n)[mask],
+            elevation=m.elevation[j].reshape(-1, n)[mask],
+            origin=m.origin[j].ravel()[mask],
+            error=error,
+            rmse=rmse,
+        )
 
     def close(self):
-        pass
+        if self._plot is not None:
+            self._plot.close()
+            self._plot = None
 
     # ------------------------------------------------------------------ internals
     def _simulate_block(self, start: int) -> None:
@@ -557,6 +640,16 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             "detection_origin": ep.measurements.origin[j].copy(),
             "time": k * self._dt,
         }
+
+    def episode_metrics(self) -> dict:
+        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
+
+        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
+        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
+        """
+        if self._episode.steps < 1:
+            raise RuntimeError("no step taken yet: nothing to summarise")
+        return self._episode_metrics()
 
     def _episode_metrics(self) -> dict:
         ep = self._episode

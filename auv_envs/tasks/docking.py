@@ -539,11 +539,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, integrator=integrator,
             physics_substeps=physics_substeps, render_mode=render_mode,
-            render_camera=render_camera, render_size=tuple(render_size),
+            render_camera=render_camera, render_size=render_size,
         )
         check_choice("scenario", scenario, SCENARIOS)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
-        render_width, render_height = check_image_size(render_size)
+        render_width, render_height = check_image_size(render_size, "render_size")
+        self._init_kwargs["render_size"] = (render_width, render_height)
         check_choice("integrator", integrator, INTEGRATORS)
         width, height = check_image_size(image_size)
         for name, value in (("time_limit", time_limit),
@@ -578,6 +579,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self.vehicle = self._params
         #: Control period, s (one env step).
         self.dt = self._dt
+        #: Steps of an episode that runs to its ``time_limit``.
+        self.max_episode_steps = math.ceil(self._time_limit / self._dt - 1e-6)
 
         noisy = scenario == "current"
         nominal = (
@@ -914,6 +917,14 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         for name, key in self._reward_keys:
             info[key] = float(terms[name])
         return info
+
+    def episode_metrics(self) -> dict:
+        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
+
+        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
+        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
+        """
+        return self._episode_metrics(self._truth())
 
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode

@@ -344,11 +344,12 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
             render_mode=render_mode, render_camera=render_camera,
-            render_size=tuple(render_size),
+            render_size=render_size,
         )
         check_choice("sea_state", sea_state, SEA_STATES)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
-        render_width, render_height = check_image_size(render_size)
+        render_width, render_height = check_image_size(render_size, "render_size")
+        self._init_kwargs["render_size"] = (render_width, render_height)
         check_choice("control", control, CONTROLS)
         width, height = check_image_size(image_size)
         if not (math.isfinite(baseline) and 0.0 < baseline <= 1.0):
@@ -379,6 +380,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         arm = ArmModel(model)
         self._arm = arm
         self._dt = CONTROL_PERIOD
+        #: Step period, s (one env step).
+        self.dt = self._dt
+        #: Steps of an episode that runs to its ``time_limit``.
+        self.max_episode_steps = math.ceil(self._time_limit / self._dt - 1e-6)
         if abs(model.opt.timestep - PHYSICS_TIMESTEP) > 1e-12:
             raise ValueError("assets/lars/scene.xml timestep differs from PHYSICS_TIMESTEP")
 
@@ -823,6 +828,14 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "reward_failure": terms[3],
         }
         return info
+
+    def episode_metrics(self) -> dict:
+        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
+
+        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
+        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
+        """
+        return self._episode_metrics(self._truth())
 
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode
