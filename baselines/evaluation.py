@@ -33,6 +33,7 @@ import json
 import math
 import multiprocessing
 import os
+import re
 import socket
 import sys
 import tempfile
@@ -292,6 +293,36 @@ def scenario_label(env_kwargs: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(env_kwargs.items())) or "default"
 
 
+@dataclasses.dataclass(frozen=True)
+class VideoSpec:
+    """Record an episode while it is evaluated (:class:`auv_envs.record.EpisodeRecorder`).
+
+    Rendering does not change an episode: its row is the same with or without
+    a recording (tested).
+
+    Attributes:
+        directory: where the clips go.
+        size: frame size (W, H), both even.
+        speed: playback speed relative to real time; None: a full-length
+            episode plays in 20 s (:func:`auv_envs.record.auto_speed`).
+        gif: also write a GIF.
+    """
+
+    directory: str
+    size: tuple[int, int] = (320, 240)
+    speed: float | None = None
+    gif: bool = True
+
+    def stem(self, task: EpisodeTask) -> str:
+        """The clip's file name prefix: environment, agent, obs mode, scenario, seed."""
+        scenario = re.sub(r"[^A-Za-z0-9_.=-]+", "-", task.scenario).strip("-")
+        return f"{_short(task.env_id)}_{task.agent}_{task.obs_mode}_{scenario}_seed{task.seed}"
+
+    def path(self, task: EpisodeTask) -> Path:
+        """Where the MP4 of ``task``'s episode is (RecordVideo numbers episodes from 0)."""
+        return Path(self.directory) / f"{self.stem(task)}-episode-0.mp4"
+
+
 def failed_row(task: EpisodeTask, exc: BaseException, wall_time_s: float = 0.0) -> EpisodeRow:
     """The row of an episode that raised: status ``failed`` and the error with its location."""
     frames = traceback.extract_tb(exc.__traceback__)
@@ -311,19 +342,34 @@ def import_agent_modules(modules: Sequence[str]) -> None:
         importlib.import_module(module)
 
 
-def run_task(task: EpisodeTask, agent_modules: Sequence[str] = ()) -> EpisodeRow:
-    """Build a fresh env and agent for ``task`` and run it; any exception -> a failed row."""
+def run_task(task: EpisodeTask, agent_modules: Sequence[str] = (),
+             video: VideoSpec | None = None) -> EpisodeRow:
+    """Build a fresh env and agent for ``task`` and run it; any exception -> a failed row.
+
+    With ``video``, the episode is recorded as it runs (MP4 and GIF at
+    ``video.path(task)``); a failed episode leaves no clip.
+    """
     start = time.perf_counter()
     env = None
+    recorder = None
     try:
         import_agent_modules(agent_modules)
         spec = agent_spec(task.agent)
         kwargs = {**spec.env_kwargs, **task.kwargs}  # plan() skips conflicting values
+        if video is not None:
+            kwargs.update(render_mode="rgb_array", render_size=tuple(video.size))
         env = gym.make(task.env_id, obs_mode=task.obs_mode, **kwargs)
+        if video is not None:
+            from auv_envs.record import EpisodeRecorder
+
+            env = recorder = EpisodeRecorder(env, video.directory, video.stem(task),
+                                             speed=video.speed, gif=video.gif)
         agent = spec.factory(env.unwrapped)
         row = run_episode(env, agent, task.seed, task.env_id, task.agent, task.scenario)
         return dataclasses.replace(row, env_kwargs=jsonable(task.kwargs))
     except Exception as exc:  # an agent's failure is a result, not a crash of the run
+        if recorder is not None:
+            recorder.discard()  # no clip of a failed episode
         return failed_row(task, exc, time.perf_counter() - start)
     finally:
         if env is not None:
@@ -426,11 +472,12 @@ def _init_worker(agent_modules: Sequence[str]) -> None:
     import_agent_modules(agent_modules)
 
 
-def _run_local(tasks: Sequence[EpisodeTask], workers: int,
-               agent_modules: Sequence[str]) -> Iterator[tuple[EpisodeTask, EpisodeRow]]:
+def _run_local(tasks: Sequence[EpisodeTask], workers: int, agent_modules: Sequence[str],
+               videos: Mapping[EpisodeTask, VideoSpec]
+               ) -> Iterator[tuple[EpisodeTask, EpisodeRow]]:
     if workers == 1:
         for task in tasks:
-            yield task, run_task(task, agent_modules)
+            yield task, run_task(task, agent_modules, videos.get(task))
         return
     # Workers fork from a forkserver, not from this process (which may hold threads
     # or a GL context); it imports the agent modules once for all of them.
@@ -443,7 +490,8 @@ def _run_local(tasks: Sequence[EpisodeTask], workers: int,
     )
     finished = False
     try:
-        futures = {pool.submit(run_task, task, tuple(agent_modules)): task for task in tasks}
+        futures = {pool.submit(run_task, task, tuple(agent_modules), videos.get(task)): task
+                   for task in tasks}
         for future in concurrent.futures.as_completed(futures):
             task = futures[future]
             try:
@@ -493,7 +541,8 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
 
 
 def _run_ray(tasks: Sequence[EpisodeTask], workers: int, address: str | None,
-             agent_modules: Sequence[str]) -> Iterator[tuple[EpisodeTask, EpisodeRow]]:
+             agent_modules: Sequence[str], videos: Mapping[EpisodeTask, VideoSpec]
+             ) -> Iterator[tuple[EpisodeTask, EpisodeRow]]:
     ray = _import_ray()
     started = False
     if not ray.is_initialized():
@@ -504,7 +553,8 @@ def _run_ray(tasks: Sequence[EpisodeTask], workers: int, address: str | None,
             ray.init(num_cpus=workers, include_dashboard=False)
         started = True
     remote = ray.remote(num_cpus=1, max_retries=0)(run_task)
-    pending = {remote.remote(task, tuple(agent_modules)): task for task in tasks}
+    pending = {remote.remote(task, tuple(agent_modules), videos.get(task)): task
+               for task in tasks}
     try:
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
@@ -541,6 +591,7 @@ def run_tasks(
     progress: bool = False,
     stats: RunStats | None = None,
     refresh: bool = False,
+    videos: Mapping[EpisodeTask, VideoSpec] | None = None,
 ) -> list[EpisodeRow]:
     """Rows of ``tasks`` (in order): cached ones read, the rest run and cached as they finish.
 
@@ -555,6 +606,8 @@ def run_tasks(
         progress: show a tqdm progress bar on stderr.
         stats: filled with the counts of ran/cached/failed episodes.
         refresh: run every task again (and overwrite its cached episode).
+        videos: tasks to record while they run; one whose clip is missing runs
+            again even when its episode is cached.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
@@ -563,8 +616,11 @@ def run_tasks(
     stats = stats if stats is not None else RunStats()
     rows: dict[EpisodeTask, EpisodeRow] = {}
     todo = []
+    videos = dict(videos or {})
     for task in tasks:
         row = cache.load(task) if cache is not None and not refresh else None
+        if task in videos and not videos[task].path(task).exists():
+            row = None
         if row is None:
             todo.append(task)
         else:
@@ -576,9 +632,9 @@ def run_tasks(
               disable=not progress, dynamic_ncols=True) as bar:
         bar.set_postfix(cached=stats.cached, failed=0)
         if backend == "ray":
-            results = _run_ray(todo, workers, ray_address, agent_modules)
+            results = _run_ray(todo, workers, ray_address, agent_modules, videos)
         else:
-            results = _run_local(todo, workers, agent_modules)
+            results = _run_local(todo, workers, agent_modules, videos)
         for task, row in results:
             rows[task] = row
             stats.ran += 1
@@ -733,6 +789,8 @@ class EvaluationRun:
     rows: list[EpisodeRow]
     skipped: list[dict]
     stats: RunStats
+    #: ``(env_id, agent, obs_mode, scenario)`` -> the MP4 of its recorded episode.
+    clips: dict[tuple[str, str, str, str], Path] = dataclasses.field(default_factory=dict)
 
 
 def evaluate_all(
@@ -748,10 +806,13 @@ def evaluate_all(
     ray_address: str | None = None,
     agent_modules: Sequence[str] = (),
     progress: bool = False,
+    video: VideoSpec | None = None,
 ) -> EvaluationRun:
     """Plan, check and run an evaluation (see :func:`plan` and :func:`run_tasks`).
 
     Defaults: every registered environment and agent, 3 frozen seeds, no cache.
+    With ``video``, the first seed's episode of every (environment, agent, obs
+    mode, scenario) is recorded (``EvaluationRun.clips``).
     """
     import_agent_modules(agent_modules)
     env_ids = list(dict.fromkeys(env_ids or auv_envs.ENVIRONMENTS))
@@ -761,9 +822,17 @@ def evaluate_all(
     check_env_kwargs(tasks)
     stats = RunStats()
     cache = EpisodeCache(cache_dir) if cache_dir is not None else None
+    videos = {}
+    if video is not None:
+        first: dict[tuple, EpisodeTask] = {}
+        for task in tasks:
+            first.setdefault((task.env_id, task.agent, task.obs_mode, task.env_kwargs), task)
+        videos = {task: video for task in first.values()}
     rows = run_tasks(tasks, cache, backend, workers, ray_address, agent_modules, progress, stats,
-                     refresh)
-    return EvaluationRun(rows, skipped, stats)
+                     refresh, videos)
+    clips = {(t.env_id, t.agent, t.obs_mode, t.scenario): spec.path(t)
+             for t, spec in videos.items() if spec.path(t).exists()}
+    return EvaluationRun(rows, skipped, stats, clips)
 
 
 def evaluate(

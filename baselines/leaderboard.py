@@ -8,8 +8,11 @@ the pairs the plan skipped. Each environment gets its own table: its
 measures (SPEC §4; docking: success, time, final deviations, constraint
 violations, energy; LARS: capture, position-estimate error; acoustic: RMSE,
 maximum error, TFC, TCFE, OSPA). Every file is written atomically; the HTML
-page loads nothing from the network (inline CSS and script, plots as files
-next to it).
+page loads nothing from the network (inline CSS and script, plots and clips as
+files next to it). The page opens on an overview (per environment and
+scenario, the agents ranked with success and one headline metric), then each
+environment's full table (scrolling sideways in its own box), its clips and a
+plot of the metrics that differ between its agents.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from urllib.parse import quote
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -201,10 +205,11 @@ INTERVAL_NOTE = ("Each cell: mean [95 % interval] over the episodes (success: Wi
 
 def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
              plots: Mapping[str, str] | None = None, meta: Mapping | None = None,
-             compact: bool = False) -> str:
+             compact: bool = False, clips: Clips | None = None) -> str:
     """The leaderboard as Markdown: one table per environment, then the skipped pairs.
 
-    ``compact``: only :data:`COMPACT_METRICS` (the terminal's view).
+    ``compact``: only :data:`COMPACT_METRICS` (the terminal's view). ``clips``
+    (see :data:`Clips`): listed as links under each environment's table.
     """
     lines = ["# Leaderboard", ""]
     if meta:
@@ -229,6 +234,10 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
                 lines.append(f"- **{row['agent']}** ({row['obs_mode']}, {row['scenario']}): "
                              f"{row['failed']}/{row['episodes']} episodes failed: "
                              + "; ".join(row["errors"]))
+        listed = [r for r in rows if clips and clip_key(r) in clips]
+        if listed:
+            lines += ["", "Clips: " + ", ".join(
+                f"[{_row_name(r, rows)}]({quote(clips[clip_key(r)])})" for r in listed)]
         if plots and env_id in plots:
             lines += ["", f"![{env_id}]({plots[env_id]})"]
         lines.append("")
@@ -275,9 +284,26 @@ def _interval_error(stat: Mapping | None) -> tuple[float, float]:
     return max(0.0, stat["mean"] - interval[0]), max(0.0, interval[1] - stat["mean"])
 
 
-def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
-    """PNG: one horizontal bar chart (mean and 95 % interval) per headline metric."""
-    keys = [k for k in headline_keys(rows) if any(k in r["metrics"] for r in rows)]
+def varying_keys(rows: Sequence[Mapping]) -> list[str]:
+    """The headline metrics whose mean differs between ``rows`` (the rows that report it).
+
+    A metric with the same mean for every agent (e.g. no agent ever violates a
+    constraint: all zeros) tells nothing in a bar chart.
+    """
+    keys = []
+    for key in headline_keys(rows):
+        means = {r["metrics"][key]["mean"] for r in rows if key in r["metrics"]}
+        if len({m for m in means if not math.isnan(m)}) > 1:
+            keys.append(key)
+    return keys
+
+
+def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes | None:
+    """PNG: one horizontal bar chart (mean and 95 % interval) per headline metric
+    that varies between the agents (:func:`varying_keys`); None when none does."""
+    keys = varying_keys(rows)
+    if not keys:
+        return None
     ncols = min(3, len(keys))
     nrows = math.ceil(len(keys) / ncols)
     names = [_row_name(r, rows) for r in rows]
@@ -321,19 +347,67 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes:
 
 
 # ---------------------------------------------------------------------- html
+#: Clips: ``(env_id, agent, obs_mode, scenario)`` -> path of a video relative
+#: to the output directory.
+Clips = Mapping[tuple[str, str, str, str], str]
+
 _STYLE = """
-body { font-family: system-ui, sans-serif; margin: 1.5rem; color: #222; }
+*, *::before, *::after { box-sizing: border-box; }
+body { font-family: system-ui, sans-serif; color: #222; line-height: 1.35;
+       max-width: 110rem; margin: 0 auto; padding: 1rem 1.5rem 2rem; }
+h1 { font-size: 1.6rem; margin: 0 0 0.25rem; }
+h2 { font-size: 1.3rem; margin: 2rem 0 0.5rem; }
+h3 { font-size: 1.05rem; margin: 0 0 0.3rem; }
+h1, h2, h3, code { overflow-wrap: anywhere; }
+a { color: #1f4e9c; }
+p.meta { margin: 0 0 0.5rem; color: #555; font-size: 0.85rem; }
+p.meta span { margin-right: 1.2rem; }
+p.legend { margin: 0 0 0.75rem; color: #444; font-size: 0.9rem; max-width: 60rem; }
+section#overview { margin-bottom: 1rem; }
+section#overview h2 { margin-top: 1rem; }
+.cards { display: grid; gap: 1rem;
+         grid-template-columns: repeat(auto-fill, minmax(min(100%, 38rem), 1fr)); }
+.card { min-width: 0; border: 1px solid #ccd; border-radius: 6px; padding: 0.6rem 0.75rem;
+        background: #fafbff; }
+.card .sub { color: #666; font-size: 0.85rem; font-weight: normal; }
+.scroll { overflow-x: auto; max-width: 100%; }
 table { border-collapse: collapse; margin: 0.5rem 0 1rem; font-size: 0.9rem; }
 th, td { border: 1px solid #ccc; padding: 0.25rem 0.5rem; }
-th { background: #eef; }
+th { background: #eef; text-align: left; }
+table.overview { width: 100%; margin: 0; }
+table.overview th, table.overview td { border-width: 0 0 1px; }
+table.overview td.rank { font-weight: 600; text-align: center; width: 2.5rem; }
+table.overview td.agent { overflow-wrap: anywhere; }
+table.overview td.num { white-space: nowrap; }
+table.overview th.num { text-align: right; }
+.mode { color: #666; font-size: 0.85em; }
+.value { white-space: nowrap; }
+.ci { color: #666; font-size: 0.85em; white-space: nowrap; }
 table.leaderboard th { cursor: pointer; user-select: none; }
 table.leaderboard th[aria-sort="ascending"]::after { content: " \\25B2"; }
 table.leaderboard th[aria-sort="descending"]::after { content: " \\25BC"; }
-tr.failed td { background: #fee; }
 table.leaderboard td { white-space: nowrap; }
+table.leaderboard td.errors { white-space: normal; min-width: 16rem; }
+tr.failed td { background: #fee; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; }
-img.plot { max-width: 100%; border: 1px solid #ddd; }
+img.plot { display: block; max-width: 100%; height: auto; border: 1px solid #ddd; }
+.clips { display: flex; flex-wrap: wrap; gap: 0.75rem; margin: 0 0 1rem; }
+.clips figure { margin: 0; width: 320px; max-width: 100%; }
+.clips video { display: block; width: 100%; height: auto; background: #000; }
+.clips figcaption { font-size: 0.85rem; color: #444; }
 code { background: #f4f4f4; padding: 0 0.2rem; }
+details { margin: 2rem 0 1rem; }
+details summary { cursor: pointer; font-weight: 600; }
+@media (max-width: 40rem) {
+  body { padding: 0.75rem; }
+  .card { padding: 0.4rem 0.3rem; }
+  table.overview { font-size: 0.8rem; }
+  table.overview th, table.overview td { padding: 0.2rem 0.25rem; }
+  table.overview td.rank { width: 1.8rem; }
+  table.overview td.agent { min-width: 7.5rem; }
+  .ci, .mode { display: block; }
+  table.overview td.num { white-space: normal; }
+}
 """
 
 # Click a header to sort by that column (toggling ascending/descending). Cells
@@ -365,75 +439,224 @@ document.querySelectorAll("table.leaderboard").forEach(function (table) {
 });
 """
 
+OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE); =2: tied, their 95 % "
+                 "intervals overlap; –: the agent failed. Each cell: mean [95 % interval] "
+                 "over the episodes. Full tables, clips and plots per environment below.")
+
+
+def overview_metric(rows: Sequence[Mapping]) -> str | None:
+    """The metric the overview shows beside success for one environment's ``rows``.
+
+    Its ranking metric when that is not success (tracking: RMSE), else the first
+    of :data:`COMPACT_METRICS` after success that the rows report (docking
+    time, capture error); None when they report none.
+    """
+    key, _ = rank_metric(rows)
+    if key != "success":
+        return key
+    present = {k for r in rows for k in r["metrics"]}
+    return next((k for k in COMPACT_METRICS[1:] if k in present), None)
+
+
+def by_scenario(rows: Sequence[Mapping]) -> dict[str, list[Mapping]]:
+    """One environment's rows (best first) per scenario, first-seen order."""
+    groups: dict[str, list[Mapping]] = {}
+    for row in rows:
+        groups.setdefault(row["scenario"], []).append(row)
+    return groups
+
+
+def short_rank(rank: tuple[int, bool] | None) -> str:
+    """A :func:`ranks` entry as the overview's text: ``"2"``, ``"=2"`` (tied), ``"–"``."""
+    if rank is None:
+        return "–"
+    return f"={rank[0]}" if rank[1] else str(rank[0])
+
+
+def _anchor(env_id: str) -> str:
+    return "env-" + _short(env_id)
+
+
+def _cell_html(row: Mapping, key: str) -> str:
+    """:func:`cell_text` as HTML: the value unbroken, its interval in a muted span."""
+    text, bracket, interval = cell_text(row, key).partition(" [")
+    esc = html.escape
+    ci = f' <span class="ci">[{esc(interval)}</span>' if bracket else ""
+    return f'<span class="value">{esc(text)}</span>{ci}'
+
+
+def _agent_html(row: Mapping, rows: Sequence[Mapping]) -> str:
+    """:func:`_row_name` as HTML: the agent, then its obs mode / scenario muted."""
+    name, bracket, rest = _row_name(row, rows).partition(" [")
+    esc = html.escape
+    return esc(name) + (f' <span class="mode">[{esc(rest)}</span>' if bracket else "")
+
+
+def _episodes_note(rows: Sequence[Mapping]) -> str:
+    counts = sorted({r["episodes"] for r in rows})
+    text = str(counts[0]) if len(counts) == 1 else f"{counts[0]}–{counts[-1]}"
+    return f"{text} episode{'s' if counts[-1] != 1 else ''} per agent"
+
+
+def _card_html(env_id: str, scenario: str | None, rows: Sequence[Mapping]) -> str:
+    """The overview card of one environment (and scenario): its agents ranked."""
+    esc = html.escape
+    keys = ["success"] + [k for k in [overview_metric(rows)] if k is not None]
+    title = f'<a href="#{esc(_anchor(env_id))}">{esc(_short(env_id))}</a>'
+    if scenario is not None:
+        title += f" <span class=\"sub\">{esc(scenario)}</span>"
+    head = "".join(
+        f'<th class="num" title="{esc(HEADLINE_METRICS.get(k, ("", "", "lower"))[2])} is better">'
+        f"{esc(metric_label(k))}</th>" for k in keys)
+    out = [f'<div class="card" data-env="{esc(env_id)}" '
+           f'data-scenario="{esc(rows[0]["scenario"])}">',
+           f'<h3>{title} <span class="sub">· {esc(_episodes_note(rows))}</span></h3>',
+           '<div class="scroll"><table class="overview"><thead><tr><th>rank</th><th>agent</th>'
+           f"{head}</tr></thead><tbody>"]
+    for row, rank in zip(rows, ranks(rows), strict=True):
+        cells = "".join(f'<td class="num">{_cell_html(row, k)}</td>' for k in keys)
+        tie = ' title="tied: 95 % intervals overlap"' if rank and rank[1] else ""
+        cls = ' class="failed"' if row["status"] == "failed" else ""
+        out.append(f'<tr{cls}><td class="rank"{tie}>{esc(short_rank(rank))}</td>'
+                   f'<td class="agent">{_agent_html(row, rows)}</td>{cells}</tr>')
+    out.append("</tbody></table></div></div>")
+    return "\n".join(out)
+
+
+def overview_html(groups: Mapping[str, Sequence[Mapping]]) -> str:
+    """The page's first section: per environment (and scenario, where it has several) a
+    card with its agents ranked (:func:`ranks` within the scenario), success and
+    :func:`overview_metric`."""
+    cards = []
+    for env_id, rows in groups.items():
+        scenarios = by_scenario(rows)
+        for scenario, subset in scenarios.items():
+            cards.append(_card_html(env_id, scenario if len(scenarios) > 1 else None, subset))
+    return ('<section id="overview"><h2>Overview</h2>'
+            f'<p class="legend">{html.escape(OVERVIEW_NOTE)}</p>'
+            '<div class="cards">\n' + "\n".join(cards) + "\n</div></section>")
+
+
+def _table_html(env_id: str, rows: Sequence[Mapping]) -> str:
+    """One environment's full sortable table, in a box that scrolls sideways."""
+    esc = html.escape
+    keys = headline_keys(rows)
+    header = ["rank", "agent", "obs mode", "scenario", "episodes", "failed"]
+    header += [metric_label(k) for k in keys] + ["errors"]
+    out = [f'<div class="scroll"><table class="leaderboard" data-env="{esc(env_id)}"><thead><tr>'
+           + "".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>"]
+    for row, rank, label in zip(rows, ranks(rows), rank_labels(rows), strict=True):
+        cls = ' class="failed"' if row["failed"] else ""
+        cells = [f'<td class="num" data-value="{"" if rank is None else rank[0]}">'
+                 f"{esc(label)}</td>"]
+        cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
+        cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
+                  for f in ("episodes", "failed")]
+        for key in keys:
+            stat = row["metrics"].get(key)
+            value = "" if stat is None else repr(stat["mean"])
+            cells.append(f'<td class="num" data-value="{value}">{esc(cell_text(row, key))}</td>')
+        cells.append(f'<td class="errors">{esc("; ".join(row["errors"]))}</td>')
+        out.append(f"<tr{cls}>" + "".join(cells) + "</tr>")
+    out.append("</tbody></table></div>")
+    return "\n".join(out)
+
+
+def clip_key(row: Mapping) -> tuple[str, str, str, str]:
+    """A row's key in a clips mapping: ``(env_id, agent, obs_mode, scenario)``."""
+    return row["env_id"], row["agent"], row["obs_mode"], row["scenario"]
+
+
+def _clips_html(rows: Sequence[Mapping], clips: Clips | None) -> str:
+    """A gallery of the clips of one environment's rows that have one ('' when none)."""
+    esc = html.escape
+    # Muted clips may autoplay: the gallery moves as soon as the page opens.
+    figures = [f'<figure><video src="{esc(quote(clips[clip_key(row)]))}" width="320" muted loop '
+               'playsinline autoplay controls preload="auto"></video>'
+               f"<figcaption>{esc(_row_name(row, rows))}</figcaption></figure>"
+               for row in rows if clips and clip_key(row) in clips]
+    if not figures:
+        return ""
+    return '<div class="clips">\n' + "\n".join(figures) + "\n</div>"
+
+
+def _skipped_html(skipped: Sequence[Mapping]) -> str:
+    """The skipped pairs, folded away (they are not results)."""
+    esc = html.escape
+    rows = "".join(f"<tr><td>{esc(s['env_id'])}</td><td>{esc(s['agent'])}</td>"
+                   f"<td>{esc(s['scenario'])}</td><td>{esc(s['reason'])}</td></tr>"
+                   for s in skipped)
+    return (f'<details id="skipped"><summary>Skipped: {len(skipped)} (environment, agent) '
+            "pairs where the agent does not apply</summary>"
+            '<div class="scroll"><table class="skipped"><thead><tr><th>env</th><th>agent</th>'
+            f"<th>scenario</th><th>reason</th></tr></thead><tbody>{rows}</tbody></table></div>"
+            "</details>")
+
 
 def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
-         plots: Mapping[str, str] | None = None, meta: Mapping | None = None) -> str:
-    """A self-contained HTML page: per environment a sortable table and its plot."""
+         plots: Mapping[str, str] | None = None, meta: Mapping | None = None,
+         clips: Clips | None = None) -> str:
+    """A self-contained HTML page: the overview (:func:`overview_html`) first, then per
+    environment a sortable table, its clips (``clips``: see :data:`Clips`) and its plot."""
     esc = html.escape
+    groups = by_env(summary)
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           '<meta name="viewport" content="width=device-width, initial-scale=1">',
            "<title>auv_envs leaderboard</title>", f"<style>{_STYLE}</style></head><body>",
            "<h1>auv_envs leaderboard</h1>"]
     if meta:
-        out.append("<ul>" + "".join(f"<li>{esc(str(k))}: <code>{esc(str(v))}</code></li>"
-                                    for k, v in meta.items()) + "</ul>")
-    out.append(f"<p>{esc(INTERVAL_NOTE)} Click a column header to sort.</p>")
-    for env_id, rows in by_env(summary).items():
-        keys = headline_keys(rows)
-        out.append(f"<h2>{esc(env_id)}</h2>")
-        out.append(f'<table class="leaderboard" data-env="{esc(env_id)}"><thead><tr>')
-        header = ["rank", "agent", "obs mode", "scenario", "episodes", "failed"]
-        header += [metric_label(k) for k in keys] + ["errors"]
-        out.append("".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>")
-        for row, rank, label in zip(rows, ranks(rows), rank_labels(rows), strict=True):
-            cls = ' class="failed"' if row["failed"] else ""
-            cells = [f'<td class="num" data-value="{"" if rank is None else rank[0]}">'
-                     f"{esc(label)}</td>"]
-            cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
-            cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
-                      for f in ("episodes", "failed")]
-            for key in keys:
-                stat = row["metrics"].get(key)
-                value = "" if stat is None else repr(stat["mean"])
-                cells.append(f'<td class="num" data-value="{value}">'
-                             f"{esc(cell_text(row, key))}</td>")
-            cells.append(f"<td>{esc('; '.join(row['errors']))}</td>")
-            out.append(f"<tr{cls}>" + "".join(cells) + "</tr>")
-        out.append("</tbody></table>")
-        if plots and env_id in plots:
-            out.append(f'<img class="plot" src="{esc(plots[env_id])}" '
-                       f'alt="metrics of {esc(env_id)}">')
+        out.append('<p class="meta">' + "".join(
+            f"<span>{esc(str(k))}: <code>{esc(str(v))}</code></span>" for k, v in meta.items())
+            + "</p>")
+    out.append(overview_html(groups))
+    out.append('<p class="legend">Intervals: Wilson for success rates, percentile bootstrap of '
+               "the mean for the other metrics. Click a column header of a table to sort by "
+               "it.</p>")
+    for env_id, rows in groups.items():
+        out.append(f'<section class="env" id="{esc(_anchor(env_id))}" data-env="{esc(env_id)}">'
+                   f"<h2>{esc(env_id)}</h2>")
+        out.append(_table_html(env_id, rows))
+        out.append(_clips_html(rows, clips))
+        if plots and env_id in plots:  # a link: on a phone the plot opens at full size
+            out.append(f'<a href="{esc(plots[env_id])}"><img class="plot" '
+                       f'src="{esc(plots[env_id])}" alt="metrics of {esc(env_id)}"></a>')
+        out.append("</section>")
     if skipped:
-        out.append("<h2>Skipped (agent does not apply)</h2>")
-        out.append('<table class="skipped"><thead><tr><th>env</th><th>agent</th>'
-                   "<th>scenario</th><th>reason</th></tr></thead><tbody>")
-        out += [f"<tr><td>{esc(s['env_id'])}</td><td>{esc(s['agent'])}</td>"
-                f"<td>{esc(s['scenario'])}</td><td>{esc(s['reason'])}</td></tr>" for s in skipped]
-        out.append("</tbody></table>")
+        out.append(_skipped_html(skipped))
     out.append(f"<script>{_SCRIPT}</script></body></html>")
     return "\n".join(out)
 
 
 # --------------------------------------------------------------------- write
 def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
-          episodes: Sequence = (), meta: Mapping | None = None) -> dict[str, Path]:
+          episodes: Sequence = (), meta: Mapping | None = None,
+          clips: Clips | None = None) -> dict[str, Path]:
     """Write every leaderboard output under ``out_dir``; returns name -> path.
 
     Files: ``leaderboard.{md,csv,json,html}``, ``skipped.json``,
-    ``episodes.json`` (the per-episode rows) and ``plots/<env>.png``.
+    ``episodes.json`` (the per-episode rows) and ``plots/<env>.png`` for each
+    environment where a metric varies between the agents (:func:`plot_env`; an
+    earlier run's plot of an environment without one is removed). ``clips``
+    (:data:`Clips`, paths relative to ``out_dir``) are shown on the page and
+    listed in the Markdown; they are not copied.
     """
     out = Path(out_dir)
     paths: dict[str, Path] = {}
     plots: dict[str, str] = {}
     for env_id, rows in by_env(summary).items():
         rel = f"plots/{_short(env_id)}.png"
-        atomic_write(out / rel, plot_env(env_id, rows))
+        png = plot_env(env_id, rows)
+        if png is None:
+            (out / rel).unlink(missing_ok=True)
+            continue
+        atomic_write(out / rel, png)
         plots[env_id] = rel
         paths[rel] = out / rel
     texts = {
-        "leaderboard.md": markdown(summary, skipped, plots, meta),
+        "leaderboard.md": markdown(summary, skipped, plots, meta, clips=clips),
         "leaderboard.csv": csv_text(summary),
         "leaderboard.json": json.dumps(jsonable(list(summary)), indent=1),
-        "leaderboard.html": page(summary, skipped, plots, meta),
+        "leaderboard.html": page(summary, skipped, plots, meta, clips),
         "skipped.json": json.dumps(list(skipped), indent=1),
         "episodes.json": json.dumps([row_to_dict(r) for r in episodes], indent=1),
     }

@@ -297,9 +297,9 @@ def test_rerun_reads_the_cache_and_runs_only_missing_episodes(tmp_path, monkeypa
     real_run_task = evaluation.run_task
     calls = []
 
-    def counting_run_task(task, agent_modules=()):
+    def counting_run_task(task, agent_modules=(), video=None):
         calls.append(task)
-        return real_run_task(task, agent_modules)
+        return real_run_task(task, agent_modules, video)
 
     monkeypatch.setattr(evaluation, "run_task", counting_run_task)
     second = evaluate_all(**args)
@@ -319,11 +319,11 @@ def test_interrupted_run_keeps_every_finished_episode(tmp_path, monkeypatch):
     real_run_task = evaluation.run_task
     calls = []
 
-    def interrupted(task, agent_modules=()):
+    def interrupted(task, agent_modules=(), video=None):
         calls.append(task)
         if len(calls) == 3:
             raise KeyboardInterrupt
-        return real_run_task(task, agent_modules)
+        return real_run_task(task, agent_modules, video)
 
     monkeypatch.setattr(evaluation, "run_task", interrupted)
     args = dict(env_ids=[DOCK], agents=["random"], seeds=[1, 2, 3, 4], cache_dir=tmp_path)

@@ -1,14 +1,16 @@
-"""evaluate.py end to end: the leaderboard files, resuming, the HTML page in Chromium, Ray."""
+"""evaluate.py end to end: the leaderboard files, resuming, the HTML page in Chromium, Ray;
+the page's overview, plots and clips."""
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
+from urllib.parse import unquote
 
 import pytest
 
@@ -16,6 +18,7 @@ import evaluate
 from baselines import leaderboard
 from baselines.evaluation import evaluate_all, row_to_dict, summarise
 from baselines.stats import wilson_interval
+from scripts.screenshot_leaderboard import CHROMIUM, open_chromium, screenshots
 from tests.conftest import DOCKING_IDS
 
 DOCK = DOCKING_IDS[0]
@@ -25,11 +28,9 @@ TINY = ["--envs", DOCK, "LARSCapture-v0", "--agents", "random", "pd-state",
         "--no-progress"]
 #: (env, agent) pairs of the tiny run; pd-state does not apply to LARS.
 PAIRS = {(DOCK, "random"), (DOCK, "pd-state"), (LARS, "random")}
-CHROMIUM = "/usr/bin/chromium"
-#: Flags that keep Chromium quiet on a closed network (FACTS.md).
-CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                 "--disable-background-networking", "--disable-component-update",
-                 "--disable-sync"]
+needs_chromium = pytest.mark.skipif(
+    not os.path.exists(CHROMIUM),
+    reason=f"{CHROMIUM} is not installed (.ci/run installs Debian's chromium)")
 
 
 @pytest.fixture(scope="module")
@@ -43,6 +44,10 @@ def tiny_run(tmp_path_factory):
 def test_tiny_run_writes_every_output(tiny_run):
     for name in leaderboard.OUTPUT_FILES:
         assert (tiny_run / name).stat().st_size > 0, name
+    # One clip (an MP4 for the page) per (environment, agent): the first seed's episode.
+    clips = sorted(p.name for p in (tiny_run / "videos").iterdir())
+    assert len(clips) == len(PAIRS)
+    assert all(name.endswith("seed100000-episode-0.mp4") for name in clips), clips
     rows = json.loads((tiny_run / "leaderboard.json").read_text())
     assert {(r["env_id"], r["agent"]) for r in rows} == PAIRS and len(rows) == len(PAIRS)
     for row in rows:
@@ -72,9 +77,11 @@ def test_tiny_run_writes_every_output(tiny_run):
     # 0/2 successes for both docking agents: Wilson [0 %, 66 %] each, a tie.
     assert "| 1 (tie) | pd-state |" in md and "0% (0/2) [0%, 66%]" in md
     assert "supports only" in md and "(plots/DockingStation-v1.png)" in md
-    for env_id in (DOCK, LARS):
-        png = tiny_run / "plots" / f"{env_id.split('/')[1]}.png"
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    png = tiny_run / "plots" / "DockingStation-v1.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # LARS has one agent: nothing varies between agents, so no plot.
+    assert not (tiny_run / "plots" / "LARSCapture-v0.png").exists()
+    assert "LARSCapture-v0.png" not in md
 
 
 def test_rerun_resumes_from_the_cache(tiny_run, tmp_path, capsys):
@@ -149,57 +156,286 @@ def test_unreachable_ray_address_is_a_clear_error(tmp_path, capsys):
     assert "cannot reach the Ray cluster at 127.0.0.1:1" in capsys.readouterr().err
 
 
+def _listen(page, console: list, page_errors: list, failed: list) -> None:
+    """Collect ``page``'s console errors, uncaught errors and failed requests."""
+    page.on("console", lambda m: console.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: page_errors.append(str(e)))
+    page.on("requestfailed", lambda r: failed.append(r.url))
+
+
 def _chromium_page(url: str):
     """(console errors, page errors, failed requests, row texts, sort results) of ``url``."""
-    from playwright.sync_api import sync_playwright
-
     console, page_errors, failed = [], [], []
-    with tempfile.TemporaryDirectory() as profile, sync_playwright() as pw:
-        browser = pw.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page()
-            page.on("console", lambda m: console.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: page_errors.append(str(e)))
-            page.on("requestfailed", lambda r: failed.append(r.url))
-            page.goto(url)
-            page.wait_for_load_state("load")
-            rows = page.eval_on_selector_all(
-                "table.leaderboard tbody tr",
-                "rows => rows.map(r => [r.closest('table').dataset.env, r.cells[1].textContent])")
-            images = page.eval_on_selector_all(
-                "img.plot", "imgs => imgs.map(i => i.complete && i.naturalWidth > 0)")
-            table = f'table.leaderboard[data-env="{DOCK}"]'
-            headers = page.eval_on_selector_all(f"{table} thead th",
-                                                "hs => hs.map(h => h.textContent)")
-            column = headers.index("return")
-            read = (f"t => Array.from(t.tBodies[0].rows).map(r => "
-                    f"parseFloat(r.cells[{column}].dataset.value))")
-            header = page.locator(f"{table} thead th").nth(column)
-            header.click()
-            ascending = page.eval_on_selector(table, read)
-            state_up = header.get_attribute("aria-sort")
-            header.click()
-            descending = page.eval_on_selector(table, read)
-            state_down = header.get_attribute("aria-sort")
-        finally:
-            browser.close()
+    with open_chromium() as browser:
+        page = browser.new_page()
+        _listen(page, console, page_errors, failed)
+        page.goto(url)
+        page.wait_for_load_state("load")
+        rows = page.eval_on_selector_all(
+            "table.leaderboard tbody tr",
+            "rows => rows.map(r => [r.closest('table').dataset.env, r.cells[1].textContent])")
+        images = page.eval_on_selector_all(
+            "img.plot", "imgs => imgs.map(i => i.complete && i.naturalWidth > 0)")
+        table = f'table.leaderboard[data-env="{DOCK}"]'
+        headers = page.eval_on_selector_all(f"{table} thead th",
+                                            "hs => hs.map(h => h.textContent)")
+        column = headers.index("return")
+        read = (f"t => Array.from(t.tBodies[0].rows).map(r => "
+                f"parseFloat(r.cells[{column}].dataset.value))")
+        header = page.locator(f"{table} thead th").nth(column)
+        header.click()
+        ascending = page.eval_on_selector(table, read)
+        state_up = header.get_attribute("aria-sort")
+        header.click()
+        descending = page.eval_on_selector(table, read)
+        state_down = header.get_attribute("aria-sort")
     return console, page_errors, failed, rows, images, (ascending, state_up, descending,
                                                          state_down)
 
 
-@pytest.mark.skipif(not os.path.exists(CHROMIUM), reason=f"{CHROMIUM} is not installed "
-                    "(.ci/run installs Debian's chromium)")
+@needs_chromium
 def test_html_page_opens_in_headless_chromium_and_sorts(tiny_run):
     page = Path(tiny_run) / "leaderboard.html"
     console, page_errors, failed, rows, images, sort = _chromium_page(page.as_uri())
     assert console == [] and page_errors == [] and failed == []
     assert sorted(map(tuple, rows)) == sorted(PAIRS)  # one row per agent and environment
-    assert images == [True, True]  # both plots loaded
+    assert images == [True]  # the docking plot loaded; LARS (one agent) has none
     ascending, state_up, descending, state_down = sort
     assert len(ascending) == 2 and ascending == sorted(ascending)
     assert descending == sorted(ascending, reverse=True) and ascending != descending
     assert (state_up, state_down) == ("ascending", "descending")
+
+
+#: The background colour of the test clips (pure green: easy to find in a screenshot).
+CLIP_GREEN = (0, 160, 0)
+
+
+def _write_clip(path: Path, codec: str = "libx264", seconds: float = 3.0) -> None:
+    """A small moving test video (a white bar sweeping over green) at ``path``."""
+    import numpy as np
+    from moviepy import ImageSequenceClip
+
+    fps, frames = 10, []
+    for i in range(round(seconds * fps)):
+        frame = np.full((48, 64, 3), CLIP_GREEN, dtype=np.uint8)
+        frame[:, (2 * i) % 64:(2 * i) % 64 + 4] = 255
+        frames.append(frame)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ImageSequenceClip(frames, fps=fps).write_videofile(str(path), codec=codec, audio=False,
+                                                       logger=None)
+
+
+#: Reads the page's layout: page-level overflow, the first section, which boxes scroll.
+_LAYOUT = """() => {
+  const scrolls = b => b.scrollWidth > b.clientWidth;
+  const boxes = Array.from(document.querySelectorAll("section.env .scroll"));
+  const cards = Array.from(document.querySelectorAll("#overview .scroll"));
+  const first = document.querySelector("section");
+  return {scrollWidth: document.documentElement.scrollWidth, innerWidth: window.innerWidth,
+          firstSection: first.id, overviewTop: first.getBoundingClientRect().top,
+          innerHeight: window.innerHeight,
+          tableScrolls: boxes.some(scrolls), overviewScrolls: cards.some(scrolls)};
+}"""
+
+#: Plays every <video> (muted, as a visitor's click would) and reports after a while.
+_PLAY = """async () => Promise.all(Array.from(document.querySelectorAll("video")).map(
+  async v => {
+    let playError = null;
+    try { await v.play(); } catch (e) { playError = String(e); }
+    const start = v.currentTime;
+    await new Promise(r => setTimeout(r, 800));
+    return {src: v.getAttribute("src"), readyState: v.readyState, start: start,
+            now: v.currentTime, error: v.error && v.error.code, playError: playError};
+  }))"""
+
+
+@needs_chromium
+def test_page_fits_wide_and_phone_windows_and_its_clips_play(tiny_run, tmp_path):
+    out = tmp_path / "lb"
+    shutil.copytree(tiny_run, out)
+    summary = json.loads((out / "leaderboard.json").read_text())
+    clips = {(DOCK, "pd-state", "state", "time_limit=20"): "clips/dock pd-state.mp4",
+             (LARS, "random", "state", "time_limit=20"): "clips/lars-random.mp4"}
+    for rel in clips.values():
+        _write_clip(out / rel)
+    leaderboard.write(out, summary, json.loads((out / "skipped.json").read_text()), clips=clips)
+    url = (out / "leaderboard.html").as_uri()
+    console, page_errors, failed = [], [], []
+    with open_chromium() as browser:
+        for width in (1400, 390):
+            page = browser.new_page()
+            _listen(page, console, page_errors, failed)
+            page.set_viewport_size({"width": width, "height": 900})
+            page.goto(url)
+            page.wait_for_load_state("load")
+            layout = page.evaluate(_LAYOUT)
+            assert layout["scrollWidth"] <= layout["innerWidth"] == width, layout
+            assert layout["firstSection"] == "overview", layout
+            assert layout["overviewTop"] < layout["innerHeight"] / 3, layout
+            if width == 390:  # the docking table is wider than a phone: its box scrolls
+                assert layout["tableScrolls"], layout
+            assert not layout["overviewScrolls"], layout  # the overview fits, even on a phone
+            videos = page.evaluate(_PLAY)
+            assert sorted(v["src"] for v in videos) == sorted(
+                p.replace(" ", "%20") for p in clips.values())
+            for video in videos:
+                assert video["error"] is None and video["playError"] is None, video
+                assert video["readyState"] >= 2 and video["now"] > video["start"], video
+            for video in page.locator("video").all():  # frames reach the screen
+                assert _shows_green(video.screenshot())
+            page.close()
+    assert console == [] and page_errors == [] and failed == []
+
+
+@needs_chromium
+def test_clips_of_the_run_load_and_play(tiny_run):
+    # evaluate.py records the first episode of every (environment, agent) and the page
+    # shows it: each clip loads, plays, and puts a picture (not a black box) on screen.
+    from PIL import Image
+
+    console, page_errors, failed = [], [], []
+    with open_chromium() as browser:
+        page = browser.new_page()
+        _listen(page, console, page_errors, failed)
+        page.set_viewport_size({"width": 1400, "height": 900})
+        page.goto((tiny_run / "leaderboard.html").as_uri())
+        page.wait_for_load_state("load")
+        videos = page.evaluate(_PLAY)
+        assert len(videos) == len(PAIRS)
+        for video in videos:
+            assert video["src"].startswith("videos/") and video["src"].endswith(".mp4"), video
+            assert (tiny_run / unquote(video["src"])).exists()
+            assert video["error"] is None and video["playError"] is None, video
+            assert video["readyState"] >= 2 and video["now"] > video["start"], video
+        for element in page.locator("video").all():
+            frame = Image.open(io.BytesIO(element.screenshot())).convert("L")
+            assert max(frame.getdata()) - min(frame.getdata()) > 40  # a scene, not a flat box
+        page.close()
+    assert console == [] and page_errors == [] and failed == []
+
+
+@needs_chromium
+def test_screenshot_script_saves_both_widths_without_horizontal_overflow(tiny_run, tmp_path):
+    from PIL import Image
+
+    paths = screenshots(tiny_run / "leaderboard.html", tmp_path)
+    assert [p.name for p in paths] == ["leaderboard-1400.png", "leaderboard-390.png"]
+    # A full-page screenshot is as wide as the page: the viewport's width unless it overflows.
+    assert [Image.open(p).size[0] for p in paths] == [1400, 390]
+
+
+def _row_with(env_id, agent, successes, n, scenario="default", **means):
+    """A summary row with extra metrics of the given means (interval: the mean)."""
+    row = _summary_row(env_id, agent, successes, n)
+    row["scenario"] = scenario
+    for key, mean in means.items():
+        row["metrics"][key] = {"mean": mean, "std": 0.0, "n": n, "ci": [mean, mean]}
+    return row
+
+
+def _shows_green(png: bytes) -> bool:
+    """Whether a screenshot shows the test clips' green (a decoded frame on screen)."""
+    from PIL import Image
+
+    pixels = Image.open(io.BytesIO(png)).convert("RGB").getdata()
+    return sum(abs(g - 160) < 40 and r < 60 and b < 60 for r, g, b in pixels) > 100
+
+
+def _png_width(png: bytes) -> int:
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    return int.from_bytes(png[16:20], "big")
+
+
+def test_plots_leave_out_metrics_that_are_the_same_for_every_agent(tmp_path):
+    rows = [_row_with(DOCK, "a", 3, 3, violation_fov_steps=0.0, control_effort=10.0),
+            _row_with(DOCK, "b", 0, 3, violation_fov_steps=0.0, control_effort=10.0),
+            _row_with(DOCK, "c", 1, 3, violation_fov_steps=0.0)]
+    assert leaderboard.varying_keys(rows) == ["success"]
+    one = leaderboard.plot_env(DOCK, rows)
+    rows[2]["metrics"]["control_effort"] = {"mean": 5.0, "std": 0.0, "n": 3, "ci": [4.0, 6.0]}
+    assert leaderboard.varying_keys(rows) == ["success", "control_effort"]
+    two = leaderboard.plot_env(DOCK, rows)
+    assert _png_width(two) > _png_width(one)  # two bar charts side by side, then one
+
+    same = [_row_with(LARS, "a", 0, 3, capture_time=4.0), _row_with(LARS, "b", 0, 3)]
+    assert leaderboard.varying_keys(same) == [] and leaderboard.plot_env(LARS, same) is None
+    assert leaderboard.plot_env(LARS, same[:1]) is None  # one agent: nothing to compare
+
+    stale = tmp_path / "plots" / "LARSCapture-v0.png"
+    stale.parent.mkdir()
+    stale.write_bytes(b"an earlier run's plot")
+    paths = leaderboard.write(tmp_path, rows + same)
+    assert "plots/DockingStation-v1.png" in paths and not stale.exists()
+    page = (tmp_path / "leaderboard.html").read_text()
+    assert page.count("<img") == 1 and 'src="plots/DockingStation-v1.png"' in page
+
+
+def _overview(page: str) -> str:
+    start = page.index('<section id="overview">')
+    return page[start:page.index("</section>", start)]
+
+
+def test_overview_comes_first_and_ranks_every_agent_of_every_environment():
+    acoustic = "auv_envs/AcousticTracking-v0"
+    summary = [_summary_row(DOCK, "a", 30, 30), _summary_row(DOCK, "b", 28, 30),
+               _summary_row(DOCK, "c", 5, 30), _summary_row(DOCK, "d", 0, 30, status="failed"),
+               _summary_row(acoustic, "slow", 3, 3, rmse=(0.05, 0.04, 0.06)),
+               _summary_row(acoustic, "best", 3, 3, rmse=(0.006, 0.005, 0.008))]
+    page = leaderboard.page(summary)
+    assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in page
+    overview = _overview(page)
+    assert page.index("<section") == page.index('<section id="overview">')
+    assert page.index('id="overview"') < page.index('<table class="leaderboard"')
+    cards = overview.split('<div class="card"')[1:]
+    assert [c.split('data-env="')[1].split('"')[0] for c in cards] == [DOCK, acoustic]
+    for card, agents, ranks, metric in [
+            (cards[0], ["a", "b", "c", "d"], ["=1", "=1", "3", "–"], "success"),
+            (cards[1], ["best", "slow"], ["1", "2"], "RMSE m")]:
+        assert [c.split("</td>")[0] for c in card.split('<td class="agent">')[1:]] == agents
+        assert [c.split(">", 1)[1].split("<")[0] for c in card.split('<td class="rank"')[1:]] \
+            == ranks
+        assert f">{metric}</th>" in card
+    assert "100% (30/30)</span>" in cards[0] and '<span class="ci">[' in cards[0]
+    assert "0.006</span>" in cards[1]
+    assert all("<video" not in c for c in cards)
+
+
+def test_overview_ranks_each_scenario_on_its_own():
+    summary = [_row_with(DOCK, "a", 30, 30, scenario="calm", docking_time=20.0),
+               _row_with(DOCK, "b", 0, 30, scenario="calm", docking_time=30.0),
+               _row_with(DOCK, "a", 0, 30, scenario="current"),
+               _row_with(DOCK, "b", 30, 30, scenario="current", docking_time=25.0)]
+    cards = _overview(leaderboard.page(summary)).split('<div class="card"')[1:]
+    assert [c.split('data-scenario="')[1].split('"')[0] for c in cards] == ["calm", "current"]
+    for card, best in zip(cards, ["a", "b"], strict=True):
+        assert '<span class="sub">' in card.split("</h3>")[0]  # the scenario's name
+        assert card.split('<td class="agent">')[1].startswith(best)
+        assert [c.split(">", 1)[1].split("<")[0] for c in card.split('<td class="rank"')[1:]] \
+            == ["1", "2"]
+        assert ">docking time s</th>" in card  # the docking headline beside success
+
+
+def test_clips_show_as_videos_under_their_environment():
+    rows = [_summary_row(DOCK, "a", 3, 3), _summary_row(DOCK, "b", 1, 3),
+            _summary_row(LARS, "a", 0, 3)]
+    clips = {(DOCK, "b", "state", "default"): "clips/dock b.mp4",
+             (LARS, "a", "state", "default"): "clips/lars-a.webm",
+             (LARS, "a", "image", "default"): "clips/not-a-row.mp4"}
+    page = leaderboard.page(rows, clips=clips)
+    assert page.count("<video") == 2 and "not-a-row" not in page
+    dock = page[page.index(f'data-env="{DOCK}">'):page.index(f'data-env="{LARS}">')]
+    for section, src, label in [(dock, "clips/dock%20b.mp4", "b"),
+                                (page[page.index(f'data-env="{LARS}">'):], "clips/lars-a.webm",
+                                 "a")]:
+        video = section.split("<video")[1].split(">")[0]
+        assert f'src="{src}"' in video
+        for attribute in ("muted", "loop", "playsinline", "autoplay", "controls", 'preload="auto"',
+                          'width="320"'):
+            assert attribute in video
+        assert f"<figcaption>{label}</figcaption>" in section
+    assert leaderboard.page(rows).count("<video") == 0
+    md = leaderboard.markdown(rows, clips=clips)
+    assert "Clips: [b](clips/dock%20b.mp4)" in md and "[a](clips/lars-a.webm)" in md
 
 
 def test_ray_backend_gives_the_same_metrics_as_the_local_backend(tmp_path):

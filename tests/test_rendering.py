@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -185,3 +186,23 @@ def test_interpreter_exit_without_close_prints_no_egl_traceback():
     assert "rendered" in result.stdout
     assert "Traceback" not in result.stderr
     assert "EGLError" not in result.stderr
+
+
+@pytest.mark.parametrize("env_id", [DOCKING_IDS[0], "auv_envs/LARSCapture-v0",
+                                    "auv_envs/AcousticTracking-v0"])
+def test_human_mode_shows_the_rgb_frames_in_a_window(env_id, monkeypatch):
+    # gym.make wraps an rgb_array env in Gymnasium's HumanRendering (a pygame
+    # window); SDL's dummy driver gives it a window without a display.
+    pygame = pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    env = gym.make(env_id, render_mode="human", render_size=(160, 120))
+    try:
+        assert isinstance(env, gym.wrappers.HumanRendering)
+        env.reset(seed=1)
+        for _ in range(3):
+            env.step(np.zeros(env.action_space.shape, dtype=env.action_space.dtype))
+        shown = pygame.surfarray.array3d(env.window).swapaxes(0, 1)
+        np.testing.assert_array_equal(shown, env.unwrapped.render())
+        assert shown.std() > 10
+    finally:
+        env.close()

@@ -4,8 +4,9 @@
                        [--episodes N] [--seeds A-B] [--env-kwargs [ENV:]KEY=VALUE ...]
                        [--out DIR] [--backend local|ray] [--ray-address ADDR] [--workers N]
 
-Writes ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json``
-and ``episodes.json`` under ``--out`` and prints one compact Markdown table per
+Installed, the same command is ``auv-evaluate``. Writes
+``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json`` and
+``episodes.json`` under ``--out`` and prints one compact Markdown table per
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
 mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
 and agents whose intervals overlap share a rank.
@@ -29,12 +30,15 @@ import shlex
 import signal
 import sys
 import threading
+from pathlib import Path
 
 import auv_envs
+from auv_envs.record import check_speed, parse_size
 from baselines import leaderboard
 from baselines.evaluation import (
     BACKENDS,
     EVAL_SEED_BASE,
+    VideoSpec,
     check_names,
     default_seeds,
     env_parameters,
@@ -63,8 +67,9 @@ def resolve_env_ids(names) -> list[str]:
     return [short.get(name, name) for name in names]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
+        prog=prog,
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="\n\n".join(__doc__.split("\n\n")[2:]),
@@ -108,6 +113,16 @@ def build_parser() -> argparse.ArgumentParser:
                              f"its CPUs (default {default_workers()})")
     parser.add_argument("--agent-module", nargs="+", default=[], metavar="MODULE",
                         help="modules to import first (and in every worker) that register agents")
+    parser.add_argument("--record-video", type=str, default=None, metavar="DIR",
+                        help="record the first seed's episode of every (environment, agent) as "
+                             "MP4 and GIF in DIR; the HTML page shows them (default: MP4 only, "
+                             "in OUT/videos)")
+    parser.add_argument("--no-video", action="store_true", help="record no clips")
+    parser.add_argument("--video-size", type=parse_size, default=(320, 240), metavar="WxH",
+                        help="clip frame size, both even (default 320x240)")
+    parser.add_argument("--video-speed", type=float, default=None,
+                        help="clip playback speed relative to real time (default: a "
+                             "full-length episode plays in 20 s)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--verbose", action="store_true",
                         help="print every headline column and the skipped pairs (the files "
@@ -133,17 +148,31 @@ def listing() -> str:
     return "\n".join(lines)
 
 
+def video_available() -> bool:
+    """Whether clips can be written (MoviePy, the ``video`` extra); says so when not."""
+    try:
+        import moviepy  # noqa: F401
+    except ImportError:
+        print("note: no clips: recording needs the video extra (pip install -e '.[video]'); "
+              "the leaderboard is complete without them", file=sys.stderr)
+        return False
+    return True
+
+
 def _interrupt(signum, frame):
     raise KeyboardInterrupt(f"signal {signum}")
 
 
-def main(argv=None) -> int:
-    """The command line; SIGTERM stops a run like Ctrl-C (finished episodes stay cached)."""
+def main(argv=None, prog: str = "python evaluate.py") -> int:
+    """The command line; SIGTERM stops a run like Ctrl-C (finished episodes stay cached).
+
+    ``prog`` is how the user ran it (recorded in the leaderboard's metadata).
+    """
     if threading.current_thread() is not threading.main_thread():
-        return _main(argv)
+        return _main(argv, prog)
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        return _main(argv)
+        return _main(argv, prog)
     except KeyboardInterrupt:
         print("\ninterrupted: finished episodes are cached; run the same command again to "
               "resume", file=sys.stderr)
@@ -152,8 +181,13 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _main(argv=None) -> int:
-    parser = build_parser()
+def console() -> int:
+    """The installed ``auv-evaluate`` command."""
+    return main(prog="auv-evaluate")
+
+
+def _main(argv, prog: str) -> int:
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -174,12 +208,17 @@ def _main(argv=None) -> int:
             groups = [[*group, f"scenario={args.scenario}"] for group in groups]
         defaults = {e: kw for e, kw in DEFAULT_ENV_KWARGS.items() if e in env_ids}
         variants = [resolve_env_kwargs(env_ids, group, defaults) for group in groups]
+        # The page's clips are MP4s; GIFs (slow to write) when DIR is asked for.
+        video = None if args.no_video or not video_available() else VideoSpec(
+            args.record_video or os.path.join(args.out, "videos"), args.video_size,
+            None if args.video_speed is None else check_speed(args.video_speed),
+            gif=args.record_video is not None)
         run = evaluate_all(
             env_ids, args.agents, seeds, args.obs_modes, variants,
             cache_dir=args.cache_dir or os.path.join(args.out, "episodes"),
             refresh=args.no_cache, backend=args.backend, workers=args.workers,
             ray_address=args.ray_address, agent_modules=args.agent_module,
-            progress=not args.no_progress,
+            progress=not args.no_progress, video=video,
         )
     except (ValueError, KeyError, RuntimeError) as exc:
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
@@ -194,18 +233,23 @@ def _main(argv=None) -> int:
               f"{os.path.join(args.out, 'leaderboard.md')}", file=sys.stderr)
     summary = summarise(run.rows)
     meta = {
-        "command": "python evaluate.py " + shlex.join(argv),
+        "command": f"{prog} {shlex.join(argv)}".strip(),
         "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
         else ",".join(map(str, seeds)),
         "auv_envs version": auv_envs.__version__,
     }
-    paths = leaderboard.write(args.out, summary, run.skipped, run.rows, meta)
+    clips = {key: Path(os.path.relpath(path, args.out)).as_posix()
+             for key, path in run.clips.items()}
+    paths = leaderboard.write(args.out, summary, run.skipped, run.rows, meta, clips=clips)
     print(leaderboard.markdown(summary, run.skipped if args.verbose else (),
                                compact=not args.verbose))
     stats = run.stats
     print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache, "
           f"{stats.failed} failed; wrote {paths['leaderboard.html']} and "
           f"{len(paths) - 1} more files under {args.out}", file=sys.stderr)
+    if video is not None:
+        kind = "MP4 and GIF" if video.gif else "MP4"
+        print(f"{len(run.clips)} clips ({kind}) in {video.directory}", file=sys.stderr)
     return 0
 
 

@@ -45,8 +45,8 @@ def _default_run_dir(algo: str, env_id: str, obs_mode: str, seed: int) -> Path:
     return path
 
 
-def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--algo", choices=sorted(ALGORITHMS))
     parser.add_argument("--env", help="environment id (the auv_envs/ prefix is optional)")
     parser.add_argument("--obs-mode", help="observation mode (default: from the YAML file)")
@@ -74,10 +74,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def main(argv=None) -> int:
+def main(argv=None, prog: str = "python train.py") -> int:
+    """The command line; ``prog`` is how the user ran it (recorded in the run directory)."""
     argv = sys.argv[1:] if argv is None else argv
-    args = parse_args(argv)
-    command = shlex.join(["python", "train.py", *argv])
+    args = parse_args(argv, prog)
+    command = " ".join([prog, shlex.join(argv)]).strip()
     from baselines.rl import export, training  # heavy imports after argument errors
 
     try:
@@ -106,11 +107,11 @@ def main(argv=None) -> int:
             print(f"run directory: {run_dir}", flush=True)
             result = training.train(expected, run_dir, command, progress_bar=progress)
     except (ConfigError, CheckpointError, ValueError, FileNotFoundError) as exc:
-        print(f"train.py: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     if not result.finished:
         print(f"stopped by {result.stopped_by} at step {result.steps}; checkpoint "
-              f"{result.checkpoint}; continue with: python train.py --resume {result.run_dir}")
+              f"{result.checkpoint}; continue with: {prog} --resume {result.run_dir}")
         import signal
 
         return 128 + int(signal.Signals[result.stopped_by])
@@ -119,6 +120,11 @@ def main(argv=None) -> int:
         path = export.export_policy(result.run_dir, args.export_policy, args.policies_dir)
         print(f"exported -> {path}")
     return 0
+
+
+def console() -> int:
+    """The installed ``auv-train`` command."""
+    return main(prog="auv-train")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,71 @@
+"""The pictures of docs/watching.md: one render of each environment family mid-episode.
+
+    python scripts/render_gallery.py [--out docs/images] [--size 640x480]
+
+Each picture is a seeded episode of a baseline agent, drawn at a fixed
+fraction of its length (run once to learn the length, once to render: the
+episodes are deterministic).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import gymnasium as gym
+import imageio.v3 as iio
+
+import auv_envs  # noqa: F401  (registers the ids)
+from auv_envs.record import parse_size
+from baselines.registry import agent_spec
+
+#: file name -> (env id, env arguments, agent, seed, fraction of the episode).
+GALLERY = {
+    "docking_chase.png": ("auv_envs/DockingStation-v1", {}, "pd-state", 100_000, 0.75),
+    "lars_side.png": ("auv_envs/LARSCapture-v0", {"sea_state": "severe"}, "ltat-ckf-pd",
+                      100_001, 0.5),
+    "acoustic.png": ("auv_envs/AcousticTracking-v0", {"time_limit": 12.0}, "gmphd-gci",
+                     100_000, 1.0),
+}
+
+
+def _run(env: gym.Env, agent_name: str, seed: int, stop: int | None = None) -> int:
+    """Steps of the seeded episode (or ``stop``, when given and reached first)."""
+    agent = agent_spec(agent_name).factory(env.unwrapped)
+    obs, info = env.reset(seed=seed)
+    agent.reset(seed)
+    steps, done = 0, False
+    while not done and steps != stop:
+        obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
+        steps += 1
+        done = terminated or truncated
+    return steps
+
+
+def render(env_id: str, kwargs: dict, agent: str, seed: int, fraction: float,
+           size: tuple[int, int]):
+    spec = agent_spec(agent)
+    env = gym.make(env_id, obs_mode=spec.modes_for(env_id)[0], render_mode="rgb_array",
+                   render_size=size, **{**spec.env_kwargs, **kwargs})
+    try:
+        length = _run(env, agent, seed)
+        _run(env, agent, seed, stop=max(0, round(fraction * length)))
+        return env.render()
+    finally:
+        env.close()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", type=Path, default=Path("docs/images"))
+    parser.add_argument("--size", type=parse_size, default=(640, 480))
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for name, (env_id, kwargs, agent, seed, fraction) in GALLERY.items():
+        iio.imwrite(args.out / name, render(env_id, kwargs, agent, seed, fraction, args.size))
+        print(args.out / name)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
