@@ -288,7 +288,8 @@ def env_plant_error(env, seed: int, command_seed: int, duration: float = 10.0) -
     """Run ``env`` (a docking env) and the reference from the env's own reset state.
 
     Only the public API is used: the start state and current from ``info``
-    after ``reset``, the vehicle's parameters from ``env.unwrapped.vehicle``, the
+    after ``reset``, the vehicle's parameters from ``env.unwrapped.vehicle`` (read
+    after ``reset``), the
     control period from ``env.unwrapped.dt``. Commands are
     :func:`smooth_commands` over surge, sway, heave and yaw, sent as normalised
     actions; the reference integrates the generalized forces those actions
@@ -301,13 +302,14 @@ def env_plant_error(env, seed: int, command_seed: int, duration: float = 10.0) -
         duration: seconds to compare.
     """
     base = env.unwrapped
+    _, info = env.reset(seed=seed)
+    # After reset: an episode may simulate a perturbed vehicle (DockingDisturbances.plant).
     params, period = base.vehicle, base.dt
     limits = np.array(params.thrust_limits, dtype=float)
     commands = smooth_commands(np.random.default_rng(command_seed), duration, period, limits)
     actions = (commands[:, (0, 1, 2, 5)] / limits).astype(np.float32)
     applied = np.zeros_like(commands)
     applied[:, (0, 1, 2, 5)] = actions.astype(float) * limits
-    _, info = env.reset(seed=seed)
     start = (info["true_position"].copy(), info["true_euler"].copy(), info["true_velocity"].copy())
     current = info["current"].copy()
     rows = []

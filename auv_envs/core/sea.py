@@ -1,4 +1,5 @@
-"""Sea surface effects: wave heave, wash-over crests, floating look-alikes, occlusion.
+"""Sea surface effects (wave heave, wash-over crests, floating look-alikes, occlusion)
+and a slowly varying ocean current.
 
 Everything here is kinematic and analytic (no ray casting): a wash-over crest
 is a world-axis-aligned slab of water and a point is hidden from a camera when
@@ -110,3 +111,73 @@ def heave(t: float, amplitude: float, omega: float, phase: float) -> tuple[float
     """Sinusoidal heave (seed 000, motion model) and its rate at time ``t``."""
     arg = omega * t + phase
     return amplitude * math.sin(arg), amplitude * omega * math.cos(arg)
+
+
+@dataclasses.dataclass(frozen=True)
+class GaussMarkovCurrent:
+    """A slowly varying horizontal ocean current: speed and direction, each a
+    first-order Gauss–Markov process.
+
+    Fossen (2011), *Handbook of Marine Craft Hydrodynamics and Motion Control*,
+    ch. 8 (ocean currents): the current speed obeys
+    ``dV/dt + mu V = w`` with ``w`` Gaussian white noise, saturated to a
+    physical range; the direction is modelled the same way. Here each process
+    relaxes towards its mean (an Ornstein–Uhlenbeck process, Fossen's model
+    about a mean value) and is sampled *exactly* at the control period:
+
+        x[k+1] = mean + a (x[k] - mean) + s sqrt(1 - a^2) e[k],   a = exp(-dt / T)
+
+    with ``e[k] ~ N(0, 1)``, so its stationary standard deviation is ``s`` and
+    its autocorrelation at lag ``dt`` is ``a`` whatever ``dt``. The speed is
+    then saturated to ``[0, max_speed]``.
+
+    Attributes:
+        speed_std: stationary standard deviation of the speed, m/s.
+        direction_std_deg: stationary standard deviation of the direction, deg.
+        time_constant: correlation time ``T = 1 / mu`` of both processes, s.
+        max_speed: upper saturation of the speed, m/s.
+    """
+
+    speed_std: float = 0.0
+    direction_std_deg: float = 0.0
+    time_constant: float = 60.0
+    max_speed: float = 1.5
+
+    def __post_init__(self):
+        for name in ("speed_std", "direction_std_deg", "time_constant", "max_speed"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.time_constant == 0:
+            raise ValueError("time_constant must be positive")
+
+    @property
+    def active(self) -> bool:
+        """Whether the current varies at all (otherwise it stays at its mean, no draws)."""
+        return self.speed_std > 0 or self.direction_std_deg > 0
+
+    def start(self, mean_speed: float, mean_direction: float,
+              rng: np.random.Generator) -> tuple[float, float]:
+        """``(speed, direction)`` drawn from the stationary distribution (direction in rad);
+        the means, drawing nothing, when the process is not :attr:`active`."""
+        if not self.active:
+            return min(max(mean_speed, 0.0), self.max_speed), mean_direction
+        speed = mean_speed + self.speed_std * rng.standard_normal()
+        direction = mean_direction + math.radians(self.direction_std_deg) * rng.standard_normal()
+        return min(max(speed, 0.0), self.max_speed), direction
+
+    def advance(self, speed: float, direction: float, mean_speed: float, mean_direction: float,
+                dt: float, rng: np.random.Generator) -> tuple[float, float]:
+        """The ``(speed, direction)`` one period ``dt`` later (exact discretisation)."""
+        a = math.exp(-dt / self.time_constant)
+        gain = math.sqrt(1.0 - a * a)
+        noise_speed, noise_direction = rng.standard_normal(2)
+        speed = mean_speed + a * (speed - mean_speed) + self.speed_std * gain * noise_speed
+        direction = (mean_direction + a * (direction - mean_direction)
+                     + math.radians(self.direction_std_deg) * gain * noise_direction)
+        return min(max(speed, 0.0), self.max_speed), direction
+
+
+def current_vector(speed: float, direction: float) -> np.ndarray:
+    """World-frame velocity (3) of a horizontal current flowing towards ``direction`` (rad)."""
+    return np.array([speed * math.cos(direction), speed * math.sin(direction), 0.0])

@@ -133,6 +133,83 @@ def with_damping_mismatch(params: VehicleParams, scale: tuple[float, ...]) -> Ve
     )
 
 
+@dataclasses.dataclass(frozen=True)
+class PlantPerturbation:
+    """How far the simulated vehicle may deviate from its nominal parameters, per episode.
+
+    Hydrodynamic coefficients identified for a real vehicle are uncertain by
+    tens of per cent (seed 003 tests its controllers against exactly such a
+    mismatch of the damping diagonals), and its trim drifts with payload and
+    water density. Each episode draws, from its own generator:
+
+    * one mass factor in ``[1 - mass, 1 + mass]``, applied to the mass and the
+      rigid-body inertia (added mass, a property of the hull's shape, stays);
+    * one factor per coefficient in ``[1 - damping, 1 + damping]`` for each of
+      the 12 linear and quadratic damping coefficients;
+    * an offset in ``[-net_buoyancy, net_buoyancy]`` N added to B - W.
+
+    All uniform. Zero everywhere (the default) leaves the vehicle as it is and
+    draws nothing.
+
+    Attributes:
+        mass: relative half-range of the mass factor (0 to 0.5).
+        damping: relative half-range of the damping factors (0 to 0.9).
+        net_buoyancy: half-range of the net-buoyancy offset, N.
+    """
+
+    mass: float = 0.0
+    damping: float = 0.0
+    net_buoyancy: float = 0.0
+
+    def __post_init__(self):
+        for name, high in (("mass", 0.5), ("damping", 0.9), ("net_buoyancy", math.inf)):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and 0.0 <= value <= high):
+                raise ValueError(f"{name} must be a number in [0, {high}], got {value!r}")
+
+    @property
+    def active(self) -> bool:
+        return self.mass > 0 or self.damping > 0 or self.net_buoyancy > 0
+
+    def draw(self, params: VehicleParams, rng) -> tuple[VehicleParams, dict]:
+        """``(perturbed parameters, the draws)``; ``params`` and no draw when inactive."""
+        if not self.active:
+            return params, {}
+        mass_scale = float(rng.uniform(1.0 - self.mass, 1.0 + self.mass))
+        damping_scale = rng.uniform(1.0 - self.damping, 1.0 + self.damping, size=12).tolist()
+        buoyancy_offset = float(rng.uniform(-self.net_buoyancy, self.net_buoyancy))
+        perturbed = dataclasses.replace(
+            params,
+            name=f"{params.name}-perturbed",
+            mass=params.mass * mass_scale,
+            inertia=tuple(i * mass_scale for i in params.inertia),
+            linear_damping=tuple(d * f for d, f in zip(params.linear_damping,
+                                                        damping_scale[:6], strict=True)),
+            quadratic_damping=tuple(d * f for d, f in zip(params.quadratic_damping,
+                                                           damping_scale[6:], strict=True)),
+            net_buoyancy=params.net_buoyancy + buoyancy_offset,
+        )
+        draws = {"mass_scale": mass_scale, "linear_damping_scale": damping_scale[:6],
+                 "quadratic_damping_scale": damping_scale[6:],
+                 "net_buoyancy_offset": buoyancy_offset}
+        return perturbed, draws
+
+
+def thruster_lag_gain(time_constant: float, dt: float) -> float:
+    """Gain ``g`` of a first-order thruster lag sampled every ``dt`` seconds.
+
+    A thruster's force follows its command ``u`` as ``T df/dt = u - f``
+    (the first-order thruster model of Yoerger, Cooke and Slotine 1990, "The
+    influence of thruster dynamics on underwater vehicle behavior", IEEE J.
+    Oceanic Eng. 15(3)). Held over each period,
+    ``f[k] = f[k-1] + g (u[k] - f[k-1])`` with ``g = 1 - exp(-dt / T)``;
+    ``T = 0`` is an ideal thruster (``g = 1``).
+    """
+    if not (math.isfinite(time_constant) and time_constant >= 0):
+        raise ValueError(f"thruster time constant must be >= 0 s, got {time_constant!r}")
+    return 1.0 if time_constant == 0 else 1.0 - math.exp(-dt / time_constant)
+
+
 def _spheroid_vehicle(
     name: str,
     source: str,

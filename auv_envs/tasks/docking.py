@@ -37,7 +37,14 @@ from auv_envs.core.env import (
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.rendering import CameraRenderer
-from auv_envs.core.vehicle import VehicleParams, hovering_auv, with_damping_mismatch
+from auv_envs.core.sea import GaussMarkovCurrent, current_vector
+from auv_envs.core.vehicle import (
+    PlantPerturbation,
+    VehicleParams,
+    hovering_auv,
+    thruster_lag_gain,
+    with_damping_mismatch,
+)
 
 OBS_MODES = ("state", "features", "image")
 SCENARIOS = ("mismatch", "current")
@@ -131,6 +138,41 @@ class DockingTolerances:
 
 
 @dataclasses.dataclass(frozen=True)
+class DockingDisturbances:
+    """Physical disturbances of the docking plant beyond the scenario's (default: none).
+
+    Every random draw comes from the episode's generator, and none is made for
+    a part that is switched off, so the default keeps the environment
+    bit-identical to its release.
+
+    Attributes:
+        current: the current's speed and direction vary as first-order
+            Gauss–Markov processes about the scenario's current (0.3 m/s in
+            ``current``; none in ``mismatch``, where the mean direction is
+            drawn uniformly when ``current_direction`` is None):
+            :class:`auv_envs.core.sea.GaussMarkovCurrent`, advanced once per
+            control period.
+        plant: per-episode deviation of the simulated vehicle's mass,
+            inertia, damping and net buoyancy from the nominal values:
+            :class:`auv_envs.core.vehicle.PlantPerturbation`.
+        thruster_time_constant: first-order lag of the thrusters, s (0: the
+            commanded force acts at once):
+            :func:`auv_envs.core.vehicle.thruster_lag_gain`.
+    """
+
+    current: GaussMarkovCurrent = GaussMarkovCurrent()
+    plant: PlantPerturbation = PlantPerturbation()
+    thruster_time_constant: float = 0.0
+
+    def __post_init__(self):
+        if not isinstance(self.current, GaussMarkovCurrent):
+            raise TypeError("current must be a GaussMarkovCurrent")
+        if not isinstance(self.plant, PlantPerturbation):
+            raise TypeError("plant must be a PlantPerturbation")
+        thruster_lag_gain(self.thruster_time_constant, CONTROL_PERIOD)  # validates
+
+
+@dataclasses.dataclass(frozen=True)
 class DockingCalibration:
     """What a classical agent may know (read-only; arrays are not writeable).
 
@@ -150,6 +192,9 @@ class DockingCalibration:
         seabed_z: seabed height in the DS frame, m.
         pixel_noise_std, velocity_noise_std, yaw_rate_noise_std,
         attitude_noise_std: sensor noise of the scenario.
+        disturbances: the plant's disturbance models and their parameters
+            (:class:`DockingDisturbances`; each episode's draws are in the
+            reset ``info``).
     """
 
     intrinsics: CameraIntrinsics
@@ -168,6 +213,7 @@ class DockingCalibration:
     velocity_noise_std: float
     yaw_rate_noise_std: float
     attitude_noise_std: float
+    disturbances: DockingDisturbances = DockingDisturbances()
 
 
 def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.MjModel:
@@ -396,6 +442,14 @@ class _EpisodeState:
 
     steps: int = 0
     current: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
+    #: Gauss–Markov current: mean and present (speed m/s, direction rad).
+    current_mean: tuple[float, float] = (0.0, 0.0)
+    current_polar: tuple[float, float] = (0.0, 0.0)
+    #: The thrust acting now (X, Y, Z, N), with a thruster lag.
+    thrust: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    #: The simulated vehicle of this episode (perturbed or nominal) and its draws.
+    vehicle: VehicleParams | None = None
+    plant_draws: dict = dataclasses.field(default_factory=dict)
     lost_time: float = 0.0
     prev_potential: float = 0.0
     done: bool = False
@@ -464,8 +518,13 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     reward terms and ground truth for metrics only (``true_position``,
     ``true_euler``, ``true_velocity``, ``true_pixels``, ``true_visible``,
     ``current``; ``true_pixels`` is zero where ``true_visible`` is False, the
-    same convention as the observation). At episode end also
-    ``episode_metrics`` (a dict; ``docking_time`` is None without success).
+    same convention as the observation). ``current`` is the current that
+    acted during the step. With a thruster lag (``disturbances``): ``thrust``
+    (the applied X, Y, Z, N) every step; with a plant perturbation:
+    ``plant`` (the episode's draws: mass and damping factors, net-buoyancy
+    offset) at reset. At
+    episode end also ``episode_metrics`` (a dict; ``docking_time`` is None
+    without success).
 
     **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: seed 003
     Scenario 1, model mismatch only; ``"current"``: Scenario 2),
@@ -482,7 +541,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     station, its lights and the seabed in view, the water's colour and
     visibility those of the model, lit by a survey lamp; ``"onboard"``: the
     forward camera of the ``image`` observation), ``render_size`` (W, H of
-    ``render()``'s frame, default 640x480).
+    ``render()``'s frame, default 640x480), ``disturbances``
+    (:class:`DockingDisturbances`, default none: a Gauss–Markov current about
+    the scenario's, a per-episode perturbation of the simulated vehicle's
+    mass, inertia, damping and buoyancy, first-order thrusters).
 
     **Version history.** v1: the plant integrates its equations with
     classical RK4 (one 0.1 s step, hull wrench re-evaluated at every stage)
@@ -492,7 +554,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     ``physics_substeps=2``). Rendering (both versions; dynamics, observations
     and rewards unchanged): ``render()`` draws the chase camera by default
     (``render_camera``, ``render_size``); it drew the forward camera at
-    ``image_size`` before.
+    ``image_size`` before. Opt-in addition (both versions): ``disturbances``
+    (default none, which leaves the environment bit-identical).
     """
 
     metadata = {
@@ -529,6 +592,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         render_mode: str | None = None,
         render_camera: str = "chase",
         render_size: tuple[int, int] = (640, 480),
+        disturbances: DockingDisturbances | None = None,
         **unknown,
     ):
         self._accept_arguments(
@@ -539,8 +603,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, integrator=integrator,
             physics_substeps=physics_substeps, render_mode=render_mode,
-            render_camera=render_camera, render_size=render_size,
+            render_camera=render_camera, render_size=render_size, disturbances=disturbances,
         )
+        disturbances = disturbances if disturbances is not None else DockingDisturbances()
+        if not isinstance(disturbances, DockingDisturbances):
+            raise TypeError(
+                f"disturbances must be a DockingDisturbances, got {type(disturbances).__name__}")
         check_choice("scenario", scenario, SCENARIOS)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
@@ -614,7 +682,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             velocity_noise_std=SCENARIO_VELOCITY_NOISE if noisy else 0.0,
             yaw_rate_noise_std=SCENARIO_YAW_RATE_NOISE if noisy else 0.0,
             attitude_noise_std=SCENARIO_ATTITUDE_NOISE if noisy else 0.0,
+            disturbances=disturbances,
         )
+        self._disturbances = disturbances
+        self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
         # Per-step constants as Python floats (the step path works in floats).
         self._thrust = tuple(float(t) for t in self._params.thrust_limits)
         self._cam_rot_body = self.calibration.extrinsics.rotation
@@ -674,25 +745,52 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         z = rng.uniform(*lay.start_z)
         yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(10.0)
         surge = rng.uniform(0.0, 0.3)
-        if self.scenario == "current":
+        varying = self._disturbances.current
+        if self.scenario == "current" or varying.active:
+            speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
             direction = (
                 math.radians(self._current_direction)
                 if self._current_direction is not None
                 else rng.uniform(0.0, 2.0 * math.pi)
             )
-            current = SCENARIO_CURRENT_SPEED * np.array(
-                [math.cos(direction), math.sin(direction), 0.0]
-            )
+            polar = varying.start(speed, direction, rng) if varying.active else (speed, direction)
+            current = current_vector(*polar)
         else:
-            current = np.zeros(3)
+            speed = direction = 0.0
+            polar, current = (0.0, 0.0), np.zeros(3)
+        vehicle, draws = self._disturbances.plant.draw(self._params, rng)
+        self._use_vehicle(vehicle)
         self._physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
-        self._episode = _EpisodeState(current=current)
+        self._episode = _EpisodeState(current=current, current_mean=(speed, direction),
+                                      current_polar=polar, vehicle=vehicle, plant_draws=draws)
         truth = self._truth()
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
         obs = self._observation(truth)
         info = self._info(truth, {name: 0.0 for name in self.reward_terms}, _NO_VIOLATIONS)
+        if draws:
+            info["plant"] = dict(draws)
         return obs, info
+
+    def _set_runtime_state(self, state: dict) -> None:
+        # The episode's (perturbed) vehicle lives in the model and the hull wrench too.
+        vehicle = state["episode"].vehicle
+        if vehicle is not None and vehicle != self._params:
+            self._use_vehicle(vehicle)
+        super()._set_runtime_state(state)
+
+    def _use_vehicle(self, vehicle: VehicleParams) -> None:
+        """Make ``vehicle`` the simulated one: MuJoCo's mass and inertia, the hull wrench."""
+        if vehicle is self.vehicle:
+            return
+        model, data, body = self._physics.model, self._physics.data, self._physics.hull_body
+        model.body_mass[body] = vehicle.mass
+        model.body_inertia[body] = vehicle.inertia
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_setConst(model, data)  # the constants derived from masses
+        self._hull = HullForceModel(vehicle, body, self._physics.qvel_adr)
+        self._hull_force = self._hull.passive_force
+        self.vehicle = vehicle
 
     def step(self, action):
         a = self._validate_action(action)
@@ -703,6 +801,17 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         ax, ay, az, an = a_list
         tx, ty, tz, tn = self._thrust
         x, y, z, n = ax * tx, ay * ty, az * tz, an * tn
+        gain = self._thruster_gain
+        if gain != 1.0:  # first-order thrusters: the force moves towards the command
+            fx, fy, fz, fn = ep.thrust
+            x, y, z, n = fx + gain * (x - fx), fy + gain * (y - fy), fz + gain * (z - fz), \
+                fn + gain * (n - fn)
+            ep.thrust = (x, y, z, n)
+        varying = self._disturbances.current
+        if varying.active:
+            ep.current_polar = varying.advance(*ep.current_polar, *ep.current_mean, self._dt,
+                                               self.np_random)
+            ep.current = current_vector(*ep.current_polar)
         self._hull.command((x, y, z, 0.0, 0.0, n), ep.current.tolist())
         self._physics.skip_contacts_if_clear(self._dt)
         passive.step(
@@ -753,6 +862,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         obs = self._observation(truth)
         violations = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
         info = self._info(truth, terms, violations)
+        if gain != 1.0:
+            info["thrust"] = ep.thrust
         if ep.done:
             info["episode_metrics"] = self._episode_metrics(truth)
         return obs, reward, terminated, truncated, info
