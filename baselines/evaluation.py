@@ -336,10 +336,23 @@ def failed_row(task: EpisodeTask, exc: BaseException, wall_time_s: float = 0.0) 
     )
 
 
+#: Prefix of an ``agent_modules`` entry that registers a trained policy
+#: (``policy:PATH``, :func:`baselines.rl.agents.register_external_policy`).
+POLICY_PREFIX = "policy:"
+
+
 def import_agent_modules(modules: Sequence[str]) -> None:
-    """Import modules whose import registers agents (also done in every worker)."""
+    """Import modules whose import registers agents (also done in every worker).
+
+    An entry ``policy:PATH`` registers the trained policy at PATH instead.
+    """
     for module in modules:
-        importlib.import_module(module)
+        if module.startswith(POLICY_PREFIX):
+            from baselines.rl.agents import register_external_policy
+
+            register_external_policy(module.removeprefix(POLICY_PREFIX))
+        else:
+            importlib.import_module(module)
 
 
 def run_task(task: EpisodeTask, agent_modules: Sequence[str] = (),
@@ -483,7 +496,8 @@ def _run_local(tasks: Sequence[EpisodeTask], workers: int, agent_modules: Sequen
     # or a GL context); it imports the agent modules once for all of them.
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(
-        ["baselines.evaluation", *registry.BUILTIN_AGENT_MODULES, *agent_modules])
+        ["baselines.evaluation", *registry.BUILTIN_AGENT_MODULES,
+         *(m for m in agent_modules if not m.startswith(POLICY_PREFIX))])
     pool = concurrent.futures.ProcessPoolExecutor(
         max_workers=workers, mp_context=context, initializer=_init_worker,
         initargs=(tuple(agent_modules),),

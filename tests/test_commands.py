@@ -72,3 +72,28 @@ def test_evaluate_record_video_writes_mp4_and_gif_where_asked(tmp_path):
     stem = "LARSCapture-v0_ckf-pd_features_default_seed100001-episode-0"
     assert sorted(p.name for p in clips.iterdir()) == [f"{stem}.gif", f"{stem}.mp4"]
     assert f'src="../clips/{stem}.mp4"' in (out / "leaderboard.html").read_text()
+
+
+def test_plot_seeds_aggregates_runs_with_bootstrap_intervals(tmp_path):
+    from scripts import plot_seeds
+
+    runs = []
+    for k, successes in enumerate(((0.0, 0.5, 1.0), (0.0, 0.7, 1.0), (0.2, 0.6, 1.0))):
+        run = tmp_path / f"run{k}"
+        run.mkdir()
+        lines = ["step,mean_return,std_return,success_rate,mean_length,episodes"]
+        lines += [f"{step},{10 * s},0,{s},100,5" for step, s in zip((0, 100, 200), successes,
+                                                                    strict=True)]
+        (run / "eval_curve.csv").write_text("\n".join(lines) + "\n")
+        runs.append(run)
+    rows = plot_seeds.aggregate([plot_seeds.read_curve(r) for r in runs])
+    assert [r["step"] for r in rows] == [0, 100, 200]
+    assert rows[1]["success_rate"] == pytest.approx(0.6)
+    assert rows[1]["success_rate_low"] <= 0.6 <= rows[1]["success_rate_high"]
+    assert rows[2]["success_rate_low"] == rows[2]["success_rate_high"] == 1.0
+    out = tmp_path / "curves.png"
+    assert plot_seeds.main([*map(str, runs), "--out", str(out), "--csv",
+                            str(tmp_path / "c.csv")]) == 0
+    assert out.stat().st_size > 1000 and len((tmp_path / "c.csv").read_text().splitlines()) == 4
+    with pytest.raises(SystemExit):
+        plot_seeds.main([str(tmp_path), "--out", str(out)])  # no eval_curve.csv

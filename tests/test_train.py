@@ -242,6 +242,42 @@ def test_cli_sigint_checkpoints_and_resume_finishes(tmp_path):
     info = json.loads((run_dir / "run.json").read_text())
     assert info["status"] == "finished" and info["steps"] == step + 128
     assert "--resume" in info["segments"][-1]["command"]
+    # Every run (interrupted or finished) gets its learning curve as a picture.
+    assert (run_dir / "curve.png").stat().st_size > 1000
+
+
+def test_evaluate_ranks_a_run_directory_beside_the_built_in_agents(ppo_runs, tmp_path):
+    import evaluate
+
+    _, whole, _, _ = ppo_runs
+    name = agents.external_policy_name(whole.run_dir)
+    assert name.startswith("whole@") and len(name) == len("whole@") + 8
+    code = evaluate.main(["--envs", "DockingStation-v1", "--agents", "random", "--policy",
+                          str(whole.run_dir), "--seeds", "100000", "--workers", "1",
+                          "--no-progress", "--no-video", "--out", str(tmp_path / "lb")])
+    assert code == 0
+    rows = json.loads((tmp_path / "lb" / "leaderboard.json").read_text())
+    by_agent = {r["agent"]: r for r in rows}
+    assert set(by_agent) == {"random", name}
+    assert by_agent[name]["episodes"] == 1 and by_agent[name]["failed"] == 0
+    # Evaluated at the full episode length, not the training's 10 s episodes.
+    episodes = json.loads((tmp_path / "lb" / "episodes.json").read_text())
+    mine = next(e for e in episodes if e["agent"] == name)
+    assert mine["env_kwargs"] == {} and mine["status"] == "ok"
+
+
+def test_evaluate_policy_names_follow_the_weights_and_bad_paths_fail(tmp_path, capsys):
+    import evaluate
+
+    root = agents.policies_root()
+    for shipped in ("ppo-docking-state", "ppo-lamp-array-state"):
+        shutil.copytree(root / shipped, tmp_path / "mine" / shipped)
+    first = agents.external_policy_name(tmp_path / "mine" / "ppo-docking-state")
+    second = agents.external_policy_name(tmp_path / "mine" / "ppo-lamp-array-state")
+    assert first.split("@")[1] != second.split("@")[1]  # other weights, other name
+    with pytest.raises(SystemExit):
+        evaluate.main(["--policy", str(tmp_path / "nothing-here"), "--out", str(tmp_path)])
+    assert "neither a policy directory" in capsys.readouterr().err
 
 
 def test_corrupt_or_mismatched_checkpoint_is_refused(ppo_runs, tmp_path):

@@ -38,6 +38,7 @@ from baselines import leaderboard
 from baselines.evaluation import (
     BACKENDS,
     EVAL_SEED_BASE,
+    POLICY_PREFIX,
     VideoSpec,
     check_names,
     default_seeds,
@@ -113,6 +114,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                              f"its CPUs (default {default_workers()})")
     parser.add_argument("--agent-module", nargs="+", default=[], metavar="MODULE",
                         help="modules to import first (and in every worker) that register agents")
+    parser.add_argument("--policy", nargs="+", default=[], metavar="PATH",
+                        help="also rank these trained policies: a train.py run directory or an "
+                             "exported policy directory each (named <directory>@<weights hash>; "
+                             "evaluated on the environment and obs mode they were trained on)")
     parser.add_argument("--record-video", type=str, default=None, metavar="DIR",
                         help="record the first seed's episode of every (environment, agent) as "
                              "MP4 and GIF in DIR; the HTML page shows them (default: MP4 only, "
@@ -193,12 +198,19 @@ def _main(argv, prog: str) -> int:
     try:
         if args.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {args.workers}")
-        import_agent_modules(args.agent_module)
+        agent_modules = [*args.agent_module,
+                         *(POLICY_PREFIX + os.path.abspath(p) for p in args.policy)]
+        import_agent_modules(agent_modules)
+        agents = args.agents
+        if args.policy and agents is not None:  # --agents picks built-ins; --policy adds
+            from baselines.rl.agents import external_policy_name
+
+            agents = [*agents, *(external_policy_name(p) for p in args.policy)]
         if args.list:
             print(listing())
             return 0
         env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
-        check_names(env_ids, args.agents or ())
+        check_names(env_ids, agents or ())
         seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
         if any(s < EVAL_SEED_BASE for s in seeds):
             print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
@@ -214,13 +226,13 @@ def _main(argv, prog: str) -> int:
             None if args.video_speed is None else check_speed(args.video_speed),
             gif=args.record_video is not None)
         run = evaluate_all(
-            env_ids, args.agents, seeds, args.obs_modes, variants,
+            env_ids, agents, seeds, args.obs_modes, variants,
             cache_dir=args.cache_dir or os.path.join(args.out, "episodes"),
             refresh=args.no_cache, backend=args.backend, workers=args.workers,
-            ray_address=args.ray_address, agent_modules=args.agent_module,
+            ray_address=args.ray_address, agent_modules=agent_modules,
             progress=not args.no_progress, video=video,
         )
-    except (ValueError, KeyError, RuntimeError) as exc:
+    except (ValueError, KeyError, RuntimeError) as exc:  # PolicyFileError is a RuntimeError
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
     if not run.rows:
         for skip in run.skipped:

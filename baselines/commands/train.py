@@ -109,6 +109,8 @@ def main(argv=None, prog: str = "python train.py") -> int:
     except (ConfigError, CheckpointError, ValueError, FileNotFoundError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    curve = write_curve(result.run_dir)
+    print(f"learning curve: {curve} (data: eval_curve.csv, train_episodes.csv)")
     if not result.finished:
         print(f"stopped by {result.stopped_by} at step {result.steps}; checkpoint "
               f"{result.checkpoint}; continue with: {prog} --resume {result.run_dir}")
@@ -120,6 +122,18 @@ def main(argv=None, prog: str = "python train.py") -> int:
         path = export.export_policy(result.run_dir, args.export_policy, args.policies_dir)
         print(f"exported -> {path}")
     return 0
+
+
+def write_curve(run_dir: Path) -> Path:
+    """``RUN_DIR/curve.png``: held-out success and return, and training returns, against steps
+    (the data is the run's ``eval_curve.csv`` and ``train_episodes.csv``)."""
+    from baselines.rl.export import plot_curve
+    from baselines.rl.training import RunDirectory
+
+    run = RunDirectory(run_dir)
+    path = run.path / "curve.png"
+    plot_curve(run, path, run.path.name)
+    return path
 
 
 def console() -> int:

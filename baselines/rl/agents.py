@@ -6,15 +6,27 @@ environment and observation mode it was trained on. Registration reads only
 the manifest; the model files are checked (SHA-256) and loaded when the agent
 is built, and a missing or corrupt file raises
 :class:`baselines.rl.policy.PolicyFileError` naming it.
+
+Policies outside the package (``evaluate.py --policy PATH``: an exported
+policy or a ``train.py`` run directory) register under
+:func:`external_policy_name` through :func:`register_external_policy`.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
 from pathlib import Path
 
-from baselines.registry import AgentSpec, register_agent
-from baselines.rl.policy import PolicyAgent, policies_root, read_manifest
+from baselines.registry import AgentSpec, agent_names, register_agent
+from baselines.rl.policy import (
+    MANIFEST_FILE,
+    PolicyAgent,
+    PolicyFileError,
+    policies_root,
+    read_manifest,
+)
 
 
 def policy_directories(root: Path | None = None) -> list[Path]:
@@ -30,17 +42,68 @@ def load_policy_agent(directory: str | Path, env) -> PolicyAgent:
     return PolicyAgent.from_directory(env, directory)
 
 
-def policy_spec(directory: Path) -> AgentSpec:
-    """The registry entry of one policy directory (reads its manifest only)."""
+#: Training arguments that do not bind an evaluation: the episode length.
+_TRAINING_ONLY_KWARGS = ("time_limit",)
+
+
+def policy_spec(directory: Path, name: str | None = None) -> AgentSpec:
+    """The registry entry of one policy directory (reads its manifest only).
+
+    The agent acts on the environment and observation mode it was trained on,
+    built with the training's environment arguments (e.g. LARS
+    ``control="position"``) except the episode length.
+    """
     manifest = read_manifest(directory)
+    env_kwargs = {k: v for k, v in (manifest.get("env_kwargs") or {}).items()
+                  if k not in _TRAINING_ONLY_KWARGS}
     return AgentSpec(
-        name=directory.name,
+        name=name or directory.name,
         factory=functools.partial(load_policy_agent, directory),
         obs_mode=manifest["obs_mode"],
         env_ids=(manifest["env_id"],),
         description=manifest.get("description")
         or f"{manifest['algo'].upper()} policy on {manifest['obs_mode']}",
+        env_kwargs=env_kwargs,
     )
+
+
+def policy_directory(path: str | Path) -> Path:
+    """The directory holding the policy of ``path``: an exported policy directory
+    (``train.py --export-policy``) or a finished ``train.py`` run directory (its
+    ``final/``).
+
+    Raises:
+        PolicyFileError: ``path`` holds neither (or its manifest is corrupt).
+    """
+    path = Path(path)
+    for candidate in (path, path / "final"):
+        if (candidate / MANIFEST_FILE).is_file():
+            read_manifest(candidate)  # checked now: a bad manifest fails before any episode
+            return candidate
+    raise PolicyFileError(f"{path} is neither a policy directory (with {MANIFEST_FILE}) nor a "
+                          f"finished train.py run directory (with final/{MANIFEST_FILE})")
+
+
+def external_policy_name(path: str | Path) -> str:
+    """``<directory name>@<8 hex digits of the policy files' SHA-256s>``.
+
+    The digest makes the name (and so the leaderboard's episode cache key) change
+    whenever the weights do; a run directory is named after the run, not ``final``.
+    """
+    directory = policy_directory(path)
+    label = Path(path).name if directory.name == "final" else directory.name
+    files = read_manifest(directory)["files"]
+    digest = hashlib.sha256(json.dumps(files, sort_keys=True).encode()).hexdigest()[:8]
+    return f"{label}@{digest}"
+
+
+def register_external_policy(path: str | Path) -> str:
+    """Register the policy at ``path`` (see :func:`policy_directory`) as an agent, once;
+    returns its name (:func:`external_policy_name`)."""
+    name = external_policy_name(path)
+    if name not in agent_names():
+        register_agent(policy_spec(policy_directory(path), name))
+    return name
 
 
 def register_policies(root: Path | None = None) -> list[str]:
