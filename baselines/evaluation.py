@@ -887,7 +887,7 @@ def _stat(values: Sequence[float], success: bool = False) -> dict:
             "ci": [None if math.isnan(c) else c for c in ci]}
 
 
-def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
+def summarise(rows: Sequence[EpisodeRow], groups: Mapping[str, str] | None = None) -> list[dict]:
     """One leaderboard row per (env, obs mode, scenario, agent), in first-seen order.
 
     ``metrics`` maps a name to ``{"mean", "std", "n", "ci"}`` (population std
@@ -899,37 +899,57 @@ def summarise(rows: Sequence[EpisodeRow]) -> list[dict]:
     count as 0/1. Each of :data:`SIGNED_METRICS` also gets ``<key>_abs``, the
     statistics of its magnitude. ``status`` is ``ok``, ``partial`` (some episodes failed) or
     ``failed``; ``errors`` lists the distinct errors.
+
+    ``groups`` maps agent names to the group they are training seeds of
+    (:func:`baselines.registry.agent_groups`). Each group then gets one more
+    row, after its members, pooling their episodes (``agent`` the group,
+    ``members`` the seeds' names); a member's row carries ``group``.
     """
-    groups: dict[tuple, list[EpisodeRow]] = {}
+    groups = dict(groups or {})
+    by_key: dict[tuple, list[EpisodeRow]] = {}
     for row in rows:
-        groups.setdefault((row.env_id, row.obs_mode, row.scenario, row.agent), []).append(row)
-    summary = []
-    for (env_id, obs_mode, scenario, agent), items in groups.items():
-        done = [r for r in items if r.status == "ok"]
-        values: dict[str, list[float]] = {"success": [float(r.success) for r in items]}
-        if done:
-            values["return"] = [r.episode_return for r in done]
-            values["length"] = [float(r.length) for r in done]
-        for r in done:
-            for key, value in r.metrics.items():
-                if _is_number(value) and math.isfinite(float(value)) and key != "success":
-                    values.setdefault(key, []).append(float(value))
-                    if key in SIGNED_METRICS:
-                        values.setdefault(f"{key}_abs", []).append(abs(float(value)))
-        failed = len(items) - len(done)
-        reasons = collections.Counter(r.failure_reason for r in done if r.failure_reason)
-        summary.append({
-            "env_id": env_id,
-            "obs_mode": obs_mode,
-            "scenario": scenario,
-            "agent": agent,
-            "episodes": len(items),
-            "failed": failed,
-            "status": "ok" if not failed else ("failed" if not done else "partial"),
-            "seeds": [r.seed for r in items],
-            "errors": list(dict.fromkeys(r.error for r in items if r.error)),
-            "failure_reasons": dict(sorted(reasons.items())),
-            "env_kwargs": items[0].env_kwargs,
-            "metrics": {k: _stat(v, success=k == "success") for k, v in values.items()},
-        })
+        by_key.setdefault((row.env_id, row.obs_mode, row.scenario, row.agent), []).append(row)
+    pooled: dict[tuple, list[EpisodeRow]] = {}
+    members: dict[tuple, list[str]] = {}
+    for (env_id, obs_mode, scenario, agent), items in by_key.items():
+        if agent in groups:
+            key = (env_id, obs_mode, scenario, groups[agent])
+            pooled.setdefault(key, []).extend(items)
+            members.setdefault(key, []).append(agent)
+    summary = [dict(_summary_row(key, items), group=groups.get(key[3]))
+               for key, items in by_key.items()]
+    summary += [dict(_summary_row(key, items), group=None, members=sorted(members[key]))
+                for key, items in pooled.items()]
     return summary
+
+
+def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
+    """The leaderboard row of one (env, obs mode, scenario, agent)'s episodes."""
+    env_id, obs_mode, scenario, agent = key
+    done = [r for r in items if r.status == "ok"]
+    values: dict[str, list[float]] = {"success": [float(r.success) for r in items]}
+    if done:
+        values["return"] = [r.episode_return for r in done]
+        values["length"] = [float(r.length) for r in done]
+    for r in done:
+        for name, value in r.metrics.items():
+            if _is_number(value) and math.isfinite(float(value)) and name != "success":
+                values.setdefault(name, []).append(float(value))
+                if name in SIGNED_METRICS:
+                    values.setdefault(f"{name}_abs", []).append(abs(float(value)))
+    failed = len(items) - len(done)
+    reasons = collections.Counter(r.failure_reason for r in done if r.failure_reason)
+    return {
+        "env_id": env_id,
+        "obs_mode": obs_mode,
+        "scenario": scenario,
+        "agent": agent,
+        "episodes": len(items),
+        "failed": failed,
+        "status": "ok" if not failed else ("failed" if not done else "partial"),
+        "seeds": [r.seed for r in items],
+        "errors": list(dict.fromkeys(r.error for r in items if r.error)),
+        "failure_reasons": dict(sorted(reasons.items())),
+        "env_kwargs": items[0].env_kwargs,
+        "metrics": {k: _stat(v, success=k == "success") for k, v in values.items()},
+    }

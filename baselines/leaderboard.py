@@ -135,22 +135,37 @@ def _rank_interval(row: Mapping, key: str) -> tuple[float, float]:
     return metric_interval(stat) or (stat["mean"], stat["mean"])
 
 
+def is_member(row: Mapping) -> bool:
+    """Whether ``row`` is one training seed of a group (ranked as its group's row)."""
+    return bool(row.get("group"))
+
+
 def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
     """``(rank, tied)`` of each of an environment's rows (sorted best first by
-    :func:`by_env`); None for a failed row.
+    :func:`by_env`); None for a failed row and for a group's member (its group
+    row is ranked: :func:`is_member`).
 
     By :func:`rank_metric`: a row whose 95 % interval overlaps the one above it
     shares its rank (a tie).
     """
     key, _ = rank_metric(rows)
-    ok = [r for r in rows if r["status"] != "failed"]
+    ok = [r for r in rows if r["status"] != "failed" and not is_member(r)]
     ranked = iter(tied_ranks([_rank_interval(r, key) for r in ok]))
-    return [None if row["status"] == "failed" else next(ranked) for row in rows]
+    return [None if row["status"] == "failed" or is_member(row) else next(ranked)
+            for row in rows]
 
 
 def rank_labels(rows: Sequence[Mapping]) -> list[str]:
-    """:func:`ranks` as table text: ``"2"``, ``"2 (tie)"``, ``"–"`` for a failed row."""
-    return ["–" if r is None else f"{r[0]} (tie)" if r[1] else str(r[0]) for r in ranks(rows)]
+    """:func:`ranks` as table text: ``"2"``, ``"2 (tie)"``, ``"–"`` for a failed row,
+    ``"seed of G"`` for a member of group G."""
+    return [f"seed of {row['group']}" if is_member(row) else "–" if r is None
+            else f"{r[0]} (tie)" if r[1] else str(r[0]) for row, r in zip(rows, ranks(rows),
+                                                                          strict=True)]
+
+
+def ranked_rows(rows: Sequence[Mapping]) -> list[Mapping]:
+    """``rows`` without the members of groups (the overview, the terminal, the plots)."""
+    return [r for r in rows if not is_member(r)]
 
 
 def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
@@ -158,7 +173,7 @@ def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
 
     Best: better mean of the environment's :func:`rank_metric` (success rate,
     or RMSE for tracking), then higher success rate and mean return; failed
-    rows last.
+    rows last. A group's members follow its row.
     """
     groups: dict[str, list[Mapping]] = {}
     for row in summary:
@@ -175,7 +190,14 @@ def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
             return (row["status"] == "failed", primary, -metrics["success"]["mean"], -ret,
                     row["agent"])
 
-        return sorted(rows, key=rank)
+        ranked = sorted(ranked_rows(rows), key=rank)
+        members = sorted((r for r in rows if is_member(r)), key=lambda r: r["agent"])
+        out = []
+        for row in ranked:  # a group's seeds right after it
+            out.append(row)
+            out += [m for m in members if m["group"] == row["agent"]
+                    and (m["obs_mode"], m["scenario"]) == (row["obs_mode"], row["scenario"])]
+        return out + [m for m in members if m not in out]
 
     return {env_id: order(rows) for env_id, rows in groups.items()}
 
@@ -219,6 +241,7 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
         keys = headline_keys(rows)
         if compact:
             keys = [k for k in COMPACT_METRICS if k in keys]
+            rows = ranked_rows(rows)  # groups without their seeds
         lines += [f"## {env_id}", ""]
         header = ["rank", "agent", "obs mode", "scenario", "episodes"]
         header += [metric_label(k) for k in keys]
@@ -529,7 +552,7 @@ def overview_html(groups: Mapping[str, Sequence[Mapping]]) -> str:
     :func:`overview_metric`."""
     cards = []
     for env_id, rows in groups.items():
-        scenarios = by_scenario(rows)
+        scenarios = by_scenario(ranked_rows(rows))
         for scenario, subset in scenarios.items():
             cards.append(_card_html(env_id, scenario if len(scenarios) > 1 else None, subset))
     return ('<section id="overview"><h2>Overview</h2>'
@@ -645,7 +668,7 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
     plots: dict[str, str] = {}
     for env_id, rows in by_env(summary).items():
         rel = f"plots/{_short(env_id)}.png"
-        png = plot_env(env_id, rows)
+        png = plot_env(env_id, ranked_rows(rows))
         if png is None:
             (out / rel).unlink(missing_ok=True)
             continue

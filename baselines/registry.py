@@ -49,6 +49,10 @@ class AgentSpec:
             is put first and added when missing (default: ``obs_mode`` only).
         env_kwargs: constructor arguments the agent's environment must be
             built with (e.g. ``{"control": "position"}``); default none.
+        group: the name of the agent this one is a training seed of (e.g.
+            ``ppo-docking-features`` for ``ppo-docking-features-s1``): the
+            leaderboard pools a group's episodes into one row and lists its
+            seeds one by one; default none.
     """
 
     name: str
@@ -58,6 +62,7 @@ class AgentSpec:
     description: str
     obs_modes: tuple[str, ...] = ()
     env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict, hash=False)
+    group: str | None = None
 
     def __post_init__(self):
         modes = (self.obs_mode, *self.obs_modes)
@@ -127,6 +132,12 @@ def agent_spec(name: str) -> AgentSpec:
     if name not in _REGISTRY:
         raise KeyError(f"unknown agent {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
     return _REGISTRY[name]
+
+
+def agent_groups() -> dict[str, str]:
+    """Agent name -> its group, for the agents that belong to one (``AgentSpec.group``)."""
+    _load_builtin()
+    return {name: spec.group for name, spec in _REGISTRY.items() if spec.group}
 
 
 def agent_names() -> list[str]:

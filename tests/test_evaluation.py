@@ -433,3 +433,37 @@ def test_cached_episodes_of_other_code_run_again(tmp_path, monkeypatch):
     again = evaluate_all(**args)
     assert again.stats.ran == 1 and again.stats.cached == 0
     assert [_comparable(r) for r in again.rows] == [_comparable(r) for r in first.rows]
+
+
+def test_training_seeds_pool_into_one_ranked_row_and_stay_listed():
+    from baselines import leaderboard
+    from baselines.stats import wilson_interval
+
+    def row(agent, seed, success):
+        return EpisodeRow(DOCK, agent, seed, "features", "default", float(success), 10,
+                          success, "", {"docking_time": 20.0 + seed}, 0.1)
+
+    rows = [row("rl-s0", 1, True), row("rl-s0", 2, True), row("rl-s1", 1, True),
+            row("rl-s1", 2, False), row("rl-s2", 1, True), row("rl-s2", 2, True),
+            row("classic", 1, False), row("classic", 2, False)]
+    groups = {"rl-s0": "rl", "rl-s1": "rl", "rl-s2": "rl"}
+    summary = summarise(rows, groups)
+    by_agent = {r["agent"]: r for r in summary}
+    pooled = by_agent["rl"]
+    assert pooled["members"] == ["rl-s0", "rl-s1", "rl-s2"] and pooled["group"] is None
+    assert pooled["episodes"] == 6 and pooled["metrics"]["success"]["mean"] == pytest.approx(5 / 6)
+    assert pooled["metrics"]["success"]["ci"] == pytest.approx(list(wilson_interval(5, 6)))
+    assert by_agent["rl-s1"]["group"] == "rl" and by_agent["classic"]["group"] is None
+    assert by_agent["rl-s1"]["metrics"]["success"]["mean"] == 0.5  # each seed on its own too
+
+    ordered = leaderboard.by_env(summary)[DOCK]
+    assert [r["agent"] for r in ordered] == ["rl", "rl-s0", "rl-s1", "rl-s2", "classic"]
+    # Wilson intervals of 5/6 and 0/2 overlap: a tie, between the group and classic only.
+    assert leaderboard.rank_labels(ordered) == ["1 (tie)", "seed of rl", "seed of rl",
+                                                "seed of rl", "1 (tie)"]
+    compact = leaderboard.markdown(summary, compact=True)
+    full = leaderboard.markdown(summary)
+    assert "rl-s1" not in compact and "| 1 (tie) | rl |" in compact
+    assert "| seed of rl | rl-s1 |" in full
+    assert "rl-s0" not in leaderboard.overview_html(leaderboard.by_env(summary))
+    assert {r["agent"] for r in summarise(rows)} == {"rl-s0", "rl-s1", "rl-s2", "classic"}

@@ -368,6 +368,18 @@ def test_exported_policy_acts_as_in_training(ppo_runs, tmp_path):
     env.close()
 
 
+def test_exported_seed_carries_its_group(ppo_runs, tmp_path):
+    _, whole, _, _ = ppo_runs
+    path = export_policy(whole.run_dir, "ppo-test-s7", tmp_path, group="ppo-test")
+    assert json.loads((path / "policy.json").read_text())["group"] == "ppo-test"
+    assert agents.policy_spec(path).group == "ppo-test"
+    plain = export_policy(whole.run_dir, "ppo-test", tmp_path)
+    assert "group" not in json.loads((plain / "policy.json").read_text())
+    assert agents.policy_spec(plain).group is None
+    with pytest.raises(ValueError, match="group"):
+        export_policy(whole.run_dir, "ppo-test-s8", tmp_path, group="Bad Group")
+
+
 def test_policy_files_are_checked(ppo_runs, tmp_path):
     _, whole, _, _ = ppo_runs
     path = export_policy(whole.run_dir, "ppo-check", tmp_path)

@@ -49,7 +49,7 @@ from baselines.evaluation import (
     resolve_env_kwargs,
     summarise,
 )
-from baselines.registry import agent_names, agent_spec, env_obs_modes
+from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_modes
 
 #: Environment arguments of the default run; ``--env-kwargs`` overrides them
 #: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
@@ -243,7 +243,7 @@ def _main(argv, prog: str) -> int:
     if run.skipped:
         print(f"skipped {len(run.skipped)} (env, agent) pairs that do not apply; reasons in "
               f"{os.path.join(args.out, 'leaderboard.md')}", file=sys.stderr)
-    summary = summarise(run.rows)
+    summary = summarise(run.rows, agent_groups())
     meta = {
         "command": f"{prog} {shlex.join(argv)}".strip(),
         "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))

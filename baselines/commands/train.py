@@ -64,6 +64,9 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
                         help="only export the finished RUN_DIR (with --export-policy)")
     parser.add_argument("--export-policy", metavar="NAME",
                         help="after training, ship the policy as assets/policies/NAME")
+    parser.add_argument("--export-group", metavar="GROUP",
+                        help="with --export-policy: the agent this policy is a training seed of "
+                             "(the leaderboard pools a group's seeds into one row)")
     parser.add_argument("--policies-dir", type=Path, help="default: assets/policies")
     parser.add_argument("--no-progress-bar", action="store_true")
     args = parser.parse_args(argv)
@@ -83,7 +86,8 @@ def main(argv=None, prog: str = "python train.py") -> int:
 
     try:
         if args.export is not None:
-            path = export.export_policy(args.export, args.export_policy, args.policies_dir)
+            path = export.export_policy(args.export, args.export_policy, args.policies_dir,
+                                        args.export_group)
             print(f"exported {args.export} -> {path}")
             return 0
         expected = None
@@ -119,7 +123,8 @@ def main(argv=None, prog: str = "python train.py") -> int:
         return 128 + int(signal.Signals[result.stopped_by])
     print(f"finished {result.steps} steps in {result.wall_time_s:.0f} s: {result.run_dir}")
     if args.export_policy:
-        path = export.export_policy(result.run_dir, args.export_policy, args.policies_dir)
+        path = export.export_policy(result.run_dir, args.export_policy, args.policies_dir,
+                                    args.export_group)
         print(f"exported -> {path}")
     return 0
 

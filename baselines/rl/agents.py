@@ -64,6 +64,7 @@ def policy_spec(directory: Path, name: str | None = None) -> AgentSpec:
         description=manifest.get("description")
         or f"{manifest['algo'].upper()} policy on {manifest['obs_mode']}",
         env_kwargs=env_kwargs,
+        group=manifest.get("group"),
     )
 
 

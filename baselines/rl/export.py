@@ -68,19 +68,23 @@ def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
     fig.savefig(out, dpi=80)
 
 
-def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None = None) -> Path:
+def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None = None,
+                  group: str | None = None) -> Path:
     """Copy a finished run's final policy and records to ``dest_root/name``.
 
     Args:
         run_dir: a finished run directory (with ``final/``).
         name: the agent name, e.g. ``ppo-docking-state`` (lower case, digits, ``.-_``).
         dest_root: where policies live (default: :func:`policies_root`).
+        group: the agent this policy is a training seed of (recorded in
+            ``policy.json``; the leaderboard pools a group's seeds into one row).
 
     Returns:
         The policy directory.
     """
-    if not NAME.match(name):
-        raise ValueError(f"policy name {name!r} must match {NAME.pattern}")
+    for label, value in (("policy name", name), ("group", group)):
+        if value is not None and not NAME.match(value):
+            raise ValueError(f"{label} {value!r} must match {NAME.pattern}")
     run = RunDirectory(run_dir)
     manifest = read_manifest(run.final)
     verify_files(run.final, manifest["files"])
@@ -114,6 +118,7 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
             {k: float(v) if k != "step" and k != "episodes" else int(v)
              for k, v in evals[-1].items()} if evals else None
         ),
+        **({"group": group} if group else {}),
         "description": (
             f"{manifest['algo'].upper()} on {manifest['obs_mode']} observations, "
             f"{info['steps']} steps"
