@@ -685,6 +685,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             disturbances=disturbances,
         )
         self._disturbances = disturbances
+        self._current_varies = disturbances.current.active  # read once: the step path checks it
         self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
         # Per-step constants as Python floats (the step path works in floats).
         self._thrust = tuple(float(t) for t in self._params.thrust_limits)
@@ -807,8 +808,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             x, y, z, n = fx + gain * (x - fx), fy + gain * (y - fy), fz + gain * (z - fz), \
                 fn + gain * (n - fn)
             ep.thrust = (x, y, z, n)
-        varying = self._disturbances.current
-        if varying.active:
+        if self._current_varies:
+            varying = self._disturbances.current
             ep.current_polar = varying.advance(*ep.current_polar, *ep.current_mean, self._dt,
                                                self.np_random)
             ep.current = current_vector(*ep.current_polar)
