@@ -17,6 +17,7 @@ import imageio.v3 as iio
 
 import auv_envs  # noqa: F401  (registers the ids)
 from auv_envs.record import parse_size
+from baselines.evaluation import run_episode
 from baselines.registry import agent_spec
 
 #: file name -> (env id, env arguments, agent, seed, fraction of the episode).
@@ -29,27 +30,22 @@ GALLERY = {
 }
 
 
-def _run(env: gym.Env, agent_name: str, seed: int, stop: int | None = None) -> int:
-    """Steps of the seeded episode (or ``stop``, when given and reached first)."""
-    agent = agent_spec(agent_name).factory(env.unwrapped)
-    obs, info = env.reset(seed=seed)
-    agent.reset(seed)
-    steps, done = 0, False
-    while not done and steps != stop:
-        obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
-        steps += 1
-        done = terminated or truncated
-    return steps
-
-
 def render(env_id: str, kwargs: dict, agent: str, seed: int, fraction: float,
            size: tuple[int, int]):
+    """The frame ``fraction`` of the way through the seeded episode of ``agent``."""
     spec = agent_spec(agent)
-    env = gym.make(env_id, obs_mode=spec.modes_for(env_id)[0], render_mode="rgb_array",
-                   render_size=size, **{**spec.env_kwargs, **kwargs})
+    arguments = dict(obs_mode=spec.modes_for(env_id)[0], render_mode="rgb_array",
+                     render_size=size, **{**spec.env_kwargs, **kwargs})
+
+    def episode(**limit) -> tuple[gym.Env, int]:
+        env = gym.make(env_id, **arguments, **limit)
+        return env, run_episode(env, spec.factory(env.unwrapped), seed, env_id, agent).length
+
+    env, length = episode()  # the whole episode, for its length
+    env.close()
+    # The same episode again, cut by gym.make's TimeLimit at the step to draw.
+    env, _ = episode(max_episode_steps=max(1, round(fraction * length)))
     try:
-        length = _run(env, agent, seed)
-        _run(env, agent, seed, stop=max(0, round(fraction * length)))
         return env.render()
     finally:
         env.close()
