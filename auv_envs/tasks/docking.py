@@ -747,14 +747,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(10.0)
         surge = rng.uniform(0.0, 0.3)
         varying = self._disturbances.current
-        if self.scenario == "current" or varying.active:
+        if self.scenario == "current" or self._current_varies:
             speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
             direction = (
                 math.radians(self._current_direction)
                 if self._current_direction is not None
                 else rng.uniform(0.0, 2.0 * math.pi)
             )
-            polar = varying.start(speed, direction, rng) if varying.active else (speed, direction)
+            polar = (varying.start(speed, direction, rng) if self._current_varies
+                     else (speed, direction))
             current = current_vector(*polar)
         else:
             speed = direction = 0.0
