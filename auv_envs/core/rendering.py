@@ -36,6 +36,7 @@ class CameraRenderer:
     With one camera this is a monocular renderer; with two (left, right) it
     draws both views into one offscreen buffer and reads them back with one
     ``mjr_readPixels`` call (FACTS.md: faster than two renderer passes).
+    :meth:`render_with_range` also reads the depth buffer, as each pixel's range.
     """
 
     def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int,
@@ -79,6 +80,9 @@ class CameraRenderer:
         self._option = mujoco.MjvOption()
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)
+        # Made on the first render_with_range: the depth buffer and each pixel's ray length.
+        self._depth: np.ndarray | None = None
+        self._ray_length: np.ndarray | None = None
         self._viewports = [
             mujoco.MjrRect(k * self._width, 0, self._width, self._height)
             for k in range(len(cameras))
@@ -103,7 +107,52 @@ class CameraRenderer:
         self._draw(data)
         return np.flipud(self._buffer).copy()
 
-    def _draw(self, data: mujoco.MjData) -> None:
+    def render_with_range(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """The RGB image of :meth:`render` and each pixel's range, from one draw.
+
+        The range is the distance (m) from the camera centre to the surface
+        seen through the pixel's centre, along that pixel's ray; ``inf``
+        where the ray meets no geometry. It is read from the depth buffer,
+        whose value ``b`` maps to the depth ``z`` along the optical axis
+        through the standard OpenGL perspective projection with MuJoCo's
+        clipping planes (``near, far = model.vis.map.znear, zfar`` times
+        ``model.stat.extent``, as in :class:`mujoco.Renderer` with its
+        default depth mapping): ``z = near / (1 - b (1 - near / far))``. A
+        pixel ``(u, v)`` (centre ``u + 0.5``, ``v + 0.5``; principal point
+        at the image centre, focal length ``f = H / (2 tan(fovy / 2))``)
+        sees along the ray ``((u + 0.5 - W/2) / f, (v + 0.5 - H/2) / f, 1)``,
+        so its range is ``z`` times that ray's length.
+
+        Returns:
+            ``(rgb (H, W * n_cameras, 3) uint8, range (H, W * n_cameras) float32)``.
+        """
+        if self._gl is None:
+            raise RuntimeError("renderer is closed")
+        if self._depth is None:
+            self._depth = np.empty(self._buffer.shape[:2], dtype=np.float32)
+            self._ray_length = self._ray_lengths()
+        self._draw(data, self._depth)
+        model = self._model
+        near = model.vis.map.znear * model.stat.extent
+        far = model.vis.map.zfar * model.stat.extent
+        depth = np.flipud(self._depth).astype(np.float64)
+        z = near / (1.0 - depth * (1.0 - near / far))
+        # The cleared buffer (1, the far plane) is where no geometry was drawn.
+        z[depth >= 1.0] = np.inf
+        return np.flipud(self._buffer).copy(), (z * self._ray_length).astype(np.float32)
+
+    def _ray_lengths(self) -> np.ndarray:
+        """Per pixel, the length of its ray ``(x, y, 1)`` in camera coordinates (>= 1)."""
+        lengths = []
+        for cam in self._cams:
+            fovy = np.radians(self._model.cam_fovy[cam.fixedcamid])
+            focal = 0.5 * self._height / np.tan(fovy / 2.0)
+            x = (np.arange(self._width) + 0.5 - self._width / 2.0) / focal
+            y = (np.arange(self._height) + 0.5 - self._height / 2.0) / focal
+            lengths.append(np.sqrt(1.0 + x[None, :] ** 2 + y[:, None] ** 2))
+        return np.hstack(lengths)
+
+    def _draw(self, data: mujoco.MjData, depth: np.ndarray | None = None) -> None:
         self._gl.make_current()
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
         for cam, viewport in zip(self._cams, self._viewports, strict=True):
@@ -117,7 +166,7 @@ class CameraRenderer:
                 light.ambient[:] = self._headlight[0]
                 light.diffuse[:] = self._headlight[1]
             mujoco.mjr_render(viewport, self._scene, self._ctx)
-        mujoco.mjr_readPixels(self._buffer, None, self._full, self._ctx)
+        mujoco.mjr_readPixels(self._buffer, depth, self._full, self._ctx)
 
     def close(self) -> None:
         if self._gl is not None:

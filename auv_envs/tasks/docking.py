@@ -36,6 +36,7 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
+from auv_envs.core.optics import LampOutages, WaterOptics, degrade_image, detect_lamps
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import GaussMarkovCurrent, current_vector
 from auv_envs.core.vehicle import (
@@ -86,6 +87,8 @@ CHASE_FOVY_DEG = 60.0
 #: (fog colour and visibility), but the view is lit as by a survey lamp. The
 #: onboard camera keeps the model's dim headlight.
 CHASE_HEADLIGHT = (0.45, 0.6)
+#: Colour of a failed lamp (``optics``): unlit grey glass, no emission.
+FAILED_LAMP_RGBA = (0.25, 0.25, 0.25, 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,6 +198,8 @@ class DockingCalibration:
         disturbances: the plant's disturbance models and their parameters
             (:class:`DockingDisturbances`; each episode's draws are in the
             reset ``info``).
+        optics: the water between camera and lamps and the camera's sensor
+            (:class:`auv_envs.core.optics.WaterOptics`), None for clear water.
     """
 
     intrinsics: CameraIntrinsics
@@ -214,6 +219,7 @@ class DockingCalibration:
     yaw_rate_noise_std: float
     attitude_noise_std: float
     disturbances: DockingDisturbances = DockingDisturbances()
+    optics: WaterOptics | None = None
 
 
 def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.MjModel:
@@ -334,6 +340,16 @@ class _Physics:
             [self.data.site(f"station/light_{i}").xpos for i in range(n_lights)]
         )
         self.seabed_z = float(self.data.geom("seabed").xpos[2])
+        # The lamp geom drawn at each light (visual group 2, at the light's site).
+        visual = np.flatnonzero(model.geom_group == 2)
+        self.lamp_geoms = np.array([
+            visual[np.argmin(np.linalg.norm(self.data.geom_xpos[visual] - p, axis=1))]
+            for p in self.light_positions
+        ])
+        if not np.allclose(self.data.geom_xpos[self.lamp_geoms], self.light_positions):
+            raise ValueError("every light site needs a lamp geom (group 2) at its position")
+        self._lamp_look = (model.geom_matid[self.lamp_geoms].copy(),
+                           model.geom_rgba[self.lamp_geoms].copy())
         # Rays see the scenery (geom groups 0-1); lamp geoms are group 2.
         self.ray_groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
         # Views into MjData made once (its array properties build a new view on
@@ -371,6 +387,16 @@ class _Physics:
             opt.disableflags |= self._constraint_bit
         else:
             opt.disableflags &= ~self._constraint_bit
+
+    def show_lamps(self, failed: np.ndarray | None) -> None:
+        """Draw the ``failed`` lamps unlit (no material, grey), the others as built."""
+        matid, rgba = self._lamp_look
+        geoms = self.lamp_geoms
+        self.model.geom_matid[geoms] = matid
+        self.model.geom_rgba[geoms] = rgba
+        if failed is not None and failed.any():
+            self.model.geom_matid[geoms[failed]] = -1
+            self.model.geom_rgba[geoms[failed]] = FAILED_LAMP_RGBA
 
     def position(self) -> np.ndarray:
         return self._pos.copy()
@@ -450,6 +476,8 @@ class _EpisodeState:
     #: The simulated vehicle of this episode (perturbed or nominal) and its draws.
     vehicle: VehicleParams | None = None
     plant_draws: dict = dataclasses.field(default_factory=dict)
+    #: With ``optics``: the lamps failed for the episode or hidden now.
+    outages: LampOutages | None = None
     lost_time: float = 0.0
     prev_potential: float = 0.0
     done: bool = False
@@ -491,6 +519,18 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
       forward camera (dark attenuating water, bright lamps) plus ``velocity``
       and ``attitude`` as above.
 
+    With ``optics`` (a :class:`auv_envs.core.optics.WaterOptics`, e.g.
+    ``WaterOptics.jerlov("5C")``) the camera looks through that water:
+    ``image`` is the render passed through the underwater image formation
+    model with each pixel's range from the depth buffer (attenuation towards
+    the veiling light, the lamps' glow, sensor noise); in ``features`` a lamp
+    in view is detected with a probability that falls with its received
+    contrast, its pixels get centroid noise that grows with the glow, and
+    lamps hidden by a passing occluder are not detected (undetected lamps:
+    ``visible`` 0, pixels 0). Lamps that failed for the episode stay dark in
+    both modes (and in ``render()``). The reward, the episode's end and
+    ``info["true_visible"]`` still count the lamps geometrically in view.
+
     **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
     ``progress`` (decrease of the potential distance + 0.5 |heading error|),
     ``control`` (-0.001 |a|^2), ``visibility`` (-0.01 per step with fewer than
@@ -522,7 +562,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     acted during the step. With a thruster lag (``disturbances``): ``thrust``
     (the applied X, Y, Z, N) every step; with a plant perturbation:
     ``plant`` (the episode's draws: mass and damping factors, net-buoyancy
-    offset) at reset. At
+    offset) at reset; with ``optics``: ``optics`` at reset, a dict with
+    ``failed_lamps`` (the labels of the lamps dark for the episode). At
     episode end also ``episode_metrics`` (a dict; ``docking_time`` is None
     without success).
 
@@ -544,7 +585,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     ``render()``'s frame, default 640x480), ``disturbances``
     (:class:`DockingDisturbances`, default none: a Gauss–Markov current about
     the scenario's, a per-episode perturbation of the simulated vehicle's
-    mass, inertia, damping and buoyancy, first-order thrusters).
+    mass, inertia, damping and buoyancy, first-order thrusters), ``optics``
+    (:class:`auv_envs.core.optics.WaterOptics`, default None: clear water,
+    exact features, the plain render; reported in ``calibration.optics``).
 
     **Version history.** v1: the plant integrates its equations with
     classical RK4 (one 0.1 s step, hull wrench re-evaluated at every stage)
@@ -554,8 +597,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     ``physics_substeps=2``). Rendering (both versions; dynamics, observations
     and rewards unchanged): ``render()`` draws the chase camera by default
     (``render_camera``, ``render_size``); it drew the forward camera at
-    ``image_size`` before. Opt-in addition (both versions): ``disturbances``
-    (default none, which leaves the environment bit-identical).
+    ``image_size`` before. Opt-in additions (both versions): ``disturbances``
+    and ``optics`` (defaults none, which leave the environment bit-identical
+    and draw no extra random numbers).
     """
 
     metadata = {
@@ -593,6 +637,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         render_camera: str = "chase",
         render_size: tuple[int, int] = (640, 480),
         disturbances: DockingDisturbances | None = None,
+        optics: WaterOptics | None = None,
         **unknown,
     ):
         self._accept_arguments(
@@ -604,11 +649,14 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             min_visible_lights=min_visible_lights, integrator=integrator,
             physics_substeps=physics_substeps, render_mode=render_mode,
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
+            optics=optics,
         )
         disturbances = disturbances if disturbances is not None else DockingDisturbances()
         if not isinstance(disturbances, DockingDisturbances):
             raise TypeError(
                 f"disturbances must be a DockingDisturbances, got {type(disturbances).__name__}")
+        if optics is not None and not isinstance(optics, WaterOptics):
+            raise TypeError(f"optics must be a WaterOptics or None, got {type(optics).__name__}")
         check_choice("scenario", scenario, SCENARIOS)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
@@ -683,8 +731,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             yaw_rate_noise_std=SCENARIO_YAW_RATE_NOISE if noisy else 0.0,
             attitude_noise_std=SCENARIO_ATTITUDE_NOISE if noisy else 0.0,
             disturbances=disturbances,
+            optics=optics,
         )
         self._disturbances = disturbances
+        self._optics = optics
         self._current_varies = disturbances.current.active  # read once: the step path checks it
         self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
         # Per-step constants as Python floats (the step path works in floats).
@@ -765,6 +815,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
         self._episode = _EpisodeState(current=current, current_mean=(speed, direction),
                                       current_polar=polar, vehicle=vehicle, plant_draws=draws)
+        if self._optics is not None:
+            outages = LampOutages.start(self._optics, len(lay.light_labels), rng)
+            self._episode.outages = outages
+            self._physics.show_lamps(outages.failed)
         truth = self._truth()
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
@@ -772,6 +826,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         info = self._info(truth, {name: 0.0 for name in self.reward_terms}, _NO_VIOLATIONS)
         if draws:
             info["plant"] = dict(draws)
+        if self._optics is not None:
+            failed = self._episode.outages.failed
+            info["optics"] = {"failed_lamps": tuple(
+                label for label, out in zip(lay.light_labels, failed, strict=True) if out)}
         return obs, info
 
     def _set_runtime_state(self, state: dict) -> None:
@@ -780,6 +838,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         if vehicle is not None and vehicle != self._params:
             self._use_vehicle(vehicle)
         super()._set_runtime_state(state)
+        if self._optics is not None:  # the episode's failed lamps live in the model too
+            self._physics.show_lamps(self._episode.outages.failed)
 
     def _use_vehicle(self, vehicle: VehicleParams) -> None:
         """Make ``vehicle`` the simulated one: MuJoCo's mass and inertia, the hull wrench."""
@@ -861,6 +921,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         ep.failure_reason = failure
         ep.done = terminated or truncated
 
+        if self._optics is not None and self.obs_mode == "features":
+            ep.outages = ep.outages.advance(self._optics, self._dt, self.np_random)
         obs = self._observation(truth)
         violations = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
         info = self._info(truth, terms, violations)
@@ -925,6 +987,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         half_height = math.sqrt((ax * r20) ** 2 + (ay * r21) ** 2 + (az * r22) ** 2)
         return {
             "position": pos,
+            "camera_position": cam_pos,
             "euler": euler,
             "velocity": velocity,
             "pixels": pixel_array,
@@ -995,9 +1058,31 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
                     pixels = np.where(visible[:, None], pixels, 0.0)
                 low, high = self._pixel_bounds
                 np.minimum(np.maximum(pixels, low, out=pixels), high, out=pixels)
+            if self._optics is not None:
+                pixels, visible = self._detect_lamps(truth, pixels, visible)
             pixels = pixels.astype(np.float32)
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
+        if self._optics is not None:
+            return {"image": self._render_through_water(), **sensors}
         return {"image": self._render_camera(self._renderer), **sensors}
+
+    def _detect_lamps(self, truth: dict, pixels: np.ndarray,
+                      visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The lamps the camera detects through the water (``optics``), and their pixels."""
+        cal = self.calibration
+        distance = np.linalg.norm(cal.light_positions - truth["camera_position"], axis=1)
+        pixels, detected = detect_lamps(pixels, visible, distance, self._episode.outages,
+                                        self._optics, cal.intrinsics.fy, self.np_random)
+        low, high = self._pixel_bounds
+        return np.clip(pixels, low, high), detected
+
+    def _render_through_water(self) -> np.ndarray:
+        """The forward camera's image through the water of ``optics``."""
+        with passive.MUJOCO_LOCK:
+            mujoco.mj_forward(self._physics.model, self._physics.data)
+        image, distance = self._renderer.render_with_range(self._physics.data)
+        return degrade_image(image, distance, self._optics, self.calibration.intrinsics.fy,
+                             self.np_random)
 
     def _render_camera(self, renderer: CameraRenderer) -> np.ndarray:
         with passive.MUJOCO_LOCK:
