@@ -2,7 +2,8 @@
 
 Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
 is described in :mod:`auv_envs.tasks.lars_scene`, the arm's kinematics and
-dynamics in :mod:`auv_envs.tasks.lars_arm`.
+dynamics in :mod:`auv_envs.tasks.lars_arm`, the opt-in irregular sea in
+:mod:`auv_envs.tasks.lars_sea`.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from auv_envs.core import passive
+from auv_envs.core import frames, passive
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
@@ -28,6 +29,7 @@ from auv_envs.core.env import (
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
 from auv_envs.core.stereo import StereoRig
+from auv_envs.core.waves import SeaSpectrum, WaveRealisation, sea_state_code
 from auv_envs.tasks.lars_arm import ArmModel
 from auv_envs.tasks.lars_scene import (
     ANALOG_MARKER_BASE_X,
@@ -44,6 +46,7 @@ from auv_envs.tasks.lars_scene import (
     sample_motion,
     uniform_draws,
 )
+from auv_envs.tasks.lars_sea import EpisodeSea, LARSSeaModel, SeaSample, ShipPose
 
 OBS_MODES = ("state", "features", "stereo")
 SEA_STATES = ("calm", "severe")
@@ -105,8 +108,12 @@ class LARSCalibration:
         capture_point_body: (3,) the AUV's lifting eye in its body frame.
         auv_length, auv_diameter, auv_mass: Explore-100-like AUV (Table 1).
         tolerances: success tolerances.
-        workspace: (3, 2) box (world) the arm end must stay inside.
+        workspace: (3, 2) box the arm end must stay inside, in the ship's
+            frame (the world frame unless a ``sea`` moves the ship).
         pixel_noise_std: std of the ``features`` pixel noise, px.
+        sea: the irregular-sea model (spectrum, AUV and ship responses,
+            wash-over and analog settings) of an env built with ``sea=``;
+            None otherwise.
     """
 
     stereo: StereoRig
@@ -127,6 +134,7 @@ class LARSCalibration:
     tolerances: CaptureTolerances
     workspace: np.ndarray
     pixel_noise_std: float
+    sea: LARSSeaModel | None = None
 
     def end_pose(self, q) -> np.ndarray:
         """World pose (4, 4) of the levelled arm-end frame at joint angles ``q``."""
@@ -158,6 +166,35 @@ def _pose(rotation: np.ndarray, translation) -> np.ndarray:
     return out
 
 
+def _rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
+    """:func:`auv_envs.core.frames.rotation_from_euler` as rows of floats (per-step use)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+def _rotate(rows, point) -> tuple[float, float, float]:
+    x, y, z = point
+    return tuple(a * x + b * y + c * z for a, b, c in rows)
+
+
+def _sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveRealisation:
+    """The episode's wave direction (drawn even when ``heading`` pins it) and realisation."""
+    drawn = rng.uniform(*sea.heading_range)
+    if heading is None:
+        heading = drawn
+    elif isinstance(heading, bool) or not (
+        isinstance(heading, int | float) and math.isfinite(heading)
+    ):
+        raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
+    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, float(heading), sea.band)
+
+
 class _Physics:
     """Named accessors into the MuJoCo model/data pair; ids resolved once."""
 
@@ -169,6 +206,15 @@ class _Physics:
             for name in ("water", "crest", "head", "auv", "analog_0", "analog_1")
         }
         self._initial = get_physics_state(model, self.data)  # a new MjData is reset
+        # What the ship carries (its hull, the arm's links), for rendering a moving ship.
+        bodies = [model.body(name).id for name in ("turret", "boom", "jib")]
+        self._ship_bodies = np.array(bodies)
+        self._ship_geoms = np.array(
+            [model.geom("ship").id]
+            + [i for i in range(model.ngeom) if model.geom_bodyid[i] in bodies]
+        )
+        self._ship_sites = np.array([i for i in range(model.nsite)
+                                     if model.site_bodyid[i] in bodies])
 
     def reset(self, q) -> None:
         """The model's initial integration state (time, velocities, warm start,
@@ -188,9 +234,24 @@ class _Physics:
         self.data.mocap_pos[i] = position
         self.data.mocap_quat[i] = quat
 
-    def refresh_kinematics(self) -> None:
-        """Positions and cameras for rendering, without touching the solver's state."""
+    def refresh_kinematics(self, ship: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Positions and cameras for rendering, without touching the solver's state.
+
+        ``ship``: ``(R, t)`` of the ship's displacement (``p -> R p + t``),
+        applied to the ship's hull and the arm's links after the kinematics
+        (the next step recomputes them from the joint angles).
+        """
         mujoco.mj_kinematics(self.model, self.data)
+        if ship is not None:
+            rot, shift = ship
+            data = self.data
+            for pos, mat, ids in (
+                (data.xpos, data.xmat, self._ship_bodies),
+                (data.geom_xpos, data.geom_xmat, self._ship_geoms),
+                (data.site_xpos, data.site_xmat, self._ship_sites),
+            ):
+                pos[ids] = pos[ids] @ rot.T + shift
+                mat[ids] = (rot @ mat[ids].reshape(-1, 3, 3)).reshape(-1, 9)
         mujoco.mj_camlight(self.model, self.data)
 
 
@@ -201,6 +262,7 @@ class _EpisodeState:
     motion: AUVMotion | None = None
     wash: WashOver | None = None
     analogs: tuple[FloatingAnalog, ...] = ()
+    waves: WaveRealisation | None = None
     steps: int = 0
     prev_error: float = 0.0
     done: bool = False
@@ -234,6 +296,17 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     0.9 m hulls of the same paint with a 0.8x red triangle) drift in view.
     World frame: x along the ship, y outboard, z up, calm water at z = 0.
 
+    With ``sea=SeaSpectrum(...)`` (opt-in, :mod:`auv_envs.tasks.lars_sea`)
+    the sinusoid gives way to an irregular long-crested sea (a seeded sum of
+    harmonics of a JONSWAP/PM spectrum): the AUV heaves with the surface
+    averaged over its hull and rolls and pitches with its slope (on top of
+    the pitch offset); the analogs heave with the elevation at their own
+    places; the ship heaves, rolls and pitches (linear RAOs of a ~32 m
+    vessel) and carries the arm: its joint angles are relative to the ship,
+    its end point moves with the ship and the levelled head (cameras,
+    capture tip) with it. ``severe`` wash-over timing and the number of
+    analogs then follow ``Hs``.
+
     **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"`` (default):
     joint torques (slew, shoulder, elbow) as fractions of
     ``calibration.torque_limits`` (1000, 4000, 1500 N m); gravity is *not*
@@ -248,7 +321,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     * ``"state"`` (privileged), ``Box((24,), float32)``: joint angles (3)
       and rates (3), arm-end position (3) and velocity (3), AUV CG minus
       arm end (3), AUV velocity (3), capture point minus capture tip (3),
-      AUV pitch (nose up) and yaw (2), local water level (1).
+      AUV pitch (nose up, with a sea including the waves' part) and yaw
+      (2), local water level (1).
     * ``"features"``, ``Dict``: ``pixels`` (2, 3, 2) float32, the marker
       corners A1 (port base), A2 (starboard base), A3 (apex) in the left
       (index 0) and right (1) images, in the pixel frame of ``image_size``,
@@ -272,15 +346,24 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     cameras over the AUV, offset up to 0.2 m along x and 0.1 m along y (the
     arm end within 1 m of the AUV's CG).
     Severe sea also draws the wash-over schedule (every 3-5 s for 1.2-2 s)
-    and the two analogs' offsets and drifts.
+    and the two analogs' offsets and drifts. With a ``sea``, the reset
+    draws, after the AUV's motion, the wave direction (uniform in
+    ``[0, 2 pi)``; ``options={"wave_heading": rad}`` pins it) and the
+    realisation (``calibration.sea.n_components`` frequencies and phases);
+    the starting arm end is then 0.8 m above the AUV on the moved ship.
+    Severe sea draws its schedule every ``[0.75, 1.25]`` times the mean
+    interval of :func:`~auv_envs.tasks.lars_sea.wash_over_timing` (never
+    when ``Hs / 2`` is below the freeboard) and keeps
+    :func:`~auv_envs.tasks.lars_sea.analogs_in_play` of the two analogs
+    (the draws are those of ``sea=None``).
 
     **Episode end.** Success (terminated): capture tip within 0.05 m of the
     capture point (lifting eye, 0.45 m aft of the CG on the top line) with a
     relative speed below 0.25 m/s (``CaptureTolerances``). Failure
     (terminated): hard collision (``collision``: the capture tip enters the
     hull without meeting the success condition) or the arm end leaving
-    ``calibration.workspace`` (``workspace``). Truncation after
-    ``time_limit`` seconds.
+    ``calibration.workspace`` (``workspace``; a box in the ship's frame).
+    Truncation after ``time_limit`` seconds.
 
     **Info.** Every step: ``capture_error`` (m), ``capture_offset`` (capture
     point minus tip, 3), ``relative_position`` (AUV CG minus arm end, 3),
@@ -293,7 +376,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``true_pitch``, ``true_yaw``, ``true_corners`` (3, 3) world,
     ``true_pixels`` (2, 3, 2) noise-free projections (NaN behind a camera),
     ``true_visible`` (2, 3), ``end_position`` (arm end), ``water_level``.
-    At episode end also ``episode_metrics`` (a dict).
+    At episode end also ``episode_metrics`` (a dict). With a ``sea``, every
+    step also ``true_roll`` (rad, port side up) and ``ship_motion`` (ship
+    heave m, roll rad (+y side up), pitch rad (bow down)); the reset's info
+    also ``sea``: ``hs_realised`` (m, ``4 sqrt(m0)`` of the realisation),
+    ``sea_state_code``, ``components``, ``wave_heading`` (rad, direction of
+    travel from +x), ``wash_period`` / ``wash_duration`` (s, None without
+    wash-over) and ``analogs`` (in play).
 
     **Arguments.** ``obs_mode``, ``sea_state`` (``"calm"``: no
     interference; ``"severe"``), ``control`` (``"torque"``/``"position"``),
@@ -305,12 +394,16 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``render_camera`` (``"side"``, default: from outboard and astern, the
     ship's side, the arm, the AUV and the sea surface, which heaves with the
     local wave; ``"stereo"``: the stereo pair side by side, each camera at
-    ``render_size``), ``render_size`` (W, H, default 640x480).
+    ``render_size``), ``render_size`` (W, H, default 640x480), ``sea``
+    (``SeaSpectrum`` or None, default: the seed-000 sinusoid, bit-identical
+    to the env without the argument and with no extra draws;
+    ``calibration.sea`` reports the model).
 
     **Version history.** v0: initial release. Rendering (dynamics,
     observations and rewards unchanged): ``render()`` draws the side view by
     default (``render_camera``, ``render_size``); it drew the stereo pair at
-    ``image_size`` before.
+    ``image_size`` before. Opt-in irregular seas (``sea``); the default
+    episode is unchanged.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
@@ -336,6 +429,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         render_mode: str | None = None,
         render_camera: str = "side",
         render_size: tuple[int, int] = (640, 480),
+        sea: SeaSpectrum | None = None,
         **unknown,
     ):
         self._accept_arguments(
@@ -344,9 +438,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
             render_mode=render_mode, render_camera=render_camera,
-            render_size=render_size,
+            render_size=render_size, sea=sea,
         )
         check_choice("sea_state", sea_state, SEA_STATES)
+        sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
@@ -410,6 +505,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             tolerances=tolerances or CaptureTolerances(),
             workspace=_read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
             pixel_noise_std=float(pixel_noise_std),
+            sea=sea_model,
         )
         # Constants of the per-step geometry, precomputed once.
         self._left_in_end = tuple(left_t.tolist())
@@ -423,6 +519,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         tol = self.calibration.tolerances
         self._tolerance = (tol.position, tol.speed)
         self._marker_corners = self.calibration.marker.corners
+        self._corners_body = [tuple(v) for v in self._marker_corners.tolist()]
         self._capture_point = self.calibration.capture_point_body
         self._kp, self._kd = POSITION_GAINS
         self._tau = np.zeros(3)
@@ -451,6 +548,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             )
         self._episode = _EpisodeState()
         self._geom: dict = {}
+        self._sea: EpisodeSea | None = None
+        self._sea_sample: tuple[float, SeaSample] | None = None
 
     # ------------------------------------------------------------------ spaces
     def _make_observation_space(self, width: int, height: int) -> spaces.Space:
@@ -480,16 +579,24 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         super().reset(seed=seed)
         rng = self.np_random
         options = dict(options or {})
-        unknown = set(options) - {"motion"}
+        sea = self.calibration.sea
+        valid = {"motion"} if sea is None else {"motion", "wave_heading"}
+        unknown = set(options) - valid
         if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: ['motion']")
+            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
         motion = sample_motion(rng, options.get("motion"))
+        waves = None if sea is None else _sample_waves(rng, sea, options.get("wave_heading"))
         wash, analogs = None, ()
         if self.sea_state == "severe":
-            wash = WashOver.sample(rng)
+            if sea is None:
+                wash = WashOver.sample(rng)
+            elif sea.wash_ranges() is not None:
+                wash = WashOver.sample(rng, *sea.wash_ranges())
             side = 1.0 if rng.uniform() < 0.5 else -1.0
             analogs = (FloatingAnalog.sample(rng, side), FloatingAnalog.sample(rng, -side))
-        self._episode = _EpisodeState(motion=motion, wash=wash, analogs=analogs)
+            if sea is not None:
+                analogs = analogs[:sea.analogs]
+        self._episode = _EpisodeState(motion=motion, wash=wash, analogs=analogs, waves=waves)
         self._prepare_episode_constants(motion)
 
         # The arm end 0.8 m above the AUV's top (seed 000 tracks at about
@@ -499,12 +606,25 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         end = np.array(
             [motion.x0 + offset[0], motion.y0 - CAMERA_MOUNT_IN_END[1] + offset[1], top + 0.8]
         )
+        if self._sea is not None:  # the joint angles that put the end there on the moved ship
+            end = self._ship_pose(0.0).to_ship(end)
         self._physics.reset(self._arm.inverse_kinematics(end))
         truth = self._truth()
         self._episode.prev_error = truth["capture_error"]
         self._episode.min_error = truth["capture_error"]
         obs = self._observation(truth)
         info = self._info(truth, (0.0,) * len(self.reward_terms), False, False)
+        if waves is not None:
+            wash = self._episode.wash
+            info["sea"] = {
+                "hs_realised": waves.significant_height,
+                "sea_state_code": sea_state_code(sea.spectrum.hs),
+                "components": int(waves.omega.size),
+                "wave_heading": waves.heading,
+                "wash_period": None if wash is None else wash.period,
+                "wash_duration": None if wash is None else wash.duration,
+                "analogs": len(self._episode.analogs),
+            }
         return obs, info
 
     def step(self, action):
@@ -528,7 +648,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         error = truth["capture_error"]
         captured = error <= self._tolerance[0] and truth["relative_speed"] <= self._tolerance[1]
         collision = (not captured) and truth["tip_in_hull"]
-        (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = truth["end"], self._ws_lo, self._ws_hi
+        (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = (
+            truth["end_on_ship"], self._ws_lo, self._ws_hi)
         workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
         failure = "collision" if collision else ("workspace" if workspace else "")
 
@@ -573,7 +694,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
     # ------------------------------------------------------------------ internals
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
-        """The AUV's per-episode geometry in world axes, as floats for the per-step code.
+        """The AUV's per-episode geometry in world axes, as floats for the per-step code,
+        and the episode's sea channels when there is a sea.
 
         The body quaternion is left to :meth:`_pose_scene`: only rendering needs it.
         """
@@ -585,12 +707,51 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "z_centre": AUV_FREEBOARD - AUV_DIAMETER / 2.0,
             "omega": motion.omega,
         }
+        self._sea_sample = None
+        waves = self._episode.waves
+        if waves is None:
+            self._sea = None
+            return
+        tracks = [(motion.x0 + a.dx0, motion.y0 + a.dy, motion.surge + a.drift)
+                  for a in self._episode.analogs]
+        self._sea = EpisodeSea(self.calibration.sea, waves, motion.x0, motion.y0,
+                               motion.surge, motion.yaw, tracks)
+
+    def _sea_at(self, t: float) -> SeaSample:
+        """The sea at time ``t``; the last one is kept (truth, analogs and the scene share it)."""
+        if self._sea_sample is None or self._sea_sample[0] != t:
+            self._sea_sample = (t, self._sea(t))
+        return self._sea_sample[1]
+
+    def _ship_pose(self, t: float) -> ShipPose:
+        """The ship's displacement at time ``t`` (only with a sea)."""
+        return ShipPose(self.calibration.sea.ship_origin, self._sea_at(t))
+
+    def _auv_attitude(self, t: float) -> tuple[float, float]:
+        """AUV roll and nose-up pitch at time ``t`` (constant without a sea)."""
+        m = self._episode.motion
+        if self._sea is None:
+            return 0.0, m.pitch
+        sample = self._sea_at(t)
+        return sample.auv_roll, m.pitch + sample.auv_pitch
 
     def _auv_position(self, t: float) -> tuple[float, float, float]:
-        """AUV CG position at time ``t`` (seed 000 motion model)."""
+        """AUV CG position at time ``t`` (seed 000 motion model, or the sea's heave)."""
         m = self._episode.motion
-        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
+        if self._sea is None:
+            level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
+        else:
+            level = self._sea_at(t).auv_heave
         return (m.x0 + m.surge * t, m.y0, level + self._geom["z_centre"])
+
+    def _body_to_world(self, roll: float, pitch: float, yaw: float) -> tuple:
+        """Marker corners (3 points), capture point and hull axis of the AUV at an
+        attitude, in world axes (floats): the per-step twin of
+        :meth:`_prepare_episode_constants` for a rolling, pitching AUV."""
+        rows = _rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
+        corners = [_rotate(rows, p) for p in self._corners_body]
+        capture = _rotate(rows, self._capture_point.tolist())
+        return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
 
     def _track_position(self, q_target: np.ndarray) -> None:
         """Computed-torque PD (eqs. 29-30) at the physics rate, torque-limited."""
@@ -622,17 +783,29 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         q = data.qpos.tolist()
         qd = data.qvel.tolist()
         ex, ey, ez, evx, evy, evz = self._arm.end_state(q, qd)
+        end_on_ship = (ex, ey, ez)
         c, s = math.cos(q[0]), math.sin(q[0])
         m = ep.motion
-        level, rate = heave(t, m.heave_amplitude, g["omega"], m.heave_phase)
-        px, py, pz = m.x0 + m.surge * t, m.y0, level + g["z_centre"]
+        if self._sea is None:
+            level, rate = heave(t, m.heave_amplitude, g["omega"], m.heave_phase)
+            px, py, pz = m.x0 + m.surge * t, m.y0, level + g["z_centre"]
+            roll, pitch = 0.0, m.pitch
+            body_corners, (kx, ky, kz), (ax, ay, az) = g["corners"], g["capture"], g["axis"]
+        else:
+            sea = self._sea_at(t)
+            level, rate = sea.level, sea.auv_heave_rate
+            px, py, pz = m.x0 + m.surge * t, m.y0, sea.auv_heave + g["z_centre"]
+            roll, pitch = sea.auv_roll, m.pitch + sea.auv_pitch
+            body_corners, (kx, ky, kz), (ax, ay, az) = self._body_to_world(roll, pitch, m.yaw)
+            # The arm's end is a point of the moving ship; the levelled head hangs from it.
+            ex, ey, ez, evx, evy, evz = self._ship_pose(t).carry(ex, ey, ez, evx, evy, evz)
         lx, ly, lz = self._left_in_end
         camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
 
         # Camera -> world rows (OpenCV axes): x = (c, s, 0), y = (s, -c, 0), z = down; the
         # right camera sits one baseline along the left camera's x axis.
         rows = self._camera_rows(c, s)
-        points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in g["corners"]]
+        points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in body_corners]
         corners = [x for point in points for x in point]
         b = self._baseline
         left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
@@ -658,10 +831,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
         # Capture tip vs the AUV: capture point offset and hull penetration.
         tx, ty, tz = ex, ey, ez + self._tip_z
-        kx, ky, kz = g["capture"]
         offset = (px + kx - tx, py + ky - ty, pz + kz - tz)
         dx, dy, dz = tx - px, ty - py, tz - pz
-        ax, ay, az = g["axis"]
         half = self._hull_half
         along = dx * ax + dy * ay + dz * az
         along = -half if along < -half else (half if along > half else along)
@@ -671,10 +842,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "q": q,
             "qd": qd,
             "end": (ex, ey, ez),
+            "end_on_ship": end_on_ship,
             "end_vel": (evx, evy, evz),
             "position": (px, py, pz),
             "velocity": (m.surge, 0.0, rate),
             "level": level,
+            "roll": roll,
+            "pitch": pitch,
             "corners": corners,
             "pixels": left + right,
             "visible": [vis_left, vis_right],
@@ -695,9 +869,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         top = level + AUV_FREEBOARD + wash.overtop
         return (pos[0] + shift, pos[1], top - wash.half_size[2])
 
-    def _analog_pose(self, analog: FloatingAnalog, t: float, pos: np.ndarray):
+    def _analog_pose(self, k: int, t: float, pos: np.ndarray):
+        """Centre and yaw of analog ``k``: heaving with its own phase lag, or, with a
+        sea, with the elevation at its own place."""
         m = self._episode.motion
-        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
+        analog = self._episode.analogs[k]
+        if self._sea is None:
+            level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
+        else:
+            level = self._sea_at(t).analog_levels[k]
         centre = (pos[0] + analog.dx0 + analog.drift * t, pos[1] + analog.dy,
                   level + self._geom["z_centre"])
         return centre, analog.yaw
@@ -707,8 +887,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         camera -> world ``rows`` of :meth:`_camera_rows`)."""
         mx, mz = self._analog_centre
         centres = []
-        for analog in self._episode.analogs:
-            (ax, ay, az), yaw = self._analog_pose(analog, t, pos)
+        for k in range(len(self._episode.analogs)):
+            (ax, ay, az), yaw = self._analog_pose(k, t, pos)
             centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
         return sum(project_few(self._intrinsics, centres, cam, rows)[1])
 
@@ -730,7 +910,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             return np.array(
                 [*truth["q"], *truth["qd"], ex, ey, ez, *truth["end_vel"],
                  px - ex, py - ey, pz - ez, *truth["velocity"], *truth["offset"],
-                 m.pitch, m.yaw, truth["level"]],
+                 truth["pitch"], m.yaw, truth["level"]],
                 dtype=np.float32,
             )
         if self.obs_mode == "features":
@@ -770,24 +950,33 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ep = self._episode
         t = ep.steps * self._dt
         pos = self._auv_position(t)
-        level = pos[2] - self._geom["z_centre"]
         q = phys.data.qpos
+        end = self._arm.forward_kinematics(q)
+        ship = None
+        if self._sea is None:
+            level = pos[2] - self._geom["z_centre"]
+            quat = ep.motion.quaternion()
+        else:
+            level = self._sea_at(t).level
+            roll, pitch = self._auv_attitude(t)
+            quat = frames.quat_from_euler(roll, -pitch, ep.motion.yaw)
+            pose = self._ship_pose(t)
+            end = pose.carry(*end.tolist(), 0.0, 0.0, 0.0)[:3]
+            ship = pose.transform()
         phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
-        phys.pose("auv", pos, ep.motion.quaternion())
+        phys.pose("auv", pos, quat)
         half = 0.5 * float(q[0])
-        phys.pose(
-            "head", self._arm.forward_kinematics(q), (math.cos(half), 0.0, 0.0, math.sin(half))
-        )
+        phys.pose("head", end, (math.cos(half), 0.0, 0.0, math.sin(half)))
         crest = self._crest_centre(t, pos, level) if ep.wash is not None else None
         phys.pose("crest", PARKED if crest is None else crest, (1.0, 0.0, 0.0, 0.0))
         for k in range(2):
             if k < len(ep.analogs):
-                centre, yaw = self._analog_pose(ep.analogs[k], t, pos)
+                centre, yaw = self._analog_pose(k, t, pos)
                 quat = (math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0))
             else:
                 centre, quat = PARKED, (1.0, 0.0, 0.0, 0.0)
             phys.pose(f"analog_{k}", centre, quat)
-        phys.refresh_kinematics()
+        phys.refresh_kinematics(ship)
 
     def _render_pair(self) -> np.ndarray:
         """Left and right images side by side, (H, 2 W, 3), one rendering pass."""
@@ -814,7 +1003,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "time": ep.steps * self._dt,
             "true_position": np.array(truth["position"]),
             "true_velocity": np.array(truth["velocity"]),
-            "true_pitch": m.pitch,
+            "true_pitch": truth["pitch"],
             "true_yaw": m.yaw,
             "true_corners": np.array(truth["corners"]).reshape(3, 3),
             "true_pixels": np.array(truth["pixels"]).reshape(2, 3, 2),
@@ -827,6 +1016,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "reward_success": terms[2],
             "reward_failure": terms[3],
         }
+        if self._sea is not None:
+            sea = self._sea_at(info["time"])
+            info["true_roll"] = truth["roll"]
+            info["ship_motion"] = np.array((sea.ship_heave, sea.ship_roll, sea.ship_pitch))
         return info
 
     def episode_metrics(self) -> dict:
