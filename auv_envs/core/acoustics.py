@@ -51,6 +51,38 @@ its fields):
   It adds to the ambient noise in power, so a stronger current lowers every
   SNR, most in the low bands. The flow speed ``U`` is the current's speed in
   the sample period (:meth:`HydrophoneArray.measure`'s ``current_speed``).
+* **Sound-speed error**: the water's true sound speed differs from the
+  nominal ``sound_speed`` a tracker is given (``calibration.sound_speed``) by
+  a per-episode offset drawn from N(0, ``sound_speed_error_std``^2) m/s; the
+  arrival times use the true speed. By Mackenzie's equation (J. Acoust. Soc.
+  Am. 70(3), 1981) dc/dT is about 3.2 m/s per degC at 15 degC and dc/dS about
+  1.3 m/s per psu, so an uncertainty of 1 degC in a tank's temperature gives
+  about 3 m/s (the draw is clipped at ``SOUND_SPEED_ERROR_LIMIT``). Every
+  TDOA is then scaled by ``c / c_true``: a bias that grows with the range
+  difference and that no averaging over bands removes.
+* **Propagation delay** (off unless ``propagation_delay``): sound takes
+  ``R / c`` to reach a node (0.03-0.28 s across seed 004's tank), so a
+  measurement made at time ``t`` describes where a moving source was when it
+  emitted. A node's angles see the source at its own emission time
+  ``t - R_i / c``; the TDOAs, which align the same emitted stretch of signal at
+  node 1 and node ``i``, see the source where it was at node 1's emission time
+  ``t - R_1 / c`` (:meth:`HydrophoneArray.emission_positions`). Multipath
+  ghosts use the direct path's emission times. A source moving at 1 m/s
+  150 m from node 1 is measured 0.1 m behind where it is.
+* **Travel-time wander** (off unless ``fluctuation_intensity`` > 0): the
+  water's sound speed fluctuates about its mean (thermal microstructure,
+  the current generators' turbulence), so each path's travel time wanders.
+  In geometric acoustics the travel-time variance over a range ``R`` is
+  ``<mu^2> L_p R / c^2`` (Flatte et al., *Sound Transmission through a
+  Fluctuating Ocean*, 1979, ch. 7; Munk & Zachariasen 1976), with ``mu``
+  the fractional sound-speed fluctuation (``fluctuation_intensity``, its
+  rms) and ``L_p`` its correlation length (``fluctuation_length``, m). Each
+  node's wander is a unit first-order Gauss-Markov process with time
+  constant ``fluctuation_time`` (s; the eddies advect through the path),
+  scaled by that standard deviation at the node's range; it adds to the
+  arrival time of every path and band (one medium), so band fusion cannot
+  average it out, and a tracker's filter only over times longer than
+  ``fluctuation_time``.
 * **Clock offsets**: each node's clock is offset from node 1's by a constant
   per episode (``clock_offset_std``, node 1 is the reference), biasing every
   TDOA of that node.
@@ -91,6 +123,10 @@ def thorp_absorption(frequency_hz) -> np.ndarray:
     return 0.11 * f2 / (1.0 + f2) + 44.0 * f2 / (4100.0 + f2) + 2.75e-4 * f2 + 0.003
 
 
+#: The sound-speed error is clipped to this fraction of the nominal speed (5 %, 75 m/s at
+#: 1500 m/s: far beyond any water's temperature and salinity uncertainty), which keeps the
+#: TDOAs within the observation space's bounds (10 % beyond the array's baselines).
+SOUND_SPEED_ERROR_LIMIT = 0.05
 #: Reference flow speed (m/s) and frequency (Hz) of ``AcousticConfig.flow_noise_level``.
 FLOW_NOISE_REF_SPEED = 1.0
 FLOW_NOISE_REF_FREQUENCY = 1000.0
@@ -146,6 +182,11 @@ class AcousticConfig:
     angle_floor: float = math.radians(0.05)
     noise_scale: float = 1.0
     clock_offset_std: float = 20e-6
+    sound_speed_error_std: float = 0.0
+    propagation_delay: bool = False
+    fluctuation_intensity: float = 0.0
+    fluctuation_length: float = 10.0
+    fluctuation_time: float = 2.0
     snr50: float = 10.0
     snr_slope: float = 2.0
     clutter_rate: float = 1.0
@@ -155,13 +196,15 @@ class AcousticConfig:
     max_detections: int = 8
 
     def __post_init__(self):
-        positive = ("sound_speed", "sample_rate", "bandwidth", "aperture", "snr_slope")
+        positive = ("sound_speed", "sample_rate", "bandwidth", "aperture", "snr_slope",
+                    "fluctuation_length", "fluctuation_time")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"AcousticConfig.{name} must be positive, got {value}")
         non_negative = ("surface_loss", "bottom_loss", "timing_floor", "angle_floor",
-                        "noise_scale", "clock_offset_std", "clutter_rate")
+                        "noise_scale", "clock_offset_std", "clutter_rate",
+                        "sound_speed_error_std", "fluctuation_intensity")
         for name in non_negative:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -183,7 +226,8 @@ class AcousticConfig:
     def noise_free(self) -> AcousticConfig:
         """The same geometry with no noise, clock offsets, misses or clutter (ghosts stay)."""
         return dataclasses.replace(self, noise_scale=0.0, clock_offset_std=0.0,
-                                   clutter_rate=0.0, ideal_detection=True)
+                                   clutter_rate=0.0, ideal_detection=True,
+                                   sound_speed_error_std=0.0, fluctuation_intensity=0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -366,19 +410,102 @@ class HydrophoneArray:
         offsets[0] = 0.0
         return offsets
 
+    def emission_positions(self, track, count: int, dt: float,
+                           sound_speed: float | None = None) -> np.ndarray:
+        """Where the source was when the sound each node hears now left it (propagation delay).
+
+        Args:
+          track: (M, 3) source positions at consecutive sample periods ``dt`` apart; the
+            last ``count`` rows are the periods to measure, the rows before them the
+            history (earlier times are clamped to the first row: the source held still).
+          count: periods to measure (the last ``count`` rows of ``track``).
+          dt: sample period, s.
+          sound_speed: the water's true sound speed (m/s); None: the nominal one.
+
+        Returns:
+          (count, N, 3): per period and node, the source's position at the emission time
+          ``t - R_i / c`` of the sound node ``i`` hears at ``t``, solved by fixed-point
+          iteration (three passes; each cuts the error by v / c ~ 1e-3) with linear
+          interpolation between periods.
+        """
+        track = np.asarray(track, dtype=np.float64)
+        if track.ndim != 2 or track.shape[1] != 3 or not 1 <= count <= len(track):
+            raise ValueError(f"need a (M >= count, 3) track, got {track.shape} for {count}")
+        c = self.config.sound_speed if sound_speed is None else float(sound_speed)
+        now = np.arange(len(track) - count, len(track), dtype=np.float64)[:, None]  # (B, 1)
+        emitted = np.broadcast_to(track[-count:, None, :], (count, self.n_nodes, 3))
+        for _ in range(3):
+            ranges = np.linalg.norm(emitted - self.positions, axis=-1)  # (B, N)
+            index = np.clip(now - ranges / (c * dt), 0.0, len(track) - 1.0)
+            low = np.floor(index).astype(np.int64)
+            high = np.minimum(low + 1, len(track) - 1)
+            frac = (index - low)[..., None]
+            emitted = track[low] * (1.0 - frac) + track[high] * frac
+        return emitted
+
+    def _node_angles(self, node_positions: np.ndarray, paths: int):
+        """Azimuths and elevations (B, P, N), node ``i`` seeing its own row of (B, N, 3)."""
+        sources = self.image_sources(node_positions[:, :, None, :])[:, :, :paths]  # (B, N, P, 3)
+        d = sources - self.positions[None, :, None, :]
+        horizontal = np.hypot(d[..., 0], d[..., 1])
+        azimuth = np.arctan2(d[..., 1], d[..., 0]).transpose(0, 2, 1)
+        elevation = np.arctan2(horizontal, d[..., 2]).transpose(0, 2, 1)
+        return azimuth, elevation
+
+    def draw_wander(self, rng: np.random.Generator, count: int,
+                    previous: np.ndarray | None = None) -> np.ndarray:
+        """``count`` periods of the nodes' unit travel-time wander (count, N), continuing
+        ``previous`` (N,) (None: drawn from the stationary distribution). Scale it with
+        :meth:`wander_std`. No draw when the wander is off (returns None)."""
+        c = self.config
+        if c.fluctuation_intensity == 0.0:
+            return None
+        a = math.exp(-1.0 / (c.sample_rate * c.fluctuation_time))
+        shocks = rng.standard_normal((count, self.n_nodes))
+        out = np.empty_like(shocks)
+        state = shocks[0] if previous is None else a * previous + math.sqrt(1 - a * a) * shocks[0]
+        out[0] = state
+        innovation = math.sqrt(1.0 - a * a)
+        for j in range(1, count):
+            state = a * state + innovation * shocks[j]
+            out[j] = state
+        return out
+
+    def wander_std(self, ranges: np.ndarray) -> np.ndarray:
+        """Travel-time wander's standard deviation, s, over ranges (m): mu sqrt(L_p R) / c."""
+        c = self.config
+        return c.fluctuation_intensity * np.sqrt(c.fluctuation_length * ranges) / c.sound_speed
+
+    def draw_sound_speed(self, rng: np.random.Generator) -> float:
+        """The water's true sound speed for an episode, m/s (no draw when the error is off)."""
+        c = self.config
+        if c.sound_speed_error_std == 0.0:
+            return c.sound_speed
+        error = c.sound_speed_error_std * float(rng.standard_normal())
+        limit = SOUND_SPEED_ERROR_LIMIT * c.sound_speed
+        return c.sound_speed + min(max(error, -limit), limit)
+
     def measure(self, rng: np.random.Generator, positions, clock_offsets,
-                current_speed=None) -> Measurements:
+                current_speed=None, sound_speed: float | None = None,
+                wander: np.ndarray | None = None) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
           rng: the episode's generator (the only source of randomness).
           positions: (B, 3) source positions, one per sample period (or (3,)
-            for a single period; the result then has no leading axis).
+            for a single period; the result then has no leading axis); or
+            (B, N, 3) per-node emission positions (:meth:`emission_positions`):
+            node ``i``'s angles are measured at row ``i``, every TDOA at row 0
+            (node 1's emission time).
           clock_offsets: (N,) clock offsets of the nodes (see
             :meth:`draw_clock_offsets`).
           current_speed: (B,) current speed per period (m/s; a scalar for all
             of them). Required when the config has a ``flow_noise_level``
             (a ``ValueError`` otherwise), ignored without one.
+          sound_speed: the water's true sound speed (m/s, see
+            :meth:`draw_sound_speed`); None: the nominal ``config.sound_speed``.
+          wander: (B, N) unit travel-time wander (:meth:`draw_wander`), scaled here
+            by :meth:`wander_std` at each node's direct range; None: no wander.
 
         Returns:
           :class:`Measurements` with arrays (B, Q, K, ...). The number of
@@ -388,9 +515,14 @@ class HydrophoneArray:
         positions = np.asarray(positions, dtype=np.float64)
         single = positions.ndim == 1
         positions = np.atleast_2d(positions)
-        if positions.shape[1:] != (3,) or not np.all(np.isfinite(positions)):
-            raise ValueError(f"positions must be finite (B, 3), got shape {positions.shape}")
         n, p, k = self.n_nodes, self._n_paths, self.config.max_detections
+        per_node = positions.shape[1:] == (n, 3)
+        if not (per_node or positions.shape[1:] == (3,)) or not np.all(np.isfinite(positions)):
+            raise ValueError(f"positions must be finite (B, 3) or (B, {n}, 3), "
+                             f"got shape {positions.shape}")
+        node_positions = positions if per_node else None
+        if per_node:
+            positions = positions[:, 0]
         q, b = self.config.n_bands, len(positions)
         rise = None
         if self._flow_ratio is not None:
@@ -399,12 +531,20 @@ class HydrophoneArray:
             rise = self.flow_noise_rise(np.broadcast_to(current_speed, (b,)))  # (B, Q)
         sources = self.image_sources(positions[:, None, :])[:, :p]  # (B, P, 3)
         ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
+        if node_positions is not None:
+            azimuth, elevation = self._node_angles(node_positions, p)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
         timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
         pd = self.detection_probability(snr)  # (B, Q, P)
 
         noise = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
-        arrival = (ranges / self.config.sound_speed + clock_offsets)[:, None] + timing * noise[0]
+        speed = self.config.sound_speed if sound_speed is None else float(sound_speed)
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"sound_speed must be a positive speed in m/s, got {sound_speed!r}")
+        delays = ranges / speed + clock_offsets
+        if wander is not None:
+            delays = delays + (wander * self.wander_std(ranges[:, 0]))[:, None]
+        arrival = delays[:, None] + timing * noise[0]
         candidates = np.empty((b, q, p + k, 3 * n - 1))
         direct = candidates[:, :, :p]
         np.subtract(arrival[..., 1:], arrival[..., :1], out=direct[..., : n - 1])

@@ -25,8 +25,14 @@ from dm_control import mjcf
 from gymnasium import spaces
 
 from auv_envs import metrics
+from auv_envs.core import difficulty as levels
 from auv_envs.core import passive
-from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray, Measurements
+from auv_envs.core.acoustics import (
+    SEED004_FLOW_NOISE_LEVEL,
+    AcousticConfig,
+    HydrophoneArray,
+    Measurements,
+)
 from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ActionValidator,
@@ -60,6 +66,9 @@ STATIC_POINTS = (
 TCFE_BIN_WIDTH = 0.01
 #: Sample periods simulated and measured per block (0.5 s at 100 Hz).
 BLOCK = 50
+#: Source positions kept from before a block for the propagation delay (0.64 s at 100 Hz:
+#: sound crosses the tank's 424 m diagonal in 0.28 s).
+HISTORY = 64
 #: The arm's nominal joint posture (rad): the source about 3.5 m ahead of
 #: and 0.9 m below the carrier's centre.
 NOMINAL_POSTURE = (0.0, 0.6, -1.2, 0.0, 0.6, 0.0)
@@ -74,6 +83,47 @@ CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
 #: Seconds of the end effector's path that ``render()`` draws, and of estimates in its close-up.
 RENDER_TRAIL = 10.0
 RENDER_CLOSEUP = 2.0
+
+
+#: The ``paper`` level's measurement model: seed 004's tank (§4.1: 300 m x 300 m, water at
+#: 20 +- 2 degC, three current generators, precisely surveyed node positions). Each parameter
+#: beyond the defaults is physical (:mod:`auv_envs.core.acoustics` documents the models):
+#:
+#: * ``flow_noise_level``: the current generators' radiated noise (``SEED004_FLOW_NOISE_LEVEL``).
+#: * ``propagation_delay``: sound takes R / c to reach a node, so a moving source is heard
+#:   where it was (not a parameter: the physics of a finite sound speed).
+#: * ``sound_speed_error_std`` 2 m/s: the tank's mean temperature known to about 0.6 degC
+#:   (within the paper's 20 +- 2 degC; dc/dT = 3.2 m/s per degC at 20 degC, Mackenzie 1981).
+#: * ``fluctuation_intensity`` 2.5e-4 (rms fractional sound-speed fluctuation, 0.08 degC of
+#:   thermal microstructure and the generators' turbulence; correlation length 10 m, time 2 s):
+#:   calibrated against seed 004's dynamic RMSE (0.18 m average) and static positioning error
+#:   (0.11 m average over Table 1's five points).
+#: * ``source_level`` 115 dB re 1 uPa at 1 m (5 dB below the ``easy`` source), ``timing_floor``
+#:   5 us (node synchronisation jitter) and ``angle_floor`` 0.1 deg (the node arrays' phase
+#:   calibration): calibrated with the fluctuation against the same two figures; the source
+#:   level also sets how much the band fusion gains over one band.
+PAPER_ACOUSTICS = AcousticConfig(
+    flow_noise_level=SEED004_FLOW_NOISE_LEVEL,
+    propagation_delay=True,
+    sound_speed_error_std=2.0,
+    fluctuation_intensity=2.5e-4,
+    source_level=115.0,
+    timing_floor=5e-6,
+    angle_floor=math.radians(0.1),
+)
+#: The ``hard`` level: beyond seed 004's tank. A quieter source (SL 110 dB) so that the far
+#: nodes and the high bands fade, a temperature known to 1.2 degC (4 m/s), stronger
+#: microstructure (4e-4), boundaries that reflect more (surface 2 dB, bottom 6 dB: stronger
+#: ghosts) and three false alarms per band and period.
+HARD_ACOUSTICS = dataclasses.replace(
+    PAPER_ACOUSTICS,
+    source_level=110.0,
+    sound_speed_error_std=4.0,
+    fluctuation_intensity=4e-4,
+    surface_loss=2.0,
+    bottom_loss=6.0,
+    clutter_rate=3.0,
+)
 
 
 def build_tank_model() -> mujoco.MjModel:
@@ -128,6 +178,9 @@ class _Episode:
     arm_ref: np.ndarray | None = None  # (T+1, 6)
     current: np.ndarray | None = None  # (T+1, 3)
     clock_offsets: np.ndarray | None = None
+    sound_speed: float | None = None  # the water's true sound speed, m/s
+    history: np.ndarray | None = None  # (<= HISTORY, 3) source positions before the block
+    wander: np.ndarray | None = None  # (N,) the nodes' unit travel-time wander, last period
     block_start: int = 0
     positions: np.ndarray | None = None  # (B, 3) of the current block
     velocities: np.ndarray | None = None
@@ -369,6 +422,12 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
 
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
+    #: ``difficulty`` levels (:mod:`auv_envs.core.difficulty`): the acoustic measurement model.
+    difficulty_presets = {
+        "easy": {},
+        "paper": {"acoustic": PAPER_ACOUSTICS},
+        "hard": {"acoustic": HARD_ACOUSTICS},
+    }
     reward_terms = ("estimate",)
     metric_keys = ("estimate_error", "running_rmse", "tracked", "is_success")
 
@@ -386,6 +445,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         physics_substeps: int = 1,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (640, 480),
+        difficulty: str = levels.DEFAULT_LEVEL,
         **unknown,
     ):
         self._accept_arguments(
@@ -394,8 +454,12 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
             physics_substeps=physics_substeps, render_mode=render_mode,
-            render_size=render_size,
+            render_size=render_size, difficulty=difficulty,
         )
+        acoustic = levels.resolve(self.difficulty_presets, difficulty,
+                                  {"acoustic": acoustic})["acoustic"]
+        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
+        self.difficulty = difficulty
         self._render_size = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = self._render_size
         check_positive_int("physics_substeps", physics_substeps)
@@ -493,6 +557,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             ep.arm_ref = np.broadcast_to(NOMINAL_POSTURE, (n, 6)).copy()
         ep.current = current_profile(rng, n, self._dt, DISTURBANCES[self.disturbance])
         ep.clock_offsets = self.calibration.array.draw_clock_offsets(rng)
+        ep.sound_speed = self.calibration.array.draw_sound_speed(rng)
         ep.estimates = np.full((self._horizon, 3), np.nan)
         ep.truths = np.full((self._horizon, 3), np.nan)
 
@@ -505,7 +570,10 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             mujoco.mj_forward(model, data)
         self._episode = ep
         self._simulate_block(0)
-        return self._observation(0), self._info(0, float("nan"), 0.0)
+        info = self._info(0, float("nan"), 0.0)
+        if self.calibration.config.sound_speed_error_std > 0:
+            info["sound_speed"] = ep.sound_speed
+        return self._observation(0), info
 
     def step(self, action):
         a = self._validate_action(action)
@@ -601,12 +669,21 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
                     mujoco.mj_step(model, data, self._physics_substeps)
                     mujoco.mj_kinematics(model, data)
                 positions[j], velocities[j] = physics.source_state()
+        array = self.calibration.array
+        heard = positions
+        if array.config.propagation_delay:
+            track = positions if ep.history is None else np.concatenate([ep.history, positions])
+            heard = array.emission_positions(track, count, self._dt, ep.sound_speed)
+            ep.history = track[-HISTORY:]
+        wander = array.draw_wander(self.np_random, count, ep.wander)
+        if wander is not None:
+            ep.wander = wander[-1]
         ep.block_start = start
         ep.positions = positions
         ep.velocities = velocities
-        ep.measurements = self.calibration.array.measure(
-            self.np_random, positions, ep.clock_offsets,
-            np.linalg.norm(ep.current[start:start + count], axis=1),
+        ep.measurements = array.measure(
+            self.np_random, heard, ep.clock_offsets,
+            np.linalg.norm(ep.current[start:start + count], axis=1), ep.sound_speed, wander,
         )
 
     def _observation(self, k: int):

@@ -1,0 +1,83 @@
+"""Difficulty levels: ``easy`` is the release bit for bit; presets apply and can be overridden."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import auv_envs
+from auv_envs.core import difficulty
+from tests.fingerprints import SEEDS, cases, fingerprint, key
+
+RELEASE = json.loads((Path(__file__).parent / "data" / "release_fingerprints.json").read_text())
+LEVELLED = [case for case in cases()
+            if hasattr(auv_envs.env_class(case[0]), "difficulty_presets")]
+
+
+def _ids(case):
+    env_id, mode, kwargs = case
+    return "-".join([env_id.split("/")[1], mode, *map(str, kwargs.values())])
+
+
+def _assert_release(rows, release):
+    """Same steps, same numbers (to summation-order rounding: the sums are of many floats)."""
+    assert len(rows) == len(release)
+    np.testing.assert_allclose(np.array(rows), np.array(release), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("case", cases(), ids=_ids)
+def test_default_is_the_release(case):
+    env_id, mode, kwargs = case
+    for seed in SEEDS:
+        _assert_release(fingerprint(env_id, mode, seed, **kwargs),
+                        RELEASE[key(env_id, mode, kwargs, seed)])
+
+
+@pytest.mark.parametrize("case", LEVELLED, ids=_ids)
+def test_easy_is_the_release(case):
+    env_id, mode, kwargs = case
+    seed = SEEDS[0]
+    _assert_release(fingerprint(env_id, mode, seed, difficulty="easy", **kwargs),
+                    RELEASE[key(env_id, mode, kwargs, seed)])
+
+
+@pytest.mark.parametrize("env_id", sorted({case[0] for case in LEVELLED}))
+def test_presets_apply_and_keywords_override(env_id):
+    cls = auv_envs.env_class(env_id)
+    presets = cls.difficulty_presets
+    difficulty.check_presets(presets)
+    for level in ("paper", "hard"):
+        assert presets[level], f"{level} sets no parameter"
+        env = gym.make(env_id, difficulty=level)
+        try:
+            assert env.unwrapped.difficulty == level
+            init = env.unwrapped._init_kwargs
+            assert init["difficulty"] == level
+        finally:
+            env.close()
+    assert presets["paper"] != presets["hard"]
+
+
+def test_resolve():
+    presets = {"easy": {}, "paper": {"a": 1}, "hard": {"a": 2}}
+    assert difficulty.resolve(presets, "easy", {"a": None, "b": 3}) == {"a": None, "b": 3}
+    assert difficulty.resolve(presets, "paper", {"a": None, "b": 3}) == {"a": 1, "b": 3}
+    assert difficulty.resolve(presets, "hard", {"a": 7, "b": None}) == {"a": 7, "b": None}
+    with pytest.raises(ValueError, match="difficulty"):
+        difficulty.resolve(presets, "extreme", {"a": None})
+    with pytest.raises(ValueError, match="lacks"):
+        difficulty.resolve(presets, "paper", {"b": None})
+    with pytest.raises(ValueError):
+        difficulty.check_presets({"easy": {"a": 1}, "paper": {}, "hard": {}})
+    with pytest.raises(ValueError):
+        difficulty.check_presets({"paper": {}, "hard": {}})
+
+
+def test_bad_level_is_a_clear_error():
+    env_id = LEVELLED[0][0]
+    with pytest.raises(ValueError, match="difficulty"):
+        gym.make(env_id, difficulty="Paper")
