@@ -923,6 +923,41 @@ def summarise(rows: Sequence[EpisodeRow], groups: Mapping[str, str] | None = Non
     return summary
 
 
+#: The agent name of a bound row (:func:`bound_rows`).
+BOUND_AGENT = "cramer-rao-bound"
+
+
+def bound_rows(summary: Sequence[Mapping]) -> list[dict]:
+    """Per environment and scenario whose environment states a bound on its ranking
+    metric (``env.rmse_bound()``: the acoustic Cramer-Rao bound), a reference row
+    ``agent`` = :data:`BOUND_AGENT`, ``reference`` True: shown beside the agents,
+    never ranked. The bound is computed from the environment built with the
+    scenario's arguments, so each difficulty level gets its own.
+    """
+    out, seen = [], set()
+    for row in summary:
+        key = (row["env_id"], row["scenario"])
+        if key in seen:
+            continue
+        seen.add(key)
+        cls = auv_envs.env_class(row["env_id"])
+        if not hasattr(cls, "rmse_bound"):
+            continue
+        env = cls(**row["env_kwargs"])
+        try:
+            bound = env.rmse_bound()
+        finally:
+            env.close()
+        out.append({
+            "env_id": row["env_id"], "obs_mode": "model", "scenario": row["scenario"],
+            "agent": BOUND_AGENT, "episodes": 0, "failed": 0, "status": "ok", "seeds": [],
+            "errors": [], "failure_reasons": {}, "env_kwargs": row["env_kwargs"],
+            "group": None, "reference": True,
+            "metrics": {"rmse": {"mean": bound, "std": 0.0, "n": 1, "ci": [None, None]}},
+        })
+    return out
+
+
 def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
     """The leaderboard row of one (env, obs mode, scenario, agent)'s episodes."""
     env_id, obs_mode, scenario, agent = key

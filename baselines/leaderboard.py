@@ -135,6 +135,11 @@ def _rank_interval(row: Mapping, key: str) -> tuple[float, float]:
     return metric_interval(stat) or (stat["mean"], stat["mean"])
 
 
+def is_reference(row: Mapping) -> bool:
+    """Whether ``row`` is a reference (a bound, not an agent): shown, never ranked."""
+    return bool(row.get("reference"))
+
+
 def is_member(row: Mapping) -> bool:
     """Whether ``row`` is one training seed of a group (ranked as its group's row)."""
     return bool(row.get("group"))
@@ -142,23 +147,29 @@ def is_member(row: Mapping) -> bool:
 
 def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
     """``(rank, tied)`` of each of an environment's rows (sorted best first by
-    :func:`by_env`); None for a failed row and for a group's member (its group
-    row is ranked: :func:`is_member`).
+    :func:`by_env`) among the rows of its scenario (a difficulty level is one); None
+    for a failed row and for a group's member (its group row is ranked:
+    :func:`is_member`).
 
     By :func:`rank_metric`: a row whose 95 % interval overlaps the one above it
     shares its rank (a tie).
     """
     key, _ = rank_metric(rows)
-    ok = [r for r in rows if r["status"] != "failed" and not is_member(r)]
-    ranked = iter(tied_ranks([_rank_interval(r, key) for r in ok]))
-    return [None if row["status"] == "failed" or is_member(row) else next(ranked)
-            for row in rows]
+    out: list[tuple[int, bool] | None] = [None] * len(rows)
+    for scenario in dict.fromkeys(r["scenario"] for r in rows):
+        ok = [i for i, r in enumerate(rows) if r["scenario"] == scenario
+              and r["status"] != "failed" and not is_member(r) and not is_reference(r)]
+        for i, rank in zip(ok, tied_ranks([_rank_interval(rows[i], key) for i in ok]),
+                           strict=True):
+            out[i] = rank
+    return out
 
 
 def rank_labels(rows: Sequence[Mapping]) -> list[str]:
     """:func:`ranks` as table text: ``"2"``, ``"2 (tie)"``, ``"–"`` for a failed row,
     ``"seed of G"`` for a member of group G."""
-    return [f"seed of {row['group']}" if is_member(row) else "–" if r is None
+    return [f"seed of {row['group']}" if is_member(row) else "bound" if is_reference(row)
+            else "–" if r is None
             else f"{r[0]} (tie)" if r[1] else str(r[0]) for row, r in zip(rows, ranks(rows),
                                                                           strict=True)]
 
@@ -187,7 +198,8 @@ def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
             value = metrics.get(key, {}).get("mean", math.inf if better == "lower" else -math.inf)
             primary = value if better == "lower" else -value
             ret = metrics.get("return", {}).get("mean", -math.inf)
-            return (row["status"] == "failed", primary, -metrics["success"]["mean"], -ret,
+            success = metrics.get("success", {}).get("mean", 0.0)
+            return (row["status"] == "failed", primary, -success, -ret,
                     row["agent"])
 
         ranked = sorted(ranked_rows(rows), key=rank)
@@ -237,19 +249,25 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
     if meta:
         lines += [f"- {k}: `{v}`" for k, v in meta.items()] + [""]
     lines += [INTERVAL_NOTE, ""]
-    for env_id, rows in by_env(summary).items():
-        keys = headline_keys(rows)
+    for env_id, env_rows in by_env(summary).items():
+        keys = headline_keys(env_rows)
         if compact:
             keys = [k for k in COMPACT_METRICS if k in keys]
-            rows = ranked_rows(rows)  # groups without their seeds
-        lines += [f"## {env_id}", ""]
-        header = ["rank", "agent", "obs mode", "scenario", "episodes"]
-        header += [metric_label(k) for k in keys]
-        lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        for row, rank in zip(rows, rank_labels(rows), strict=True):
-            cells = [rank, row["agent"], row["obs_mode"], row["scenario"], str(row["episodes"])]
-            cells += [cell_text(row, k) for k in keys]
-            lines.append("| " + " | ".join(cells) + " |")
+            env_rows = ranked_rows(env_rows)  # groups without their seeds
+        scenarios = by_scenario(env_rows)
+        for scenario, rows in scenarios.items():  # one table per scenario (difficulty level)
+            title = env_id if len(scenarios) == 1 else f"{env_id} · {scenario}"
+            lines += [f"## {title}", ""]
+            header = ["rank", "agent", "obs mode", "scenario", "episodes"]
+            header += [metric_label(k) for k in keys]
+            lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            for row, rank in zip(rows, rank_labels(rows), strict=True):
+                cells = [rank, row["agent"], row["obs_mode"], row["scenario"],
+                         str(row["episodes"])]
+                cells += [cell_text(row, k) for k in keys]
+                lines.append("| " + " | ".join(cells) + " |")
+            lines.append("")
+        rows = env_rows
         failed = [r for r in rows if r["failed"]]
         if failed:
             lines.append("")

@@ -415,6 +415,23 @@ def test_overview_ranks_each_scenario_on_its_own():
         assert ">docking time s</th>" in card  # the docking headline beside success
 
 
+def test_tables_rank_each_difficulty_level_on_its_own():
+    summary = [_row_with(DOCK, "a", 30, 30, scenario="difficulty=paper"),
+               _row_with(DOCK, "b", 0, 30, scenario="difficulty=paper"),
+               _row_with(DOCK, "a", 0, 30, scenario="difficulty=hard"),
+               _row_with(DOCK, "b", 30, 30, scenario="difficulty=hard")]
+    text = leaderboard.markdown(summary, compact=True)
+    tables = text.split(f"## {DOCK} · ")[1:]
+    assert [t.split("\n")[0] for t in tables] == ["difficulty=paper", "difficulty=hard"]
+    for table, best in zip(tables, ["a", "b"], strict=True):
+        rows = [line for line in table.splitlines() if line.startswith("| ") and "rank" not in line]
+        assert [r.split(" | ")[0] for r in rows] == ["| 1", "| 2"]
+        assert rows[0].split(" | ")[1] == best
+    # The full table's ranks too are per level: each level has its own first place.
+    ranks = leaderboard.ranks(leaderboard.by_env(summary)[DOCK])
+    assert sorted(r[0] for r in ranks) == [1, 1, 2, 2]
+
+
 def test_clips_show_as_videos_under_their_environment():
     rows = [_summary_row(DOCK, "a", 3, 3), _summary_row(DOCK, "b", 1, 3),
             _summary_row(LARS, "a", 0, 3)]

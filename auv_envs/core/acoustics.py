@@ -83,6 +83,17 @@ its fields):
   arrival time of every path and band (one medium), so band fusion cannot
   average it out, and a tracker's filter only over times longer than
   ``fluctuation_time``.
+* **Band fading** (off unless ``fading_std`` > 0): the same fluctuating
+  medium, and the surface and bottom paths interfering with the direct
+  one, make each band's received level scintillate: in the saturated
+  regime the intensity is Rayleigh distributed, about 5.6 dB rms in dB
+  (Flatte et al. 1979, ch. 8), and bands further apart than the channel's
+  coherence bandwidth (the inverse of its delay spread; tens of Hz to a few
+  kHz here, against our 10 kHz band spacing) fade independently. Each band
+  and node's SNR gets a log-normal fade, ``fading_std`` dB rms, a
+  Gauss-Markov process with time constant ``fading_time`` (s): a faded band
+  misses and gets noisier while the others do not, which is what fusing the
+  bands averages out.
 * **Clock offsets**: each node's clock is offset from node 1's by a constant
   per episode (``clock_offset_std``, node 1 is the reference), biasing every
   TDOA of that node.
@@ -187,6 +198,8 @@ class AcousticConfig:
     fluctuation_intensity: float = 0.0
     fluctuation_length: float = 10.0
     fluctuation_time: float = 2.0
+    fading_std: float = 0.0
+    fading_time: float = 0.5
     snr50: float = 10.0
     snr_slope: float = 2.0
     clutter_rate: float = 1.0
@@ -197,14 +210,14 @@ class AcousticConfig:
 
     def __post_init__(self):
         positive = ("sound_speed", "sample_rate", "bandwidth", "aperture", "snr_slope",
-                    "fluctuation_length", "fluctuation_time")
+                    "fluctuation_length", "fluctuation_time", "fading_time")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"AcousticConfig.{name} must be positive, got {value}")
         non_negative = ("surface_loss", "bottom_loss", "timing_floor", "angle_floor",
                         "noise_scale", "clock_offset_std", "clutter_rate",
-                        "sound_speed_error_std", "fluctuation_intensity")
+                        "sound_speed_error_std", "fluctuation_intensity", "fading_std")
         for name in non_negative:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -227,7 +240,8 @@ class AcousticConfig:
         """The same geometry with no noise, clock offsets, misses or clutter (ghosts stay)."""
         return dataclasses.replace(self, noise_scale=0.0, clock_offset_std=0.0,
                                    clutter_rate=0.0, ideal_detection=True,
-                                   sound_speed_error_std=0.0, fluctuation_intensity=0.0)
+                                   sound_speed_error_std=0.0, fluctuation_intensity=0.0,
+                                   fading_std=0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,6 +260,23 @@ class Measurements:
     mask: np.ndarray
     origin: np.ndarray
     dropped: np.ndarray
+
+
+def unit_gauss_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...],
+                      rate: float, previous: np.ndarray | None = None) -> np.ndarray:
+    """``count`` steps (count, *shape) of independent first-order Gauss-Markov processes
+    with unit variance and ``exp(-rate)`` correlation between steps, continuing
+    ``previous`` (None: the first step drawn from the stationary distribution)."""
+    a = math.exp(-rate)
+    innovation = math.sqrt(1.0 - a * a)
+    shocks = rng.standard_normal((count, *shape))
+    out = np.empty_like(shocks)
+    state = shocks[0] if previous is None else a * previous + innovation * shocks[0]
+    out[0] = state
+    for j in range(1, count):
+        state = a * state + innovation * shocks[j]
+        out[j] = state
+    return out
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -404,6 +435,54 @@ class HydrophoneArray:
             "ghost_detection_probability": pd[:, 1:],
         }
 
+    def position_crb(self, position, current_speed: float = 0.0, periods: int = 1,
+                     step: float = 1e-3) -> float:
+        """Cramer-Rao bound on the RMSE (m) of any unbiased fix of a static source.
+
+        The bound of the documented measurement model from ``periods`` sample
+        periods of every band's direct-path detection (Kay, *Fundamentals of
+        Statistical Signal Processing: Estimation Theory*, 1993, §3.9): per band
+        the Fisher information ``H^T R^-1 H`` of the stacked TDOAs (their
+        covariance ``diag(s_i^2) + s_1^2`` through node 1), azimuths and
+        elevations, with ``H`` the measurement Jacobian (central differences of
+        :meth:`noise_free`, ``step`` m); a band detected with probability
+        ``p_D`` contributes ``p_D`` times its information (the information
+        reduction factor of missed detections without clutter; Niu, Willett &
+        Bar-Shalom, IEEE Trans. AES 37(1), 2001); bands and periods add. The
+        per-episode errors that every band shares (clock offsets, sound-speed
+        error, travel-time wander) and clutter and ghosts are not in it: it is
+        the limit set by the noise alone, which only a tracker that has
+        estimated those can approach. Returns ``sqrt(trace(J^-1))``.
+        """
+        p = np.asarray(position, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"position must be a finite (3,) point, got {position!r}")
+        if periods < 1:
+            raise ValueError(f"periods must be >= 1, got {periods}")
+        jacobian = np.empty((3 * self.n_nodes - 1, 3))
+        for axis in range(3):
+            offset = np.zeros(3)
+            offset[axis] = step
+            plus = np.concatenate(self.noise_free(p + offset))
+            minus = np.concatenate(self.noise_free(p - offset))
+            difference = plus - minus
+            n = self.n_nodes
+            difference[n - 1 : 2 * n - 1] = _wrap(difference[n - 1 : 2 * n - 1])
+            jacobian[:, axis] = difference / (2.0 * step)
+        model = self.model(p, current_speed)
+        information = np.zeros((3, 3))
+        for q in range(self.config.n_bands):
+            arrival = model["arrival_std"][q]
+            tdoa_cov = np.diag(arrival[1:] ** 2) + arrival[0] ** 2
+            n = self.n_nodes
+            precision = np.zeros((3 * n - 1, 3 * n - 1))
+            precision[: n - 1, : n - 1] = np.linalg.inv(tdoa_cov)
+            angles = np.concatenate([model["azimuth_std"][q], model["elevation_std"][q]])
+            precision[n - 1 :, n - 1 :] = np.diag(angles ** -2.0)
+            information += model["detection_probability"][q] * (
+                jacobian.T @ precision @ jacobian)
+        return float(np.sqrt(np.trace(np.linalg.inv(periods * information))))
+
     def draw_clock_offsets(self, rng: np.random.Generator) -> np.ndarray:
         """Per-episode clock offsets (N,), node 1's zero."""
         offsets = rng.normal(0.0, 1.0, self.n_nodes) * self.config.clock_offset_std
@@ -453,23 +532,26 @@ class HydrophoneArray:
         return azimuth, elevation
 
     def draw_wander(self, rng: np.random.Generator, count: int,
-                    previous: np.ndarray | None = None) -> np.ndarray:
+                    previous: np.ndarray | None = None) -> np.ndarray | None:
         """``count`` periods of the nodes' unit travel-time wander (count, N), continuing
         ``previous`` (N,) (None: drawn from the stationary distribution). Scale it with
         :meth:`wander_std`. No draw when the wander is off (returns None)."""
         c = self.config
         if c.fluctuation_intensity == 0.0:
             return None
-        a = math.exp(-1.0 / (c.sample_rate * c.fluctuation_time))
-        shocks = rng.standard_normal((count, self.n_nodes))
-        out = np.empty_like(shocks)
-        state = shocks[0] if previous is None else a * previous + math.sqrt(1 - a * a) * shocks[0]
-        out[0] = state
-        innovation = math.sqrt(1.0 - a * a)
-        for j in range(1, count):
-            state = a * state + innovation * shocks[j]
-            out[j] = state
-        return out
+        return unit_gauss_markov(rng, count, (self.n_nodes,),
+                                 1.0 / (c.sample_rate * c.fluctuation_time), previous)
+
+    def draw_fading(self, rng: np.random.Generator, count: int,
+                    previous: np.ndarray | None = None) -> np.ndarray | None:
+        """``count`` periods of every band's and node's fading (count, Q, N) in dB,
+        continuing ``previous`` (Q, N) dB. No draw when fading is off (returns None)."""
+        c = self.config
+        if c.fading_std == 0.0:
+            return None
+        unit = None if previous is None else previous / c.fading_std
+        return c.fading_std * unit_gauss_markov(
+            rng, count, (c.n_bands, self.n_nodes), 1.0 / (c.sample_rate * c.fading_time), unit)
 
     def wander_std(self, ranges: np.ndarray) -> np.ndarray:
         """Travel-time wander's standard deviation, s, over ranges (m): mu sqrt(L_p R) / c."""
@@ -487,7 +569,8 @@ class HydrophoneArray:
 
     def measure(self, rng: np.random.Generator, positions, clock_offsets,
                 current_speed=None, sound_speed: float | None = None,
-                wander: np.ndarray | None = None) -> Measurements:
+                wander: np.ndarray | None = None,
+                fading: np.ndarray | None = None) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
@@ -506,6 +589,8 @@ class HydrophoneArray:
             :meth:`draw_sound_speed`); None: the nominal ``config.sound_speed``.
           wander: (B, N) unit travel-time wander (:meth:`draw_wander`), scaled here
             by :meth:`wander_std` at each node's direct range; None: no wander.
+          fading: (B, Q, N) fades in dB added to every path's SNR (:meth:`draw_fading`);
+            None: no fading.
 
         Returns:
           :class:`Measurements` with arrays (B, Q, K, ...). The number of
@@ -534,6 +619,8 @@ class HydrophoneArray:
         if node_positions is not None:
             azimuth, elevation = self._node_angles(node_positions, p)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
+        if fading is not None:
+            snr = snr + np.asarray(fading)[:, :, None, :]
         timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
         pd = self.detection_probability(snr)  # (B, Q, P)
 

@@ -92,34 +92,38 @@ RENDER_CLOSEUP = 2.0
 #: * ``flow_noise_level``: the current generators' radiated noise (``SEED004_FLOW_NOISE_LEVEL``).
 #: * ``propagation_delay``: sound takes R / c to reach a node, so a moving source is heard
 #:   where it was (not a parameter: the physics of a finite sound speed).
-#: * ``sound_speed_error_std`` 2 m/s: the tank's mean temperature known to about 0.6 degC
-#:   (within the paper's 20 +- 2 degC; dc/dT = 3.2 m/s per degC at 20 degC, Mackenzie 1981).
-#: * ``fluctuation_intensity`` 2.5e-4 (rms fractional sound-speed fluctuation, 0.08 degC of
-#:   thermal microstructure and the generators' turbulence; correlation length 10 m, time 2 s):
-#:   calibrated against seed 004's dynamic RMSE (0.18 m average) and static positioning error
-#:   (0.11 m average over Table 1's five points).
+#: * ``sound_speed_error_std`` 1 m/s: the tank's mean temperature known to about 0.3 degC
+#:   (dc/dT = 3.2 m/s per degC at 20 degC, Mackenzie 1981); our assumption.
+#: * ``fluctuation_intensity`` 3e-4, the rms fractional sound-speed fluctuation (0.1 degC of
+#:   thermal microstructure and the generators' turbulence, correlation length 10 m, time
+#:   2 s): calibrated against seed 004's dynamic RMSE (0.18 m average) and static positioning
+#:   error (0.11 m average over Table 1's five points).
 #: * ``source_level`` 115 dB re 1 uPa at 1 m (5 dB below the ``easy`` source), ``timing_floor``
 #:   5 us (node synchronisation jitter) and ``angle_floor`` 0.1 deg (the node arrays' phase
-#:   calibration): calibrated with the fluctuation against the same two figures; the source
-#:   level also sets how much the band fusion gains over one band.
+#:   calibration): calibrated with the fluctuation against the same two figures.
 PAPER_ACOUSTICS = AcousticConfig(
     flow_noise_level=SEED004_FLOW_NOISE_LEVEL,
     propagation_delay=True,
-    sound_speed_error_std=2.0,
-    fluctuation_intensity=2.5e-4,
+    sound_speed_error_std=1.0,
+    fluctuation_intensity=3e-4,
+    fluctuation_length=10.0,
+    fluctuation_time=2.0,
     source_level=115.0,
     timing_floor=5e-6,
     angle_floor=math.radians(0.1),
 )
-#: The ``hard`` level: beyond seed 004's tank. A quieter source (SL 110 dB) so that the far
-#: nodes and the high bands fade, a temperature known to 1.2 degC (4 m/s), stronger
-#: microstructure (4e-4), boundaries that reflect more (surface 2 dB, bottom 6 dB: stronger
-#: ghosts) and three false alarms per band and period.
+#: The ``hard`` level: beyond seed 004's tank. A quieter source (110 dB) so that the far
+#: nodes and the high bands fade, twice the microstructure (6e-4), a temperature known to
+#: 1 degC (3 m/s), twice the synchronisation jitter (10 us) and phase error (0.2 deg),
+#: boundaries that reflect more (surface 2 dB, bottom 6 dB loss: stronger ghosts) and three
+#: false alarms per band and period.
 HARD_ACOUSTICS = dataclasses.replace(
     PAPER_ACOUSTICS,
     source_level=110.0,
-    sound_speed_error_std=4.0,
-    fluctuation_intensity=4e-4,
+    fluctuation_intensity=6e-4,
+    sound_speed_error_std=3.0,
+    timing_floor=10e-6,
+    angle_floor=math.radians(0.2),
     surface_loss=2.0,
     bottom_loss=6.0,
     clutter_rate=3.0,
@@ -181,6 +185,7 @@ class _Episode:
     sound_speed: float | None = None  # the water's true sound speed, m/s
     history: np.ndarray | None = None  # (<= HISTORY, 3) source positions before the block
     wander: np.ndarray | None = None  # (N,) the nodes' unit travel-time wander, last period
+    fading: np.ndarray | None = None  # (Q, N) the bands' fades at the last period, dB
     block_start: int = 0
     positions: np.ndarray | None = None  # (B, 3) of the current block
     velocities: np.ndarray | None = None
@@ -678,12 +683,16 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         wander = array.draw_wander(self.np_random, count, ep.wander)
         if wander is not None:
             ep.wander = wander[-1]
+        fading = array.draw_fading(self.np_random, count, ep.fading)
+        if fading is not None:
+            ep.fading = fading[-1]
         ep.block_start = start
         ep.positions = positions
         ep.velocities = velocities
         ep.measurements = array.measure(
             self.np_random, heard, ep.clock_offsets,
             np.linalg.norm(ep.current[start:start + count], axis=1), ep.sound_speed, wander,
+            fading,
         )
 
     def _observation(self, k: int):
@@ -717,6 +726,19 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             "detection_origin": ep.measurements.origin[j].copy(),
             "time": k * self._dt,
         }
+
+    def rmse_bound(self) -> float:
+        """The Cramer-Rao bound (m) on the RMSE of a fix of a static point, from this
+        environment's own measurement model: one sample period of every band's direct-path
+        detection (:meth:`~auv_envs.core.acoustics.HydrophoneArray.position_crb`), averaged
+        over seed 004's five test points, with the flow noise of the middle of the
+        ``disturbance`` level's current range. The physical limit of one period's
+        information; a tracker that integrates many periods of a slow target can go below
+        it, and the errors every band shares (clock offsets, sound-speed error, wander) are
+        not in it."""
+        speed = float(np.mean(DISTURBANCES[self.disturbance]))
+        array = self.calibration.array
+        return float(np.mean([array.position_crb(p, speed) for p in STATIC_POINTS]))
 
     def episode_metrics(self) -> dict:
         """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.

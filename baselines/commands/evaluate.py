@@ -33,6 +33,7 @@ import threading
 from pathlib import Path
 
 import auv_envs
+from auv_envs.core.difficulty import LEVELS
 from auv_envs.record import check_speed, parse_size
 from baselines import leaderboard
 from baselines.evaluation import (
@@ -40,6 +41,7 @@ from baselines.evaluation import (
     EVAL_SEED_BASE,
     POLICY_PREFIX,
     VideoSpec,
+    bound_rows,
     check_names,
     default_seeds,
     env_parameters,
@@ -56,6 +58,8 @@ from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_mo
 #: makes the GM-PHD trackers the bulk of the run; 30 s keeps the default run
 #: to a few minutes on 2 cores.
 DEFAULT_ENV_KWARGS = {"auv_envs/AcousticTracking-v0": {"time_limit": 30.0}}
+#: Difficulty levels of the default run (``--difficulty``).
+DEFAULT_LEVELS: tuple[str, ...] = ()
 
 
 def default_workers() -> int:
@@ -97,6 +101,11 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                                          for k, v in kw.items()))
     parser.add_argument("--scenario", type=str, default=None,
                         help="shorthand for adding scenario=NAME to the environment arguments")
+    parser.add_argument("--difficulty", nargs="+", default=list(DEFAULT_LEVELS),
+                        choices=LEVELS, metavar="LEVEL",
+                        help=f"difficulty levels to evaluate ({', '.join(LEVELS)}), each a "
+                             "scenario of its own (default: "
+                             f"{' '.join(DEFAULT_LEVELS) or 'none, the environments defaults'})")
     parser.add_argument("--out", type=str, default="results/leaderboard",
                         help="output directory (default results/leaderboard)")
     parser.add_argument("--cache-dir", type=str, default=None,
@@ -218,6 +227,9 @@ def _main(argv, prog: str) -> int:
         groups = args.env_kwargs or [[]]
         if args.scenario:
             groups = [[*group, f"scenario={args.scenario}"] for group in groups]
+        if args.difficulty:
+            groups = [[*group, f"difficulty={level}"]
+                      for group in groups for level in dict.fromkeys(args.difficulty)]
         defaults = {e: kw for e, kw in DEFAULT_ENV_KWARGS.items() if e in env_ids}
         variants = [resolve_env_kwargs(env_ids, group, defaults) for group in groups]
         # The page's clips are MP4s; GIFs (slow to write) when DIR is asked for.
@@ -244,6 +256,7 @@ def _main(argv, prog: str) -> int:
         print(f"skipped {len(run.skipped)} (env, agent) pairs that do not apply; reasons in "
               f"{os.path.join(args.out, 'leaderboard.md')}", file=sys.stderr)
     summary = summarise(run.rows, agent_groups())
+    summary += bound_rows(summary)
     meta = {
         "command": f"{prog} {shlex.join(argv)}".strip(),
         "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
