@@ -387,7 +387,11 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     6 mm of a 16x finer integration over 20 s, ``docs/physics.md``),
     ``render_mode`` (None or ``"rgb_array"``), ``render_size`` ((width,
     height) of the rendered frames in pixels, default (640, 480), at least
-    8x8; ``ValueError`` otherwise).
+    8x8; ``ValueError`` otherwise), ``difficulty`` (``"easy"``, default: the
+    release's model; ``"paper"``: ``PAPER_ACOUSTICS``, calibrated to seed
+    004's tank; ``"hard"``: ``HARD_ACOUSTICS``; the level sets ``acoustic``
+    when it is not given, see ``docs/difficulty.md``). With a sound-speed
+    error the reset ``info`` holds the episode's true ``sound_speed``.
 
     **Rendering.** With ``render_mode="rgb_array"``, ``render()`` returns an
     (H, W, 3) uint8 frame of ``render_size`` drawn with matplotlib's Agg
@@ -419,6 +423,10 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     ``render_mode="rgb_array"`` draws a top view, a side view and a close-up
     of the tank with the nodes, the true path, the estimate and the current
     detections (``render_size``; observations, dynamics, rewards unchanged).
+    Opt-in addition: ``difficulty`` (default ``"easy"``, the release bit for
+    bit) and the physics its levels use (``AcousticConfig``'s propagation
+    delay, sound-speed error, travel-time wander and band fading, all off by
+    default); ``rmse_bound()``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
