@@ -18,15 +18,20 @@ shipped (templates updated on every ``sample_every``-th confident, verified
 frame), and LTAT with its boxes left as the tracker's (never snapped to the
 verified corners), which isolates what re-detection alone adds.
 
-Sequences come from the LARS exporter (:mod:`auv_envs.datasets.lars`) with
+Sequences come from the LARS exporter (:mod:`auv_envs.datasets.lars`) at
+``--difficulty`` (default ``paper``; ``easy`` is the released scene) with
 evaluation seeds >= 100000 (the tracker trained on seeds 1000-2011): the
-calm sequences are the first seeds from 100000 whose marker is in view at
-frame 0, the severe ones the first seeds from 150000 whose labels also show
-a wash-over (a corner hidden by a crest) and an analog in view.
+calm sequences are the first seeds from ``--first-seed`` N (default 100000)
+whose marker is in view at frame 0, the severe ones the first seeds from
+N + 50000 whose labels also show a wash-over (a corner hidden by a crest) and
+an analog in view.
 
-    python scripts/ope_seed000.py [--sequences 4] [--steps 250] [--out results/ope_seed000]
+    python scripts/ope_seed000.py [--difficulty paper] [--first-seed 100000] [--sequences 4]
+        [--steps 250] [--out results/ope_seed000] [--json PATH]
 
-Prints a Markdown table and writes ``ope_seed000.png`` and ``ope_seed000.json``.
+Prints a Markdown table (success AUC and precision with 95 % bootstrap
+intervals over the scored views) and writes ``ope_seed000.png`` and
+``ope_seed000.json``; ``--json PATH`` writes the same figures there too.
 
 It also scores the corner extractor on the same sequences (every 3rd frame,
 views with all three corners visible): the pixel error of A1, A2, A3 found
@@ -50,6 +55,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from auv_envs.core.difficulty import LEVELS  # noqa: E402
 from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
 from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
@@ -62,6 +68,7 @@ from baselines.lars.siamese import (  # noqa: E402
     marker_box,
     read_frame,
 )
+from baselines.stats import bootstrap_interval  # noqa: E402
 
 KINDS = ("siamese", "ltat-tracker-box", "ltat")
 NAMES = {
@@ -78,6 +85,16 @@ def centre_error(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ca = 0.5 * (a[:, :2] + a[:, 2:])
     cb = 0.5 * (b[:, :2] + b[:, 2:])
     return np.nan_to_num(np.linalg.norm(ca - cb, axis=1), nan=np.inf)
+
+
+def view_auc(ious: np.ndarray) -> np.ndarray:
+    """Each view's share of the 21 thresholds it passes: the success AUC is their mean,
+    so a bootstrap over views gives the AUC's interval."""
+    return (ious[:, None] > IOU_THRESHOLDS[None, :]).mean(axis=1)
+
+
+def _ci(ci) -> str:
+    return f" [{ci[0]:.3f}, {ci[1]:.3f}]" if np.all(np.isfinite(ci)) else ""
 
 
 def success_curve(ious: np.ndarray) -> np.ndarray:
@@ -161,18 +178,19 @@ def corner_errors(paths, size, step: int = 3) -> dict:
     }
 
 
-def select_sequences(data: Path, sea: str, count: int, steps: int) -> list[Path]:
+def select_sequences(data: Path, sea: str, count: int, steps: int, difficulty: str,
+                     first_seed: int) -> list[Path]:
     """Export evaluation sequences; severe ones must show a wash-over and an analog."""
-    paths, seed = [], EVAL_SEED_BASE + (0 if sea == "calm" else 50000)
+    paths, seed = [], first_seed + (0 if sea == "calm" else 50000)
     while len(paths) < count:
-        path = data / f"{sea}_{seed}"
+        path = data / difficulty / f"{sea}_{seed}"
         try:
             meta, labels = load_sequence(path)
-            ok = meta["frames"] == steps
+            ok = meta["frames"] == steps and meta.get("difficulty", "easy") == difficulty
         except (FileNotFoundError, OSError, KeyError):
             ok = False
         if not ok:
-            export_sequence(path, seed, sea, steps)
+            export_sequence(path, seed, sea, steps, difficulty=difficulty)
             meta, labels = load_sequence(path)
         first = truth_boxes(labels, meta["image_size"])[0]
         usable = np.isfinite(first).all()
@@ -190,6 +208,11 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=250, help="frames per sequence")
     parser.add_argument("--data", default="build/ope_seed000_data")
     parser.add_argument("--out", default="results/ope_seed000")
+    parser.add_argument("--difficulty", choices=LEVELS, default="paper")
+    parser.add_argument("--first-seed", type=int, default=EVAL_SEED_BASE,
+                        help="calm sequences from seed N, severe from N + 50000 "
+                             "(default %(default)s)")
+    parser.add_argument("--json", metavar="PATH", help="also write the figures here")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     out = Path(args.out)
@@ -201,7 +224,8 @@ def main(argv=None) -> None:
 
     results, corners = {}, {}
     for sea in ("calm", "severe"):
-        paths = select_sequences(Path(args.data), sea, args.sequences, args.steps)
+        paths = select_sequences(Path(args.data), sea, args.sequences, args.steps,
+                                 args.difficulty, args.first_seed)
         corners[sea] = corner_errors(paths, load_sequence(paths[0])[0]["image_size"])
         for kind in KINDS:
             ious, errors, seconds, count = [], [], 0.0, 0
@@ -225,16 +249,19 @@ def main(argv=None) -> None:
                 "success": s.tolist(),
                 "precision": p.tolist(),
                 "auc": float(s.mean()),
+                "auc_ci95": list(bootstrap_interval(view_auc(ious))),
                 "precision_20px": float(p[20]),
+                "precision_20px_ci95": list(bootstrap_interval(errors <= 20.0)),
                 "stereo_frames_per_s": count / seconds,
                 "ltat_events": dict(events),
             }
 
-    print("| sea state | tracker | views scored | success AUC | precision @ 20 px |")
+    print(f"difficulty {args.difficulty!r}, first seed {args.first_seed}\n")
+    print("| sea state | tracker | views scored | success AUC [95 %] | precision @ 20 px [95 %] |")
     print("|---|---|---|---|---|")
     for (sea, kind), r in results.items():
-        print(f"| {sea} | {NAMES[kind]} | {r['frames']} | {r['auc']:.3f} | "
-              f"{r['precision_20px']:.3f} |")
+        print(f"| {sea} | {NAMES[kind]} | {r['frames']} | {r['auc']:.3f}{_ci(r['auc_ci95'])} | "
+              f"{r['precision_20px']:.3f}{_ci(r['precision_20px_ci95'])} |")
     for (sea, kind), r in results.items():
         if r["ltat_events"]:
             print(f"{sea} {kind}: {r['ltat_events']}")
@@ -276,9 +303,13 @@ def main(argv=None) -> None:
             ax.legend(loc="lower right" if ax is axes[row, 1] else "lower left")
     fig.tight_layout()
     fig.savefig(out / "ope_seed000.png", dpi=120)
-    (out / "ope_seed000.json").write_text(json.dumps(
-        {**{f"{sea}/{kind}": r for (sea, kind), r in results.items()},
-         **{f"{sea}/corners": c for sea, c in corners.items()}}, indent=2))
+    figures = {"difficulty": args.difficulty, "first_seed": args.first_seed,
+               **{f"{sea}/{kind}": r for (sea, kind), r in results.items()},
+               **{f"{sea}/corners": c for sea, c in corners.items()}}
+    (out / "ope_seed000.json").write_text(json.dumps(figures, indent=2))
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=2))
+        print(f"figures written to {args.json}")
     print(f"wrote {out / 'ope_seed000.png'} and {out / 'ope_seed000.json'}")
 
 

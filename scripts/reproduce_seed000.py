@@ -1,14 +1,27 @@
 """Reproduce seed 000's estimation and control results with the shipped agents.
 
     PYTHONPATH=. python scripts/reproduce_seed000.py --out results/seed000 \\
+        [--difficulty paper] [--first-seed 1000] [--seas calm,severe] [--json PATH] \\
         [--estimation-episodes 10] [--capture-episodes 20] [--agents ckf-pd,ltat-ckf-pd]
+
+Every experiment runs the environment at ``--difficulty`` (default ``paper``,
+the level calibrated on seed 000's capture; ``easy`` is the released
+sinusoidal heave) in each sea state of ``--seas``. Seeds: the tracking
+episodes use ``N, N+1, ...`` with ``N = --first-seed``, the attitude cases
+``N + 1000, ...``, the capture episodes ``N + 2000, ...`` (the default 1000
+gives the seeds of the release: 1000, 2000, 3000). Success rates come with
+their 95 % Wilson interval, mean errors with a 95 % percentile bootstrap
+interval; ``--json PATH`` writes every figure under the names of the printed
+tables.
 
 1. **Position error per axis, measured vs CKF** (paper Figs. 9-12): ``ckf-pd``
    tracks the AUV (no strike) for ``--track-time`` s per episode in calm and
    severe sea. "Measured" is the AUV centre triangulated from the marker in
    that frame (frames with a fix); "CKF" is the filter's estimate in every
    frame after the first ``--warmup`` s (also the frames it bridges). Both
-   are compared with ``info["true_position"]`` of the same frame. Reported:
+   are compared with ``info["true_position"]`` of the same frame (taken into
+   the arm's frame with ``info["ship_motion"]`` when a sea moves the ship, as
+   at ``paper`` and ``hard``: the fixes are relative to the arm). Reported:
    mean and max of the absolute error per axis, and the paper's Fig. 10
    statistic (the largest mean of 25 consecutive errors), with the range
    (AUV centre to arm end) the errors were taken at.
@@ -44,19 +57,23 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
+from auv_envs.core.difficulty import LEVELS  # noqa: E402
 from auv_envs.tasks.lars import CONTROL_PERIOD  # noqa: E402
+from auv_envs.tasks.lars_sea import SeaSample, ShipPose  # noqa: E402
 from baselines.evaluation import run_episode  # noqa: E402
 from baselines.lars.agents import CKFPDAgent  # noqa: E402
 from baselines.lars.marker import MarkerLocaliser, marker_attitude  # noqa: E402
 from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
+from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
 
 ENV_ID = "auv_envs/LARSCapture-v0"
 SEAS = ("calm", "severe")
 AXES = ("x", "y", "z")
 PITCHES = (15.0, 20.0, 30.0)
 YAWS = (-30.0, 0.0, 30.0)
-#: Seed bases: each experiment draws its own episodes.
-ESTIMATION_SEED, ATTITUDE_SEED, CAPTURE_SEED = 1000, 2000, 3000
+#: Seed offsets from ``--first-seed``: each experiment draws its own episodes.
+ESTIMATION_OFFSET, ATTITUDE_OFFSET, CAPTURE_OFFSET = 0, 1000, 2000
+DEFAULT_FIRST_SEED = 1000
 #: Frames per block of the paper's Fig. 10 statistic.
 BLOCK = 25
 
@@ -69,9 +86,24 @@ def block_max(errors: np.ndarray, block: int = BLOCK) -> np.ndarray:
     return np.abs(errors[:n]).reshape(-1, block, errors.shape[1]).mean(axis=1).max(axis=0)
 
 
-def track_episode(sea: str, seed: int, track_time: float) -> dict:
+def true_in_arm_frame(info: dict, sea_model) -> np.ndarray:
+    """The AUV's true CG in the frame the agent measures in: the arm's (ship's) frame.
+
+    Without a sea the ship is still and that is the world frame. With one, the
+    ship heaves, rolls and pitches (``info["ship_motion"]``) and carries the
+    arm and its cameras: the marker fixes are relative to it.
+    """
+    if sea_model is None:
+        return info["true_position"]
+    heave, roll, pitch = info["ship_motion"]
+    sample = SeaSample(0.0, 0.0, 0.0, 0.0, heave, roll, pitch, (), 0.0, 0.0, 0.0, 0.0)
+    return ShipPose(sea_model.ship_origin, sample).to_ship(info["true_position"])
+
+
+def track_episode(sea: str, seed: int, track_time: float, difficulty: str) -> dict:
     """One tracking-only ``ckf-pd`` episode: per-frame truth, measurement and estimate."""
-    env = gym.make(ENV_ID, obs_mode="features", sea_state=sea, time_limit=track_time)
+    env = gym.make(ENV_ID, obs_mode="features", sea_state=sea, time_limit=track_time,
+                   difficulty=difficulty)
     try:
         agent = CKFPDAgent(env.unwrapped, strike=False)
         obs, info = env.reset(seed=seed)
@@ -83,7 +115,7 @@ def track_episode(sea: str, seed: int, track_time: float) -> dict:
             est = agent.position_estimate()
             meas = agent.last_measurement
             rows["time"].append(info["time"])
-            rows["truth"].append(info["true_position"])
+            rows["truth"].append(true_in_arm_frame(info, env.unwrapped.calibration.sea))
             rows["measured"].append(np.full(3, np.nan) if meas is None else meas)
             rows["estimate"].append(np.full(3, np.nan) if est is None else est)
             rows["range"].append(np.linalg.norm(info["true_position"] - info["end_position"]))
@@ -97,8 +129,9 @@ def track_episode(sea: str, seed: int, track_time: float) -> dict:
         env.close()
 
 
-def estimation(sea: str, episodes: int, track_time: float, warmup: float) -> tuple[dict, list]:
-    runs = [track_episode(sea, ESTIMATION_SEED + i, track_time) for i in range(episodes)]
+def estimation(sea: str, episodes: int, track_time: float, warmup: float, difficulty: str,
+               first_seed: int) -> tuple[dict, list]:
+    runs = [track_episode(sea, first_seed + i, track_time, difficulty) for i in range(episodes)]
     meas_err, est_err, blocks_m, blocks_e, ranges = [], [], [], [], []
     bridged = frames = 0
     for run in runs:
@@ -106,6 +139,7 @@ def estimation(sea: str, episodes: int, track_time: float, warmup: float) -> tup
         m = run["measured"][keep] - run["truth"][keep]
         e = run["estimate"][keep] - run["truth"][keep]
         m = m[np.all(np.isfinite(m), axis=1)]
+        e = e[np.all(np.isfinite(e), axis=1)]  # (a filter that has had no fix yet)
         meas_err.append(m)
         est_err.append(e)
         blocks_m.append(block_max(m))
@@ -127,9 +161,11 @@ def estimation(sea: str, episodes: int, track_time: float, warmup: float) -> tup
     return summary, runs
 
 
-def attitude(pitch_deg: float, yaw_deg: float, seed: int, steps: int) -> dict:
-    """Pitch/yaw estimates with the AUV pinned at the set angles."""
-    env = gym.make(ENV_ID, obs_mode="features", time_limit=steps * CONTROL_PERIOD + 1)
+def attitude(pitch_deg: float, yaw_deg: float, seed: int, steps: int, difficulty: str) -> dict:
+    """Pitch/yaw estimates with the AUV pinned at the set angles (with a sea, the waves'
+    pitch comes on top of the set one)."""
+    env = gym.make(ENV_ID, obs_mode="features", time_limit=steps * CONTROL_PERIOD + 1,
+                   difficulty=difficulty)
     try:
         cal = env.unwrapped.calibration
         literal_loc = MarkerLocaliser(cal, refine_attitude=False)
@@ -160,14 +196,15 @@ def attitude(pitch_deg: float, yaw_deg: float, seed: int, steps: int) -> dict:
     }
 
 
-def capture(agent_name: str, sea: str, episodes: int) -> dict:
+def capture(agent_name: str, sea: str, episodes: int, difficulty: str, first_seed: int) -> dict:
     spec = agent_spec(agent_name)
-    env = gym.make(ENV_ID, obs_mode=spec.obs_mode, sea_state=sea)
+    env = gym.make(ENV_ID, obs_mode=spec.obs_mode, sea_state=sea, difficulty=difficulty,
+                   **spec.env_kwargs)
     rows = []
     try:
         agent = make_agent(agent_name, env)
         for i in range(episodes):
-            rows.append(run_episode(env, agent, CAPTURE_SEED + i, ENV_ID, agent_name))
+            rows.append(run_episode(env, agent, first_seed + i, ENV_ID, agent_name))
     finally:
         env.close()
     ok = [r for r in rows if r.success]
@@ -179,7 +216,9 @@ def capture(agent_name: str, sea: str, episodes: int) -> dict:
     return {
         "agent": agent_name, "sea": sea, "episodes": episodes,
         "success_rate": len(ok) / episodes,
+        "success_rate_ci95": list(wilson_interval(len(ok), episodes)),
         "final_error_mean_mm": float(1e3 * final.mean()) if len(ok) else None,
+        "final_error_mean_mm_ci95": list(bootstrap_interval(1e3 * final)) if len(ok) else None,
         "final_error_max_mm": float(1e3 * final.max()) if len(ok) else None,
         "final_error_le_28mm": float(np.mean(final <= 0.028)) if len(ok) else None,
         "capture_time_mean_s": float(np.mean([r.metrics["capture_time"] for r in ok]))
@@ -239,9 +278,23 @@ def _fmt(values, spec=".1f") -> str:
     return " / ".join(format(v, spec) for v in values)
 
 
+def _interval(ci, spec=".1f", scale=1.0) -> str:
+    """`` [low, high]`` of a 95 % interval; empty where there is none (one value)."""
+    if ci is None or not all(math.isfinite(v) for v in ci):
+        return ""
+    return f" [{format(scale * ci[0], spec)}, {format(scale * ci[1], spec)}]"
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results/seed000")
+    parser.add_argument("--difficulty", choices=LEVELS, default="paper")
+    parser.add_argument("--first-seed", type=int, default=DEFAULT_FIRST_SEED,
+                        help="tracking seeds N, N+1, ...; attitude N+1000, ...; "
+                             "capture N+2000, ... (default %(default)s)")
+    parser.add_argument("--seas", default=",".join(SEAS),
+                        help="comma-separated sea states (default %(default)s)")
+    parser.add_argument("--json", metavar="PATH", help="also write the figures here")
     parser.add_argument("--estimation-episodes", type=int, default=10)
     parser.add_argument("--track-time", type=float, default=20.0)
     parser.add_argument("--warmup", type=float, default=1.0)
@@ -250,17 +303,23 @@ def main(argv=None) -> None:
     parser.add_argument("--agents", default="ckf-pd,ltat-ckf-pd",
                         help="capture agents (comma-separated; unregistered ones are skipped)")
     args = parser.parse_args(argv)
+    seas = [s for s in args.seas.split(",") if s]
+    if not seas or set(seas) - set(SEAS):
+        parser.error(f"--seas must name some of {SEAS}, got {args.seas!r}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {"arguments": vars(args)}
+    print(f"# seed 000 reproduction, difficulty {args.difficulty!r}, first seed "
+          f"{args.first_seed}\n")
 
     print("## Position error per axis x / y / z (mm), tracking at 0.8 m (Figs. 9-12)\n")
     print("| sea | frames (bridged) | max range m | measured mean | measured max "
           "| CKF mean | CKF max | 25-frame max measured | 25-frame max CKF |")
     print("|---|---|---|---|---|---|---|---|---|")
     results["estimation"] = {}
-    for sea in SEAS:
-        summary, runs = estimation(sea, args.estimation_episodes, args.track_time, args.warmup)
+    for sea in seas:
+        summary, runs = estimation(sea, args.estimation_episodes, args.track_time, args.warmup,
+                                   args.difficulty, args.first_seed + ESTIMATION_OFFSET)
         results["estimation"][sea] = summary
         print(f"| {sea} | {summary['frames']} ({summary['bridged_frames']}) "
               f"| {summary['max_range_m']:.2f} | {_fmt(summary['measured_mean_mm'])} "
@@ -277,7 +336,8 @@ def main(argv=None) -> None:
     results["attitude"] = []
     cases = [(p, 0.0) for p in PITCHES] + [(0.0, y) for y in YAWS]
     for i, (p, y) in enumerate(cases):
-        r = attitude(p, y, ATTITUDE_SEED + i, args.attitude_steps)
+        r = attitude(p, y, args.first_seed + ATTITUDE_OFFSET + i, args.attitude_steps,
+                     args.difficulty)
         results["attitude"].append(r)
         final = _fmt(r["agent_final"], ".2f") if r["agent_final"] else "-"
         print(f"| {p:g}, {y:g} | {r['frames']} | {_fmt(r['literal_mean'], '.2f')} "
@@ -285,8 +345,8 @@ def main(argv=None) -> None:
               f"| {_fmt(r['refined_max_abs_error'], '.2f')} | {final} |")
 
     print("\n## Capture\n")
-    print("| agent | sea | episodes | success | final error mean / max mm | <= 28 mm "
-          "| capture time s | failures | s/episode |")
+    print("| agent | sea | episodes | success [95 %] | final error mean [95 %] / max mm "
+          "| <= 28 mm | capture time s | failures | s/episode |")
     print("|---|---|---|---|---|---|---|---|---|")
     results["capture"] = []
     registered = set(agent_names())
@@ -294,19 +354,26 @@ def main(argv=None) -> None:
         if name not in registered:
             print(f"| {name} | - | - | not registered: skipped | | | | | |")
             continue
-        for sea in SEAS:
-            r = capture(name, sea, args.capture_episodes)
+        for sea in seas:
+            r = capture(name, sea, args.capture_episodes, args.difficulty,
+                        args.first_seed + CAPTURE_OFFSET)
             results["capture"].append(r)
-            err = (f"{r['final_error_mean_mm']:.1f} / {r['final_error_max_mm']:.1f}"
+            err = (f"{r['final_error_mean_mm']:.1f}{_interval(r['final_error_mean_mm_ci95'])}"
+                   f" / {r['final_error_max_mm']:.1f}"
                    if r["final_error_mean_mm"] is not None else "-")
             within = f"{r['final_error_le_28mm']:.0%}" if r["final_error_le_28mm"] is not None \
                 else "-"
             when = f"{r['capture_time_mean_s']:.1f}" if r["capture_time_mean_s"] else "-"
-            print(f"| {name} | {sea} | {r['episodes']} | {r['success_rate']:.0%} | {err} "
+            success = (f"{r['success_rate']:.0%}"
+                       f"{_interval(r['success_rate_ci95'], '.0f', 100.0)}")
+            print(f"| {name} | {sea} | {r['episodes']} | {success} | {err} "
                   f"| {within} | {when} | {r['failures'] or '-'} "
                   f"| {r['seconds_per_episode']:.1f} |")
 
     (out / "seed000.json").write_text(json.dumps(results, indent=2, default=float))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2, default=float))
+        print(f"figures written to {args.json}")
     print(f"\nwrote {out / 'seed000.json'} and plots to {out}/")
 
 

@@ -8,7 +8,7 @@ Command::
 On-disk format (version 1)::
 
     DIR/index.json                  format version, arguments, sequence list
-    DIR/seq_0000/meta.json          seed, sea state, image size, calibration
+    DIR/seq_0000/meta.json          seed, sea state, difficulty, image size, calibration
                                     (fx, fy, cx, cy, baseline, hand-eye 4x4s)
     DIR/seq_0000/left/000000.png    RGB frames (8-bit PNG), one per step
     DIR/seq_0000/right/000000.png
@@ -94,15 +94,18 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
 
 
 def export_sequence(
-    out_dir: Path, seed: int, sea_state: str, steps: int, image_size=(640, 480)
+    out_dir: Path, seed: int, sea_state: str, steps: int, image_size=(640, 480),
+    difficulty: str = "easy",
 ) -> Path:
-    """Render one seeded episode into ``out_dir`` (see the module docstring)."""
+    """Render one seeded episode into ``out_dir`` (see the module docstring) at the
+    env's ``difficulty`` level (default ``easy``, the released scene)."""
     out_dir = Path(out_dir)
     (out_dir / "left").mkdir(parents=True, exist_ok=True)
     (out_dir / "right").mkdir(parents=True, exist_ok=True)
     env = LARSCaptureEnv(
         obs_mode="stereo", sea_state=sea_state, control="position",
         image_size=tuple(image_size), time_limit=max(steps, 1) * CONTROL_PERIOD + 1.0,
+        difficulty=difficulty,
     )
     try:
         obs, info = env.reset(seed=seed)
@@ -149,6 +152,7 @@ def export_sequence(
             "env_id": "auv_envs/LARSCapture-v0",
             "seed": int(seed),
             "sea_state": sea_state,
+            "difficulty": difficulty,
             "frames": len(records["time"]),
             "image_size": [k.width, k.height],
             "frame_period": cal.control_period,

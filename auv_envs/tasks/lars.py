@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from auv_envs.core import difficulty as levels
 from auv_envs.core import frames, passive
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
@@ -67,6 +68,26 @@ CAMERA_MOUNT_IN_END = (0.0, 0.25, -0.065)
 #: ``render_camera`` values: ``"side"`` (a person's view of the ship's side,
 #: the arm and the AUV) or ``"stereo"`` (the capture head's pair).
 RENDER_CAMERAS = ("side", "stereo")
+#: ``features`` pixel noise of the released env (``difficulty="easy"``), px.
+DEFAULT_PIXEL_NOISE_STD = 1.0
+#: ``difficulty="paper"``: a low swell, JONSWAP (gamma 3.3, the JONSWAP mean;
+#: Hasselmann et al. 1973, DNV-RP-C205 §3.5.5), Hs = 0.3 m (the middle of
+#: WMO sea state code 2, "smooth", 0.1-0.5 m), Tp = 9 s (the long end of the
+#: scene's 5-9 s heave periods). The AUV's largest heave excursion in a
+#: 30 s episode then averages 0.17 m, near the 0.2 m amplitude the paper's
+#: sine has on every cycle (§3.1, Figs. 9/14c). Calibrated so that ``ckf-pd`` and
+#: ``ltat-ckf-pd`` keep seed 000's capture (Fig. 15c, about 28 mm, success
+#: >= 90 %) in ``sea_state="calm"``; figures in ``docs/physics.md``.
+PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
+#: ``difficulty="hard"``: a steeper, shorter sea, JONSWAP Hs = 0.4 m, Tp = 7 s
+#: (still code 2; Tp the agents' prior swell period), whose heave is less
+#: regular than eq. 8's sinusoid, and 3 px of ``features`` pixel noise (the
+#: largest corner error the shipped LTAT corner extractor made on 1,251
+#: fully visible views, ``docs/reproductions.md``, taken as the noise std).
+#: Calibrated so that ``ckf-pd`` succeeds in at most 80 % of episodes while
+#: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/physics.md``).
+HARD_SEA = SeaSpectrum(hs=0.4, tp=7.0)
+HARD_PIXEL_NOISE_STD = 3.0
 
 #: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
 #: image x along end x, image y down = end -y).
@@ -389,7 +410,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``image_size`` (W, H; default 640x480, also the pixel frame of
     ``features``; the paper used 1280x960), ``baseline`` (m, default 0.12),
     ``focal_length`` (px at ``image_size``; default: 60 deg vertical field
-    of view), ``pixel_noise_std`` (px, default 1.0), ``tolerances``,
+    of view), ``pixel_noise_std`` (px; default None: the level's, 1.0 at
+    ``easy`` and ``paper``), ``tolerances``,
     ``time_limit`` (s, default 30), ``render_mode`` (``"rgb_array"``),
     ``render_camera`` (``"side"``, default: from outboard and astern, the
     ship's side, the arm, the AUV and the sea surface, which heaves with the
@@ -397,18 +419,35 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``render_size``), ``render_size`` (W, H, default 640x480), ``sea``
     (``SeaSpectrum`` or None, default: the seed-000 sinusoid, bit-identical
     to the env without the argument and with no extra draws;
-    ``calibration.sea`` reports the model).
+    ``calibration.sea`` reports the model), ``difficulty``
+    (:mod:`auv_envs.core.difficulty`; ``sea`` and ``pixel_noise_std`` given
+    explicitly override the level's): ``"easy"`` (default): the release
+    above, bit for bit; ``"paper"``: ``sea=PAPER_SEA`` (JONSWAP Hs 0.3 m,
+    Tp 9 s, a low swell whose largest crests heave the AUV by about the
+    paper's 0.2 m), calibrated on seed 000's 28 mm capture in ``calm`` sea;
+    ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m, Tp 7 s) and
+    ``pixel_noise_std=3.0`` px, where ``ckf-pd`` succeeds in at most 80 % of
+    episodes and the privileged ``ckf-pd-state`` in at least 90 %
+    (``docs/physics.md``, "Difficulty levels: LARS"). ``sea_state`` stays
+    separate (the paper's interference off/on) at every level.
 
     **Version history.** v0: initial release. Rendering (dynamics,
     observations and rewards unchanged): ``render()`` draws the side view by
     default (``render_camera``, ``render_size``); it drew the stereo pair at
     ``image_size`` before. Opt-in irregular seas (``sea``); the default
-    episode is unchanged.
+    episode is unchanged. Opt-in ``difficulty`` levels (the default ``easy``
+    is the release, bit for bit).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
 
     obs_modes = OBS_MODES
+    #: ``difficulty`` levels (:mod:`auv_envs.core.difficulty`): the sea and the pixel noise.
+    difficulty_presets = {
+        "easy": {},
+        "paper": {"sea": PAPER_SEA},
+        "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD},
+    }
     reward_terms = ("progress", "control", "success", "failure")
     metric_keys = (
         "capture_error", "relative_position", "relative_speed", "is_success", "collision",
@@ -423,13 +462,14 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         image_size: tuple[int, int] = (640, 480),
         baseline: float = 0.12,
         focal_length: float | None = None,
-        pixel_noise_std: float = 1.0,
+        pixel_noise_std: float | None = None,
         tolerances: CaptureTolerances | None = None,
         time_limit: float = 30.0,
         render_mode: str | None = None,
         render_camera: str = "side",
         render_size: tuple[int, int] = (640, 480),
         sea: SeaSpectrum | None = None,
+        difficulty: str = levels.DEFAULT_LEVEL,
         **unknown,
     ):
         self._accept_arguments(
@@ -438,8 +478,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
             render_mode=render_mode, render_camera=render_camera,
-            render_size=render_size, sea=sea,
+            render_size=render_size, sea=sea, difficulty=difficulty,
         )
+        level = levels.resolve(self.difficulty_presets, difficulty,
+                               {"sea": sea, "pixel_noise_std": pixel_noise_std})
+        sea, pixel_noise_std = level["sea"], level["pixel_noise_std"]
+        if pixel_noise_std is None:
+            pixel_noise_std = DEFAULT_PIXEL_NOISE_STD
+        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
+        self.difficulty = difficulty
         check_choice("sea_state", sea_state, SEA_STATES)
         sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)

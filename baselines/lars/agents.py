@@ -18,6 +18,11 @@ The agent acts on any dict with the ``features`` layout (``pixels``,
 end (seed 000's LTAT on ``stereo`` images) can stand in front of it through
 :mod:`baselines.frontend`. It reads only the observation and the documented
 calibration, never ``info``.
+
+``ckf-pd-state`` (:class:`TrueStateCKFPDAgent`) is its privileged reference:
+the same strategy, trajectory and control fed the true AUV state of the
+``state`` observation, the bar the ``difficulty`` levels are calibrated
+against (``docs/physics.md``, "Difficulty levels: LARS").
 """
 
 from __future__ import annotations
@@ -338,11 +343,57 @@ class CKFPDAgent:
         return end, vel, acc
 
 
+class TrueStateCKFPDAgent(CKFPDAgent):
+    """Privileged reference: ``ckf-pd``'s capture strategy, heave fit, quintic, IK
+    and PD fed the true AUV state from the ``state`` observation.
+
+    What it measures is how much of the task the arm controller alone can
+    solve: the filter's state is the true centre of gravity and velocity every
+    step (no marker, no triangulation, no noise), the attitude the true pitch
+    and yaw. Positions are taken in the arm's (ship's) frame as ``ckf-pd``'s
+    fixes are: the forward kinematics of the joint angles plus the observed
+    AUV-minus-arm-end offset, velocities likewise (the ship's small roll and
+    pitch rotate the offset by a few degrees at most; ``ckf-pd`` makes the
+    same approximation through its levelled head). The strike still predicts
+    with the fitted eq. 8 model, as ``ckf-pd`` does.
+    """
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        del info  # the privileged state is the observation itself
+        obs = None if isinstance(observation, dict) else np.asarray(observation, dtype=float)
+        if obs is None or obs.shape != (24,) or not np.all(np.isfinite(obs)):
+            raise ValueError("ckf-pd-state expects the finite (24,) 'state' observation")
+        q, qd = obs[0:3], obs[3:6]
+        arm = self.calibration.arm
+        end = arm.forward_kinematics(q)
+        position = end + obs[12:15]
+        velocity = arm.jacobian(q) @ qd + obs[15:18] - obs[9:12]
+        t = self._step * self.dt
+        self._step += 1
+        self.filter.initialise(np.concatenate((position, velocity)), np.eye(6) * 1e-8)
+        self._pitch, self._yaw = float(obs[21]), float(obs[22])
+        self._rotation = auv_rotation(self._pitch, self._yaw)
+        self._heights.append((t, float(position[2])))
+        if self._step % self._refit_every == 0:
+            self._refit_heave(t)
+        if self._hold is None:
+            self._hold = q.copy()
+        return self._control(t, q, qd)
+
+
 def _make(env) -> CKFPDAgent:
     return CKFPDAgent(env)
+
+
+def _make_true_state(env) -> TrueStateCKFPDAgent:
+    return TrueStateCKFPDAgent(env)
 
 
 register_agent(AgentSpec(
     "ckf-pd", _make, "features", ENV_IDS,
     "seed 000 estimation+control: stereo marker fixes -> CKF -> quintic + IK + PD (torques)",
+))
+register_agent(AgentSpec(
+    "ckf-pd-state", _make_true_state, "state", ENV_IDS,
+    "privileged reference: ckf-pd's capture strategy + quintic + IK + PD on the true AUV state",
 ))
