@@ -1,7 +1,8 @@
 """Reproduce seed 002's tracking evaluation: the lamp-array front end under occlusion, CLEAR MOT.
 
-    PYTHONPATH=. python scripts/reproduce_seed002.py [--seeds 5] [--frames 600]
-        [--scenario mismatch] [--threshold 20] [--env auv_envs/LampArrayDocking-v1]
+    PYTHONPATH=. python scripts/reproduce_seed002.py [--difficulty paper] [--seeds 5]
+        [--first-seed 0] [--frames 600] [--scenario mismatch] [--threshold 20]
+        [--env auv_envs/LampArrayDocking-v1] [--json PATH]
 
 Seed 002 §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
 were out of view and reported PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px (Table 4).
@@ -19,20 +20,29 @@ Two scores are printed: from the frame where the front end initialised its track
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
 (the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v1``
 runs the same evaluation on the six docking lights (the ring identity rule).
+
+The environment runs at ``--difficulty`` (default ``paper``: the water and camera of the
+level's ``optics``, calibrated on this table; ``easy`` is the released clear water) on seeds
+``--first-seed``, ``--first-seed + 1``, ...; the pooled PRCN, MOTA and MOTP are printed with
+the 95 % interval of the per-sequence mean (percentile bootstrap over sequences) and, with
+``--json``, written under the same names as the table.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 
 import gymnasium as gym
 import numpy as np
 
 import auv_envs  # noqa: F401
+from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
 from auv_envs.core.frames import rotation_from_euler
 from auv_envs.metrics import clear_mot_labelled
 from baselines.agents.pd_docking import DockingPDAgent
+from baselines.stats import bootstrap_interval
 from baselines.vision.lamp_array import LampArrayFrontEnd
 
 ENV_ID = "auv_envs/LampArrayDocking-v1"
@@ -80,10 +90,12 @@ def excursions(rng: np.random.Generator, duration: float) -> list[tuple[float, n
     return legs
 
 
-def run_sequence(seed: int, frames: int, scenario: str, env_id: str = ENV_ID) -> dict:
+def run_sequence(seed: int, frames: int, scenario: str, env_id: str = ENV_ID,
+                 difficulty: str = "paper") -> dict:
     """One seeded sequence: truth and the front end's output per frame."""
     env = gym.make(env_id, obs_mode="image", scenario=scenario, min_visible_lights=1,
-                   lights_lost_timeout=1e6, time_limit=frames * 0.1 + 1.0)
+                   lights_lost_timeout=1e6, time_limit=frames * 0.1 + 1.0,
+                   difficulty=difficulty)
     state_env = gym.make(env_id, obs_mode="state")  # only to build the PD pilot
     try:
         cal = env.unwrapped.calibration
@@ -159,36 +171,67 @@ def _row(name: str, r: dict) -> str:
             f"{100 * r['within_13px']:7.2f}")
 
 
+def figure(pooled_value: float, per_sequence) -> dict:
+    """A figure for ``--json``: the pooled value, the per-sequence mean and its 95 % interval."""
+    values = [v for v in per_sequence if math.isfinite(v)]
+    low, high = bootstrap_interval(values) if values else (math.nan, math.nan)
+    return {"pooled": float(pooled_value), "mean": float(np.mean(values)) if values else math.nan,
+            "ci95": [low, high], "n": len(values)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=5, help="sequences (seeds 0..N-1)")
+    parser.add_argument("--difficulty", choices=DIFFICULTIES, default="paper")
+    parser.add_argument("--seeds", type=int, default=5, help="sequences")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="sequences use seeds N, N+1, ... (default %(default)s)")
     parser.add_argument("--frames", type=int, default=600, help="frames per sequence (10 Hz)")
     parser.add_argument("--scenario", default="mismatch", choices=("mismatch", "current"),
                         help="'current' adds the INS/DVL noise and a 0.3 m/s current")
     parser.add_argument("--threshold", type=float, default=20.0,
                         help="CLEAR MOT match distance, px")
     parser.add_argument("--env", default=ENV_ID, choices=ENV_IDS)
+    parser.add_argument("--json", metavar="PATH", help="write the figures here")
     args = parser.parse_args()
+    if args.seeds < 1:
+        parser.error("--seeds must be at least 1")
 
-    seqs = [run_sequence(seed, args.frames, args.scenario, args.env)
-            for seed in range(args.seeds)]
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    seqs = [run_sequence(seed, args.frames, args.scenario, args.env, args.difficulty)
+            for seed in seeds]
     header = (f"{'sequence':22s} {'occl%':>6s} {'PRCN%':>7s} {'RCLL%':>7s} {'FP':>5s} "
               f"{'FN':>5s} {'IDs':>4s} {'FM':>4s} {'MOTA%':>7s} {'MOTPpx':>7s} {'<=13px%':>7s}")
-    print(f"{args.env} image 640x480, scenario {args.scenario}, match threshold "
-          f"{args.threshold:g} px")
+    print(f"{args.env} image 640x480, difficulty {args.difficulty!r}, scenario {args.scenario}, "
+          f"match threshold {args.threshold:g} px")
     print(header)
-    for seed, seq in enumerate(seqs):
+    per_sequence = []
+    for seed, seq in zip(seeds, seqs, strict=True):
         start = seq["init_frame"]
         label = f"seed {seed} (init @{start})"
         if start is None:
             print(f"{label:22s} never initialised")
             continue
-        print(_row(label, pooled([seq], args.threshold, from_init=True)))
+        score = pooled([seq], args.threshold, from_init=True)
+        per_sequence.append(score)
+        print(_row(label, score))
     total_init = pooled(seqs, args.threshold, from_init=True)
     total_all = pooled(seqs, args.threshold, from_init=False)
     print(_row("all, from init", total_init))
     print(_row("all, every frame", total_all))
     m = total_init["mot"]
+    scale = {"prcn": 100.0, "mota": 100.0, "motp": 1.0}
+    figures: dict = {"env": args.env, "difficulty": args.difficulty, "scenario": args.scenario,
+                     "first_seed": args.first_seed, "sequences": args.seeds,
+                     "frames": args.frames, "threshold_px": args.threshold,
+                     "occluded": float(total_init["occluded"])}
+    texts = []
+    for name, unit in (("prcn", "%"), ("mota", "%"), ("motp", "px")):
+        f = figure(scale[name] * getattr(m, name),
+                   [scale[name] * getattr(r["mot"], name) for r in per_sequence])
+        figures[f"{name}{'_px' if unit == 'px' else '_percent'}"] = f
+        texts.append(f"{name.upper()} {f['pooled']:.2f} {unit} (per-sequence mean "
+                     f"{f['mean']:.2f} [{f['ci95'][0]:.2f}, {f['ci95'][1]:.2f}])")
+    print("from init, 95 % intervals: " + "; ".join(texts))
     print(f"seed 002: occluded {100 * PAPER['occluded']:.2f} %, PRCN {100 * PAPER['prcn']:.2f} %, "
           f"MOTA {100 * PAPER['mota']:.2f} %, MOTP {PAPER['motp_px']:.2f} px")
     checks = {
@@ -202,7 +245,10 @@ def main() -> None:
     stats = [s["stats"] for s in seqs]
     print("front end: initialisations", sum(s["lamp_initialisations"] for s in stats),
           "track losses", sum(s["lamp_track_losses"] for s in stats))
-
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(figures, f, indent=1)
+        print(f"figures written to {args.json}")
 
 if __name__ == "__main__":
     main()

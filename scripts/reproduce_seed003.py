@@ -1,6 +1,13 @@
 """Reproduce seed 003's simulations with the ``ofnmpc-ekf`` and ``ofnmpc-mhe`` agents.
 
-    PYTHONPATH=. python scripts/reproduce_seed003.py [--out results/seed003] [--seed 100000]
+    PYTHONPATH=. python scripts/reproduce_seed003.py [--out results/seed003] [--difficulty paper]
+        [--first-seed 100000] [--episodes 4] [--json PATH]
+
+Everything runs at ``--difficulty`` (default ``paper``: the disturbances and water of the
+level, calibrated on Scenario 2 below; ``easy`` is the released environment) on seeds
+``--first-seed``, ``--first-seed + 1``, ...; success rates are printed with their 95 %
+Wilson interval, docking times with a 95 % bootstrap interval of the mean, and with
+``--json`` the figures are written under the same names as the tables.
 
 Scenario 1 (``scenario="mismatch"``: damping mismatch only, no noise, no
 current), ``DockingStation-v1`` (``--env`` picks ``LampArrayDocking-v1``):
@@ -31,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 from pathlib import Path
 
@@ -42,6 +50,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
+from auv_envs.core.difficulty import LEVELS as DIFFICULTIES  # noqa: E402
 from auv_envs.core.hydrodynamics import NominalModel  # noqa: E402
 from auv_envs.tasks.docking import (  # noqa: E402
     SCENARIO_CURRENT_SPEED,
@@ -50,6 +59,7 @@ from auv_envs.tasks.docking import (  # noqa: E402
 )
 from baselines.docking.agents import OFNMPCAgent  # noqa: E402
 from baselines.registry import agent_names, make_agent  # noqa: E402
+from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
 
 ENV_ID = "auv_envs/DockingStation-v1"
 OBSERVERS = ("ekf", "mhe")
@@ -102,8 +112,28 @@ def seed003_model(calibration) -> NominalModel:
     return NominalModel(dataclasses.replace(calibration.nominal_params, net_buoyancy=0.0))
 
 
-def scenario1(args, out: Path) -> None:
-    env = gym.make(args.env, obs_mode="features", scenario="mismatch")
+def rate(successes: int, n: int) -> dict:
+    """A success rate for ``--json``: count, episodes, rate and its 95 % Wilson interval."""
+    low, high = wilson_interval(successes, n)
+    return {"success": successes, "episodes": n, "rate": successes / n, "ci95": [low, high]}
+
+
+def rate_text(r: dict) -> str:
+    return (f"{r['success']}/{r['episodes']} ({100 * r['rate']:.0f} %, "
+            f"[{100 * r['ci95'][0]:.0f}, {100 * r['ci95'][1]:.0f}] %)")
+
+
+def mean_figure(values) -> dict:
+    """Mean and 95 % bootstrap interval of ``values`` (None when there are none)."""
+    if not values:
+        return {"mean": None, "ci95": [None, None], "n": 0}
+    low, high = bootstrap_interval(values)
+    return {"mean": float(np.mean(values)), "ci95": [low, high], "n": len(values)}
+
+
+def scenario1(args, out: Path) -> dict:
+    env = gym.make(args.env, obs_mode="features", scenario="mismatch",
+                   difficulty=args.difficulty)
     cal = env.unwrapped.calibration
     traces = {o: fly(env, OFNMPCAgent(env.unwrapped, o), args.seed) for o in OBSERVERS}
     print(f"## Scenario 1 (model mismatch), {args.env}, seed {args.seed}")
@@ -112,6 +142,10 @@ def scenario1(args, out: Path) -> None:
     for o, t in traces.items():
         d = ", ".join(f"{v:.2f}" for v in t.disturbance[-1])
         print(f"| {o.upper()} | {t.success} | {t.docking_time} | {t.solver_failures} | {d} |")
+    figures = {f"ofnmpc-{o}": {"docked": t.success, "docking_time": t.docking_time,
+                               "solver_failures": t.solver_failures,
+                               "d_at_docking": [float(v) for v in t.disturbance[-1]]}
+               for o, t in traces.items()}
     plot_trajectories({o.upper(): t for o, t in traces.items()}, cal,
                       out / "scenario1_trajectories.png", "Scenario 1: 3-D docking trajectories")
     plot_outputs(traces, cal, out / "scenario1_outputs.png")
@@ -119,7 +153,7 @@ def scenario1(args, out: Path) -> None:
 
     hold_point = np.array([cal.target_position[0] - 3.0, 0.0, 0.0, 0.0])
     hold_env = gym.make(args.env, obs_mode="features", scenario="mismatch",
-                        time_limit=args.hold)
+                        time_limit=args.hold, difficulty=args.difficulty)
     print(f"\n## Scenario 1 steady state: station keeping at x = {hold_point[0]:.1f} m for "
           f"{args.hold:g} s; mean d over the last 5 s (N, N, N, N m)")
     print("| prediction model | observer | d_X | d_Y | d_Z | d_N |")
@@ -135,21 +169,26 @@ def scenario1(args, out: Path) -> None:
             mean = np.nanmean(tail, axis=0)
             print(f"| {label} | {o.upper()} | " + " | ".join(f"{v:.2f}" for v in mean) + " |")
             holds[f"{o.upper()}, {label.split(' (')[0]}"] = t
+            figures[f"steady_state_d_{o}_{'env' if model is None else 'seed003'}_model"] = [
+                float(v) for v in mean]
     plot_disturbances(holds, out / "scenario1_steady_state_disturbance.png",
                       "Station keeping: disturbance estimates")
+    return figures
 
 
-def scenario2(args, out: Path) -> None:
+def scenario2(args, out: Path) -> dict:
     seeds = [args.seed + i for i in range(args.episodes)]
     print(f"\n## Scenario 2 ({SCENARIO_CURRENT_SPEED:g} m/s current, {SCENARIO_PIXEL_NOISE:g} px "
-          f"/ {SCENARIO_VELOCITY_NOISE:g} m/s noise), {args.env}, seeds {seeds}")
+          f"/ {SCENARIO_VELOCITY_NOISE:g} m/s noise), {args.env}, difficulty "
+          f"{args.difficulty!r}, seeds {seeds}")
     print("| current direction (deg) | OFNMPC-EKF | OFNMPC-MHE |")
     print("|---|---|---|")
     traces, wins = {o: {} for o in OBSERVERS}, dict.fromkeys(OBSERVERS, 0)
+    docking_times: dict = {o: [] for o in OBSERVERS}
     cal = None
     for direction in args.directions:
         env = gym.make(args.env, obs_mode="features", scenario="current",
-                       current_direction=direction)
+                       current_direction=direction, difficulty=args.difficulty)
         cal = env.unwrapped.calibration
         cells = []
         for o in OBSERVERS:
@@ -158,6 +197,7 @@ def scenario2(args, out: Path) -> None:
             traces[o][direction] = runs[0]
             docked = [t for t in runs if t.success]
             wins[o] += len(docked)
+            docking_times[o] += [t.docking_time for t in docked]
             if len(runs) == 1:
                 t = runs[0]
                 cells.append(f"docked, {t.docking_time:.1f} s" if t.success
@@ -168,7 +208,14 @@ def scenario2(args, out: Path) -> None:
                 cells.append(f"{len(docked)}/{len(runs)} docked{mean}")
         print(f"| {direction:g} | " + " | ".join(cells) + " |")
     n = len(args.directions) * len(seeds)
-    print(f"| success | {wins['ekf']}/{n} | {wins['mhe']}/{n} |")
+    figures = {f"ofnmpc-{o}": {**rate(wins[o], n), "docking_time": mean_figure(docking_times[o])}
+               for o in OBSERVERS}
+    print("| success (95 % interval) | "
+          + " | ".join(rate_text(figures[f"ofnmpc-{o}"]) for o in OBSERVERS) + " |")
+    print("| docking time s (95 % interval) | " + " | ".join(
+        "-" if f["docking_time"]["mean"] is None else
+        f"{f['docking_time']['mean']:.1f} [{f['docking_time']['ci95'][0]:.1f}, "
+        f"{f['docking_time']['ci95'][1]:.1f}]" for f in figures.values()) + " |")
     fig = plt.figure(figsize=(12, 5))
     for i, o in enumerate(OBSERVERS):
         ax = fig.add_subplot(1, 2, i + 1, projection="3d")
@@ -183,22 +230,24 @@ def scenario2(args, out: Path) -> None:
     plt.close(fig)
 
     if args.no_image:
-        return
+        return figures
     image_agents = [f"ofnmpc-{o}-image" for o in OBSERVERS if f"ofnmpc-{o}-image"
                     in agent_names()]
     if not image_agents:
         print("\nimage mode: ofnmpc-ekf-image / ofnmpc-mhe-image are not registered; skipped")
-        return
+        return figures
     print("\n## Scenario 2 with image observations (lamp-array front end)")
     for name in image_agents:
         wins_image = 0
         for direction in args.directions:
             env = gym.make(args.env, obs_mode="image", scenario="current",
-                           current_direction=direction)
+                           current_direction=direction, difficulty=args.difficulty)
             agent = make_agent(name, env)
             wins_image += sum(fly(env, agent, s).success for s in seeds)
             env.close()
-        print(f"{name}: {wins_image}/{n} docked")
+        figures[name] = rate(wins_image, n)
+        print(f"{name}: {rate_text(figures[name])} docked")
+    return figures
 
 
 def _station(ax, cal) -> None:
@@ -271,7 +320,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/seed003"))
     parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v1"])
-    parser.add_argument("--seed", type=int, default=100_000)
+    parser.add_argument("--difficulty", choices=DIFFICULTIES, default="paper")
+    parser.add_argument("--first-seed", "--seed", dest="seed", type=int, default=100_000,
+                        help="episodes use seeds N, N+1, ... (default %(default)s)")
     parser.add_argument("--hold", type=float, default=40.0,
                         help="station-keeping seconds for the steady-state estimate")
     parser.add_argument("--directions", type=float, nargs="+", default=list(DIRECTIONS))
@@ -279,16 +330,23 @@ def main() -> None:
                         help="seeds per direction in Scenario 2 (seed, seed + 1, ...)")
     parser.add_argument("--skip-scenario1", action="store_true")
     parser.add_argument("--no-image", action="store_true", help="skip the image-mode agents")
+    parser.add_argument("--json", metavar="PATH", help="write the figures here")
     args = parser.parse_args()
     if args.hold <= 5.0 or not math.isfinite(args.hold):
         parser.error("--hold must be longer than 5 s")
     if args.episodes < 1:
         parser.error("--episodes must be at least 1")
     args.out.mkdir(parents=True, exist_ok=True)
+    figures: dict = {"env": args.env, "difficulty": args.difficulty, "first_seed": args.seed,
+                     "episodes_per_direction": args.episodes, "directions": args.directions}
     if not args.skip_scenario1:
-        scenario1(args, args.out)
-    scenario2(args, args.out)
+        figures["scenario1"] = scenario1(args, args.out)
+    figures["scenario2"] = scenario2(args, args.out)
     print(f"\nplots in {args.out}/")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(figures, f, indent=1)
+        print(f"figures written to {args.json}")
 
 
 if __name__ == "__main__":

@@ -77,7 +77,7 @@ DEFAULT_PIXEL_NOISE_STD = 1.0
 #: 30 s episode then averages 0.17 m, near the 0.2 m amplitude the paper's
 #: sine has on every cycle (§3.1, Figs. 9/14c). Calibrated so that ``ckf-pd`` and
 #: ``ltat-ckf-pd`` keep seed 000's capture (Fig. 15c, about 28 mm, success
-#: >= 90 %) in ``sea_state="calm"``; figures in ``docs/physics.md``.
+#: >= 90 %) in ``sea_state="calm"``; figures in ``docs/difficulty.md``.
 PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
 #: ``difficulty="hard"``: a steeper, shorter sea, JONSWAP Hs = 0.4 m, Tp = 7 s
 #: (still code 2; Tp the agents' prior swell period), whose heave is less
@@ -85,7 +85,7 @@ PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
 #: largest corner error the shipped LTAT corner extractor made on 1,251
 #: fully visible views, ``docs/reproductions.md``, taken as the noise std).
 #: Calibrated so that ``ckf-pd`` succeeds in at most 80 % of episodes while
-#: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/physics.md``).
+#: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/difficulty.md``).
 HARD_SEA = SeaSpectrum(hs=0.4, tp=7.0)
 HARD_PIXEL_NOISE_STD = 3.0
 
@@ -428,7 +428,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m, Tp 7 s) and
     ``pixel_noise_std=3.0`` px, where ``ckf-pd`` succeeds in at most 80 % of
     episodes and the privileged ``ckf-pd-state`` in at least 90 %
-    (``docs/physics.md``, "Difficulty levels: LARS"). ``sea_state`` stays
+    (``docs/difficulty.md``). ``sea_state`` stays
     separate (the paper's interference off/on) at every level.
 
     **Version history.** v0: initial release. Rendering (dynamics,

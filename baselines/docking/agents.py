@@ -116,3 +116,75 @@ register_agent(AgentSpec(
     name="ofnmpc-mhe", factory=_mhe_agent, obs_mode="features", env_ids=DOCKING_ENV_IDS,
     description="offset-free NMPC + MHE on the light pixels (seed 003)",
 ))
+
+
+class StateOFNMPCAgent:
+    """Privileged reference: the offset-free NMPC fed the true state (``obs_mode="state"``).
+
+    The observer of :class:`OFNMPCAgent` is replaced by the state observation
+    (position, yaw from its cosine and sine, body velocities u, v, w, r) and a
+    disturbance observer on that exact state: each step, the nominal model
+    predicts the velocities from the last state, input and disturbance, and
+    the disturbance moves by ``gain`` times the force that would explain the
+    miss (``M (nu - nu_predicted) / dt``, the innovation of seed 003's
+    augmented model with a perfect measurement). It reads neither ``info``
+    nor the current in the observation: what the offset-free NMPC does
+    without the vision and observer error, for the ``hard`` headroom check.
+
+    Args:
+        env: an unwrapped docking env in ``state`` mode (its ``calibration`` is read).
+        config: NMPC tuning.
+        gain: share of the velocity miss taken into the disturbance per step, (0, 1].
+    """
+
+    def __init__(self, env, config: OFNMPCConfig | None = None, gain: float = 0.3):
+        if getattr(env, "obs_mode", "state") != "state":
+            raise ValueError("ofnmpc-state acts on the state observation")
+        if not 0.0 < gain <= 1.0:
+            raise ValueError(f"gain must lie in (0, 1], got {gain}")
+        cal = env.calibration
+        self.model = cal.nominal_model
+        self.controller = OffsetFreeNMPC(cal, config)
+        self.gain = gain
+        self._dt = cal.control_period
+        self._inertia = np.asarray(self.model.inertia_diag, dtype=float)
+        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        del seed  # deterministic
+        self.controller.reset()
+        self._tau = np.zeros(4)
+        self._last = None
+        self.disturbance = np.zeros(4)
+
+    @staticmethod
+    def state(observation) -> np.ndarray:
+        """``(x, y, z, psi, u, v, w, r)`` of the state observation."""
+        o = np.asarray(observation, dtype=float)
+        return np.array([o[0], o[1], o[2], np.arctan2(o[6], o[5]), o[7], o[8], o[9], o[12]])
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        del info  # ground truth is not for agents
+        x = self.state(observation)
+        if self._last is not None:
+            predicted = self.model.step(self._last, self._tau, self._dt, self.disturbance)
+            miss = self._inertia * (x[4:] - predicted[4:]) / self._dt
+            self.disturbance = self.disturbance + self.gain * miss
+        self._last = x
+        self._tau = self.controller.solve(x, self.disturbance).tau
+        return (self._tau / self._limits).astype(np.float32)
+
+    def stats(self) -> dict:
+        """NMPC solver failures and solves, and the last disturbance estimate (N, N, N, N m)."""
+        out = {"solver_failures": self.controller.failures, "solves": self.controller.solves}
+        for axis, value in zip("XYZN", self.disturbance, strict=True):
+            out[f"disturbance_{axis}"] = float(value)
+        return out
+
+
+register_agent(AgentSpec(
+    name="ofnmpc-state", factory=StateOFNMPCAgent, obs_mode="state", env_ids=DOCKING_ENV_IDS,
+    description="privileged reference: offset-free NMPC on the true state (no vision, no "
+                "observer)",
+))

@@ -22,7 +22,7 @@ calibration, never ``info``.
 ``ckf-pd-state`` (:class:`TrueStateCKFPDAgent`) is its privileged reference:
 the same strategy, trajectory and control fed the true AUV state of the
 ``state`` observation, the bar the ``difficulty`` levels are calibrated
-against (``docs/physics.md``, "Difficulty levels: LARS").
+against (``docs/difficulty.md``).
 """
 
 from __future__ import annotations
