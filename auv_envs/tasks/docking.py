@@ -193,7 +193,7 @@ class DockingDisturbances:
 #:   Slotine 1990; our choice of value for a small electric thruster).
 PAPER_DISTURBANCES = DockingDisturbances(
     current=GaussMarkovCurrent(speed_std=0.1, direction_std_deg=30.0, time_constant=30.0,
-                               max_speed=0.3),
+                               max_speed=SCENARIO_CURRENT_SPEED),
     plant=PlantPerturbation(mass=0.1, damping=0.3, net_buoyancy=5.0),
     thruster_time_constant=0.5,
 )
