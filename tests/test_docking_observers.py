@@ -179,3 +179,23 @@ def test_malformed_features_are_rejected(calibration):
     estimate = ekf.step({**obs, "pixels": broken}, np.zeros(4))
     assert np.isfinite(estimate.state).all()
     np.testing.assert_allclose(estimate.state[:4], x[:4], atol=1e-4)
+
+
+def test_a_pose_fit_running_off_along_the_bearing_is_skipped():
+    """Two lights 16 px apart with centroid noise (``hard`` water, seed 620001, step 13):
+    least squares ran the range off to 2e8 m, which then hung the NMPC's solver. The
+    fit must put the lights in front of the camera within MAX_LIGHT_RANGE, or the
+    observer waits; the next frame with a clean view initialises it."""
+    env = make_env(DOCKING_IDS[0], "features")
+    ekf = DockingEKF(env.unwrapped.calibration)
+    env.close()
+    pixels = np.zeros((6, 2), dtype=np.float32)
+    pixels[4], pixels[5] = (460.2124, 273.4857), (451.6647, 287.0197)
+    frame = {"pixels": pixels, "visible": np.array([0, 0, 0, 0, 1, 1], dtype=np.int8),
+             "velocity": np.array([0.2127, -0.0081, 0.0457, 0.0221], dtype=np.float32),
+             "attitude": np.array([0.00077, 0.00557, 0.24309], dtype=np.float32)}
+    assert ekf.step(frame, np.zeros(4)) is None
+    assert not ekf.initialised
+    x = np.array([-10.0, 0.5, 0.2, 0.24, 0.2, 0.0, 0.0, 0.0])
+    estimate = ekf.step(_features(ekf.visual, x, np.ones(6, dtype=bool)), np.zeros(4))
+    np.testing.assert_allclose(estimate.state[:4], x[:4], atol=1e-3)

@@ -226,3 +226,19 @@ def test_default_controller_is_compiled_where_a_compiler_exists(controller):
     assert controller.config.compile
     assert controller.compiled == (shutil.which("cc") is not None
                                    or shutil.which("gcc") is not None)
+
+
+def test_an_estimate_beyond_max_distance_takes_the_fallback_without_solving(calibration):
+    """FATROP does not return on a position near 1e8 m (a diverged pose fit once sent
+    one): such an estimate is a counted failure that applies the stored plan."""
+    ctrl = OffsetFreeNMPC(calibration, OFNMPCConfig(max_distance=100.0))
+    x = np.array([-6.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert ctrl.solve(x, np.zeros(4)).success
+    plan = ctrl._inputs(ctrl._solution).copy()
+    far = x.copy()
+    far[:3] = (-2.4e8, -3.0e6, 1.8e7)
+    result = ctrl.solve(far, np.zeros(4))
+    assert result.fallback and not result.success and result.iterations == -1
+    assert "max_distance" in result.status and ctrl.failures == 1
+    period, interval = calibration.control_period, ctrl.config.shooting_interval
+    np.testing.assert_allclose(result.tau, plan[int(period / interval + 1e-9)])

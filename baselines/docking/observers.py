@@ -254,17 +254,27 @@ class Estimate:
     disturbance: np.ndarray
 
 
-def initial_state(model: VisualObservationModel, meas: Measurement, noise: ObserverNoise):
+#: Farthest camera-to-lights range (m) an initial pose fit may claim. At 30 m the
+#: six-light ring (radius 0.45 m) still spans about 17 px at f = 579 px, so a real
+#: sighting is nearer; a fit beyond it is the range running off along the bearing.
+MAX_LIGHT_RANGE = 30.0
+
+
+def initial_state(model: VisualObservationModel, meas: Measurement, noise: ObserverNoise,
+                  max_range: float = MAX_LIGHT_RANGE):
     """Least-squares pose from the first measurement (seed 003 eq. 33 inverted).
 
     Solves for ``(x, y, z, psi)`` with the visual model and the INS heading
     (``scipy.optimize.least_squares``, Jacobian from CasADi), velocities from
     the DVL. Starts from a few ranges along the bearing of the lights' mean
-    pixel and keeps the best fit.
+    pixel and keeps the best fit that puts the lights' centre in front of
+    the camera within ``max_range``. Two close lights far away can pull the
+    range off along the bearing (a fit at 10^8 m once made the NMPC hang);
+    such a frame is skipped and the observer waits for the next.
 
     Returns:
         ``(state (8,), covariance (8, 8))`` or ``None`` with fewer than two
-        visible lights (the pose is not determined).
+        visible lights or no plausible fit (the pose is not determined).
     """
     if meas.n_visible < 2:
         return None
@@ -299,8 +309,14 @@ def initial_state(model: VisualObservationModel, meas: Measurement, noise: Obser
         cam = centre - rng * ray
         guess = np.concatenate([cam - rot @ model.camera_position, [yaw]])
         fit = least_squares(residual, guess, jac=jacobian, method="lm")
-        if best is None or fit.cost < best.cost:
+        fit_rot = rotation_from_euler(meas.attitude[0], meas.attitude[1], fit.x[3])
+        to_lights = centre - (fit.x[:3] + fit_rot @ model.camera_position)
+        ahead = float(to_lights @ (fit_rot @ model.camera_rotation[:, 2]))
+        plausible = 0.0 < ahead and np.linalg.norm(to_lights) <= max_range
+        if plausible and (best is None or fit.cost < best.cost):
             best = fit
+    if best is None:
+        return None
     # Gauss-Newton covariance of the pose fit; velocities from the DVL noise.
     jac = jacobian(best.x)
     pose_cov = np.linalg.pinv(jac.T @ jac) * max(1.0, 2.0 * best.cost / max(1, len(std) - 4))

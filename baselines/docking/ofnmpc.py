@@ -107,6 +107,9 @@ class OFNMPCConfig:
             fast per step and the same iterates. Without a compiler it warns and
             evaluates in CasADi's virtual machine (``False``: always do that).
         compile_flags: compiler optimisation flags.
+        max_distance: an estimate farther than this from the station (m) is not
+            sent to the solver (FATROP does not return on positions near 10^8 m);
+            the step counts as a failed solve and takes the fallback.
     """
 
     horizon: int = 20
@@ -126,6 +129,7 @@ class OFNMPCConfig:
     mu_init: float = 1e-3
     compile: bool = True
     compile_flags: tuple[str, ...] = ("-O1",)
+    max_distance: float = 1000.0
 
     def __post_init__(self):
         if self.horizon < 1 or self.shooting_interval <= 0:
@@ -392,6 +396,8 @@ class OffsetFreeNMPC:
             raise ValueError(f"OFNMPC needs a state ({N_STATE},) and a disturbance ({N_INPUT},)")
         if not (np.isfinite(state).all() and np.isfinite(disturbance).all()):
             raise ValueError("OFNMPC got a non-finite state or disturbance estimate")
+        if np.linalg.norm(state[:3]) > self.config.max_distance:
+            return self._failed(0.0, -1, "estimate beyond max_distance")
         guess = self._warm_start(state)
         p = np.concatenate([state, disturbance, self.reference])
         args = dict(x0=guess, p=p, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg)
@@ -402,26 +408,29 @@ class OffsetFreeNMPC:
         sol = self._solver(**args)
         elapsed = time.perf_counter() - start
         stats = self._solver.stats()
-        success = bool(stats["success"])
+        iterations, status = int(stats.get("iter_count", -1)), str(stats["return_status"])
+        if not stats["success"]:
+            return self._failed(elapsed, iterations, status)
         self.solves += 1
         self.solve_times.append(elapsed)
-        if success:
-            self._solution = np.asarray(sol["x"]).ravel()
-            self._lam = (np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel())
-            self._age = 0.0
-            tau = self._inputs(self._solution)[0]
-        else:
-            self.failures += 1
-            tau = self._fallback()
+        self._solution = np.asarray(sol["x"]).ravel()
+        self._lam = (np.asarray(sol["lam_x"]).ravel(), np.asarray(sol["lam_g"]).ravel())
+        self._age = self.calibration.control_period
+        tau = self._inputs(self._solution)[0]
+        return NMPCResult(tau=np.clip(tau, -self.limits, self.limits), success=True,
+                          fallback=False, solve_time=elapsed, iterations=iterations,
+                          status=status)
+
+    def _failed(self, elapsed: float, iterations: int, status: str) -> NMPCResult:
+        """A step without a solution: count it and apply the stored plan's next input."""
+        self.solves += 1
+        self.solve_times.append(elapsed)
+        self.failures += 1
+        tau = self._fallback()
         self._age += self.calibration.control_period
-        return NMPCResult(
-            tau=np.clip(tau, -self.limits, self.limits),
-            success=success,
-            fallback=not success,
-            solve_time=elapsed,
-            iterations=int(stats.get("iter_count", -1)),
-            status=str(stats["return_status"]),
-        )
+        return NMPCResult(tau=np.clip(tau, -self.limits, self.limits), success=False,
+                          fallback=True, solve_time=elapsed, iterations=iterations,
+                          status=status)
 
     def _stages(self, solution: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(chi (N + 1, nx), v (N, nu))`` of a decision vector."""
