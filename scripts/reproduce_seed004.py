@@ -77,7 +77,7 @@ def static_errors(acoustic: AcousticConfig, seeds: range,
                 source = info["detection_origin"] == 0
                 for m, solver in solvers.items():
                     fix = solver.solve(obs["tdoa"], obs["azimuth"], obs["elevation"],
-                                       obs["mask"])
+                                       obs["mask"], nodes=obs.get("node_mask"))
                     use = source & fix.valid
                     errors[m].extend(np.linalg.norm(fix.position[use] - info["true_position"],
                                                     axis=-1))

@@ -94,6 +94,26 @@ its fields):
   Gauss-Markov process with time constant ``fading_time`` (s): a faded band
   misses and gets noisier while the others do not, which is what fusing the
   bands averages out.
+* **Node dropouts** (off unless ``node_dropout_rate`` > 0): a node can stop
+  delivering data for a while (its cable or telemetry link drops out, its
+  receiver saturates or resets). Each node is a two-state Markov chain, the
+  Gilbert-Elliott channel (Gilbert, Bell Syst. Tech. J. 39(5), 1960; Elliott,
+  Bell Syst. Tech. J. 42(5), 1963), in continuous time: a working node drops
+  out at ``node_dropout_rate`` per second and an outage ends at rate
+  ``1 / node_dropout_duration``, so outages last ``node_dropout_duration``
+  seconds on average and a node is out ``rate duration / (1 + rate
+  duration)`` of the time. The chain is sampled exactly at the sample
+  period (:meth:`HydrophoneArray.draw_node_states`), nodes independently,
+  starting from its stationary distribution. While a node is out it measures
+  nothing: its azimuths and elevations and every TDOA that involves it are
+  missing, in every band and detection, false alarms included; the TDOAs are
+  referenced to node 1, so while node 1 is out there is no TDOA at all and
+  only the working nodes' angles remain. Missing entries are zero, like the
+  padding, and only the node states say which they are (the environment
+  reports them as ``node_mask``). The array's detection probability is then
+  that of the working nodes (their mean SNR); with no node working there is
+  no detection. The rates are our choice: no source reports outage
+  statistics of a tank array.
 * **Clock offsets**: each node's clock is offset from node 1's by a constant
   per episode (``clock_offset_std``, node 1 is the reference), biasing every
   TDOA of that node.
@@ -179,6 +199,9 @@ class AcousticConfig:
     ``flow_noise_level`` (dB re 1 uPa^2/Hz at 1 m/s and 1 kHz) switches the
     current generators' flow noise on; None (the default) leaves it out, and
     ``SEED004_FLOW_NOISE_LEVEL`` is the level seed 004's reproduction uses.
+    ``node_dropout_rate`` (1/s, a working node's rate of dropping out; 0, the
+    default, switches dropouts off) and ``node_dropout_duration`` (s, the mean
+    outage) set the nodes' Gilbert-Elliott outages (module docstring).
     """
 
     sound_speed: float = 1500.0
@@ -200,6 +223,8 @@ class AcousticConfig:
     fluctuation_time: float = 2.0
     fading_std: float = 0.0
     fading_time: float = 0.5
+    node_dropout_rate: float = 0.0
+    node_dropout_duration: float = 5.0
     snr50: float = 10.0
     snr_slope: float = 2.0
     clutter_rate: float = 1.0
@@ -210,14 +235,16 @@ class AcousticConfig:
 
     def __post_init__(self):
         positive = ("sound_speed", "sample_rate", "bandwidth", "aperture", "snr_slope",
-                    "fluctuation_length", "fluctuation_time", "fading_time")
+                    "fluctuation_length", "fluctuation_time", "fading_time",
+                    "node_dropout_duration")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"AcousticConfig.{name} must be positive, got {value}")
         non_negative = ("surface_loss", "bottom_loss", "timing_floor", "angle_floor",
                         "noise_scale", "clock_offset_std", "clutter_rate",
-                        "sound_speed_error_std", "fluctuation_intensity", "fading_std")
+                        "sound_speed_error_std", "fluctuation_intensity", "fading_std",
+                        "node_dropout_rate")
         for name in non_negative:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
@@ -237,11 +264,12 @@ class AcousticConfig:
         return len(self.band_centres)
 
     def noise_free(self) -> AcousticConfig:
-        """The same geometry with no noise, clock offsets, misses or clutter (ghosts stay)."""
+        """The same geometry with no noise, clock offsets, misses, dropouts or clutter
+        (ghosts stay)."""
         return dataclasses.replace(self, noise_scale=0.0, clock_offset_std=0.0,
                                    clutter_rate=0.0, ideal_detection=True,
                                    sound_speed_error_std=0.0, fluctuation_intensity=0.0,
-                                   fading_std=0.0)
+                                   fading_std=0.0, node_dropout_rate=0.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -275,6 +303,26 @@ def unit_gauss_markov(rng: np.random.Generator, count: int, shape: tuple[int, ..
     out[0] = state
     for j in range(1, count):
         state = a * state + innovation * shocks[j]
+        out[j] = state
+    return out
+
+
+def two_state_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...],
+                     p_fail: float, p_repair: float,
+                     previous: np.ndarray | None = None) -> np.ndarray:
+    """``count`` steps (count, *shape) of independent two-state Markov chains, True in the
+    good state: per step a good chain turns bad with probability ``p_fail`` and a bad one
+    good with ``p_repair``. Continues ``previous`` (None: the first step drawn from the
+    stationary distribution, bad with probability ``p_fail / (p_fail + p_repair)``)."""
+    u = rng.random((count, *shape))
+    out = np.empty(u.shape, dtype=bool)
+    if previous is None:
+        state = u[0] >= p_fail / (p_fail + p_repair)
+    else:
+        state = np.where(previous, u[0] >= p_fail, u[0] < p_repair)
+    out[0] = state
+    for j in range(1, count):
+        state = np.where(state, u[j] >= p_fail, u[j] < p_repair)
         out[j] = state
     return out
 
@@ -402,12 +450,25 @@ class HydrophoneArray:
         azimuth = theta / np.maximum(np.sin(elevation), 0.05)
         return timing, azimuth, theta
 
-    def detection_probability(self, snr_db: np.ndarray) -> np.ndarray:
-        """Per band and path: logistic in the array SNR (mean over nodes, dB)."""
-        if self.config.ideal_detection:
-            return np.ones(snr_db.shape[:-1])
-        array_snr = snr_db.mean(axis=-1)
-        return 1.0 / (1.0 + np.exp(-(array_snr - self.config.snr50) / self.config.snr_slope))
+    def detection_probability(self, snr_db: np.ndarray,
+                              working: np.ndarray | None = None) -> np.ndarray:
+        """Per band and path: logistic in the array SNR (mean over nodes, dB).
+
+        ``working`` (bool, broadcast against ``snr_db``'s (..., N)) restricts the mean to
+        the working nodes (node dropouts); with none working the probability is 0.
+        """
+        c = self.config
+        if working is None:
+            if c.ideal_detection:
+                return np.ones(snr_db.shape[:-1])
+            array_snr = snr_db.mean(axis=-1)
+            return 1.0 / (1.0 + np.exp(-(array_snr - c.snr50) / c.snr_slope))
+        count = np.sum(np.broadcast_to(working, snr_db.shape), axis=-1)
+        if c.ideal_detection:
+            return (count > 0).astype(np.float64)
+        array_snr = np.sum(np.where(working, snr_db, 0.0), axis=-1) / np.maximum(count, 1)
+        pd = 1.0 / (1.0 + np.exp(-(array_snr - c.snr50) / c.snr_slope))
+        return np.where(count > 0, pd, 0.0)
 
     def model(self, position, current_speed: float = 0.0) -> dict[str, np.ndarray]:
         """The documented noise model at a source position, per band (for users and tests).
@@ -553,6 +614,27 @@ class HydrophoneArray:
         return c.fading_std * unit_gauss_markov(
             rng, count, (c.n_bands, self.n_nodes), 1.0 / (c.sample_rate * c.fading_time), unit)
 
+    def draw_node_states(self, rng: np.random.Generator, count: int,
+                         previous: np.ndarray | None = None) -> np.ndarray | None:
+        """``count`` periods of which nodes work (count, N) bool, continuing ``previous``
+        (N,) (None: drawn from the stationary distribution). No draw when dropouts are off
+        (returns None).
+
+        The continuous-time chain of the module docstring, with ``lambda`` =
+        ``node_dropout_rate`` and ``mu = 1 / node_dropout_duration``, sampled exactly at
+        ``dt = 1 / fs``: its transition matrix ``exp(Q dt)`` takes a working node out with
+        probability ``pi_out (1 - exp(-(lambda + mu) dt))`` and an out node back with
+        ``(1 - pi_out) (1 - exp(-(lambda + mu) dt))``, ``pi_out = lambda / (lambda + mu)``.
+        """
+        c = self.config
+        if c.node_dropout_rate == 0.0:
+            return None
+        total = c.node_dropout_rate + 1.0 / c.node_dropout_duration
+        moves = -math.expm1(-total / c.sample_rate)
+        out = c.node_dropout_rate / total
+        return two_state_markov(rng, count, (self.n_nodes,), out * moves, (1.0 - out) * moves,
+                                previous)
+
     def wander_std(self, ranges: np.ndarray) -> np.ndarray:
         """Travel-time wander's standard deviation, s, over ranges (m): mu sqrt(L_p R) / c."""
         c = self.config
@@ -570,7 +652,8 @@ class HydrophoneArray:
     def measure(self, rng: np.random.Generator, positions, clock_offsets,
                 current_speed=None, sound_speed: float | None = None,
                 wander: np.ndarray | None = None,
-                fading: np.ndarray | None = None) -> Measurements:
+                fading: np.ndarray | None = None,
+                working: np.ndarray | None = None) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
@@ -591,6 +674,10 @@ class HydrophoneArray:
             by :meth:`wander_std` at each node's direct range; None: no wander.
           fading: (B, Q, N) fades in dB added to every path's SNR (:meth:`draw_fading`);
             None: no fading.
+          working: (B, N) bool, which nodes work in each period (:meth:`draw_node_states`);
+            an out node's angles and every TDOA involving it (all TDOAs while node 1 is
+            out) are zero in every detection, and the detection probability is the working
+            nodes'. None: every node works.
 
         Returns:
           :class:`Measurements` with arrays (B, Q, K, ...). The number of
@@ -622,7 +709,13 @@ class HydrophoneArray:
         if fading is not None:
             snr = snr + np.asarray(fading)[:, :, None, :]
         timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
-        pd = self.detection_probability(snr)  # (B, Q, P)
+        if working is not None:
+            working = np.atleast_2d(np.asarray(working, dtype=bool))
+            if working.shape != (b, n):
+                raise ValueError(f"working must be ({b}, {n}) node states, got {working.shape}")
+            pd = self.detection_probability(snr, working[:, None, None])  # (B, Q, P)
+        else:
+            pd = self.detection_probability(snr)  # (B, Q, P)
 
         noise = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
         speed = self.config.sound_speed if sound_speed is None else float(sound_speed)
@@ -649,11 +742,16 @@ class HydrophoneArray:
         clutter[slots] = rng.random((int(slots.sum()), 3 * n - 1)) * self._clutter_scale + \
             self._clutter_shift
         valid = np.concatenate([detected, slots], axis=-1)
+        if working is not None:  # no node working: no false alarm either
+            valid &= working.any(axis=-1)[:, None, None]
         keys = np.where(valid, rng.random(valid.shape), 2.0)
         order = np.argsort(keys, axis=-1, kind="stable")[..., :k]
         mask = np.take_along_axis(valid, order, axis=-1)
         picked = np.take_along_axis(candidates, order[..., None], axis=-2)
         picked *= mask[..., None]
+        if working is not None:  # an out node measures nothing; without node 1, no TDOA
+            columns = np.concatenate([working[:, 1:] & working[:, :1], working, working], -1)
+            picked *= columns[:, None, None, :]
         result = Measurements(
             tdoa=picked[..., : n - 1],
             azimuth=picked[..., n - 1 : 2 * n - 1],

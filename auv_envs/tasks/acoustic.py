@@ -114,8 +114,10 @@ PAPER_ACOUSTICS = AcousticConfig(
 #: The ``hard`` level: beyond seed 004's tank. A quieter source (105 dB) so that the far
 #: nodes and the high bands fade, twice the microstructure (7e-4), a temperature known to
 #: 1 degC (3 m/s), band fading of the saturated (Rayleigh) regime (5.6 dB rms, Flatte et al.
-#: 1979), boundaries that reflect more (surface 2 dB, bottom 6 dB loss: stronger ghosts) and
-#: three false alarms per band and period.
+#: 1979), boundaries that reflect more (surface 2 dB, bottom 6 dB loss: stronger ghosts),
+#: three false alarms per band and period, and node dropouts (Gilbert-Elliott outages, our
+#: choice: each node drops out once a minute on average, ``node_dropout_rate`` 1/60 per s,
+#: for 5 s on average, so it is out 7.7 % of the time and all eight work 53 % of it).
 HARD_ACOUSTICS = dataclasses.replace(
     PAPER_ACOUSTICS,
     source_level=105.0,
@@ -125,6 +127,8 @@ HARD_ACOUSTICS = dataclasses.replace(
     surface_loss=2.0,
     bottom_loss=6.0,
     clutter_rate=3.0,
+    node_dropout_rate=1.0 / 60.0,
+    node_dropout_duration=5.0,
 )
 
 
@@ -184,6 +188,7 @@ class _Episode:
     history: np.ndarray | None = None  # (<= HISTORY, 3) source positions before the block
     wander: np.ndarray | None = None  # (N,) the nodes' unit travel-time wander, last period
     fading: np.ndarray | None = None  # (Q, N) the bands' fades at the last period, dB
+    nodes: np.ndarray | None = None  # (B, N) which nodes work, per period of the block
     block_start: int = 0
     positions: np.ndarray | None = None  # (B, 3) of the current block
     velocities: np.ndarray | None = None
@@ -343,7 +348,12 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
       (Q, K, 8) rad in [-pi, pi], ``elevation`` (Q, K, 8) rad in [0, pi] (seed
       004's angle from the upward vertical), ``mask`` ``MultiBinary((Q, K))``
       (1 where a detection is real; padded entries are zero). The order within
-      a band is random: which detection is the source is not observable.
+      a band is random: which detection is the source is not observable. With
+      node dropouts (``AcousticConfig.node_dropout_rate`` > 0, the ``hard``
+      level) also ``node_mask`` ``MultiBinary((8,))``, 1 where a node works:
+      an out node's azimuth and elevation columns, and the TDOA columns of the
+      pairs it belongs to (all of them while node 1 is out), are zero in every
+      detection and measure nothing.
 
     **Rewards.** One term, ``estimate`` = ``-min(e, error_clip) / error_clip``
     with ``e`` the Euclidean estimation error (m); in [-1, 0].
@@ -368,7 +378,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     only: ``true_position``, ``true_velocity``, ``current``,
     ``detection_origin`` (Q, K; codes ``ORIGIN_*`` of
     :mod:`auv_envs.core.acoustics`: -1 padding, 0 source, 1 surface ghost,
-    2 bottom ghost, 3 false alarm), ``time``. At episode end also
+    2 bottom ghost, 3 false alarm), ``time``; with node dropouts also
+    ``nodes_working`` (how many nodes work this period). At episode end also
     ``episode_metrics``: RMSE, maximum error, TFC, TCFE and mean OSPA of the
     estimates (:mod:`auv_envs.metrics`), ``error_bias`` (the norm of the mean
     error vector, the systematic part of the RMSE) and ``success``. ``tcfe`` is
@@ -426,7 +437,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     Opt-in addition: ``difficulty`` (default ``"easy"``, the release bit for
     bit) and the physics its levels use (``AcousticConfig``'s propagation
     delay, sound-speed error, travel-time wander and band fading, all off by
-    default); ``rmse_bound()``.
+    default); ``rmse_bound()``. Opt-in addition: node dropouts
+    (``AcousticConfig.node_dropout_rate``, off by default; on at ``hard``), with the
+    ``node_mask`` observation entry and ``info["nodes_working"]`` only when on.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
@@ -535,14 +548,15 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             return spaces.Box(-np.inf, np.inf, shape=(9,), dtype=np.float32)
         q, k, n = array.config.n_bands, array.config.max_detections, array.n_nodes
         bound = np.broadcast_to(array.max_tdoa * 1.1 + 0.01, (q, k, n - 1))
-        return spaces.Dict(
-            {
-                "tdoa": spaces.Box(-bound, bound, dtype=np.float64),
-                "azimuth": spaces.Box(-np.pi, np.pi, shape=(q, k, n), dtype=np.float64),
-                "elevation": spaces.Box(0.0, np.pi, shape=(q, k, n), dtype=np.float64),
-                "mask": spaces.MultiBinary((q, k)),
-            }
-        )
+        entries = {
+            "tdoa": spaces.Box(-bound, bound, dtype=np.float64),
+            "azimuth": spaces.Box(-np.pi, np.pi, shape=(q, k, n), dtype=np.float64),
+            "elevation": spaces.Box(0.0, np.pi, shape=(q, k, n), dtype=np.float64),
+            "mask": spaces.MultiBinary((q, k)),
+        }
+        if array.config.node_dropout_rate > 0:
+            entries["node_mask"] = spaces.MultiBinary(n)
+        return spaces.Dict(entries)
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -635,6 +649,11 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         m = ep.measurements
         mask = m.mask[j].ravel()
         n = self.calibration.array.n_nodes
+        azimuth = m.azimuth[j].reshape(-1, n)[mask]
+        elevation = m.elevation[j].reshape(-1, n)[mask]
+        if ep.nodes is not None:  # an out node draws no ray (its zeros are no measurement)
+            azimuth[:, ~ep.nodes[j]] = np.nan
+            elevation[:, ~ep.nodes[j]] = np.nan
         estimate, error, rmse = None, float("nan"), float("nan")
         if k:
             estimate = ep.estimates[k - 1]
@@ -646,8 +665,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             trail=trail,
             estimate=estimate,
             estimate_trail=ep.estimates[max(0, k - closeup_steps) : k],
-            azimuth=m.azimuth[j].reshape(-1, n)[mask],
-            elevation=m.elevation[j].reshape(-1, n)[mask],
+            azimuth=azimuth,
+            elevation=elevation,
             origin=m.origin[j].ravel()[mask],
             error=error,
             rmse=rmse,
@@ -692,13 +711,16 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         fading = array.draw_fading(self.np_random, count, ep.fading)
         if fading is not None:
             ep.fading = fading[-1]
+        nodes = array.draw_node_states(self.np_random, count,
+                                       None if ep.nodes is None else ep.nodes[-1])
+        ep.nodes = nodes
         ep.block_start = start
         ep.positions = positions
         ep.velocities = velocities
         ep.measurements = array.measure(
             self.np_random, heard, ep.clock_offsets,
             np.linalg.norm(ep.current[start:start + count], axis=1), ep.sound_speed, wander,
-            fading,
+            fading, nodes,
         )
 
     def _observation(self, k: int):
@@ -709,18 +731,21 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
                 np.float32
             )
         m = ep.measurements
-        return {
+        obs = {
             "tdoa": m.tdoa[j].copy(),
             "azimuth": m.azimuth[j].copy(),
             "elevation": m.elevation[j].copy(),
             "mask": m.mask[j].astype(np.int8),
         }
+        if ep.nodes is not None:
+            obs["node_mask"] = ep.nodes[j].astype(np.int8)
+        return obs
 
     def _info(self, k: int, error: float, reward: float) -> dict:
         ep = self._episode
         j = k - ep.block_start
         rmse = math.sqrt(ep.squared_error_sum / k) if k else float("nan")
-        return {
+        info = {
             "estimate_error": error,
             "running_rmse": rmse,
             "tracked": error <= self._track_gate,
@@ -732,6 +757,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             "detection_origin": ep.measurements.origin[j].copy(),
             "time": k * self._dt,
         }
+        if ep.nodes is not None:
+            info["nodes_working"] = int(np.count_nonzero(ep.nodes[j]))
+        return info
 
     def rmse_bound(self) -> float:
         """The Cramer-Rao bound (m) on the RMSE of a fix of a static point, from this

@@ -23,6 +23,12 @@ bias every fix of an episode alike, so without it the shared bias, not the
 per-band noise that GCI averages out, dominates the error.
 ``clock_calibration=False`` runs the paper's pipeline on the raw TDOAs.
 
+**Node dropouts** (all three agents): when the observation has a
+``node_mask`` (the env's dropout model is on), every fix and the clock
+calibration use only the working nodes' angles and TDOAs
+(``LeastSquaresPositioner.solve(..., nodes=...)``); while node 1, the TDOA
+reference, is out the fixes come from the angles alone.
+
 Agents read only the ``measurements`` observation and the documented
 calibration (never ``info``).
 """
@@ -79,7 +85,9 @@ class _FixSource:
     """Position fixes of one observation, with safe placeholders for invalid ones.
 
     With ``clock_calibration`` the TDOAs are corrected by a
-    :class:`ClockOffsetEstimator` fed with this source's own bands only.
+    :class:`ClockOffsetEstimator` fed with this source's own bands only. Only
+    the nodes the observation's ``node_mask`` marks working (all without one)
+    are used.
     """
 
     def __init__(self, calibration, bands, clock_calibration: bool):
@@ -99,9 +107,11 @@ class _FixSource:
         _check_observation(observation)
         tdoa, azimuth, elevation = (observation[k] for k in ("tdoa", "azimuth", "elevation"))
         clock = None if self.clock is None else self.clock.clock
-        fixes = self.positioner.solve(tdoa, azimuth, elevation, observation["mask"], clock)
+        nodes = observation.get("node_mask")
+        fixes = self.positioner.solve(tdoa, azimuth, elevation, observation["mask"], clock,
+                                      nodes)
         if self.clock is not None:
-            self.clock.update(tdoa, azimuth, elevation, fixes.valid & self._in_bands)
+            self.clock.update(tdoa, azimuth, elevation, fixes.valid & self._in_bands, nodes)
         z = fixes.position[self.bands]
         R = fixes.covariance[self.bands] + self._floor
         valid = fixes.valid[self.bands]

@@ -61,12 +61,22 @@ covariance plus TDOA noise) and gated. ``solve(..., clock=estimator.clock)``
 then subtracts the estimated offsets and weights the TDOA rows with what is
 left of their uncertainty.
 
+**Node dropouts**: while a node is out (the observation's ``node_mask``,
+:mod:`auv_envs.core.acoustics`) its rows carry no measurement. ``solve(...,
+nodes=...)`` gives them zero weight: its azimuth and elevation rows and the
+TDOA row of its pair with node 1 drop out, and all TDOA rows while node 1 is
+out (the fused system then fixes ``p`` from the angles alone, ``D_1`` no
+longer an unknown). The residual degrees of freedom, and with them the gate
+and the model test's threshold, are those of the rows left; a system with
+fewer rows than unknowns gives no valid fix.
+
 Everything is vectorised over arbitrary leading axes (bands x detections).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -154,6 +164,12 @@ def work_area_centre(calibration) -> np.ndarray:
     return 0.5 * (lo + hi)
 
 
+@functools.lru_cache(maxsize=64)
+def _model_test_threshold(level: float, dof: int) -> float:
+    """The model test's threshold on ``chi2 / dof``: the ``level`` quantile of chi2(dof) / dof."""
+    return float(chi2_distribution.ppf(level, dof) / dof)
+
+
 def _solve_normal(A: np.ndarray, b: np.ndarray):
     """Batched normal-equation least squares; returns (x, (A^T A)^{-1}, rss)."""
     At = np.swapaxes(A, -1, -2)
@@ -200,6 +216,7 @@ class LeastSquaresPositioner:
         self.method = method
         self.weighting = weighting
         self.gate = gate
+        self.variance_test = variance_test
         h = np.asarray(calibration.hydrophone_positions, dtype=np.float64)
         self._centre = h.mean(axis=0)
         self._nodes = h - self._centre
@@ -219,10 +236,21 @@ class LeastSquaresPositioner:
         rows = {"fused": 3 * self._n - 1, "tdoa": self._n - 1, "doa": 2 * self._n}[method]
         self.dof = rows - self.n_unknowns
         # The model test's threshold on chi2 / dof (inf: the covariance is never scaled).
-        self.variance_threshold = math.inf
-        if variance_test is not None and weighting == "noise" and self.dof > 0:
-            self.variance_threshold = float(chi2_distribution.ppf(variance_test, self.dof)
-                                            / self.dof)
+        self.variance_threshold = self._variance_threshold(self.dof)
+
+    def _variance_threshold(self, dof: int) -> float:
+        if self.variance_test is None or self.weighting != "noise" or dof <= 0:
+            return math.inf
+        return _model_test_threshold(self.variance_test, dof)
+
+    def _rows_of(self, nodes: np.ndarray) -> tuple[np.ndarray, int]:
+        """Which rows (rows,) the working ``nodes`` (N,) measure, and the unknowns left."""
+        tdoa = nodes[1:] & nodes[0]
+        blocks = {"fused": (tdoa, nodes, nodes), "tdoa": (tdoa,), "doa": (nodes, nodes)}
+        unknowns = self.n_unknowns
+        if self.method == "fused" and not tdoa.any():
+            unknowns = 3  # no TDOA row: D_1 is not in the system
+        return np.concatenate(blocks[self.method]), unknowns
 
     def range_diff_std(self, clock_std) -> np.ndarray:
         """(Q, N-1) std of the measured range differences (m) with clock errors of ``clock_std``.
@@ -267,11 +295,13 @@ class LeastSquaresPositioner:
             parts += [horizontal, ranges]
         return np.concatenate(parts, axis=-1) * row_scale[band]
 
-    def solve(self, tdoa, azimuth, elevation, mask=None, clock=None) -> PositionFixes:
+    def solve(self, tdoa, azimuth, elevation, mask=None, clock=None,
+              nodes=None) -> PositionFixes:
         """Fix every detection of a measurement set.
 
         Only the real detections (``mask``) are solved, in one batch; the
         entries of the others are NaN (position, covariance, chi2) and invalid.
+        The rows of nodes that are out (``nodes``) are left out.
 
         Args:
           tdoa: (Q, K, N-1) s; azimuth, elevation: (Q, K, N) rad. The leading
@@ -282,9 +312,13 @@ class LeastSquaresPositioner:
             from a :class:`ClockOffsetEstimator`: ``offset`` is subtracted from
             every TDOA and ``std`` replaces the calibration's
             ``clock_offset_std`` in the row weights. Default: no correction.
+          nodes: (N,) which nodes work (the observation's ``node_mask``); their
+            measurements are the only ones used (see the module docstring).
+            Default: all.
 
         Returns:
-          :class:`PositionFixes` over the leading axes.
+          :class:`PositionFixes` over the leading axes; ``dof`` is that of the
+          rows used.
         """
         tdoa = np.asarray(tdoa, dtype=np.float64)
         azimuth = np.asarray(azimuth, dtype=np.float64)
@@ -302,6 +336,16 @@ class LeastSquaresPositioner:
         mask = np.ones(lead, bool) if mask is None else np.asarray(mask).astype(bool)
         if mask.shape != lead:
             raise ValueError(f"mask must have shape {lead}, got {mask.shape}")
+        rows, dof, threshold = None, self.dof, self.variance_threshold
+        if nodes is not None:
+            nodes = np.asarray(nodes).astype(bool)
+            if nodes.shape != (self._n,):
+                raise ValueError(f"nodes must have shape ({self._n},), got {nodes.shape}")
+            if not nodes.all():
+                used, unknowns = self._rows_of(nodes)
+                rows = used.astype(np.float64)
+                dof = int(used.sum()) - unknowns
+                threshold = self._variance_threshold(dof)
         sel = np.nonzero(mask)
         tdoa_sel, row_scale = tdoa[sel], self._row_scale
         if clock is not None:
@@ -312,27 +356,30 @@ class LeastSquaresPositioner:
             tdoa_sel = tdoa_sel - offset
             row_scale = self._row_scales(std)
         A, b = self._system(tdoa_sel, azimuth[sel], elevation[sel])
+        if rows is not None:  # an out node's rows weigh nothing
+            A, b = A * rows[:, None], b * rows
         x, inv, rss = _solve_normal(A, b)
         if self.weighting == "noise":
             w = 1.0 / self._row_std(x[:, :3], sel[0], row_scale)  # x centred; sel[0]: band
+            if rows is not None:
+                w = w * rows
             x, inv, rss = _solve_normal(A * w[..., None], b * w)
         position = x[:, :3] + self._centre
-        ok = np.all(np.isfinite(position), axis=-1)
+        ok = np.all(np.isfinite(position), axis=-1) & (dof >= 0)
         ok &= np.all((position >= self._low) & (position <= self._high), axis=-1)
-        if self.gate is not None and self.dof > 0:
-            ok &= rss <= self.gate * self.dof
+        if self.gate is not None and dof > 0:
+            ok &= rss <= self.gate * dof
         covariance = inv[:, :3, :3]
-        if self.variance_threshold < math.inf:
-            factor = rss / self.dof
-            covariance = covariance * np.where(factor > self.variance_threshold, factor,
-                                               1.0)[:, None, None]
+        if threshold < math.inf:
+            factor = rss / dof
+            covariance = covariance * np.where(factor > threshold, factor, 1.0)[:, None, None]
         out_position = np.full(lead + (3,), np.nan)
         out_covariance = np.full(lead + (3, 3), np.nan)
         chi2 = np.full(lead, np.nan)
         valid = np.zeros(lead, bool)
         out_position[sel], out_covariance[sel] = position, covariance
         chi2[sel], valid[sel] = rss, ok
-        return PositionFixes(out_position, out_covariance, chi2, self.dof, valid)
+        return PositionFixes(out_position, out_covariance, chi2, dof, valid)
 
 
 class ClockOffsetEstimator:
@@ -381,9 +428,19 @@ class ClockOffsetEstimator:
         """``(offset, std)`` for :meth:`LeastSquaresPositioner.solve`'s ``clock``."""
         return self.offset, self.std
 
-    def update(self, tdoa, azimuth, elevation, valid) -> None:
-        """Fold in the detections flagged ``valid`` (Q, K) of one measurement set."""
-        fixes = self._doa.solve(tdoa, azimuth, elevation, valid)
+    def update(self, tdoa, azimuth, elevation, valid, nodes=None) -> None:
+        """Fold in the detections flagged ``valid`` (Q, K) of one measurement set.
+
+        ``nodes`` (N,): which nodes work (default all); an out node's offset
+        learns nothing, and no offset does while node 1 is out.
+        """
+        measured = True
+        if nodes is not None:
+            nodes = np.asarray(nodes).astype(bool)
+            measured = nodes[1:] & nodes[0]
+            if not measured.any():
+                return
+        fixes = self._doa.solve(tdoa, azimuth, elevation, valid, nodes=nodes)
         sel = np.nonzero(fixes.valid)
         if not len(sel[0]):
             return
@@ -398,6 +455,7 @@ class ClockOffsetEstimator:
                     + self._tdoa_var[sel[0]])
         innovation = residual - self.offset
         keep = innovation ** 2 <= self.gate ** 2 * (variance + 1.0 / self._precision)
+        keep &= measured
         information = np.where(keep, 1.0 / variance, 0.0)
         precision = self._precision + information.sum(axis=0)
         self.offset = self.offset + np.sum(information * innovation, axis=0) / precision
