@@ -61,14 +61,15 @@ def register_front_end_agent(
     obs_mode: str,
     env_ids: tuple[str, ...],
     description: str,
+    heavy: bool = False,
 ) -> None:
     """Register ``name``: front end ``front_end_factory(env)`` before agent ``inner``.
 
     The inner agent is looked up when the agent is built, so the two may be
-    registered in either order.
+    registered in either order. ``heavy``: as :attr:`AgentSpec.heavy`.
     """
 
     def factory(env: gym.Env) -> FrontEndAgent:
         return FrontEndAgent(front_end_factory(env), agent_spec(inner).factory(env))
 
-    register_agent(AgentSpec(name, factory, obs_mode, env_ids, description))
+    register_agent(AgentSpec(name, factory, obs_mode, env_ids, description, heavy=heavy))

@@ -53,6 +53,10 @@ class AgentSpec:
             ``ppo-docking-features`` for ``ppo-docking-features-s1``): the
             leaderboard pools a group's episodes into one row and lists its
             seeds one by one; default none.
+        heavy: an episode costs about a minute or more on two cores (e.g. a
+            front end on every rendered camera image): the default
+            leaderboard run leaves the agent out and says so
+            (``--all-agents`` or ``--agents`` runs it).
     """
 
     name: str
@@ -63,6 +67,7 @@ class AgentSpec:
     obs_modes: tuple[str, ...] = ()
     env_kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict, hash=False)
     group: str | None = None
+    heavy: bool = False
 
     def __post_init__(self):
         modes = (self.obs_mode, *self.obs_modes)

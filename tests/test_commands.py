@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
+from urllib.parse import quote
 
 import pytest
 
@@ -67,11 +69,12 @@ def test_evaluate_record_video_writes_mp4_and_gif_where_asked(tmp_path):
     out, clips = tmp_path / "out", tmp_path / "clips"
     code = evaluate.main(["--envs", "LARSCapture-v0", "--agents", "ckf-pd", "--seeds",
                           "100001-100002", "--workers", "1", "--no-progress", "--out", str(out),
-                          "--record-video", str(clips), "--video-size", "64x48"])
+                          "--record-video", str(clips), "--video-size", "64x48",
+                          "--difficulty", "easy"])
     assert code == 0
-    stem = "LARSCapture-v0_ckf-pd_features_default_seed100001-episode-0"
+    stem = "LARSCapture-v0_ckf-pd_features_difficulty=easy_seed100001-episode-0"
     assert sorted(p.name for p in clips.iterdir()) == [f"{stem}.gif", f"{stem}.mp4"]
-    assert f'src="../clips/{stem}.mp4"' in (out / "leaderboard.html").read_text()
+    assert f'src="../clips/{quote(stem)}.mp4"' in (out / "leaderboard.html").read_text()
 
 
 def test_plot_seeds_aggregates_runs_with_bootstrap_intervals(tmp_path):
@@ -97,3 +100,30 @@ def test_plot_seeds_aggregates_runs_with_bootstrap_intervals(tmp_path):
     assert out.stat().st_size > 1000 and len((tmp_path / "c.csv").read_text().splitlines()) == 4
     with pytest.raises(SystemExit):
         plot_seeds.main([str(tmp_path), "--out", str(out)])  # no eval_curve.csv
+
+
+def test_default_run_leaves_out_heavy_agents_and_says_so(tmp_path, capsys):
+    """The default run covers paper and hard without the heavy image agents; it names
+    them, and --all-agents (or naming them) brings them back."""
+    from baselines.commands.evaluate import DEFAULT_LEVELS, build_parser, default_agents
+    from baselines.registry import agent_names, agent_spec
+
+    assert DEFAULT_LEVELS == ("paper", "hard")
+    assert build_parser().parse_args([]).difficulty == ["paper", "hard"]
+    heavy_everywhere = sorted(n for n in agent_names() if agent_spec(n).heavy)
+    assert {"ofnmpc-ekf-image", "ofnmpc-mhe-image"} <= set(heavy_everywhere)
+    agents, heavy = default_agents(["auv_envs/DockingStation-v1"])
+    assert heavy == heavy_everywhere and not set(agents) & set(heavy)
+    assert set(agents) | set(heavy) == set(agent_names())
+    assert default_agents(["auv_envs/LARSCapture-v0"])[1] == []
+    import evaluate
+
+    code = evaluate.main(["--envs", "DockingStation-v1", "--seeds", "100000",
+                          "--env-kwargs", "time_limit=0.5", "--difficulty", "easy",
+                          "--workers", "1", "--no-progress", "--no-video",
+                          "--out", str(tmp_path)])
+    assert code == 0
+    assert "left out of this run as heavy (--all-agents adds them): " \
+        + ", ".join(heavy_everywhere) in capsys.readouterr().err
+    ran = {r["agent"] for r in json.loads((tmp_path / "leaderboard.json").read_text())}
+    assert ran and not ran & set(heavy_everywhere)

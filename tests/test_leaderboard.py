@@ -24,8 +24,10 @@ from tests.conftest import DOCKING_IDS
 DOCK = DOCKING_IDS[0]
 LARS = "auv_envs/LARSCapture-v0"
 TINY = ["--envs", DOCK, "LARSCapture-v0", "--agents", "random", "pd-state",
-        "--seeds", "100000-100001", "--env-kwargs", "time_limit=20", "--workers", "1",
-        "--no-progress"]
+        "--seeds", "100000-100001", "--env-kwargs", "time_limit=20", "--difficulty", "easy",
+        "--workers", "1", "--no-progress"]
+#: The tiny run's scenario label: its arguments, sorted.
+TINY_SCENARIO = "difficulty=easy, time_limit=20"
 #: (env, agent) pairs of the tiny run; pd-state does not apply to LARS.
 PAIRS = {(DOCK, "random"), (DOCK, "pd-state"), (LARS, "random")}
 needs_chromium = pytest.mark.skipif(
@@ -52,7 +54,7 @@ def test_tiny_run_writes_every_output(tiny_run):
     assert {(r["env_id"], r["agent"]) for r in rows} == PAIRS and len(rows) == len(PAIRS)
     for row in rows:
         assert row["episodes"] == 2 and row["obs_mode"] == "state"
-        assert row["scenario"] == "time_limit=20" and row["seeds"] == [100000, 100001]
+        assert row["scenario"] == TINY_SCENARIO and row["seeds"] == [100000, 100001]
         for stat in row["metrics"].values():
             assert set(stat) == {"mean", "std", "n", "ci"}
     by_pair = {(r["env_id"], r["agent"]): r for r in rows}
@@ -73,7 +75,7 @@ def test_tiny_run_writes_every_output(tiny_run):
 
     md = (tiny_run / "leaderboard.md").read_text()
     assert f"## {DOCK}" in md and f"## {LARS}" in md
-    assert "| pd-state | state | time_limit=20 | 2 |" in md
+    assert f"| pd-state | state | {TINY_SCENARIO} | 2 |" in md
     # 0/2 successes for both docking agents: Wilson [0 %, 66 %] each, a tie.
     assert "| 1 (tie) | pd-state |" in md and "0% (0/2) [0%, 66%]" in md
     assert "supports only" in md and "(plots/DockingStation-v1.png)" in md
@@ -104,8 +106,8 @@ def test_rerun_resumes_from_the_cache(tiny_run, tmp_path, capsys):
 def test_raising_agent_shows_as_failed_in_every_output(tmp_path, capsys):
     out = tmp_path / "res"
     code = evaluate.main(["--envs", DOCK, "--agents", "test-raises", "random", "--seeds", "1",
-                          "--agent-module", "tests.leaderboard_agents", "--workers", "1",
-                          "--no-progress", "--out", str(out)])
+                          "--difficulty", "easy", "--agent-module", "tests.leaderboard_agents",
+                          "--workers", "1", "--no-progress", "--out", str(out)])
     assert code == 0
     rows = {r["agent"]: r for r in json.loads((out / "leaderboard.json").read_text())}
     assert rows["test-raises"]["status"] == "failed" and rows["random"]["status"] == "ok"
@@ -254,8 +256,8 @@ def test_page_fits_wide_and_phone_windows_and_its_clips_play(tiny_run, tmp_path)
     out = tmp_path / "lb"
     shutil.copytree(tiny_run, out)
     summary = json.loads((out / "leaderboard.json").read_text())
-    clips = {(DOCK, "pd-state", "state", "time_limit=20"): "clips/dock pd-state.mp4",
-             (LARS, "random", "state", "time_limit=20"): "clips/lars-random.mp4"}
+    clips = {(DOCK, "pd-state", "state", TINY_SCENARIO): "clips/dock pd-state.mp4",
+             (LARS, "random", "state", TINY_SCENARIO): "clips/lars-random.mp4"}
     for rel in clips.values():
         _write_clip(out / rel)
     leaderboard.write(out, summary, json.loads((out / "skipped.json").read_text()), clips=clips)

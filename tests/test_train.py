@@ -254,7 +254,8 @@ def test_evaluate_ranks_a_run_directory_beside_the_built_in_agents(ppo_runs, tmp
     assert name.startswith("whole@") and len(name) == len("whole@") + 8
     code = evaluate.main(["--envs", "DockingStation-v1", "--agents", "random", "--policy",
                           str(whole.run_dir), "--seeds", "100000", "--workers", "1",
-                          "--no-progress", "--no-video", "--out", str(tmp_path / "lb")])
+                          "--difficulty", "easy", "--no-progress", "--no-video",
+                          "--out", str(tmp_path / "lb")])
     assert code == 0
     rows = json.loads((tmp_path / "lb" / "leaderboard.json").read_text())
     by_agent = {r["agent"]: r for r in rows}
@@ -263,7 +264,7 @@ def test_evaluate_ranks_a_run_directory_beside_the_built_in_agents(ppo_runs, tmp
     # Evaluated at the full episode length, not the training's 10 s episodes.
     episodes = json.loads((tmp_path / "lb" / "episodes.json").read_text())
     mine = next(e for e in episodes if e["agent"] == name)
-    assert mine["env_kwargs"] == {} and mine["status"] == "ok"
+    assert mine["env_kwargs"] == {"difficulty": "easy"} and mine["status"] == "ok"
 
 
 def test_evaluate_policy_names_follow_the_weights_and_bad_paths_fail(tmp_path, capsys):

@@ -15,11 +15,13 @@ rerun, or a run after an interruption, only runs what is missing. The cache
 key includes a fingerprint of the package code and assets, so episodes of
 edited agents or environments run again.
 
-Default run (the README's main command): every environment, every
-registered agent in its default obs mode, 3 episodes on the frozen seeds
-100000-100002, each environment's default arguments except the acoustic
-episodes, shortened to 30 s (``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local
-worker processes.
+Default run (the README's main command): every environment at the ``paper``
+and ``hard`` difficulty levels (``DEFAULT_LEVELS``), every registered agent
+in its default obs mode except the heavy ones (``AgentSpec.heavy``: the image
+front ends, about a minute an episode; ``--all-agents`` adds them), 3
+episodes on the frozen seeds 100000-100002, each environment's default
+arguments except the acoustic episodes, shortened to 30 s
+(``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local worker processes.
 """
 
 from __future__ import annotations
@@ -58,8 +60,8 @@ from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_mo
 #: makes the GM-PHD trackers the bulk of the run; 30 s keeps the default run
 #: to a few minutes on 2 cores.
 DEFAULT_ENV_KWARGS = {"auv_envs/AcousticTracking-v0": {"time_limit": 30.0}}
-#: Difficulty levels of the default run (``--difficulty``).
-DEFAULT_LEVELS: tuple[str, ...] = ()
+#: Difficulty levels of the default run (``--difficulty``): the papers' water and beyond.
+DEFAULT_LEVELS: tuple[str, ...] = ("paper", "hard")
 
 
 def default_workers() -> int:
@@ -72,6 +74,19 @@ def resolve_env_ids(names) -> list[str]:
     return [short.get(name, name) for name in names]
 
 
+def default_agents(env_ids) -> tuple[list[str], list[str]]:
+    """``(agents, heavy)``: the registered agents of the default run, and the heavy ones
+    (:attr:`AgentSpec.heavy`) it leaves out that apply to one of ``env_ids``."""
+    agents, heavy = [], []
+    for name in agent_names():
+        spec = agent_spec(name)
+        if not spec.heavy:
+            agents.append(name)
+        elif spec.env_ids is None or set(spec.env_ids) & set(env_ids):
+            heavy.append(name)
+    return agents, heavy
+
+
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog,
@@ -82,7 +97,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--envs", nargs="+", default=None, metavar="ID",
                         help="environment ids, or their names without 'auv_envs/' (default: all)")
     parser.add_argument("--agents", nargs="+", default=None, metavar="NAME",
-                        help="agent names (default: all registered)")
+                        help="agent names (default: all registered but the heavy ones)")
+    parser.add_argument("--all-agents", action="store_true",
+                        help="with no --agents, also run the heavy agents (image front ends, "
+                             "about a minute an episode on two cores)")
     parser.add_argument("--obs-modes", nargs="+", default=None, metavar="MODE",
                         help="evaluate each agent in these of its obs modes "
                              "(default: the agent's default mode)")
@@ -220,6 +238,11 @@ def _main(argv, prog: str) -> int:
             return 0
         env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
         check_names(env_ids, agents or ())
+        if agents is None and not args.all_agents:
+            agents, heavy = default_agents(env_ids)
+            if heavy:
+                print(f"left out of this run as heavy (--all-agents adds them): "
+                      f"{', '.join(heavy)}", file=sys.stderr)
         seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
         if any(s < EVAL_SEED_BASE for s in seeds):
             print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
