@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import pickle
 
 import gymnasium as gym
@@ -17,6 +18,7 @@ from auv_envs.tasks.lars import (
     PAPER_SEA,
     LARSCaptureEnv,
 )
+from auv_envs.tasks.lars_sea import SunGlint
 from baselines.evaluation import run_episode
 from baselines.registry import agent_spec
 
@@ -49,7 +51,8 @@ def test_presets_are_the_documented_values():
     presets = LARSCaptureEnv.difficulty_presets
     assert presets["paper"] == {"sea": SeaSpectrum(0.3, 9.0, "jonswap", 3.3)}
     assert presets["hard"] == {"sea": SeaSpectrum(0.4, 7.0, "jonswap", 3.3),
-                               "pixel_noise_std": 3.0}
+                               "pixel_noise_std": 3.0,
+                               "glint": SunGlint((math.radians(40.0), math.radians(80.0)))}
 
 
 def test_explicit_keywords_override_the_level():

@@ -2,8 +2,8 @@
 
 Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
 is described in :mod:`auv_envs.tasks.lars_scene`, the arm's kinematics and
-dynamics in :mod:`auv_envs.tasks.lars_arm`, the opt-in irregular sea in
-:mod:`auv_envs.tasks.lars_sea`.
+dynamics in :mod:`auv_envs.tasks.lars_arm`, the opt-in irregular sea and sun
+glint in :mod:`auv_envs.tasks.lars_sea`.
 """
 
 from __future__ import annotations
@@ -47,7 +47,14 @@ from auv_envs.tasks.lars_scene import (
     sample_motion,
     uniform_draws,
 )
-from auv_envs.tasks.lars_sea import EpisodeSea, LARSSeaModel, SeaSample, ShipPose
+from auv_envs.tasks.lars_sea import (
+    EpisodeSea,
+    GlintField,
+    LARSSeaModel,
+    SeaSample,
+    ShipPose,
+    SunGlint,
+)
 
 OBS_MODES = ("state", "features", "stereo")
 SEA_STATES = ("calm", "severe")
@@ -88,6 +95,13 @@ PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
 #: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/difficulty.md``).
 HARD_SEA = SeaSpectrum(hs=0.4, tp=7.0)
 HARD_PIXEL_NOISE_STD = 3.0
+#: ``difficulty="hard"``: sun glint (:class:`~auv_envs.tasks.lars_sea.SunGlint`)
+#: under a sun 40-80 deg high, any azimuth: the sun around noon from the
+#: equinox to the solstice between latitudes 30 and 50 deg (noon elevation
+#: 90 deg - latitude + declination, declination 0-23.4 deg); the wind is the
+#: one that raises ``HARD_SEA`` (4.3 m/s, Cox–Munk sigma^2 = 0.025). Not at
+#: ``paper``: seed 000 reports no glint, and that level is calibrated without.
+HARD_GLINT = SunGlint(sun_elevation=(math.radians(40.0), math.radians(80.0)))
 
 #: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
 #: image x along end x, image y down = end -y).
@@ -95,6 +109,13 @@ R_END_CV = np.diag([1.0, -1.0, -1.0])
 #: Where the analogs wait while not in play (far below the opaque surface).
 PARKED = (0.0, 0.0, -50.0)
 DEFAULT_FOVY_DEG = 60.0
+#: Half-width of the hull's waterline, m: where the water meets the hull
+#: floating ``AUV_FREEBOARD`` proud (the hull's footprint seen from above).
+WATERLINE_HALF_WIDTH = math.sqrt(
+    (AUV_DIAMETER / 2.0) ** 2 - (AUV_DIAMETER / 2.0 - AUV_FREEBOARD) ** 2)
+#: A rendered pixel shows the water when its range is within this of the
+#: water plane's along its ray, m (the depth buffer resolves ~1e-6 m at 1 m).
+GLINT_WATER_TOLERANCE = 0.005
 
 
 @dataclasses.dataclass(frozen=True)
@@ -284,6 +305,9 @@ class _EpisodeState:
     wash: WashOver | None = None
     analogs: tuple[FloatingAnalog, ...] = ()
     waves: WaveRealisation | None = None
+    glint: GlintField | None = None
+    #: The last observation's glint (:meth:`LARSCaptureEnv._info` reports it).
+    glint_frame: dict | None = None
     steps: int = 0
     prev_error: float = 0.0
     done: bool = False
@@ -294,6 +318,7 @@ class _EpisodeState:
     visible_steps: int = 0
     occluded_steps: int = 0
     distractor_steps: int = 0
+    glint_steps: int = 0
     control_effort: float = 0.0
 
 
@@ -328,6 +353,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     capture tip) with it. ``severe`` wash-over timing and the number of
     analogs then follow ``Hs``.
 
+    With ``glint=SunGlint(...)`` (opt-in; on at ``difficulty="hard"``) the
+    sun glitters on the water (:class:`~auv_envs.tasks.lars_sea.SunGlint`):
+    specular points of a Cox–Munk sea whose slope variance follows the wind
+    that raised ``Hs``, each saturating a small spot, drawn afresh every
+    frame. ``stereo`` images carry the spots on the water; in ``features`` a
+    glint near a corner takes the corner detector.
+
     **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"`` (default):
     joint torques (slew, shoulder, elbow) as fractions of
     ``calibration.torque_limits`` (1000, 4000, 1500 N m); gravity is *not*
@@ -349,11 +381,12 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
       (index 0) and right (1) images, in the pixel frame of ``image_size``,
       with Gaussian noise (``pixel_noise_std``) and zero where not visible;
       ``visible`` ``MultiBinary((2, 3))`` (in front, inside the image, not
-      under a wash-over crest); ``joint_position`` (3) and
-      ``joint_velocity`` (3).
+      under a wash-over crest, not lost under a glint's bloom);
+      ``joint_position`` (3) and ``joint_velocity`` (3). With ``glint``, a
+      corner that a glint takes is reported at the glint (plus the noise).
     * ``"stereo"``, ``Dict``: ``left`` and ``right`` (H, W, 3) uint8 images
-      rendered in one pass into one buffer, plus ``joint_position`` and
-      ``joint_velocity``.
+      rendered in one pass into one buffer (with ``glint``, white saturated
+      spots on the water), plus ``joint_position`` and ``joint_velocity``.
 
     **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
     ``progress`` (decrease of the capture error, m), ``control``
@@ -376,7 +409,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     interval of :func:`~auv_envs.tasks.lars_sea.wash_over_timing` (never
     when ``Hs / 2`` is below the freeboard) and keeps
     :func:`~auv_envs.tasks.lars_sea.analogs_in_play` of the two analogs
-    (the draws are those of ``sea=None``).
+    (the draws are those of ``sea=None``). With ``glint``, the reset draws
+    last the sun's elevation and azimuth (two uniforms; nothing when off),
+    and every ``features`` observation 24 uniforms after its noise (4 a
+    corner), every ``stereo`` one a uniform per pixel and camera.
 
     **Episode end.** Success (terminated): capture tip within 0.05 m of the
     capture point (lifting eye, 0.45 m aft of the CG on the top line) with a
@@ -403,7 +439,16 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     also ``sea``: ``hs_realised`` (m, ``4 sqrt(m0)`` of the realisation),
     ``sea_state_code``, ``components``, ``wave_heading`` (rad, direction of
     travel from +x), ``wash_period`` / ``wash_duration`` (s, None without
-    wash-over) and ``analogs`` (in play).
+    wash-over) and ``analogs`` (in play). With ``glint``: the reset's info
+    ``glint`` (``sun_elevation``, ``sun_azimuth`` rad, ``slope_variance``);
+    in ``features`` and ``stereo`` every step ``glint_corners`` (2, 3) int8
+    (0 clean, 1 a glint within ``detector_radius`` px: in ``features`` the
+    corner reported at it, 2 the corner under a glint's bloom: lost in
+    ``features``); in ``features`` ``glint_probability`` (2, 3), the model's
+    chance of 1 or 2 this frame; in ``stereo`` ``glints_in_view`` (2,) and
+    ``glint_expected`` (2,), the glints drawn in each image and their mean;
+    ``episode_metrics`` ``glint_fraction`` (steps with a corner in
+    ``glint_corners``).
 
     **Arguments.** ``obs_mode``, ``sea_state`` (``"calm"``: no
     interference; ``"severe"``), ``control`` (``"torque"``/``"position"``),
@@ -419,24 +464,28 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     ``render_size``), ``render_size`` (W, H, default 640x480), ``sea``
     (``SeaSpectrum`` or None, default: the seed-000 sinusoid, bit-identical
     to the env without the argument and with no extra draws;
-    ``calibration.sea`` reports the model), ``difficulty``
-    (:mod:`auv_envs.core.difficulty`; ``sea`` and ``pixel_noise_std`` given
-    explicitly override the level's): ``"easy"`` (default): the release
-    above, bit for bit; ``"paper"``: ``sea=PAPER_SEA`` (JONSWAP Hs 0.3 m,
-    Tp 9 s, a low swell whose largest crests heave the AUV by about the
-    paper's 0.2 m), calibrated on seed 000's 28 mm capture in ``calm`` sea;
-    ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m, Tp 7 s) and
-    ``pixel_noise_std=3.0`` px, where ``ckf-pd`` succeeds in at most 80 % of
-    episodes and the privileged ``ckf-pd-state`` in at least 90 %
-    (``docs/difficulty.md``). ``sea_state`` stays
-    separate (the paper's interference off/on) at every level.
+    ``calibration.sea`` reports the model), ``glint``
+    (:class:`~auv_envs.tasks.lars_sea.SunGlint`; ``False``: off whatever the
+    level; None: the level's; needs a ``sea`` or the glint's
+    ``wind_speed``; ``env.glint`` reports it), ``difficulty``
+    (:mod:`auv_envs.core.difficulty`; ``sea``, ``pixel_noise_std`` and
+    ``glint`` given explicitly override the level's): ``"easy"`` (default):
+    the release above, bit for bit; ``"paper"``: ``sea=PAPER_SEA`` (JONSWAP
+    Hs 0.3 m, Tp 9 s, a low swell whose largest crests heave the AUV by
+    about the paper's 0.2 m), calibrated on seed 000's 28 mm capture in
+    ``calm`` sea, no glint; ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m,
+    Tp 7 s), ``pixel_noise_std=3.0`` px and ``glint=HARD_GLINT`` (a sun
+    40-80 deg high), where ``ckf-pd`` succeeds in at most 80 % of episodes
+    and the privileged ``ckf-pd-state`` in at least 90 %
+    (``docs/difficulty.md``). ``sea_state`` stays separate (the paper's
+    interference off/on) at every level.
 
     **Version history.** v0: initial release. Rendering (dynamics,
     observations and rewards unchanged): ``render()`` draws the side view by
     default (``render_camera``, ``render_size``); it drew the stereo pair at
     ``image_size`` before. Opt-in irregular seas (``sea``); the default
     episode is unchanged. Opt-in ``difficulty`` levels (the default ``easy``
-    is the release, bit for bit).
+    is the release, bit for bit). Opt-in sun ``glint`` (on at ``hard``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
@@ -446,7 +495,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     difficulty_presets = {
         "easy": {},
         "paper": {"sea": PAPER_SEA},
-        "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD},
+        "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD,
+                 "glint": HARD_GLINT},
     }
     reward_terms = ("progress", "control", "success", "failure")
     metric_keys = (
@@ -469,6 +519,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         render_camera: str = "side",
         render_size: tuple[int, int] = (640, 480),
         sea: SeaSpectrum | None = None,
+        glint: SunGlint | bool | None = None,
         difficulty: str = levels.DEFAULT_LEVEL,
         **unknown,
     ):
@@ -478,17 +529,25 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
             pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
             render_mode=render_mode, render_camera=render_camera,
-            render_size=render_size, sea=sea, difficulty=difficulty,
+            render_size=render_size, sea=sea, glint=glint, difficulty=difficulty,
         )
         level = levels.resolve(self.difficulty_presets, difficulty,
-                               {"sea": sea, "pixel_noise_std": pixel_noise_std})
-        sea, pixel_noise_std = level["sea"], level["pixel_noise_std"]
+                               {"sea": sea, "pixel_noise_std": pixel_noise_std, "glint": glint})
+        sea, pixel_noise_std, glint = level["sea"], level["pixel_noise_std"], level["glint"]
+        if glint is False:
+            glint = None
+        if glint is not None and not isinstance(glint, SunGlint):
+            raise TypeError(f"glint must be a SunGlint, False or None, got {glint!r}")
         if pixel_noise_std is None:
             pixel_noise_std = DEFAULT_PIXEL_NOISE_STD
         #: The difficulty level (:mod:`auv_envs.core.difficulty`).
         self.difficulty = difficulty
         check_choice("sea_state", sea_state, SEA_STATES)
         sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
+        #: The sun-glint model (``SunGlint``), None when off.
+        self.glint = glint
+        self._glint_slope_variance = (
+            None if glint is None else glint.slope_variance(None if sea is None else sea.hs))
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
@@ -582,6 +641,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             pixels = self.observation_space["pixels"]
             self._pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
         self._width, self._height = width, height
+        if glint is not None:
+            self._prepare_glint(glint)
         # One renderer for the stereo observation, one for render().
         self._renderer: CameraRenderer | None = None
         if obs_mode == "stereo":
@@ -650,6 +711,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         # 0.8 m), the cameras over the AUV: within 1 m of the AUV's CG.
         top = self._auv_position(0.0)[2] + AUV_DIAMETER / 2.0
         offset = uniform_draws(rng, ((-0.2, 0.2), (-0.1, 0.1)))
+        if self.glint is not None:  # drawn last: everything else is drawn as without glint
+            self._episode.glint = self.glint.sample(rng, self._glint_slope_variance)
         end = np.array(
             [motion.x0 + offset[0], motion.y0 - CAMERA_MOUNT_IN_END[1] + offset[1], top + 0.8]
         )
@@ -671,6 +734,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                 "wash_period": None if wash is None else wash.period,
                 "wash_duration": None if wash is None else wash.duration,
                 "analogs": len(self._episode.analogs),
+            }
+        field = self._episode.glint
+        if field is not None:
+            info["glint"] = {
+                "sun_elevation": field.elevation,
+                "sun_azimuth": field.azimuth,
+                "slope_variance": field.slope_variance,
             }
         return obs, info
 
@@ -722,6 +792,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         ep.distractor_steps += truth["distractors"] > 0
 
         obs = self._observation(truth)
+        if ep.glint_frame is not None:
+            ep.glint_steps += bool(ep.glint_frame["glint_corners"].any())
         info = self._info(truth, terms, collision, workspace)
         if ep.done:
             info["episode_metrics"] = self._episode_metrics(truth)
@@ -897,6 +969,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "roll": roll,
             "pitch": pitch,
             "corners": corners,
+            "cameras": (left_cam, right_cam),
+            "hull_axis": (ax, ay, az),
             "pixels": left + right,
             "visible": [vis_left, vis_right],
             "n_visible": sum(map(operator.and_, vis_left, vis_right)),
@@ -966,11 +1040,15 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             std = self.calibration.pixel_noise_std
             # Drawn always, whatever is visible: the same noise stream every step.
             noise = self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
+            seen = vis_left + vis_right
+            if self._episode.glint is not None:
+                true_pixels, seen = self._glint_on_corners(truth, seen)
+                visible = [seen[:3], seen[3:]]
             lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
             pixels = [0.0] * 12
             i = 0  # u of the corner; v at i + 1
-            for seen in vis_left + vis_right:
-                if seen:  # finite; clipped by comparisons (cheaper than min/max)
+            for corner_seen in seen:
+                if corner_seen:  # finite; clipped by comparisons (cheaper than min/max)
                     u, v = true_pixels[i] + noise[i], true_pixels[i + 1] + noise[i + 1]
                     pixels[i] = lo_u if u < lo_u else (hi_u if u > hi_u else u)
                     pixels[i + 1] = lo_v if v < lo_v else (hi_v if v > hi_v else v)
@@ -980,7 +1058,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
                 "visible": np.array(visible, dtype=np.int8),
                 **self._joints(truth),
             }
-        pair = self._render_pair()
+        if self._episode.glint is None:
+            pair = self._render_pair()
+        else:
+            pair = self._render_glint_pair(truth)
         w = self._width
         return {
             "left": np.ascontiguousarray(pair[:, :w]),
@@ -1063,6 +1144,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "reward_success": terms[2],
             "reward_failure": terms[3],
         }
+        if ep.glint_frame is not None:
+            info.update(ep.glint_frame)
         if self._sea is not None:
             sea = self._sea_at(info["time"])
             info["true_roll"] = truth["roll"]
@@ -1080,6 +1163,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode
         steps = max(ep.steps, 1)
+        glint = {} if self.glint is None else {"glint_fraction": ep.glint_steps / steps}
         return {
             "success": ep.success,
             "failure_reason": ep.failure_reason or ("" if ep.success else "time_limit"),
@@ -1092,7 +1176,150 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "occluded_fraction": ep.occluded_steps / steps,
             "distractor_fraction": ep.distractor_steps / steps,
             "control_effort": ep.control_effort,
+            **glint,
         }
+
+    # ------------------------------------------------------------------ sun glint
+    def _prepare_glint(self, glint: SunGlint) -> None:
+        """Constants of the glint draws: the detector's disc (1 px cells) and the bloom."""
+        r = glint.detector_radius
+        n = math.ceil(r)
+        du, dv = np.meshgrid(np.arange(-n, n + 1.0), np.arange(-n, n + 1.0))
+        inside = du**2 + dv**2 <= r * r
+        self._glint_disc = np.stack((du[inside], dv[inside]), axis=-1)
+        b = glint.bloom
+        self._glint_bloom = [(i, j) for i in range(-b, b + 1) for j in range(-b, b + 1)
+                             if i * i + j * j <= b * b]
+        if self.obs_mode == "stereo":
+            # Each pixel's camera-frame ray (x, y, 1) over its length L, as x / L, y / L, 1 / L.
+            intr = self._intrinsics
+            x = ((np.arange(self._width) + 0.5 - intr.cx) / intr.fx)[None, :]
+            y = ((np.arange(self._height) + 0.5 - intr.cy) / intr.fy)[:, None]
+            length = np.sqrt(1.0 + x**2 + y**2)
+            self._glint_ray_length = length.astype(np.float32)
+            self._glint_view = tuple((v / length).astype(np.float32) for v in (x, y, 1.0))
+
+    def _glint_rays(self, truth: dict, x, y) -> np.ndarray:
+        """World directions of camera-frame rays ``(x, y, 1)`` of the level, slewed head."""
+        c, s = math.cos(truth["q"][0]), math.sin(truth["q"][0])
+        x, y = np.broadcast_arrays(x, y)
+        return np.stack((c * x + s * y, s * x - c * y, -np.ones_like(x)), axis=-1)
+
+    def _glint_on_corners(self, truth: dict, seen: list) -> tuple[list, list]:
+        """``features``: which corners a glint takes this frame (4 uniforms a corner, always).
+
+        A corner's mean glint count is that of the water within
+        ``detector_radius`` px of it (the hull's waterline footprint and the
+        image's border cut the disc). A glint there is drawn with that
+        probability, placed by the means; the corner is then lost if the
+        glint's bloom covers it, otherwise reported at the glint.
+
+        Args:
+            truth: :meth:`_truth`.
+            seen: the corners visible (left A1-A3, right A1-A3).
+
+        Returns:
+            ``(pixels, seen)``: the 12 pixel coordinates to report (true or
+            glint) and the corners still seen; the frame's outcome goes to
+            ``glint_frame``.
+        """
+        field = self._episode.glint
+        draws = self.np_random.random((6, 4))
+        intr = self._intrinsics
+        true_pixels = np.array(truth["pixels"]).reshape(6, 2)
+        points = true_pixels[:, None, :] + self._glint_disc  # (6, M, 2)
+        rays = self._glint_rays(truth, (points[..., 0] - intr.cx) / intr.fx,
+                                (points[..., 1] - intr.cy) / intr.fy)
+        level = truth["level"]
+        (px, py, _), (ax, ay, _) = truth["position"], truth["hull_axis"]
+        norm = math.hypot(ax, ay)
+        ax, ay = ax / norm, ay / norm
+        half = self._hull_half
+        means = np.empty(points.shape[:2])
+        for k, camera in enumerate(truth["cameras"]):
+            rows = slice(3 * k, 3 * k + 3)
+            height = camera[2] - level
+            means[rows] = field.pixel_means(rays[rows], height, intr.fx)
+            # Where each ray meets the water: outside the hull's footprint?
+            dx = camera[0] + height * rays[rows, :, 0] - px
+            dy = camera[1] + height * rays[rows, :, 1] - py
+            along = np.clip(dx * ax + dy * ay, -half, half)
+            means[rows] *= np.hypot(dx - along * ax, dy - along * ay) > WATERLINE_HALF_WIDTH
+        means *= ((points[..., 0] >= 0.0) & (points[..., 0] < intr.width)
+                  & (points[..., 1] >= 0.0) & (points[..., 1] < intr.height))
+        means[~np.array(seen)] = 0.0
+        total = means.sum(axis=1)
+        probability = -np.expm1(-total)
+        state = np.zeros(6, dtype=np.int8)
+        pixels = list(truth["pixels"])
+        seen = list(seen)
+        reach = self.glint.bloom + 0.5
+        for k in np.flatnonzero(draws[:, 0] < probability).tolist():
+            cumulative = np.cumsum(means[k])
+            pick = min(int(np.searchsorted(cumulative, draws[k, 1] * cumulative[-1],
+                                           side="right")), len(cumulative) - 1)
+            u, v = (points[k, pick] + draws[k, 2:] - 0.5).tolist()
+            if math.hypot(u - pixels[2 * k], v - pixels[2 * k + 1]) <= reach:
+                state[k], seen[k] = 2, False
+            else:
+                state[k], pixels[2 * k], pixels[2 * k + 1] = 1, u, v
+        self._episode.glint_frame = {
+            "glint_corners": state.reshape(2, 3),
+            "glint_probability": probability.reshape(2, 3),
+        }
+        return pixels, seen
+
+    def _render_glint_pair(self, truth: dict) -> np.ndarray:
+        """``stereo``: the pair with the frame's glints saturated on the water.
+
+        Each pixel that shows the water (its rendered range is the water
+        plane's) holds a glint with probability ``1 - exp(-mean)``
+        (``GlintField.pixel_means``; one uniform a pixel); a glint saturates
+        the pixels within ``bloom`` px of it.
+        """
+        self._pose_scene()
+        pair, ranges = self._renderer.render_with_range(self._physics.data)
+        field = self._episode.glint
+        rng = self.np_random
+        w, h = self._width, self._height
+        level = truth["level"]
+        state = np.zeros((2, 3), dtype=np.int8)
+        spots_in_view, expected = [0, 0], [0.0, 0.0]
+        radius2 = self.glint.detector_radius ** 2
+        # The head is level: both cameras look along the same rays from the same height,
+        # (x, y, 1) of the camera being (c x + s y, s x - c y, -1) in the world; a pixel's
+        # footprint on the water is (height / f)^2 (GlintField.pixel_means, d_z = -1).
+        height = truth["cameras"][0][2] - level
+        c, s = math.cos(truth["q"][0]), math.sin(truth["q"][0])
+        xl, yl, il = self._glint_view
+        means_both = field.density(-(c * xl + s * yl), yl * c - xl * s, il)
+        means_both *= (height / self._intrinsics.fx) ** 2
+        water_range = height * self._glint_ray_length
+        for k in range(2):
+            water = np.abs(ranges[:, k * w:(k + 1) * w] - water_range) < GLINT_WATER_TOLERANCE
+            means = means_both * water
+            glints = rng.random((h, w), dtype=np.float32) < -np.expm1(-means)
+            saturated = np.zeros((h, w), dtype=bool)
+            for i, j in self._glint_bloom:  # the bloom: each glint shifted by (i, j)
+                saturated[max(i, 0):h + min(i, 0), max(j, 0):w + min(j, 0)] |= (
+                    glints[max(-i, 0):h - max(i, 0), max(-j, 0):w - max(j, 0)])
+            pair[:, k * w:(k + 1) * w][saturated] = 255
+            rows, cols = np.nonzero(glints)
+            spots_in_view[k], expected[k] = int(rows.size), float(means.sum())
+            for j, seen in enumerate(truth["visible"][k]):
+                if not seen:
+                    continue
+                u, v = truth["pixels"][6 * k + 2 * j:6 * k + 2 * j + 2]
+                if saturated[int(v), int(u)]:
+                    state[k, j] = 2
+                elif np.any((cols + 0.5 - u) ** 2 + (rows + 0.5 - v) ** 2 <= radius2):
+                    state[k, j] = 1
+        self._episode.glint_frame = {
+            "glint_corners": state,
+            "glints_in_view": np.array(spots_in_view),
+            "glint_expected": np.array(expected),
+        }
+        return pair
 
     # ------------------------------------------------------------------ pickling
     def _set_runtime_state(self, state: dict) -> None:

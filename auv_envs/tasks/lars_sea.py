@@ -14,7 +14,10 @@ What the sea does to one episode, built from :mod:`auv_envs.core.waves`:
   the arm's dynamics (its drives hold it; the loads are a few per cent of
   gravity at these motions);
 * in ``severe`` sea, wash-over and look-alikes follow ``Hs``
-  (:func:`wash_over_timing`, :func:`analogs_in_play`).
+  (:func:`wash_over_timing`, :func:`analogs_in_play`);
+* with ``glint=SunGlint(...)``, the sun glitters on the water: specular
+  points of the wind-roughened surface (:class:`SunGlint`, :class:`GlintField`)
+  whose number follows the Cox–Munk slope variance of the wind that raised ``Hs``.
 
 All of it is linear in the wave components, so one :class:`~auv_envs.core.waves.HarmonicSeries`
 per episode evaluates every channel at any time (no filter state to carry).
@@ -28,9 +31,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from auv_envs.core.frames import GRAVITY
 from auv_envs.core.waves import (
     DEFAULT_BAND,
     DEFAULT_COMPONENTS,
+    PM_ALPHA,
+    PM_BETA,
     FloaterResponse,
     HarmonicSeries,
     SeaSpectrum,
@@ -38,7 +44,7 @@ from auv_envs.core.waves import (
     WaveRealisation,
     sea_state_code,
 )
-from auv_envs.tasks.lars_scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH
+from auv_envs.tasks.lars_scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH, uniform_draws
 
 #: The AUV's response: its waterplane, roll/pitch lags (assumed, see FloaterResponse).
 AUV_RESPONSE = FloaterResponse(AUV_LENGTH, AUV_DIAMETER)
@@ -216,3 +222,195 @@ class ShipPose:
         rot = np.array(self._rows)
         origin = np.asarray(self._origin)
         return rot, origin + (0.0, 0.0, self._heave) - rot @ origin
+
+
+# ---------------------------------------------------------------------- sun glint
+#: Cox & Munk (1954), "Measurement of the roughness of the sea surface from
+#: photographs of the sun's glitter", JOSA 44(11), clean surface: mean-square
+#: slope (both components summed) ``sigma^2 = 0.003 + 5.12e-3 U``, ``U`` the
+#: wind speed at 12.5 m in m/s.
+COX_MUNK_SLOPE_VARIANCE = (0.003, 5.12e-3)
+
+
+def fully_developed_wind_speed(hs: float) -> float:
+    """Wind speed (m/s) that raises a fully developed Pierson–Moskowitz sea of ``hs`` (m).
+
+    ``Hs = 2 sqrt(alpha / beta) U^2 / g ~= 0.21 U^2 / g`` (Pierson & Moskowitz
+    1964, the relation behind :func:`~auv_envs.core.waves.fully_developed_peak_period`).
+    PM's ``U`` is at 19.5 m, Cox–Munk's at 12.5 m, about 4 % apart in a
+    logarithmic wind profile: neglected.
+    """
+    if not (math.isfinite(hs) and hs >= 0):
+        raise ValueError(f"hs must be a finite number >= 0, got {hs!r}")
+    return math.sqrt(GRAVITY * hs / (2.0 * math.sqrt(PM_ALPHA / PM_BETA)))
+
+
+def cox_munk_slope_variance(wind_speed: float) -> float:
+    """Mean-square slope ``sigma^2`` of the sea at ``wind_speed`` (m/s), Cox & Munk (1954)."""
+    intercept, per_wind = COX_MUNK_SLOPE_VARIANCE
+    return intercept + per_wind * wind_speed
+
+
+def _angle_range(name: str, value, low: float, high: float) -> tuple[float, float]:
+    lo, hi = (float(v) for v in value)
+    if not (math.isfinite(lo) and math.isfinite(hi) and low <= lo <= hi <= high):
+        raise ValueError(f"{name} must be (low, high) within [{low:.4g}, {high:.4g}] rad, "
+                         f"got {value!r}")
+    return lo, hi
+
+
+@dataclasses.dataclass(frozen=True)
+class SunGlint:
+    """The sun's glitter on the water seen by the stereo pair (``LARSCaptureEnv(glint=...)``).
+
+    **Slopes.** The slopes ``(zx, zy)`` of a wind-roughened sea are Gaussian,
+    isotropic to first order (Cox & Munk 1954)::
+
+        p(zx, zy) = exp(-(zx^2 + zy^2) / sigma^2) / (pi sigma^2),
+        sigma^2 = 0.003 + 5.12e-3 U                (U: wind speed, m/s)
+
+    with ``U`` the wind that raised the episode's ``Hs``
+    (:func:`fully_developed_wind_speed`) unless ``wind_speed`` is given.
+
+    **Specular points.** A camera at ``C`` sees the sun at a surface point
+    ``P`` when the facet there bisects the directions to the sun ``s`` and to
+    the camera ``v = (C - P) / |C - P|`` (law of reflection): the slope needed
+    is ``-(hx, hy) / hz`` with ``h = s + v``, ``tan^2 beta = (hx^2 + hy^2) / hz^2``.
+    The points where the surface takes that slope number, per unit area,
+    ``n = p E|det H|`` (Longuet-Higgins 1960, "Reflection and refraction at a
+    random moving surface. I", JOSA 50(9); slope and curvature of a Gaussian
+    surface are independent at a point), ``H`` the surface's Hessian. For an
+    isotropic surface ``E|det H| = msc / (2 sqrt 3)`` with ``msc =
+    E[(eta_xx + eta_yy)^2]`` its mean-square curvature (worked out here:
+    ``det H = (msc / 8)(2 X - Y)`` with ``X ~ chi2(1)``, ``Y ~ chi2(2)``
+    independent, and ``E|2 X - Y| = 4 / sqrt 3``). The curvature is carried by
+    shorter waves than the slope, ``msc = k_s^2 sigma^2``, so::
+
+        n = k_s^2 exp(-tan^2 beta / sigma^2) / (2 sqrt(3) pi)     per m^2
+
+    which grows with the wind wherever the needed slope is not zero (and is
+    the same there). ``k_s`` (``curvature_wavenumber``): a saturation range
+    ``F(k) ~ k^-3`` (Phillips 1958) from the peak ``k_p ~ 0.1 rad/m`` to the
+    gravity–capillary wavenumber ``k_c = sqrt(rho g / T) = 370 rad/m`` gives
+    ``msc / mss = k_c^2 / (2 ln(k_c / k_p)) ~= (90 rad/m)^2``; 100 rad/m is
+    that, rounded (an assumed value, not a measurement).
+
+    **In the image.** Each specular point mirrors the sun's disc (6.8e-5 sr,
+    about 2e7 W m^-2 sr^-1; Fresnel reflectance 0.02) over about
+    ``6.8e-5 / (4 |det H|) ~ 1e-7 m^2``, some 3 % of a 2 mm pixel footprint
+    at the 0.8 m the head tracks at: three orders of magnitude above the
+    water's own few W m^-2 sr^-1. So glints are counted, not shaded: a pixel
+    whose footprint on the water is ``A`` holds ``Poisson(n A)`` of them, and
+    each saturates its pixel and blooms over those within ``bloom`` px. A
+    glint lives about a capillary wave's period (0.01-0.1 s), less than a
+    frame (0.04 s): every frame draws afresh, so they flicker. In
+    ``features`` a glint within ``detector_radius`` px of a corner takes the
+    corner detector: the corner is reported at the glint, or lost when the
+    glint's bloom covers it.
+
+    Attributes:
+        sun_elevation: (low, high) of the sun's elevation above the horizon,
+            rad, drawn uniformly per episode; within ``(0, pi / 2]``.
+        sun_azimuth: (low, high) of the direction towards the sun, rad from
+            world +x counter-clockwise, drawn uniformly per episode.
+        wind_speed: m/s; None: :func:`fully_developed_wind_speed` of the
+            sea's ``Hs``.
+        curvature_wavenumber: ``k_s``, rad/m.
+        detector_radius: px (at ``image_size``): LTAT's corner search margin
+            (``MarkerCornerExtractor.find_partial``, 8 px).
+        bloom: px a saturated glint spreads over (the pixels within this
+            distance of it).
+    """
+
+    sun_elevation: tuple[float, float] = (math.radians(40.0), math.radians(80.0))
+    sun_azimuth: tuple[float, float] = (0.0, 2.0 * math.pi)
+    wind_speed: float | None = None
+    curvature_wavenumber: float = 100.0
+    detector_radius: float = 8.0
+    bloom: int = 1
+
+    def __post_init__(self):
+        object.__setattr__(self, "sun_elevation", _angle_range(
+            "sun_elevation", self.sun_elevation, 1e-6, 0.5 * math.pi))
+        object.__setattr__(self, "sun_azimuth", _angle_range(
+            "sun_azimuth", self.sun_azimuth, -2.0 * math.pi, 4.0 * math.pi))
+        if self.wind_speed is not None and not (
+                isinstance(self.wind_speed, int | float) and math.isfinite(self.wind_speed)
+                and self.wind_speed >= 0):
+            raise ValueError(f"wind_speed must be None or >= 0 m/s, got {self.wind_speed!r}")
+        for name in ("curvature_wavenumber", "detector_radius"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if isinstance(self.bloom, bool) or not isinstance(self.bloom, int) or self.bloom < 0:
+            raise ValueError(f"bloom must be an int >= 0 (px), got {self.bloom!r}")
+
+    def slope_variance(self, hs: float | None) -> float:
+        """``sigma^2`` at ``wind_speed``, or at the wind of a sea of ``hs`` (m)."""
+        wind = self.wind_speed
+        if wind is None:
+            if hs is None:
+                raise ValueError("SunGlint needs a sea (its Hs sets the wind) or a wind_speed")
+            wind = fully_developed_wind_speed(hs)
+        return cox_munk_slope_variance(wind)
+
+    def sample(self, rng: np.random.Generator, slope_variance: float) -> GlintField:
+        """The episode's field: the sun's elevation and azimuth drawn from ``rng`` (2 uniforms)."""
+        elevation, azimuth = uniform_draws(rng, (self.sun_elevation, self.sun_azimuth))
+        return GlintField.towards(elevation, azimuth, slope_variance, self.curvature_wavenumber)
+
+
+@dataclasses.dataclass(frozen=True)
+class GlintField:
+    """One episode's glitter (:class:`SunGlint`): how densely specular points lie.
+
+    Attributes:
+        sun: unit vector towards the sun (world, z up).
+        slope_variance: ``sigma^2``.
+        peak_density: ``k_s^2 / (2 sqrt(3) pi)``, glints per m^2 where the
+            needed slope is zero.
+        elevation, azimuth: of the sun, rad.
+    """
+
+    sun: tuple[float, float, float]
+    slope_variance: float
+    peak_density: float
+    elevation: float
+    azimuth: float
+
+    @classmethod
+    def towards(cls, elevation: float, azimuth: float, slope_variance: float,
+                curvature_wavenumber: float) -> GlintField:
+        ce = math.cos(elevation)
+        sun = (ce * math.cos(azimuth), ce * math.sin(azimuth), math.sin(elevation))
+        peak = curvature_wavenumber**2 / (2.0 * math.sqrt(3.0) * math.pi)
+        return cls(sun, float(slope_variance), peak, float(elevation), float(azimuth))
+
+    def density(self, vx, vy, vz) -> np.ndarray:
+        """Glints per m^2 of level surface seen along the unit view direction ``(vx, vy, vz)``
+        (arrays broadcast together), from the surface towards the camera (world, z up)."""
+        sx, sy, sz = self.sun
+        hx, hy, hz = vx + sx, vy + sy, vz + sz
+        tan2 = (hx * hx + hy * hy) / (hz * hz)
+        return self.peak_density * np.exp(-tan2 / self.slope_variance)
+
+    def pixel_means(self, rays, height: float, focal: float) -> np.ndarray:
+        """Mean glints in pixels that look along ``rays`` onto water ``height`` below.
+
+        Args:
+            rays: (..., 3) world images of the pixels' camera-frame rays
+                ``((u - cx) / f, (v - cy) / f, 1)``.
+            height: the camera's height above the water, m.
+            focal: ``f``, px.
+
+        Returns:
+            (...) ``n A``, ``A = h^2 / (f^2 |d_z|^3)`` the footprint on the
+            water of a pixel whose ray is ``d``; 0 where the ray does not go down.
+        """
+        rays = np.asarray(rays, dtype=float)
+        down = -rays[..., 2]
+        safe = np.where(down > 0.0, down, 1.0)
+        norm = -np.sqrt(np.sum(rays * rays, axis=-1))
+        area = height**2 / (focal**2 * safe**3)
+        density = self.density(rays[..., 0] / norm, rays[..., 1] / norm, rays[..., 2] / norm)
+        return np.where(down > 0.0, density * area, 0.0)
