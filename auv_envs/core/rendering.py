@@ -141,6 +141,35 @@ class CameraRenderer:
         z[depth >= 1.0] = np.inf
         return np.flipud(self._buffer).copy(), (z * self._ray_length).astype(np.float32)
 
+    def render_geom_ids(self, data: mujoco.MjData) -> np.ndarray:
+        """Which geom each pixel sees, ``(H, W * n_cameras)`` int32 geom ids, -1 where none.
+
+        A segmentation draw of the same scene (MuJoCo's ``mjRND_SEGMENT`` with
+        ``mjRND_IDCOLOR``: each drawn geom coloured by its index in the scene
+        plus one), decoded through the scene's geoms. Ground truth for image
+        labels (which part of an object shows); nothing an observation uses.
+        """
+        if self._gl is None:
+            raise RuntimeError("renderer is closed")
+        flags = self._scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        try:
+            self._draw(data)
+        finally:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
+        rgb = np.flipud(self._buffer).astype(np.int32)
+        index = rgb[..., 0] + 256 * rgb[..., 1] + 65536 * rgb[..., 2] - 1
+        scene = self._scene
+        lookup = np.full(scene.ngeom + 1, -1, dtype=np.int32)  # the last entry: index -1
+        for k in range(scene.ngeom):
+            geom = scene.geoms[k]
+            if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM:
+                lookup[k] = geom.objid
+        index[(index < 0) | (index >= scene.ngeom)] = -1
+        return lookup[index]
+
     def _ray_lengths(self) -> np.ndarray:
         """Per pixel, the length of its ray ``(x, y, 1)`` in camera coordinates (>= 1)."""
         lengths = []
