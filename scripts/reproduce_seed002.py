@@ -11,10 +11,14 @@ Here each sequence is a seeded ``LampArrayDocking-v1`` episode in ``image`` mode
 A privileged pilot -- the ``pd-state`` reference controller steered to seeded waypoints and
 headings (see :func:`pilot_action`) -- first closes to the array from above, then makes
 excursions that turn and drop the camera so that lamps leave the view and come back. The
-front end sees only the observation (image, velocity, attitude); ``info["true_pixels"]`` and
-``info["true_visible"]`` are the ground truth of the CLEAR MOT evaluation. A lamp counts as
-present in a frame when the env says it is visible (in the image and not hidden by the
-station); the tracker's hypotheses are the lamps it reports visible, with their labels as ids.
+front end sees only the observation (image, velocity, attitude). The ground truth of the CLEAR
+MOT evaluation is what a person labelling the pool video marks
+(``env.unwrapped.lamps_in_image()``, from a segmentation render): a lamp is present in a
+frame when any of its pixels shows, at the centroid of the pixels that show.
+(``info["true_visible"]``, a clear line of sight to the lamp's centre, called most lamps
+partly behind the station's structure absent, and the tracker's detections of them false
+positives.) The tracker's hypotheses are the lamps it reports visible, with their labels as
+ids.
 
 Two scores are printed: from the frame where the front end initialised its tracks (seed 002
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
@@ -77,14 +81,16 @@ def excursions(rng: np.random.Generator, duration: float) -> list[tuple[float, n
 
     The first leg brings the camera above and behind the array (the lamps then show apart,
     not stacked along the line of sight); each later leg holds a random point of the viewing
-    box with a heading up to 50 deg off the array, for 3-6 s.
+    box with a heading up to 70 deg off the array, for 3-6 s (lamps then leave the view or
+    hide behind the station in 38.5 % of the lamp-frames after initialisation on seeds
+    630000-630019; seed 002: 33 %).
     """
     legs = [(0.0, np.array([-3.5, 0.0, 1.3]), 0.0)]
     t = 15.0
     while t < duration:
         waypoint = np.array([rng.uniform(-5.5, -2.5), rng.uniform(-1.5, 1.5),
                              rng.uniform(0.3, 1.3)])
-        heading = math.radians(rng.uniform(-50.0, 50.0))
+        heading = math.radians(rng.uniform(-70.0, 70.0))
         legs.append((t, waypoint, heading))
         t += rng.uniform(3.0, 6.0)
     return legs
@@ -112,8 +118,9 @@ def run_sequence(seed: int, frames: int, scenario: str, env_id: str = ENV_ID,
             features = front_end(obs, None)
             if init_frame is None and front_end.initialised:
                 init_frame = k
-            out["true_pixels"].append(info["true_pixels"])
-            out["true_visible"].append(info["true_visible"])
+            labelled, shown = env.unwrapped.lamps_in_image()
+            out["true_pixels"].append(labelled)
+            out["true_visible"].append(shown)
             out["pixels"].append(features["pixels"])
             out["visible"].append(features["visible"].astype(bool))
             now = k * cal.control_period
