@@ -51,11 +51,8 @@ import auv_envs
 from auv_envs.core.assets import asset_root, sha256_file
 from baselines import registry
 from baselines.registry import agent_names, agent_spec
+from baselines.seeds import EVAL_SEED_BASE, default_seeds  # noqa: F401 (re-exported)
 from baselines.stats import bootstrap_interval, wilson_interval
-
-#: Evaluation seeds start here; training seeds (train.py) stay below it, so the
-#: two sets never overlap.
-EVAL_SEED_BASE = 100_000
 
 #: Version of the cached episode format and of the episode protocol in
 #: :func:`run_episode`; bumping it invalidates every cached episode.
@@ -139,13 +136,6 @@ def parse_seeds(text: str) -> list[int]:
         return [int(x) for x in text.split(",")]
     except ValueError as exc:
         raise ValueError(f"seeds must look like 'A-B' or 'A,B,C', got {text!r}") from exc
-
-
-def default_seeds(episodes: int) -> list[int]:
-    """The frozen evaluation seeds: ``episodes`` seeds from :data:`EVAL_SEED_BASE`."""
-    if episodes <= 0:
-        raise ValueError(f"episodes must be positive, got {episodes}")
-    return list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + episodes))
 
 
 # ------------------------------------------------------------------ episodes

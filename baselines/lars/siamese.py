@@ -60,7 +60,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from auv_envs.core.assets import sha256_file
-from baselines.evaluation import EVAL_SEED_BASE
+from baselines.seeds import EVAL_SEED_BASE, TRAIN_SEED_RANGE
 
 TEMPLATE_SIZE = 64
 SEARCH_SIZE = 128
@@ -85,8 +85,6 @@ DEFAULT_WEIGHTS_DIR = "lars/siamese"
 WEIGHTS_FILE = "weights.pt"
 META_FILE = "meta.json"
 TRAIN_COMMAND = "python -m baselines.lars.siamese train --out assets/lars/siamese"
-#: Training sequences are seeded inside this range; evaluation uses >= EVAL_SEED_BASE.
-TRAIN_SEED_RANGE = (1000, 99999)
 #: Frames (of the exported sequence) between a training template and its search.
 MAX_PAIR_GAP = 40
 #: A training patch spans this many template contexts (search crop plus shifts).

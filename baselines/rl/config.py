@@ -33,17 +33,14 @@ from pathlib import Path
 import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
-from baselines.evaluation import EVAL_SEED_BASE, atomic_write
+from baselines.evaluation import atomic_write
+from baselines.seeds import EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE
 
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
 ALGORITHMS = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
 OFF_POLICY = ("sac", "td3", "ddpg")
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
-
-#: Training-time evaluation seeds start here; training seeds stay below it and
-#: both stay below :data:`baselines.evaluation.EVAL_SEED_BASE` (the leaderboard's).
-TRAIN_EVAL_SEED_BASE = 90_000
 
 #: Keys ``train.py`` reads itself, with their defaults.
 RUN_KEYS = {

@@ -1,0 +1,31 @@
+"""The project's seed ranges, in one place, so that training never sees an evaluation seed.
+
+* ``[1000, 99999]`` (:data:`TRAIN_SEED_RANGE`): the Siamese tracker's training sequences
+  (:mod:`baselines.lars.siamese`); ``train.py`` training seeds stay below
+  :data:`TRAIN_EVAL_SEED_BASE` (checked in :mod:`baselines.rl.config`).
+* ``90000 ...`` (:data:`TRAIN_EVAL_SEED_BASE`): the held-out episodes ``train.py``
+  evaluates on while it trains.
+* ``100000 ...`` (:data:`EVAL_SEED_BASE`): the leaderboard's frozen evaluation seeds
+  (:func:`default_seeds`).
+
+Calibration and reproduction scripts take ``--first-seed`` and document the ranges they
+were run on (``docs/difficulty.md``).
+"""
+
+from __future__ import annotations
+
+#: The leaderboard's evaluation seeds start here; training seeds stay below it.
+EVAL_SEED_BASE = 100_000
+#: Training-time evaluation seeds start here; training seeds stay below it, and both
+#: stay below :data:`EVAL_SEED_BASE`.
+TRAIN_EVAL_SEED_BASE = 90_000
+#: Seeds of the Siamese tracker's training sequences (inclusive), below
+#: :data:`EVAL_SEED_BASE`.
+TRAIN_SEED_RANGE = (1000, 99999)
+
+
+def default_seeds(episodes: int) -> list[int]:
+    """The frozen evaluation seeds: ``episodes`` seeds from :data:`EVAL_SEED_BASE`."""
+    if episodes <= 0:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    return list(range(EVAL_SEED_BASE, EVAL_SEED_BASE + episodes))
