@@ -413,6 +413,15 @@ def atomic_write(path: str | Path, data: str | bytes) -> None:
         raise
 
 
+def write_figures(path: str | Path, figures: dict) -> None:
+    """Write a reproduction script's figures to ``path`` as JSON and say so.
+
+    NumPy scalars are written as floats; the write is atomic (:func:`atomic_write`).
+    """
+    atomic_write(path, json.dumps(figures, indent=1, default=float))
+    print(f"figures written to {path}")
+
+
 def row_to_dict(row: EpisodeRow) -> dict:
     return jsonable(dataclasses.asdict(row))
 

@@ -13,14 +13,13 @@ seed 003's current direction ``DIRECTIONS[i % 5]`` (Scenario 2's five directions
 from __future__ import annotations
 
 import argparse
-import json
 from collections import Counter
 
 import gymnasium as gym
 
 import auv_envs  # noqa: F401
 from auv_envs.core.difficulty import LEVELS
-from baselines.evaluation import run_episode
+from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec
 from baselines.stats import wilson_interval
 
@@ -75,9 +74,7 @@ def main() -> None:
               f"[{100 * r['ci95'][0]:.0f}, {100 * r['ci95'][1]:.0f}] %) | {r['failures']} |",
               flush=True)
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(figures, f, indent=1)
-        print(f"figures written to {args.json}")
+        write_figures(args.json, figures)
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ from auv_envs.core.difficulty import LEVELS  # noqa: E402
 from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
 from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
-from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
+from baselines.evaluation import EVAL_SEED_BASE, write_figures  # noqa: E402
 from baselines.lars.ltat import LTATParams, LTATracker, MarkerCornerExtractor  # noqa: E402
 from baselines.lars.siamese import (  # noqa: E402
     Pyramid,
@@ -308,8 +308,7 @@ def main(argv=None) -> None:
                **{f"{sea}/corners": c for sea, c in corners.items()}}
     (out / "ope_seed000.json").write_text(json.dumps(figures, indent=2))
     if args.json:
-        Path(args.json).write_text(json.dumps(figures, indent=2))
-        print(f"figures written to {args.json}")
+        write_figures(args.json, figures)
     print(f"wrote {out / 'ope_seed000.png'} and {out / 'ope_seed000.json'}")
 
 

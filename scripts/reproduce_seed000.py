@@ -60,7 +60,7 @@ import auv_envs  # noqa: E402, F401
 from auv_envs.core.difficulty import LEVELS  # noqa: E402
 from auv_envs.tasks.lars import CONTROL_PERIOD  # noqa: E402
 from auv_envs.tasks.lars_sea import SeaSample, ShipPose  # noqa: E402
-from baselines.evaluation import run_episode  # noqa: E402
+from baselines.evaluation import run_episode, write_figures  # noqa: E402
 from baselines.lars.agents import CKFPDAgent  # noqa: E402
 from baselines.lars.marker import MarkerLocaliser, marker_attitude  # noqa: E402
 from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
@@ -372,8 +372,7 @@ def main(argv=None) -> None:
 
     (out / "seed000.json").write_text(json.dumps(results, indent=2, default=float))
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2, default=float))
-        print(f"figures written to {args.json}")
+        write_figures(args.json, results)
     print(f"\nwrote {out / 'seed000.json'} and plots to {out}/")
 
 

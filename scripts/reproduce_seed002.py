@@ -35,7 +35,6 @@ the 95 % interval of the per-sequence mean (percentile bootstrap over sequences)
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 import gymnasium as gym
@@ -46,6 +45,7 @@ from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
 from auv_envs.core.frames import rotation_from_euler
 from auv_envs.metrics import clear_mot_labelled
 from baselines.agents.pd_docking import DockingPDAgent
+from baselines.evaluation import write_figures
 from baselines.stats import bootstrap_interval
 from baselines.vision.lamp_array import LampArrayFrontEnd
 
@@ -253,9 +253,7 @@ def main() -> None:
     print("front end: initialisations", sum(s["lamp_initialisations"] for s in stats),
           "track losses", sum(s["lamp_track_losses"] for s in stats))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(figures, f, indent=1)
-        print(f"figures written to {args.json}")
+        write_figures(args.json, figures)
 
 if __name__ == "__main__":
     main()

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 from pathlib import Path
 
@@ -58,6 +57,7 @@ from auv_envs.tasks.docking import (  # noqa: E402
     SCENARIO_VELOCITY_NOISE,
 )
 from baselines.docking.agents import OFNMPCAgent  # noqa: E402
+from baselines.evaluation import write_figures  # noqa: E402
 from baselines.registry import agent_names, make_agent  # noqa: E402
 from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
 
@@ -344,9 +344,7 @@ def main() -> None:
     figures["scenario2"] = scenario2(args, args.out)
     print(f"\nplots in {args.out}/")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(figures, f, indent=1)
-        print(f"figures written to {args.json}")
+        write_figures(args.json, figures)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 
 import gymnasium as gym
@@ -45,7 +44,7 @@ from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
 from auv_envs.tasks.acoustic import TCFE_BIN_WIDTH, AcousticTrackingEnv
 from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
-from baselines.evaluation import run_episode
+from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec
 from baselines.stats import bootstrap_interval
 
@@ -213,9 +212,7 @@ def main() -> None:
                          for a in AGENTS for lvl in LEVELS}
             figures["tcfe_calm"] = tcfe_tables(calm_runs, truth, "calm water")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(figures, f, indent=1)
-        print(f"\nfigures written to {args.json}")
+        write_figures(args.json, figures)
 
 
 def tcfe_tables(runs: dict, truth: dict, what_water: str) -> dict:

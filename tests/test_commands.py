@@ -127,3 +127,15 @@ def test_default_run_leaves_out_heavy_agents_and_says_so(tmp_path, capsys):
         + ", ".join(heavy_everywhere) in capsys.readouterr().err
     ran = {r["agent"] for r in json.loads((tmp_path / "leaderboard.json").read_text())}
     assert ran and not ran & set(heavy_everywhere)
+
+
+def test_reproduction_scripts_write_their_figures_as_json(tmp_path, capsys):
+    import numpy as np
+
+    from baselines.evaluation import write_figures
+
+    path = tmp_path / "sub" / "figures.json"
+    write_figures(path, {"rate": np.float64(0.75), "ci95": [0.5, np.float32(0.9)], "n": 20})
+    assert json.loads(path.read_text()) == {"rate": 0.75, "ci95": [0.5, 0.8999999761581421],
+                                            "n": 20}
+    assert f"figures written to {path}" in capsys.readouterr().out
