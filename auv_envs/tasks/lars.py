@@ -1199,11 +1199,11 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             self._glint_ray_length = length.astype(np.float32)
             self._glint_view = tuple((v / length).astype(np.float32) for v in (x, y, 1.0))
 
-    def _glint_rays(self, truth: dict, x, y) -> np.ndarray:
-        """World directions of camera-frame rays ``(x, y, 1)`` of the level, slewed head."""
+    def _glint_rays(self, truth: dict, x, y, z=1.0) -> np.ndarray:
+        """World directions of camera-frame rays ``(x, y, z)`` of the level, slewed head."""
         c, s = math.cos(truth["q"][0]), math.sin(truth["q"][0])
-        x, y = np.broadcast_arrays(x, y)
-        return np.stack((c * x + s * y, s * x - c * y, -np.ones_like(x)), axis=-1)
+        x, y, z = np.broadcast_arrays(x, y, z)
+        return np.stack((c * x + s * y, s * x - c * y, -z), axis=-1)
 
     def _glint_on_corners(self, truth: dict, seen: list) -> tuple[list, list]:
         """``features``: which corners a glint takes this frame (4 uniforms a corner, always).
@@ -1286,13 +1286,12 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         state = np.zeros((2, 3), dtype=np.int8)
         spots_in_view, expected = [0, 0], [0.0, 0.0]
         radius2 = self.glint.detector_radius ** 2
-        # The head is level: both cameras look along the same rays from the same height,
-        # (x, y, 1) of the camera being (c x + s y, s x - c y, -1) in the world; a pixel's
-        # footprint on the water is (height / f)^2 (GlintField.pixel_means, d_z = -1).
+        # The head is level: both cameras look along the same rays from the same height;
+        # a pixel's footprint on the water is (height / f)^2 (GlintField.pixel_means,
+        # d_z = -1), and the density wants the unit direction back towards the camera.
         height = truth["cameras"][0][2] - level
-        c, s = math.cos(truth["q"][0]), math.sin(truth["q"][0])
-        xl, yl, il = self._glint_view
-        means_both = field.density(-(c * xl + s * yl), yl * c - xl * s, il)
+        rays = self._glint_rays(truth, *self._glint_view)
+        means_both = field.density(-rays[..., 0], -rays[..., 1], -rays[..., 2])
         means_both *= (height / self._intrinsics.fx) ** 2
         water_range = height * self._glint_ray_length
         for k in range(2):
