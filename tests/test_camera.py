@@ -128,7 +128,7 @@ def test_truth_pixels_match_hand_projection(make_env, position, euler):
     env = make_env(SIX)
     u = env.unwrapped
     env.reset(seed=0)
-    u._physics.set_state(position, euler, np.zeros(6))
+    u.physics.set_state(position, euler, np.zeros(6))
     truth = u._truth()
     lights = u.calibration.light_positions
     expected = _hand_projection(position, euler, lights, 640, 480, 0.0)
@@ -142,7 +142,7 @@ def test_known_pose_known_pixels(make_env):
     env = make_env(SIX)
     u = env.unwrapped
     env.reset(seed=0)
-    u._physics.set_state((-6.0, 0.3, -0.2), (0.0, 0.0, 0.1), np.zeros(6))
+    u.physics.set_state((-6.0, 0.3, -0.2), (0.0, 0.0, 0.1), np.zeros(6))
     pixels = u._truth()["pixels"]
     # Yawed to port (counter-clockwise) and displaced to port: the station
     # appears right of the image centre; light_0 (top) above light_3 (bottom).
@@ -184,7 +184,7 @@ def test_light_on_optical_axis_projects_to_principal_point(make_env, env_id, lig
     axis_world = r_body @ _cam_rotation_cv_to_body(CAMERA_PITCH_DEG[env_id])[:, 2]
     cam_pos = light - 5.0 * axis_world
     position = cam_pos - r_body @ np.array([NOSE, 0.0, 0.0])
-    u._physics.set_state(position, euler, np.zeros(6))
+    u.physics.set_state(position, euler, np.zeros(6))
     pixels = u._truth()["pixels"]
     np.testing.assert_allclose(pixels[light_index], [200.0, 150.0], atol=1e-8)
     # The other lights are off-centre.
@@ -198,7 +198,7 @@ def test_truth_pixels_match_opencv_project_points(make_env, env_id):
     u = env.unwrapped
     env.reset(seed=0)
     position, euler = (-7.0, 0.4, 0.3), (0.05, -0.03, -0.08)
-    u._physics.set_state(position, euler, np.zeros(6))
+    u.physics.set_state(position, euler, np.zeros(6))
     pixels = u._truth()["pixels"]
     cal = u.calibration
     r_body = rotation_from_euler(*euler)
@@ -227,7 +227,7 @@ def test_vehicle_facing_away_sees_no_lights(make_env):
     env = make_env(SIX)
     u = env.unwrapped
     env.reset(seed=0)
-    u._physics.set_state((-6.0, 0.0, 0.0), (0.0, 0.0, math.pi), np.zeros(6))
+    u.physics.set_state((-6.0, 0.0, 0.0), (0.0, 0.0, math.pi), np.zeros(6))
     truth = u._truth()
     assert not truth["visible"].any()
     assert np.isnan(truth["pixels"]).all()
@@ -320,7 +320,7 @@ def test_rendered_lamps_lie_at_projected_pixels(make_env, env_id, position, eule
     env = make_env(env_id, obs_mode="image", image_size=(width, height))
     u = env.unwrapped
     env.reset(seed=0)
-    u._physics.set_state(position, euler, np.zeros(6))
+    u.physics.set_state(position, euler, np.zeros(6))
     truth = u._truth()
     image = u._observation(truth)["image"]
     assert image.shape == (height, width, 3) and image.dtype == np.uint8

@@ -208,8 +208,8 @@ def test_perturbed_plant_is_simulated_and_integrated_correctly():
     assert vehicle != hovering_auv() and vehicle.mass == pytest.approx(
         hovering_auv().mass * info["plant"]["mass_scale"])
     assert env.unwrapped.calibration.nominal_params == nominal  # the controller's model stays
-    model = env.unwrapped._physics.model
-    assert model.body_mass[env.unwrapped._physics.hull_body] == vehicle.mass
+    model = env.unwrapped.physics.model
+    assert model.body_mass[env.unwrapped.physics.hull_body] == vehicle.mass
     # The plant integrates the perturbed equations: the independent reference with the
     # episode's parameters agrees to the usual limits...
     error = env_plant_error(env, seed=8, command_seed=3, duration=5.0)

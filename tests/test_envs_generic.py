@@ -104,7 +104,7 @@ def test_pickle_round_trip_continues_identically(env_and_mode):
 
 def test_observations_do_not_share_memory_with_mjdata(env_and_mode):
     _, _, env = env_and_mode
-    data = env.unwrapped._physics.data
+    data = env.unwrapped.physics.data
     buffers = [data.qpos, data.qvel, data.xpos, data.xmat, data.xquat, data.site_xpos,
                data.cam_xpos, data.xfrc_applied]
     obs, info = env.reset(seed=0)

@@ -19,15 +19,15 @@ def image_env(request):
 def test_geom_ids_name_real_geoms_and_leave_the_next_render_alone(image_env):
     env = image_env
     env.reset(seed=3)
-    before = env._render_camera(env._renderer)
-    ids = env._renderer.render_geom_ids(env._physics.data)
-    after = env._render_camera(env._renderer)
+    before = env._render_camera(env.camera_renderer)
+    ids = env.camera_renderer.render_geom_ids(env.physics.data)
+    after = env._render_camera(env.camera_renderer)
     np.testing.assert_array_equal(before, after)  # the segmentation flags are put back
     assert ids.shape == before.shape[:2] and ids.dtype == np.int32
-    assert ids.min() >= -1 and ids.max() < env._physics.model.ngeom
+    assert ids.min() >= -1 and ids.max() < env.physics.model.ngeom
     assert (ids == -1).any()  # open water
     # Every lamp in view shows as its own geom, where the clear render has white pixels.
-    lamps = env._physics.lamp_geoms
+    lamps = env.physics.lamp_geoms
     assert np.isin(lamps, ids).any()
     white = (before == 255).all(axis=-1)
     assert white[np.isin(ids, lamps)].mean() > 0.9
@@ -56,9 +56,9 @@ def test_partly_hidden_lamp_is_labelled_where_it_shows():
         pixels, shown = env.unwrapped.lamps_in_image()
         hidden = np.flatnonzero(shown & ~info["true_visible"])
         assert hidden.size >= 1
-        ids = env.unwrapped._renderer.render_geom_ids(env.unwrapped._physics.data)
+        ids = env.unwrapped.camera_renderer.render_geom_ids(env.unwrapped.physics.data)
         for i in hidden:
-            rows, cols = np.nonzero(ids == env.unwrapped._physics.lamp_geoms[i])
+            rows, cols = np.nonzero(ids == env.unwrapped.physics.lamp_geoms[i])
             np.testing.assert_allclose(pixels[i], (cols.mean() + 0.5, rows.mean() + 0.5))
     finally:
         env.close()

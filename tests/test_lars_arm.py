@@ -24,7 +24,7 @@ def _random_q(rng, arm, n):
 
 def test_forward_kinematics_matches_mujoco(env):
     arm = env.calibration.arm
-    model = env._physics.model
+    model = env.physics.model
     data = mujoco.MjData(model)
     for q in _random_q(np.random.default_rng(0), arm, 20):
         data.qpos[:] = q
@@ -79,7 +79,7 @@ def test_dynamics_terms_are_nontrivial_and_consistent(env):
 
 def test_inverse_dynamics_reproduces_simulated_acceleration(env):
     arm = env.calibration.arm
-    model = env._physics.model
+    model = env.physics.model
     data = mujoco.MjData(model)
     data.qpos[:] = [0.1, 0.2, -1.3]
     data.qvel[:] = [0.3, -0.2, 0.5]
@@ -93,16 +93,16 @@ def test_gravity_torque_holds_the_arm_still():
     env = LARSCaptureEnv(obs_mode="features", time_limit=100.0)
     obs, _ = env.reset(seed=4)
     cal = env.calibration
-    q0 = env._physics.data.qpos.copy()
+    q0 = env.physics.data.qpos.copy()
     hold = (cal.arm.gravity(q0) / cal.torque_limits).astype(np.float64)
     for _ in range(50):
         obs, *_ = env.unwrapped.step(hold)
-    np.testing.assert_allclose(env._physics.data.qpos, q0, atol=1e-9)
+    np.testing.assert_allclose(env.physics.data.qpos, q0, atol=1e-9)
     # Without it the arm falls.
     env.reset(seed=4)
     for _ in range(5):
         env.step(np.zeros(3, dtype=np.float32))
-    assert np.abs(env._physics.data.qpos - q0).max() > 1e-2
+    assert np.abs(env.physics.data.qpos - q0).max() > 1e-2
 
 
 def test_position_control_tracks_a_target():

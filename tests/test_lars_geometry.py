@@ -22,7 +22,7 @@ from auv_envs.tasks.lars_scene import (
 
 
 def _left_camera_to_world(env, points_left):
-    pose, _ = env.calibration.camera_poses(env._physics.data.qpos.copy())
+    pose, _ = env.calibration.camera_poses(env.physics.data.qpos.copy())
     return points_left @ pose[:3, :3].T + pose[:3, 3]
 
 

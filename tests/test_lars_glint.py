@@ -255,11 +255,11 @@ def test_stereo_glints_are_saturated_where_the_model_says():
     spot_sum, spot_pixels, model_sum = np.zeros(2), 0, np.zeros(2)
     for _ in range(25):
         obs, *_, info = env.step(tracking_action(env, info))
-        clean, ranges = env._renderer.render_with_range(env._physics.data)  # no glint
+        clean, ranges = env.camera_renderer.render_with_range(env.physics.data)  # no glint
         left = obs["left"]
         changed = np.any(left != clean[:, :width], axis=-1)
         assert np.all(left[changed] == 255)
-        pose = cal.camera_poses(env._physics.data.qpos)[0]
+        pose = cal.camera_poses(env.physics.data.qpos)[0]
         rays = cam_rays @ pose[:3, :3].T
         h = pose[2, 3] - info["water_level"]
         water = np.abs(ranges[:, :width] - h * np.linalg.norm(rays, axis=-1)) < 0.005
@@ -296,7 +296,7 @@ def test_glitter_centres_on_the_suns_mirror_image():
         obs, *_, info = env.step(tracking_action(env, info))
         clean = env._render_pair()[:, :width]
         changed = np.any(obs["left"] != clean, axis=-1)
-        pose = cal.camera_poses(env._physics.data.qpos)[0]
+        pose = cal.camera_poses(env.physics.data.qpos)[0]
         camera = pose[:3, 3]
         reach = (camera[2] - info["water_level"]) / math.tan(math.radians(elevation))
         mirror = camera + (reach * math.cos(math.radians(azimuth)),

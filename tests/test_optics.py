@@ -282,7 +282,7 @@ def test_failed_lamps_are_dark_in_the_image():
     env = gym.make(DOCKING_IDS[0], obs_mode="image", image_size=(160, 120), optics=optics)
     _, info = env.reset(seed=0)
     assert info["optics"]["failed_lamps"] == env.unwrapped.calibration.light_labels
-    clear = env.unwrapped._renderer.render(env.unwrapped._physics.data)
+    clear = env.unwrapped.camera_renderer.render(env.unwrapped.physics.data)
     assert not (clear == 255).all(axis=2).any()
     env.close()
 
@@ -310,7 +310,7 @@ def test_default_is_clear_water_bit_for_bit_without_extra_draws(env_id, obs_mode
         explicit.unwrapped.np_random.bit_generator.state
     if obs_mode == "image":  # today's image: the plain render of the forward camera
         u = explicit.unwrapped
-        np.testing.assert_array_equal(o2["image"], u._renderer.render(u._physics.data))
+        np.testing.assert_array_equal(o2["image"], u.camera_renderer.render(u.physics.data))
     plain.close()
     explicit.close()
 
@@ -335,7 +335,7 @@ def test_env_with_optics_survives_pickling(obs_mode):
         env.step(np.array([0.5, 0.1, 0.0, 0.2]))
     clone = pickle.loads(pickle.dumps(env))
     assert clone.calibration.optics == optics
-    np.testing.assert_array_equal(clone._physics.model.geom_matid, env._physics.model.geom_matid)
+    np.testing.assert_array_equal(clone.physics.model.geom_matid, env.physics.model.geom_matid)
     for _ in range(10):
         a = env.step(np.array([0.6, -0.1, 0.1, 0.0]))
         b = clone.step(np.array([0.6, -0.1, 0.1, 0.0]))

@@ -50,26 +50,26 @@ def plant():
 
 def _substeps(env, tau6, n=1, current=(0.0, 0.0, 0.0)):
     """``n`` physics steps exactly as ``DockingEnv.step`` does them."""
-    phys = env._physics
-    env._hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
-    passive.step(phys.model, phys.data, env._hull.passive_force, n)
+    phys = env.physics
+    env.hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
+    passive.step(phys.model, phys.data, env.hull.passive_force, n)
 
 
 def _acceleration(env, tau6, current=(0.0, 0.0, 0.0)):
     """The state's acceleration (world linear, body angular) with the hull force."""
-    phys = env._physics
-    env._hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
-    passive.forward(phys.model, phys.data, env._hull.passive_force)
+    phys = env.physics
+    env.hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
+    passive.forward(phys.model, phys.data, env.hull.passive_force)
     return phys.data.qacc[phys.qvel_adr : phys.qvel_adr + 6].copy()
 
 
 def _body_velocity(env):
-    phys = env._physics
+    phys = env.physics
     return phys.body_velocity(phys.rotation())
 
 
 def _euler(env):
-    return frames.euler_from_rotation(env._physics.rotation())
+    return frames.euler_from_rotation(env.physics.rotation())
 
 
 def _terminal_velocity(dl, dq, force):
@@ -78,17 +78,17 @@ def _terminal_velocity(dl, dq, force):
 
 
 def test_plant_uses_the_documented_vehicle(plant):
-    p = plant._hull.params
+    p = plant.hull.params
     assert p == hovering_auv()
     assert plant.vehicle is p
-    model = plant._physics.model
+    model = plant.physics.model
     # Documented plant: one classical RK4 step of 0.1 s per control period.
     assert model.opt.timestep == pytest.approx(0.1)
     assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
     assert docking.CONTROL_PERIOD == 0.1
     assert plant.calibration.control_period == pytest.approx(0.1)
     assert plant.dt == plant.calibration.control_period
-    hull = plant._physics.hull_body
+    hull = plant.physics.hull_body
     assert model.body_mass[hull] == pytest.approx(p.mass)
     np.testing.assert_allclose(model.body_inertia[hull], p.inertia)
     # Weight is applied by the hull model (gravity compensated in MuJoCo).
@@ -99,11 +99,11 @@ def test_plant_uses_the_documented_vehicle(plant):
 # ------------------------------------------------------------------ a. added mass
 @pytest.mark.parametrize("yaw", [0.0, 0.7])
 def test_sway_force_from_rest_accelerates_with_added_mass(plant, yaw):
-    p = plant._hull.params
-    plant._physics.set_state((-20.0, 0.0, 0.0), (0.0, 0.0, yaw), np.zeros(6))
+    p = plant.hull.params
+    plant.physics.set_state((-20.0, 0.0, 0.0), (0.0, 0.0, yaw), np.zeros(6))
     world_acc = _acceleration(plant, (0.0, 80.0, 0.0, 0.0, 0.0, 0.0))
     # From rest, with no rotation, the body acceleration is R^T times the world one.
-    acc = np.concatenate([world_acc[:3] @ plant._physics.rotation(), world_acc[3:]])
+    acc = np.concatenate([world_acc[:3] @ plant.physics.rotation(), world_acc[3:]])
     expected = 80.0 / (p.mass + p.added_mass[1])
     # From rest: no damping, no Coriolis.
     assert acc[1] == pytest.approx(expected, rel=1e-6)
@@ -120,8 +120,8 @@ def test_sway_force_from_rest_accelerates_with_added_mass(plant, yaw):
 
 
 def test_sway_action_through_env_step(plant):
-    p = plant._hull.params
-    plant._physics.set_state((-20.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros(6))
+    p = plant.hull.params
+    plant.physics.set_state((-20.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros(6))
     _, _, terminated, truncated, info = plant.step(np.array([0.0, 1.0, 0.0, 0.0], np.float32))
     assert not (terminated or truncated)
     acc = info["true_velocity"][1] / plant.calibration.control_period
@@ -133,10 +133,10 @@ def test_sway_action_through_env_step(plant):
 
 # ------------------------------------------------------------------ b. buoyancy
 def test_release_from_rest_rises_to_terminal_velocity(plant):
-    p = plant._hull.params
-    dt = plant._physics.model.opt.timestep
+    p = plant.hull.params
+    dt = plant.physics.model.opt.timestep
     start = np.array([-25.0, 0.0, -1.0])
-    plant._physics.set_state(start, (0.0, 0.0, 0.0), np.zeros(6))
+    plant.physics.set_state(start, (0.0, 0.0, 0.0), np.zeros(6))
     acc0 = _acceleration(plant, ZERO6)[2]
     assert acc0 == pytest.approx(p.net_buoyancy / (p.mass + p.added_mass[2]), rel=1e-6)
     assert acc0 == pytest.approx(0.02878, abs=1e-5)
@@ -146,7 +146,7 @@ def test_release_from_rest_rises_to_terminal_velocity(plant):
     nu = _body_velocity(plant)
     assert nu[2] == pytest.approx(w_t, rel=1e-3)
     np.testing.assert_allclose(nu[[0, 1, 3, 4, 5]], 0.0, atol=1e-9)
-    pos = plant._physics.position()
+    pos = plant.physics.position()
     # Straight up (no surface in the arena): at least 60 s at > 0 and < w_t.
     np.testing.assert_allclose(pos[:2], start[:2], atol=1e-9)
     assert 0.8 * 60.0 * w_t < pos[2] - start[2] < 60.0 * w_t
@@ -155,12 +155,12 @@ def test_release_from_rest_rises_to_terminal_velocity(plant):
 
 # ------------------------------------------------------------------ c. current
 def test_free_vehicle_drifts_with_uniform_current(plant):
-    p = plant._hull.params
-    dt = plant._physics.model.opt.timestep
+    p = plant.hull.params
+    dt = plant.physics.model.opt.timestep
     current = np.array([0.2, -0.1, 0.0])
-    plant._physics.set_state((-25.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.zeros(6))
+    plant.physics.set_state((-25.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.zeros(6))
     acc = _acceleration(plant, ZERO6, current=current)
-    adr = plant._physics.qvel_adr
+    adr = plant.physics.qvel_adr
     # Initially the relative velocity is -current: drag pulls the hull along
     # the current, resisted by the full (rigid + added) mass.
     x_drag = p.linear_damping[0] * 0.2 + p.quadratic_damping[0] * 0.2**2
@@ -169,13 +169,13 @@ def test_free_vehicle_drifts_with_uniform_current(plant):
     assert acc[1] == pytest.approx(-y_drag / (p.mass + p.added_mass[1]), rel=1e-6)
 
     _substeps(plant, ZERO6, n=int(round(120.0 / dt)), current=current)
-    world_vel = plant._physics.data.qvel[adr : adr + 3]
+    world_vel = plant.physics.data.qvel[adr : adr + 3]
     np.testing.assert_allclose(world_vel[:2], current[:2], atol=1e-3)
     w_t = _terminal_velocity(p.linear_damping[2], p.quadratic_damping[2], p.net_buoyancy)
     assert world_vel[2] == pytest.approx(w_t, rel=1e-2)
     nu = _body_velocity(plant)
     assert abs(nu[5]) < 1e-4  # no residual yaw rate
-    assert np.all(np.isfinite(plant._physics.data.qpos))
+    assert np.all(np.isfinite(plant.physics.data.qpos))
 
 
 # ------------------------------------------------------------------ d. nominal model
@@ -186,10 +186,10 @@ ACTION = np.array([0.5, -0.3, 0.4, 0.6])
 
 
 def _plant_state(env):
-    rot = env._physics.rotation()
-    nu = env._physics.body_velocity(rot)
+    rot = env.physics.rotation()
+    nu = env.physics.body_velocity(rot)
     yaw = frames.euler_from_rotation(rot)[2]
-    return np.array([*env._physics.position(), yaw, nu[0], nu[1], nu[2], nu[5]])
+    return np.array([*env.physics.position(), yaw, nu[0], nu[1], nu[2], nu[5]])
 
 
 def _nominal_prediction(env):
@@ -201,7 +201,7 @@ def _nominal_prediction(env):
 
 def test_nominal_model_predicts_one_env_step_of_the_plant(plant):
     x0, predicted = _nominal_prediction(plant)
-    plant._physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
+    plant.physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
     _, _, terminated, truncated, _ = plant.step(ACTION.astype(np.float32))
     assert not (terminated or truncated)
     err = _plant_state(plant) - predicted
@@ -225,11 +225,11 @@ def test_plant_converges_to_nominal_model_with_small_timestep(plant):
     x0, predicted = _nominal_prediction(plant)
     tau = ACTION * np.array(plant.calibration.thrust_limits)
     tau6 = (tau[0], tau[1], tau[2], 0.0, 0.0, tau[3])
-    model = plant._physics.model
+    model = plant.physics.model
     coarse = model.opt.timestep
     try:
         model.opt.timestep = plant.calibration.control_period / 20
-        plant._physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
+        plant.physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
         _substeps(plant, tau6, n=20)
     finally:
         model.opt.timestep = coarse
@@ -244,7 +244,7 @@ def test_model_mismatch_changes_nominal_damping_only():
     env = _make(model_mismatch=True)
     try:
         u = env.unwrapped
-        plant_params = u._hull.params
+        plant_params = u.hull.params
         nominal = u.calibration.nominal_params
         assert plant_params == hovering_auv()
         assert nominal.linear_damping != plant_params.linear_damping
@@ -261,7 +261,7 @@ def test_model_mismatch_changes_nominal_damping_only():
         env.close()
     env = _make(model_mismatch=False)
     try:
-        assert env.unwrapped.calibration.nominal_params == env.unwrapped._hull.params
+        assert env.unwrapped.calibration.nominal_params == env.unwrapped.hull.params
     finally:
         env.close()
 
@@ -272,7 +272,7 @@ def test_mismatched_model_prediction_differs_from_plant():
         u = env.unwrapped
         env.reset(seed=0)
         _, predicted = _nominal_prediction(u)
-        u._physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
+        u.physics.set_state(X0_POS, (0.0, 0.0, X0_YAW), X0_NU)
         u.step(ACTION.astype(np.float32))
         err = _plant_state(u) - predicted
         # 30 % less surge damping at u = 0.5 m/s: ~4.7 N over 0.1 s / 200 kg.
@@ -334,12 +334,12 @@ def test_nominal_model_kinematics_and_equilibrium(plant):
 # ------------------------------------------------------------------ f. restoring
 @pytest.mark.parametrize("axis", [0, 1], ids=["roll", "pitch"])
 def test_righting_moment_returns_vehicle_to_level(plant, axis):
-    p = plant._hull.params
-    dt = plant._physics.model.opt.timestep
+    p = plant.hull.params
+    dt = plant.physics.model.opt.timestep
     angle = math.radians(20.0)
     euler = [0.0, 0.0, 0.0]
     euler[axis] = angle
-    plant._physics.set_state((-25.0, 0.0, -1.0), euler, np.zeros(6))
+    plant.physics.set_state((-25.0, 0.0, -1.0), euler, np.zeros(6))
     ang_acc = _acceleration(plant, ZERO6)[3 + axis]
     # Righting moment -BG * B * sin(angle) about the tilt axis, resisted by
     # inertia plus added inertia.
@@ -358,8 +358,8 @@ def test_righting_moment_returns_vehicle_to_level(plant, axis):
         peaks.append(peak)
         if window == 0:
             assert abs(_euler(plant)[axis]) < math.radians(5.0)
-    assert np.all(np.isfinite(plant._physics.data.qpos))
-    assert np.all(np.isfinite(plant._physics.data.qvel))
+    assert np.all(np.isfinite(plant.physics.data.qpos))
+    assert np.all(np.isfinite(plant.physics.data.qvel))
     assert peaks[0] < angle
     assert all(b <= a + 1e-12 for a, b in zip(peaks, peaks[1:], strict=False)), peaks
     assert abs(_euler(plant)[axis]) < math.radians(0.01)
@@ -403,10 +403,10 @@ def test_prolate_spheroid_added_mass_limits():
     "action", [(1.0, 1.0, 1.0, 1.0), (-1.0, -1.0, -1.0, -1.0), (1.0, -1.0, -1.0, 1.0)]
 )
 def test_full_thrust_for_100_s_stays_bounded(plant, action):
-    dt = plant._physics.model.opt.timestep
+    dt = plant.physics.model.opt.timestep
     tau = np.array(action) * np.array(plant.calibration.thrust_limits)
     tau6 = (tau[0], tau[1], tau[2], 0.0, 0.0, tau[3])
-    plant._physics.set_state((-25.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.zeros(6))
+    plant.physics.set_state((-25.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.zeros(6))
     max_tilt = 0.0
     max_speed = 0.0
     for _ in range(int(round(100.0 / dt))):
@@ -414,7 +414,7 @@ def test_full_thrust_for_100_s_stays_bounded(plant, action):
         roll, pitch, _ = _euler(plant)
         max_tilt = max(max_tilt, abs(roll), abs(pitch))
         max_speed = max(max_speed, np.abs(_body_velocity(plant)).max())
-    data = plant._physics.data
+    data = plant.physics.data
     assert np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))
     assert max_tilt < math.radians(30.0), math.degrees(max_tilt)
     # Surge terminal speed with 80 N alone is ~1.48 m/s; nothing runs away.
@@ -424,7 +424,7 @@ def test_full_thrust_for_100_s_stays_bounded(plant, action):
 # ------------------------------------------------------------------ i. contact gate
 def _funnel_run(env, gate: bool):
     """A run from open water into a funnel plate; per step (qpos, qvel, contacts, gated)."""
-    phys = env._physics
+    phys = env.physics
     phys.set_state((-4.0, 0.55, 0.0), (0.0, 0.0, 0.0), (0.6, 0.0, 0.0, 0.0, 0.0, 0.0))
     rows = []
     for _ in range(60):

@@ -76,7 +76,7 @@ def test_unoccluded_matches_multiray(env_id):
     """
     env = make_env(env_id, "state")
     env.reset(seed=0)
-    phys = env.unwrapped._physics
+    phys = env.unwrapped.physics
     lights = phys.light_positions
     n = len(lights)
     rng = np.random.default_rng(1)
@@ -144,7 +144,7 @@ def test_unoccluded_finds_rail_that_multiray_misses():
     """
     env = make_env(LAMPS, "state")
     env.reset(seed=0)
-    phys = env.unwrapped._physics
+    phys = env.unwrapped.physics
     origin = np.array([2.91814237, -2.38691136, -0.99844223])
     lamp_d = phys.light_positions[3]
     np.testing.assert_allclose(lamp_d, [2.4, 0.5, -0.6], atol=1e-12)

@@ -218,7 +218,7 @@ def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
         z = heave(k * none.dt, m.heave_amplitude, m.omega, m.heave_phase)[0]
         assert info["true_position"][2] == z + (AUV_FREEBOARD - AUV_DIAMETER / 2.0)
         assert info["true_pitch"] == m.pitch and "ship_motion" not in info
-    q = none._physics.data.qpos
+    q = none.physics.data.qpos
     np.testing.assert_array_equal(b[-1][2]["end_position"], none._arm.forward_kinematics(q))
     # No draws beyond the documented ones: motion (8) and arm offset (2) uniforms,
     # then the pixel noise (12 normals per observation) in features mode.
@@ -239,7 +239,7 @@ def test_ship_motion_moves_the_cameras_and_the_auv_rolls():
     _, info = env.reset(seed=2, options={"wave_heading": math.pi / 2})
     shift_px, rolls, ship_roll = [], [], []
     for k in range(120):
-        q = env._physics.data.qpos.copy()
+        q = env.physics.data.qpos.copy()
         rolls.append(info["true_roll"])
         ship_roll.append(info["ship_motion"][1])
         # The same AUV seen from the cameras of a ship at rest (forward kinematics and

@@ -120,7 +120,7 @@ class ReconstructingPickleMixin:
 
     The class must record its arguments in ``__init__`` with
     :meth:`_accept_arguments` (or set ``self._init_kwargs``). The run-time
-    state is, by default, MuJoCo's integration state of ``self._physics``
+    state is, by default, MuJoCo's integration state of ``self.physics``
     (an object with ``model`` and ``data``) plus a deep copy of
     ``self._episode`` (everything else that changes during an episode); a
     class that keeps more overrides ``_get_runtime_state()`` /
@@ -144,14 +144,14 @@ class ReconstructingPickleMixin:
         )
 
     def _get_runtime_state(self) -> dict:
-        physics = self._physics
+        physics = self.physics
         return {
             "physics": get_physics_state(physics.model, physics.data),
             "episode": copy.deepcopy(self._episode),
         }
 
     def _set_runtime_state(self, state: dict) -> None:
-        physics = self._physics
+        physics = self.physics
         set_physics_state(physics.model, physics.data, state["physics"])
         self._episode = copy.deepcopy(state["episode"])
 

@@ -121,7 +121,7 @@ def export_sequence(
             "corners_left_cam", "occluded", "distractors", "joint_position",
             "end_position", "auv_position")}
         for t in range(steps):
-            q = env._physics.data.qpos.copy()  # full precision for the labels
+            q = env.physics.data.qpos.copy()  # full precision for the labels
             left_pose, _ = cal.camera_poses(q)
             cv2.imwrite(str(out_dir / "left" / f"{t:06d}.png"), obs["left"][..., ::-1])
             cv2.imwrite(str(out_dir / "right" / f"{t:06d}.png"), obs["right"][..., ::-1])

@@ -504,9 +504,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         self.disturbance = disturbance
         self.trajectory = trajectory
         self._static_point = static_point
-        self._physics = _Physics(build_tank_model())
+        self.physics = _Physics(build_tank_model())
         self._dt = 1.0 / config.sample_rate
-        self._physics.model.opt.timestep = self._dt / physics_substeps
+        self.physics.model.opt.timestep = self._dt / physics_substeps
         self._physics_substeps = physics_substeps
         self._horizon = int(round(time_limit * config.sample_rate))
         #: Step period, s (one env step).
@@ -516,10 +516,10 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         self._error_clip = float(error_clip)
         self._track_gate = float(track_gate)
         self._success_radius = float(success_radius)
-        depth = self._physics.tank_depth
-        array = HydrophoneArray(self._physics.hydrophones, 0.0, -depth, config)
+        depth = self.physics.tank_depth
+        array = HydrophoneArray(self.physics.hydrophones, 0.0, -depth, config)
         band_centres = array.band_centres
-        tank_size = self._physics.tank_size
+        tank_size = self.physics.tank_size
         low = np.array([0.0, 0.0, -depth])
         high = np.array([*tank_size, 0.0])
         self.calibration = AcousticCalibration(
@@ -535,7 +535,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             work_area=((40.0, 40.0, -25.0), (295.0, 295.0, -5.0)),
             max_detections=config.max_detections,
         )
-        self._source_offset = self._physics.source_offset(NOMINAL_POSTURE)
+        self._source_offset = self.physics.source_offset(NOMINAL_POSTURE)
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
@@ -586,7 +586,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         ep.estimates = np.full((self._horizon, 3), np.nan)
         ep.truths = np.full((self._horizon, 3), np.nan)
 
-        physics = self._physics
+        physics = self.physics
         model, data = physics.model, physics.data
         mujoco.mj_resetData(model, data)
         data.qpos[physics.carrier_qpos] = ep.carrier_ref[0]
@@ -681,7 +681,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     def _simulate_block(self, start: int) -> None:
         """Advance the physics over sample periods [start, start + BLOCK) and measure them."""
         ep = self._episode
-        physics = self._physics
+        physics = self.physics
         model, data = physics.model, physics.data
         count = min(BLOCK, ep.horizon + 1 - start)
         positions = np.empty((count, 3))

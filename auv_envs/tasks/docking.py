@@ -774,9 +774,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         model.opt.timestep = CONTROL_PERIOD / physics_substeps
         model.opt.integrator = INTEGRATORS[integrator]
         self._physics_substeps = physics_substeps
-        self._physics = _Physics(model, n_lights)
-        self._hull = HullForceModel(self._params, self._physics.hull_body, self._physics.qvel_adr)
-        self._hull_force = self._hull.passive_force
+        self.physics = _Physics(model, n_lights)
+        self.hull = HullForceModel(self._params, self.physics.hull_body, self.physics.qvel_adr)
+        self._hull_force = self.hull.passive_force
         self._dt = CONTROL_PERIOD
         #: The simulated vehicle's parameters (what the plant integrates), read-only.
         self.vehicle = self._params
@@ -791,17 +791,17 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             if model_mismatch
             else self._params
         )
-        light_positions = self._physics.light_positions.copy()
+        light_positions = self.physics.light_positions.copy()
         light_positions.setflags(write=False)
         nose = self._params.length / 2.0
         target = np.array([-nose, 0.0, 0.0])
         target.setflags(write=False)
         self.calibration = DockingCalibration(
             intrinsics=CameraIntrinsics.from_fovy(
-                width, height, float(model.cam_fovy[self._physics.camera_id])
+                width, height, float(model.cam_fovy[self.physics.camera_id])
             ),
             extrinsics=CameraExtrinsics.from_mujoco(
-                self._physics.camera_pos_body, self._physics.camera_mat_body
+                self.physics.camera_pos_body, self.physics.camera_mat_body
             ),
             light_positions=light_positions,
             light_labels=self.layout.light_labels,
@@ -812,7 +812,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             nose_offset=nose,
             target_position=target,
             tolerances=tolerances or DockingTolerances(),
-            seabed_z=self._physics.seabed_z,
+            seabed_z=self.physics.seabed_z,
             pixel_noise_std=SCENARIO_PIXEL_NOISE if noisy else 0.0,
             velocity_noise_std=SCENARIO_VELOCITY_NOISE if noisy else 0.0,
             yaw_rate_noise_std=SCENARIO_YAW_RATE_NOISE if noisy else 0.0,
@@ -840,14 +840,14 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             self._pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
         # One renderer for the image observation, one for render(): they differ
         # in camera, size or lighting.
-        self._renderer: CameraRenderer | None = None
+        self.camera_renderer: CameraRenderer | None = None
         if obs_mode == "image":
-            self._renderer = CameraRenderer(model, (self._physics.camera_name,), width, height)
+            self.camera_renderer = CameraRenderer(model, (self.physics.camera_name,), width, height)
         self._view: CameraRenderer | None = None
         if render_mode == "rgb_array":
             chase = render_camera == "chase"
             self._view = CameraRenderer(
-                model, ("hovering_auv/chase" if chase else self._physics.camera_name,),
+                model, ("hovering_auv/chase" if chase else self.physics.camera_name,),
                 render_width, render_height, headlight=CHASE_HEADLIGHT if chase else None,
                 fog=chase, skybox=chase,
             )
@@ -899,13 +899,13 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             polar, current = (0.0, 0.0), np.zeros(3)
         vehicle, draws = self._disturbances.plant.draw(self._params, rng)
         self._use_vehicle(vehicle)
-        self._physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
+        self.physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
         self._episode = _EpisodeState(current=current, current_mean=(speed, direction),
                                       current_polar=polar, vehicle=vehicle, plant_draws=draws)
         if self._optics is not None:
             outages = LampOutages.start(self._optics, len(lay.light_labels), rng)
             self._episode.outages = outages
-            self._physics.show_lamps(outages.failed)
+            self.physics.show_lamps(outages.failed)
         truth = self._truth()
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
@@ -926,19 +926,19 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             self._use_vehicle(vehicle)
         super()._set_runtime_state(state)
         if self._optics is not None:  # the episode's failed lamps live in the model too
-            self._physics.show_lamps(self._episode.outages.failed)
+            self.physics.show_lamps(self._episode.outages.failed)
 
     def _use_vehicle(self, vehicle: VehicleParams) -> None:
         """Make ``vehicle`` the simulated one: MuJoCo's mass and inertia, the hull wrench."""
         if vehicle is self.vehicle:
             return
-        model, data, body = self._physics.model, self._physics.data, self._physics.hull_body
+        model, data, body = self.physics.model, self.physics.data, self.physics.hull_body
         model.body_mass[body] = vehicle.mass
         model.body_inertia[body] = vehicle.inertia
         with passive.MUJOCO_LOCK:
             mujoco.mj_setConst(model, data)  # the constants derived from masses
-        self._hull = HullForceModel(vehicle, body, self._physics.qvel_adr)
-        self._hull_force = self._hull.passive_force
+        self.hull = HullForceModel(vehicle, body, self.physics.qvel_adr)
+        self._hull_force = self.hull.passive_force
         self.vehicle = vehicle
 
     def step(self, action):
@@ -961,10 +961,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             ep.current_polar = varying.advance(*ep.current_polar, *ep.current_mean, self._dt,
                                                self.np_random)
             ep.current = current_vector(*ep.current_polar)
-        self._hull.command((x, y, z, 0.0, 0.0, n), ep.current.tolist())
-        self._physics.skip_contacts_if_clear(self._dt)
+        self.hull.command((x, y, z, 0.0, 0.0, n), ep.current.tolist())
+        self.physics.skip_contacts_if_clear(self._dt)
         passive.step(
-            self._physics.model, self._physics.data, self._hull_force, self._physics_substeps
+            self.physics.model, self.physics.data, self._hull_force, self._physics_substeps
         )
         ep.steps += 1
         truth = self._truth()
@@ -1025,10 +1025,10 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         return self._render_camera(self._view)
 
     def close(self):
-        for renderer in (self._renderer, self._view):
+        for renderer in (self.camera_renderer, self._view):
             if renderer is not None:
                 renderer.close()
-        self._renderer = self._view = None
+        self.camera_renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
@@ -1037,7 +1037,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         Python floats throughout: with a handful of lights, NumPy's per-call
         overhead would cost several times the arithmetic.
         """
-        phys = self._physics
+        phys = self.physics
         pos, r, qvel = phys.kinematics()
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
         x, y, z = pos
@@ -1151,7 +1151,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
         if self._optics is not None:
             return {"image": self._render_through_water(), **sensors}
-        return {"image": self._render_camera(self._renderer), **sensors}
+        return {"image": self._render_camera(self.camera_renderer), **sensors}
 
     def _detect_lamps(self, truth: dict, pixels: np.ndarray,
                       visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1180,12 +1180,12 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         if self.obs_mode != "image":
             raise RuntimeError("lamps_in_image() needs obs_mode='image' (the camera renderer)")
         with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self._physics.model, self._physics.data)
-        ids = self._renderer.render_geom_ids(self._physics.data)
-        pixels = np.full((len(self._physics.lamp_geoms), 2), np.nan)
+            mujoco.mj_forward(self.physics.model, self.physics.data)
+        ids = self.camera_renderer.render_geom_ids(self.physics.data)
+        pixels = np.full((len(self.physics.lamp_geoms), 2), np.nan)
         outages = self._episode.outages
         failed = outages.failed if outages is not None else np.zeros(len(pixels), bool)
-        for i, geom in enumerate(self._physics.lamp_geoms):
+        for i, geom in enumerate(self.physics.lamp_geoms):
             rows, cols = np.nonzero(ids == geom)
             if len(rows) and not failed[i]:
                 pixels[i] = cols.mean() + 0.5, rows.mean() + 0.5  # pixel centres
@@ -1194,15 +1194,15 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
     def _render_through_water(self) -> np.ndarray:
         """The forward camera's image through the water of ``optics``."""
         with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self._physics.model, self._physics.data)
-        image, distance = self._renderer.render_with_range(self._physics.data)
+            mujoco.mj_forward(self.physics.model, self.physics.data)
+        image, distance = self.camera_renderer.render_with_range(self.physics.data)
         return degrade_image(image, distance, self._optics, self.calibration.intrinsics.fy,
                              self.np_random)
 
     def _render_camera(self, renderer: CameraRenderer) -> np.ndarray:
         with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self._physics.model, self._physics.data)
-        return renderer.render(self._physics.data)
+            mujoco.mj_forward(self.physics.model, self.physics.data)
+        return renderer.render(self.physics.data)
 
     def _info(self, truth: dict, terms: dict, violations: dict) -> dict:
         ep = self._episode

@@ -577,7 +577,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
         )
         model = build_lars_model(float(baseline), fovy, marker, analog_marker)
-        self._physics = _Physics(model)
+        self.physics = _Physics(model)
         arm = ArmModel(model)
         self._arm = arm
         self._dt = CONTROL_PERIOD
@@ -644,9 +644,9 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         if glint is not None:
             self._prepare_glint(glint)
         # One renderer for the stereo observation, one for render().
-        self._renderer: CameraRenderer | None = None
+        self.camera_renderer: CameraRenderer | None = None
         if obs_mode == "stereo":
-            self._renderer = CameraRenderer(model, ("left", "right"), width, height)
+            self.camera_renderer = CameraRenderer(model, ("left", "right"), width, height)
         self._view: CameraRenderer | None = None
         if render_mode == "rgb_array":
             side = render_camera == "side"
@@ -718,7 +718,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         )
         if self._sea is not None:  # the joint angles that put the end there on the moved ship
             end = self._ship_pose(0.0).to_ship(end)
-        self._physics.reset(self._arm.inverse_kinematics(end))
+        self.physics.reset(self._arm.inverse_kinematics(end))
         truth = self._truth()
         self._episode.prev_error = truth["capture_error"]
         self._episode.min_error = truth["capture_error"]
@@ -752,10 +752,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         a0, a1, a2 = a.tolist()
         effort = a0 * a0 + a1 * a1 + a2 * a2  # |a|^2 in floats: a @ a costs more than the sum
         if self.control == "torque":
-            data = self._physics.data
+            data = self.physics.data
             data.ctrl[:] = a
             with passive.MUJOCO_LOCK:
-                mujoco.mj_step(self._physics.model, data, FRAME_SKIP)
+                mujoco.mj_step(self.physics.model, data, FRAME_SKIP)
             ep.control_effort += effort * self._dt
         else:
             self._track_position(self._q_mid + a * self._q_half)
@@ -803,13 +803,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         if self.render_mode != "rgb_array":
             return None
         self._pose_scene()
-        return self._view.render(self._physics.data)
+        return self._view.render(self.physics.data)
 
     def close(self):
-        for renderer in (self._renderer, self._view):
+        for renderer in (self.camera_renderer, self._view):
             if renderer is not None:
                 renderer.close()
-        self._renderer = self._view = None
+        self.camera_renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
@@ -874,7 +874,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
     def _track_position(self, q_target: np.ndarray) -> None:
         """Computed-torque PD (eqs. 29-30) at the physics rate, torque-limited."""
-        model, data = self._physics.model, self._physics.data
+        model, data = self.physics.model, self.physics.data
         limits = self.calibration.torque_limits
         tau = self._tau
         with passive.MUJOCO_LOCK:
@@ -895,7 +895,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         and ``pixels`` (12: left u, v of A1, A2, A3, then right) are flat
         lists, shaped once when they become arrays.
         """
-        data = self._physics.data
+        data = self.physics.data
         ep = self._episode
         g = self._geom
         t = ep.steps * self._dt
@@ -1074,7 +1074,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
 
         The physics never reads them; they are posed only before a render.
         """
-        phys = self._physics
+        phys = self.physics
         ep = self._episode
         t = ep.steps * self._dt
         pos = self._auv_position(t)
@@ -1109,7 +1109,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     def _render_pair(self) -> np.ndarray:
         """Left and right images side by side, (H, 2 W, 3), one rendering pass."""
         self._pose_scene()
-        return self._renderer.render(self._physics.data)
+        return self.camera_renderer.render(self.physics.data)
 
     def _info(self, truth: dict, terms: tuple, collision: bool, workspace: bool) -> dict:
         """The step's info; ``terms`` are the reward terms in ``reward_terms`` order."""
@@ -1278,7 +1278,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         the pixels within ``bloom`` px of it.
         """
         self._pose_scene()
-        pair, ranges = self._renderer.render_with_range(self._physics.data)
+        pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
         field = self._episode.glint
         rng = self.np_random
         w, h = self._width, self._height
