@@ -1,15 +1,20 @@
-"""Small helpers every environment shares: argument checks, action validation, pickling,
-the episode summary on an outside time limit.
+"""What every environment shares: the episode loop (:class:`TaskEnv`), argument checks,
+action validation, pickling, the episode summary on an outside time limit.
 
-Deliberately functions and one mixin rather than a base class of empty hooks.
+A task family subclasses :class:`TaskEnv` and supplies the hooks that make it
+that task (draw an episode, simulate one period, score it, observe it, report
+it); the loop around them (reset, step, render, close, the done guard,
+time-limit truncation, the reward-term dict, pickling) is written once, here.
 """
 
 from __future__ import annotations
 
+import abc
 import copy
 import math
 import sys
 from collections.abc import Iterable
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
@@ -172,6 +177,158 @@ class ReconstructingPickleMixin:
             self._np_random = rng
             self._np_random_seed = state["rng_seed"]
         self._set_runtime_state(state["runtime"])
+
+
+_REQUIRED_CLASS_ATTRIBUTES = ("obs_modes", "reward_terms", "metric_keys")
+
+
+class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
+    """The episode loop of every ``auv_envs`` task; a task supplies the hooks.
+
+    **What a task declares** (checked when the class is defined):
+    ``obs_modes`` (the ``obs_mode`` values it offers, the first the default),
+    ``reward_terms`` (the names of the terms that sum to the reward, each
+    reported as ``info["reward_<term>"]``), ``metric_keys`` (the ``info``
+    keys with the task's metrics at every step). Its ``__init__`` records its
+    arguments (:meth:`_accept_arguments`) and sets ``calibration`` (what an
+    agent may know), ``physics`` (the MuJoCo model and data with named
+    accessors), ``action_space``, ``observation_space``, ``dt`` and
+    ``max_episode_steps``, and ``_episode`` (everything else an episode
+    changes, with ``steps`` and ``done``).
+
+    **Hooks** (the truth is a dict the task computes once a step and shares
+    between them):
+
+    * :meth:`_begin_episode` ``(rng, options) -> (truth, extras)``: draw the
+      episode from ``rng``, place the physics; ``extras`` are added to the
+      reset ``info``.
+    * :meth:`_simulate` ``(action) -> truth``: one control period (counts
+      ``_episode.steps``).
+    * :meth:`_assess` ``(truth, action) -> (terms, terminated)``: the reward
+      terms (a dict in ``reward_terms`` order) and whether the episode ended
+      in success or failure; records what the episode summary needs.
+    * :meth:`_observation` ``(truth)``, :meth:`_info` ``(truth)`` (without
+      the reward terms, which the loop adds), :meth:`_episode_metrics`
+      ``(truth)``, :meth:`_truth` ``()`` (the truth now, for
+      :meth:`episode_metrics`), :meth:`_render_frame` ``()``.
+
+    The loop: ``step`` validates the action (finite values outside the
+    space are clipped, NaN or inf raise ``ValueError``), refuses to run
+    after the episode ended, sums the terms in order, truncates after
+    ``max_episode_steps`` and puts ``episode_metrics`` in the last step's
+    ``info``. ``close`` closes the attributes named in ``_closeables``.
+    """
+
+    obs_modes: ClassVar[tuple[str, ...]]
+    reward_terms: ClassVar[tuple[str, ...]]
+    metric_keys: ClassVar[tuple[str, ...]]
+    #: Attributes holding renderers or plots, closed (and set to None) by :meth:`close`.
+    _closeables: ClassVar[tuple[str, ...]] = ()
+
+    #: What an agent may know about the task (camera, layout, nominal model...), read-only.
+    calibration: Any
+    #: The MuJoCo model and data with the task's named accessors.
+    physics: Any
+    #: Control period, s (one env step).
+    dt: float
+    #: Steps of an episode that runs to its time limit.
+    max_episode_steps: int
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        for name in _REQUIRED_CLASS_ATTRIBUTES:
+            value = getattr(cls, name, None)
+            if not (isinstance(value, tuple) and value
+                    and all(isinstance(v, str) and v for v in value)):
+                raise TypeError(f"{cls.__name__}.{name} must be a non-empty tuple of names, "
+                                f"got {value!r}")
+        cls._reward_keys = tuple(f"reward_{name}" for name in cls.reward_terms)
+
+    # ------------------------------------------------------------------ the loop
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        truth, extras = self._begin_episode(self.np_random, options)
+        obs = self._observation(truth)
+        info = self._info(truth)
+        for key in self._reward_keys:
+            info[key] = 0.0
+        info.update(extras)
+        return obs, info
+
+    def step(self, action):
+        a = self._validate_action(action)
+        ep = self._episode
+        if ep.done:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        truth = self._simulate(a)
+        terms, terminated = self._assess(truth, a)
+        values = iter(terms.values())
+        reward = next(values)
+        for value in values:
+            reward += value
+        reward = float(reward)
+        truncated = (not terminated) and ep.steps >= self.max_episode_steps
+        ep.done = terminated or truncated
+        obs = self._observation(truth)
+        info = self._info(truth)
+        for key, value in zip(self._reward_keys, terms.values(), strict=True):
+            info[key] = float(value)
+        if ep.done:
+            info["episode_metrics"] = self._episode_metrics(truth)
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self._render_frame()
+
+    def close(self):
+        for name in self._closeables:
+            closeable = getattr(self, name, None)
+            if closeable is not None:
+                closeable.close()
+            setattr(self, name, None)
+
+    def episode_metrics(self) -> dict:
+        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
+
+        Read by :class:`EpisodeSummary` when a time limit outside the env
+        (``gym.make(..., max_episode_steps=N)``) truncates the episode.
+        """
+        return self._episode_metrics(self._truth())
+
+    # ------------------------------------------------------------------ the hooks
+    @abc.abstractmethod
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None) -> tuple[dict, dict]:
+        """Draw a new episode from ``rng``; return its first truth and extra reset info."""
+
+    @abc.abstractmethod
+    def _simulate(self, action: np.ndarray) -> dict:
+        """Apply the (validated) action for one control period; return the truth after it."""
+
+    @abc.abstractmethod
+    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+        """The reward terms (in ``reward_terms`` order) and whether the episode terminated."""
+
+    @abc.abstractmethod
+    def _observation(self, truth: dict):
+        """The observation of ``obs_mode``."""
+
+    @abc.abstractmethod
+    def _info(self, truth: dict) -> dict:
+        """The step's ``info`` without the reward terms."""
+
+    @abc.abstractmethod
+    def _truth(self) -> dict:
+        """The truth now (for :meth:`episode_metrics`)."""
+
+    @abc.abstractmethod
+    def _episode_metrics(self, truth: dict) -> dict:
+        """The episode's summary."""
+
+    @abc.abstractmethod
+    def _render_frame(self):
+        """The ``render_mode="rgb_array"`` frame."""
 
 
 class EpisodeSummary(gym.Wrapper):

@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from dm_control import mjcf
@@ -36,7 +35,7 @@ from auv_envs.core.acoustics import (
 from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ActionValidator,
-    ReconstructingPickleMixin,
+    TaskEnv,
     check_choice,
     check_image_size,
     check_positive_int,
@@ -314,7 +313,7 @@ class _Physics:
         return data.site_xpos[self.source].copy()
 
 
-class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
+class AcousticTrackingEnv(TaskEnv):
     """Track an underwater arm's end effector with an 8-node hydrophone array (seed 004).
 
     **Description.** A 300 m x 300 m x 30 m tank (tank frame: origin at a
@@ -443,6 +442,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
+    _closeables = ("_plot",)
 
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
@@ -558,10 +558,8 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             entries["node_mask"] = spaces.MultiBinary(n)
         return spaces.Dict(entries)
 
-    # ------------------------------------------------------------------ API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        rng = self.np_random
+    # ------------------------------------------------------------------ episode hooks
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         n = self._horizon + 1
         ep = _Episode(horizon=self._horizon)
         if self.trajectory == "dynamic":
@@ -595,43 +593,42 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             mujoco.mj_forward(model, data)
         self._episode = ep
         self._simulate_block(0)
-        info = self._info(0, float("nan"), 0.0)
+        extras = {}
         if self.calibration.config.sound_speed_error_std > 0:
-            info["sound_speed"] = ep.sound_speed
-        return self._observation(0), info
+            extras["sound_speed"] = ep.sound_speed
+        return {"k": 0, "error": float("nan")}, extras
 
-    def step(self, action):
-        a = self._validate_action(action)
+    def _simulate(self, action: np.ndarray) -> dict:
+        """Score the estimate ``action`` against the truth at the last observation, then
+        move on one sample period (the physics runs a block of periods at a time)."""
         ep = self._episode
-        if ep.done:
-            raise RuntimeError("step() called after the episode ended; call reset()")
         k = ep.steps  # the estimate is scored against the truth at observation k
         truth = ep.positions[k - ep.block_start]
-        error = float(np.linalg.norm(a - truth))
-        ep.estimates[k] = a
+        error = float(np.linalg.norm(action - truth))
+        ep.estimates[k] = action
         ep.truths[k] = truth
         ep.squared_error_sum += error * error
-        reward = -min(error, self._error_clip) / self._error_clip
         ep.steps = k + 1
-        truncated = ep.steps >= ep.horizon
-        ep.done = truncated
         if ep.steps - ep.block_start >= BLOCK:
             self._simulate_block(ep.steps)
-        obs = self._observation(ep.steps)
-        info = self._info(ep.steps, error, reward)
-        if truncated:
-            info["episode_metrics"] = self._episode_metrics()
-        return obs, reward, False, truncated, info
+        return {"k": ep.steps, "error": error}
 
-    def render(self):
-        """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``), else None.
+    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+        """The (clipped, normalised) estimate error; an episode ends only at its time limit."""
+        return {"estimate": -min(truth["error"], self._error_clip) / self._error_clip}, False
+
+    def _truth(self) -> dict:
+        if self._episode.steps < 1:
+            raise RuntimeError("no step taken yet: nothing to summarise")
+        return {"k": self._episode.steps, "error": float("nan")}
+
+    def _render_frame(self) -> np.ndarray:
+        """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``).
 
         Drawn from the episode's own record (true positions, estimates and the
         current detections), so rendering changes no observation, reward, info
         or random draw. Before the first reset it draws the empty tank.
         """
-        if self.render_mode != "rgb_array":
-            return None
         if self._plot is None:
             from auv_envs.tasks.acoustic_render import TankPlot  # matplotlib only when drawing
 
@@ -671,11 +668,6 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             error=error,
             rmse=rmse,
         )
-
-    def close(self):
-        if self._plot is not None:
-            self._plot.close()
-            self._plot = None
 
     # ------------------------------------------------------------------ internals
     def _simulate_block(self, start: int) -> None:
@@ -723,8 +715,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             fading, nodes,
         )
 
-    def _observation(self, k: int):
+    def _observation(self, truth: dict):
         ep = self._episode
+        k = truth["k"]
         j = k - ep.block_start
         if self.obs_mode == "state":
             return np.concatenate([ep.positions[j], ep.velocities[j], ep.current[k]]).astype(
@@ -741,8 +734,9 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             obs["node_mask"] = ep.nodes[j].astype(np.int8)
         return obs
 
-    def _info(self, k: int, error: float, reward: float) -> dict:
+    def _info(self, truth: dict) -> dict:
         ep = self._episode
+        k, error = truth["k"], truth["error"]
         j = k - ep.block_start
         rmse = math.sqrt(ep.squared_error_sum / k) if k else float("nan")
         info = {
@@ -750,7 +744,6 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
             "running_rmse": rmse,
             "tracked": error <= self._track_gate,
             "is_success": rmse <= self._success_radius,
-            "reward_estimate": reward,
             "true_position": ep.positions[j].copy(),
             "true_velocity": ep.velocities[j].copy(),
             "current": ep.current[k].copy(),
@@ -774,17 +767,7 @@ class AcousticTrackingEnv(ReconstructingPickleMixin, gym.Env):
         array = self.calibration.array
         return float(np.mean([array.position_crb(p, speed) for p in STATIC_POINTS]))
 
-    def episode_metrics(self) -> dict:
-        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
-
-        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
-        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
-        """
-        if self._episode.steps < 1:
-            raise RuntimeError("no step taken yet: nothing to summarise")
-        return self._episode_metrics()
-
-    def _episode_metrics(self) -> dict:
+    def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode
         est, truth = ep.estimates[: ep.steps], ep.truths[: ep.steps]
         errors = metrics.position_errors(est, truth)

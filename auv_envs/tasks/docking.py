@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from dm_control import mjcf
@@ -31,7 +30,7 @@ from auv_envs.core.camera import (
 )
 from auv_envs.core.env import (
     ActionValidator,
-    ReconstructingPickleMixin,
+    TaskEnv,
     check_choice,
     check_image_size,
     check_positive_int,
@@ -547,7 +546,7 @@ class _EpisodeState:
     min_lights_visible: int = 0
 
 
-class DockingEnv(ReconstructingPickleMixin, gym.Env):
+class DockingEnv(TaskEnv):
     """AUV approach to a light-guided docking station (seed 003 / seed 002).
 
     **Description.** A fully actuated hovering AUV (6-DOF MuJoCo rigid body
@@ -679,6 +678,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         "render_modes": ["rgb_array"],
         "render_fps": round(1 / CONTROL_PERIOD),
     }
+    _closeables = ("camera_renderer", "_view")
 
     layout: StationLayout = SIX_LIGHTS
 
@@ -693,7 +693,6 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS},
     }
     reward_terms = ("progress", "control", "visibility", "success", "failure")
-    _reward_keys = tuple((name, f"reward_{name}") for name in reward_terms)
     metric_keys = (
         "distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
         "heading_error", "docked", "lights_visible", "violation_fov",
@@ -873,10 +872,8 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             {"image": spaces.Box(0, 255, shape=(height, width, 3), dtype=np.uint8), **sensors}
         )
 
-    # ------------------------------------------------------------------ API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        rng = self.np_random
+    # ------------------------------------------------------------------ episode hooks
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         lay = self.layout
         x = rng.uniform(*lay.start_x)
         y = rng.uniform(*lay.start_y)
@@ -909,15 +906,14 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         truth = self._truth()
         self._episode.prev_potential = self._potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
-        obs = self._observation(truth)
-        info = self._info(truth, {name: 0.0 for name in self.reward_terms}, _NO_VIOLATIONS)
+        extras = {}
         if draws:
-            info["plant"] = dict(draws)
+            extras["plant"] = dict(draws)
         if self._optics is not None:
             failed = self._episode.outages.failed
-            info["optics"] = {"failed_lamps": tuple(
+            extras["optics"] = {"failed_lamps": tuple(
                 label for label, out in zip(lay.light_labels, failed, strict=True) if out)}
-        return obs, info
+        return truth, extras
 
     def _set_runtime_state(self, state: dict) -> None:
         # The episode's (perturbed) vehicle lives in the model and the hull wrench too.
@@ -941,13 +937,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
         self._hull_force = self.hull.passive_force
         self.vehicle = vehicle
 
-    def step(self, action):
-        a = self._validate_action(action)
+    def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        if ep.done:
-            raise RuntimeError("step() called after the episode ended; call reset()")
-        a_list = a.tolist()
-        ax, ay, az, an = a_list
+        ax, ay, az, an = action.tolist()
         tx, ty, tz, tn = self._thrust
         x, y, z, n = ax * tx, ay * ty, az * tz, an * tn
         gain = self._thruster_gain
@@ -967,15 +959,17 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             self.physics.model, self.physics.data, self._hull_force, self._physics_substeps
         )
         ep.steps += 1
-        truth = self._truth()
-        tol = self.calibration.tolerances
+        ep.control_effort += (x * x + y * y + z * z + n * n) * self._dt
+        return self._truth()
 
+    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+        ep = self._episode
+        tol = self.calibration.tolerances
         n_visible = truth["n_visible"]
         ep.min_lights_visible = min(ep.min_lights_visible, n_visible)
         fov_violation = n_visible < self._min_visible
         ep.lost_time = ep.lost_time + self._dt if fov_violation else 0.0
         ep.fov_violations += int(fov_violation)
-        ep.control_effort += (x * x + y * y + z * z + n * n) * self._dt
 
         docked = self._docked(truth, tol)
         behind = truth["longitudinal"] > tol.longitudinal and not docked
@@ -991,6 +985,7 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             failure = "out_of_bounds"
 
         potential = self._potential(truth)
+        ax, ay, az, an = action.tolist()
         terms = {
             "progress": ep.prev_potential - potential,
             "control": -0.001 * (ax * ax + ay * ay + az * az + an * an),
@@ -999,36 +994,17 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "failure": -10.0 if failure else 0.0,
         }
         ep.prev_potential = potential
-        reward = float(sum(terms.values()))
-        terminated = docked or bool(failure)
-        truncated = (not terminated) and ep.steps * self._dt >= self._time_limit - 1e-9
         if docked:
             ep.success = True
             ep.docking_time = ep.steps * self._dt
         ep.failure_reason = failure
-        ep.done = terminated or truncated
-
+        truth["violations"] = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
         if self._optics is not None and self.obs_mode == "features":
             ep.outages = ep.outages.advance(self._optics, self._dt, self.np_random)
-        obs = self._observation(truth)
-        violations = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
-        info = self._info(truth, terms, violations)
-        if gain != 1.0:
-            info["thrust"] = ep.thrust
-        if ep.done:
-            info["episode_metrics"] = self._episode_metrics(truth)
-        return obs, reward, terminated, truncated, info
+        return terms, docked or bool(failure)
 
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
+    def _render_frame(self) -> np.ndarray:
         return self._render_camera(self._view)
-
-    def close(self):
-        for renderer in (self.camera_renderer, self._view):
-            if renderer is not None:
-                renderer.close()
-        self.camera_renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
@@ -1204,8 +1180,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             mujoco.mj_forward(self.physics.model, self.physics.data)
         return renderer.render(self.physics.data)
 
-    def _info(self, truth: dict, terms: dict, violations: dict) -> dict:
+    def _info(self, truth: dict) -> dict:
         ep = self._episode
+        violations = truth.get("violations", _NO_VIOLATIONS)
         info = {
             "distance_to_entrance": truth["distance"],
             "longitudinal_error": truth["longitudinal"],
@@ -1227,17 +1204,9 @@ class DockingEnv(ReconstructingPickleMixin, gym.Env):
             "true_visible": truth["visible"],
             "current": ep.current.copy(),
         }
-        for name, key in self._reward_keys:
-            info[key] = float(terms[name])
+        if self._thruster_gain != 1.0 and ep.steps:
+            info["thrust"] = ep.thrust
         return info
-
-    def episode_metrics(self) -> dict:
-        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
-
-        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
-        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
-        """
-        return self._episode_metrics(self._truth())
 
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode

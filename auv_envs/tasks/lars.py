@@ -12,7 +12,6 @@ import dataclasses
 import math
 import operator
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
@@ -22,7 +21,7 @@ from auv_envs.core import frames, passive
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
-    ReconstructingPickleMixin,
+    TaskEnv,
     check_choice,
     check_image_size,
     get_physics_state,
@@ -322,7 +321,7 @@ class _EpisodeState:
     control_effort: float = 0.0
 
 
-class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
+class LARSCaptureEnv(TaskEnv):
     """Capture of a surfaced AUV by a ship's launch-and-recovery arm (seed 000).
 
     **Description.** The side of a mother ship carries a 3-DOF articulated
@@ -489,6 +488,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
+    _closeables = ("camera_renderer", "_view")
 
     obs_modes = OBS_MODES
     #: ``difficulty`` levels (:mod:`auv_envs.core.difficulty`): the sea and the pixel noise.
@@ -683,9 +683,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         return spaces.Dict({"left": image, "right": image, **joints})
 
     # ------------------------------------------------------------------ API
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        rng = self.np_random
+    # ------------------------------------------------------------------ episode hooks
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         options = dict(options or {})
         sea = self.calibration.sea
         valid = {"motion"} if sea is None else {"motion", "wave_heading"}
@@ -722,11 +721,10 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         truth = self._truth()
         self._episode.prev_error = truth["capture_error"]
         self._episode.min_error = truth["capture_error"]
-        obs = self._observation(truth)
-        info = self._info(truth, (0.0,) * len(self.reward_terms), False, False)
+        extras = {}
         if waves is not None:
             wash = self._episode.wash
-            info["sea"] = {
+            extras["sea"] = {
                 "hs_realised": waves.significant_height,
                 "sea_state_code": sea_state_code(sea.spectrum.hs),
                 "components": int(waves.omega.size),
@@ -737,31 +735,31 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             }
         field = self._episode.glint
         if field is not None:
-            info["glint"] = {
+            extras["glint"] = {
                 "sun_elevation": field.elevation,
                 "sun_azimuth": field.azimuth,
                 "slope_variance": field.slope_variance,
             }
-        return obs, info
+        return truth, extras
 
-    def step(self, action):
-        a = self._validate_action(action)
+    def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        if ep.done:
-            raise RuntimeError("step() called after the episode ended; call reset()")
-        a0, a1, a2 = a.tolist()
-        effort = a0 * a0 + a1 * a1 + a2 * a2  # |a|^2 in floats: a @ a costs more than the sum
         if self.control == "torque":
+            a0, a1, a2 = action.tolist()
             data = self.physics.data
-            data.ctrl[:] = a
+            data.ctrl[:] = action
             with passive.MUJOCO_LOCK:
                 mujoco.mj_step(self.physics.model, data, FRAME_SKIP)
-            ep.control_effort += effort * self._dt
+            # |a|^2 in floats: a @ a costs more than the sum
+            ep.control_effort += (a0 * a0 + a1 * a1 + a2 * a2) * self._dt
         else:
-            self._track_position(self._q_mid + a * self._q_half)
+            self._track_position(self._q_mid + action * self._q_half)
         ep.steps += 1
-        truth = self._truth()
+        return self._truth()
 
+    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+        ep = self._episode
+        a0, a1, a2 = action.tolist()
         error = truth["capture_error"]
         captured = error <= self._tolerance[0] and truth["relative_speed"] <= self._tolerance[1]
         collision = (not captured) and truth["tip_in_hull"]
@@ -769,47 +767,27 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             truth["end_on_ship"], self._ws_lo, self._ws_hi)
         workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
         failure = "collision" if collision else ("workspace" if workspace else "")
-
-        # In reward_terms order: progress, control, success, failure.
-        terms = (
-            ep.prev_error - error,
-            -0.001 * effort,
-            10.0 if captured else 0.0,
-            -10.0 if failure else 0.0,
-        )
+        terms = {
+            "progress": ep.prev_error - error,
+            "control": -0.001 * (a0 * a0 + a1 * a1 + a2 * a2),
+            "success": 10.0 if captured else 0.0,
+            "failure": -10.0 if failure else 0.0,
+        }
         ep.prev_error = error
         ep.min_error = min(ep.min_error, error)
-        reward = terms[0] + terms[1] + terms[2] + terms[3]
-        terminated = captured or bool(failure)
-        truncated = (not terminated) and ep.steps * self._dt >= self._time_limit - 1e-9
         if captured:
             ep.success = True
             ep.capture_time = ep.steps * self._dt
         ep.failure_reason = failure
-        ep.done = terminated or truncated
         ep.visible_steps += truth["n_visible"] == 3
         ep.occluded_steps += truth["occluded"]
         ep.distractor_steps += truth["distractors"] > 0
+        truth["collision"], truth["workspace"] = collision, workspace
+        return terms, captured or bool(failure)
 
-        obs = self._observation(truth)
-        if ep.glint_frame is not None:
-            ep.glint_steps += bool(ep.glint_frame["glint_corners"].any())
-        info = self._info(truth, terms, collision, workspace)
-        if ep.done:
-            info["episode_metrics"] = self._episode_metrics(truth)
-        return obs, reward, terminated, truncated, info
-
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
+    def _render_frame(self) -> np.ndarray:
         self._pose_scene()
         return self._view.render(self.physics.data)
-
-    def close(self):
-        for renderer in (self.camera_renderer, self._view):
-            if renderer is not None:
-                renderer.close()
-        self.camera_renderer = self._view = None
 
     # ------------------------------------------------------------------ internals
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
@@ -1025,6 +1003,13 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         }
 
     def _observation(self, truth: dict):
+        obs = self._observe(truth)
+        ep = self._episode
+        if ep.steps and ep.glint_frame is not None:  # the glint the step's observation met
+            ep.glint_steps += bool(ep.glint_frame["glint_corners"].any())
+        return obs
+
+    def _observe(self, truth: dict):
         if self.obs_mode == "state":
             m = self._episode.motion
             (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
@@ -1111,8 +1096,7 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
         self._pose_scene()
         return self.camera_renderer.render(self.physics.data)
 
-    def _info(self, truth: dict, terms: tuple, collision: bool, workspace: bool) -> dict:
-        """The step's info; ``terms`` are the reward terms in ``reward_terms`` order."""
+    def _info(self, truth: dict) -> dict:
         ep = self._episode
         m = ep.motion
         (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
@@ -1122,8 +1106,8 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "relative_position": np.array((px - ex, py - ey, pz - ez)),
             "relative_speed": truth["relative_speed"],
             "is_success": ep.success,
-            "collision": collision,
-            "violation_workspace": workspace,
+            "collision": truth.get("collision", False),
+            "violation_workspace": truth.get("workspace", False),
             "marker_visible": truth["n_visible"],
             "marker_occluded": truth["occluded"],
             "distractors_in_view": truth["distractors"],
@@ -1138,11 +1122,6 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             "true_visible": np.array(truth["visible"]),
             "end_position": np.array(truth["end"]),
             "water_level": truth["level"],
-            # The reward terms, in reward_terms order.
-            "reward_progress": terms[0],
-            "reward_control": terms[1],
-            "reward_success": terms[2],
-            "reward_failure": terms[3],
         }
         if ep.glint_frame is not None:
             info.update(ep.glint_frame)
@@ -1151,14 +1130,6 @@ class LARSCaptureEnv(ReconstructingPickleMixin, gym.Env):
             info["true_roll"] = truth["roll"]
             info["ship_motion"] = np.array((sea.ship_heave, sea.ship_roll, sea.ship_pitch))
         return info
-
-    def episode_metrics(self) -> dict:
-        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
-
-        Read by :class:`auv_envs.core.env.EpisodeSummary` when a time limit outside
-        the env (``gym.make(..., max_episode_steps=N)``) truncates the episode.
-        """
-        return self._episode_metrics(self._truth())
 
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode
