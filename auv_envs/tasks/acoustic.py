@@ -273,7 +273,7 @@ def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) ->
     return np.stack([speed * np.cos(direction), speed * np.sin(direction), np.zeros(n)], 1)
 
 
-class _Physics:
+class AcousticPhysics:
     """The MuJoCo model/data pair with the ids this task needs, resolved once."""
 
     def __init__(self, model: mujoco.MjModel):
@@ -504,7 +504,7 @@ class AcousticTrackingEnv(TaskEnv):
         self.disturbance = disturbance
         self.trajectory = trajectory
         self._static_point = static_point
-        self.physics = _Physics(build_tank_model())
+        self.physics = AcousticPhysics(build_tank_model())
         self._dt = 1.0 / config.sample_rate
         self.physics.model.opt.timestep = self._dt / physics_substeps
         self._physics_substeps = physics_substeps

@@ -24,13 +24,14 @@ from auv_envs.core.env import (
     TaskEnv,
     check_choice,
     check_image_size,
-    get_physics_state,
 )
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
 from auv_envs.core.stereo import StereoRig
 from auv_envs.core.waves import SeaSpectrum, WaveRealisation, sea_state_code
 from auv_envs.tasks.lars_arm import ArmModel
+from auv_envs.tasks.lars_glint import GlintCamera
+from auv_envs.tasks.lars_physics import LARSPhysics
 from auv_envs.tasks.lars_scene import (
     ANALOG_MARKER_BASE_X,
     ANALOG_SCALE,
@@ -112,9 +113,6 @@ DEFAULT_FOVY_DEG = 60.0
 #: floating ``AUV_FREEBOARD`` proud (the hull's footprint seen from above).
 WATERLINE_HALF_WIDTH = math.sqrt(
     (AUV_DIAMETER / 2.0) ** 2 - (AUV_DIAMETER / 2.0 - AUV_FREEBOARD) ** 2)
-#: A rendered pixel shows the water when its range is within this of the
-#: water plane's along its ray, m (the depth buffer resolves ~1e-6 m at 1 m).
-GLINT_WATER_TOLERANCE = 0.005
 
 
 @dataclasses.dataclass(frozen=True)
@@ -234,66 +232,6 @@ def _sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveR
     ):
         raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
     return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, float(heading), sea.band)
-
-
-class _Physics:
-    """Named accessors into the MuJoCo model/data pair; ids resolved once."""
-
-    def __init__(self, model: mujoco.MjModel):
-        self.model = model
-        self.data = mujoco.MjData(model)
-        self.mocap = {
-            name: int(model.body(name).mocapid[0])
-            for name in ("water", "crest", "head", "auv", "analog_0", "analog_1")
-        }
-        self._initial = get_physics_state(model, self.data)  # a new MjData is reset
-        # What the ship carries (its hull, the arm's links), for rendering a moving ship.
-        bodies = [model.body(name).id for name in ("turret", "boom", "jib")]
-        self._ship_bodies = np.array(bodies)
-        self._ship_geoms = np.array(
-            [model.geom("ship").id]
-            + [i for i in range(model.ngeom) if model.geom_bodyid[i] in bodies]
-        )
-        self._ship_sites = np.array([i for i in range(model.nsite)
-                                     if model.site_bodyid[i] in bodies])
-
-    def reset(self, q) -> None:
-        """The model's initial integration state (time, velocities, warm start,
-        controls, applied forces, mocap poses) with joint angles ``q``.
-
-        Restored from a copy rather than by ``mj_resetData``, which clears all
-        of MjData and cost several times more in a training loop: the next
-        ``mj_step`` is the same, and derived quantities are recomputed by it
-        (or by :meth:`refresh_kinematics`) before anything reads them.
-        """
-        mujoco.mj_setState(self.model, self.data, self._initial,
-                           mujoco.mjtState.mjSTATE_INTEGRATION)
-        self.data.qpos[:] = q
-
-    def pose(self, name: str, position, quat) -> None:
-        i = self.mocap[name]
-        self.data.mocap_pos[i] = position
-        self.data.mocap_quat[i] = quat
-
-    def refresh_kinematics(self, ship: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        """Positions and cameras for rendering, without touching the solver's state.
-
-        ``ship``: ``(R, t)`` of the ship's displacement (``p -> R p + t``),
-        applied to the ship's hull and the arm's links after the kinematics
-        (the next step recomputes them from the joint angles).
-        """
-        mujoco.mj_kinematics(self.model, self.data)
-        if ship is not None:
-            rot, shift = ship
-            data = self.data
-            for pos, mat, ids in (
-                (data.xpos, data.xmat, self._ship_bodies),
-                (data.geom_xpos, data.geom_xmat, self._ship_geoms),
-                (data.site_xpos, data.site_xmat, self._ship_sites),
-            ):
-                pos[ids] = pos[ids] @ rot.T + shift
-                mat[ids] = (rot @ mat[ids].reshape(-1, 3, 3)).reshape(-1, 9)
-        mujoco.mj_camlight(self.model, self.data)
 
 
 @dataclasses.dataclass
@@ -577,7 +515,7 @@ class LARSCaptureEnv(TaskEnv):
             tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
         )
         model = build_lars_model(float(baseline), fovy, marker, analog_marker)
-        self.physics = _Physics(model)
+        self.physics = LARSPhysics(model)
         arm = ArmModel(model)
         self._arm = arm
         self._dt = CONTROL_PERIOD
@@ -641,8 +579,8 @@ class LARSCaptureEnv(TaskEnv):
             pixels = self.observation_space["pixels"]
             self._pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
         self._width, self._height = width, height
-        if glint is not None:
-            self._prepare_glint(glint)
+        self._glint_camera = None if glint is None else GlintCamera(
+            glint, intr, self._hull_half, WATERLINE_HALF_WIDTH, images=obs_mode == "stereo")
         # One renderer for the stereo observation, one for render().
         self.camera_renderer: CameraRenderer | None = None
         if obs_mode == "stereo":
@@ -1027,7 +965,8 @@ class LARSCaptureEnv(TaskEnv):
             noise = self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
             seen = vis_left + vis_right
             if self._episode.glint is not None:
-                true_pixels, seen = self._glint_on_corners(truth, seen)
+                true_pixels, seen, self._episode.glint_frame = self._glint_camera.on_corners(
+                    self._episode.glint, truth, seen, self.np_random)
                 visible = [seen[:3], seen[3:]]
             lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
             pixels = [0.0] * 12
@@ -1046,7 +985,10 @@ class LARSCaptureEnv(TaskEnv):
         if self._episode.glint is None:
             pair = self._render_pair()
         else:
-            pair = self._render_glint_pair(truth)
+            self._pose_scene()
+            pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
+            pair, self._episode.glint_frame = self._glint_camera.on_pair(
+                self._episode.glint, truth, pair, ranges, self.np_random)
         w = self._width
         return {
             "left": np.ascontiguousarray(pair[:, :w]),
@@ -1149,147 +1091,6 @@ class LARSCaptureEnv(TaskEnv):
             "control_effort": ep.control_effort,
             **glint,
         }
-
-    # ------------------------------------------------------------------ sun glint
-    def _prepare_glint(self, glint: SunGlint) -> None:
-        """Constants of the glint draws: the detector's disc (1 px cells) and the bloom."""
-        r = glint.detector_radius
-        n = math.ceil(r)
-        du, dv = np.meshgrid(np.arange(-n, n + 1.0), np.arange(-n, n + 1.0))
-        inside = du**2 + dv**2 <= r * r
-        self._glint_disc = np.stack((du[inside], dv[inside]), axis=-1)
-        b = glint.bloom
-        self._glint_bloom = [(i, j) for i in range(-b, b + 1) for j in range(-b, b + 1)
-                             if i * i + j * j <= b * b]
-        if self.obs_mode == "stereo":
-            # Each pixel's camera-frame ray (x, y, 1) over its length L, as x / L, y / L, 1 / L.
-            intr = self._intrinsics
-            x = ((np.arange(self._width) + 0.5 - intr.cx) / intr.fx)[None, :]
-            y = ((np.arange(self._height) + 0.5 - intr.cy) / intr.fy)[:, None]
-            length = np.sqrt(1.0 + x**2 + y**2)
-            self._glint_ray_length = length.astype(np.float32)
-            self._glint_view = tuple((v / length).astype(np.float32) for v in (x, y, 1.0))
-
-    def _glint_rays(self, truth: dict, x, y, z=1.0) -> np.ndarray:
-        """World directions of camera-frame rays ``(x, y, z)`` of the level, slewed head."""
-        c, s = math.cos(truth["q"][0]), math.sin(truth["q"][0])
-        x, y, z = np.broadcast_arrays(x, y, z)
-        return np.stack((c * x + s * y, s * x - c * y, -z), axis=-1)
-
-    def _glint_on_corners(self, truth: dict, seen: list) -> tuple[list, list]:
-        """``features``: which corners a glint takes this frame (4 uniforms a corner, always).
-
-        A corner's mean glint count is that of the water within
-        ``detector_radius`` px of it (the hull's waterline footprint and the
-        image's border cut the disc). A glint there is drawn with that
-        probability, placed by the means; the corner is then lost if the
-        glint's bloom covers it, otherwise reported at the glint.
-
-        Args:
-            truth: :meth:`_truth`.
-            seen: the corners visible (left A1-A3, right A1-A3).
-
-        Returns:
-            ``(pixels, seen)``: the 12 pixel coordinates to report (true or
-            glint) and the corners still seen; the frame's outcome goes to
-            ``glint_frame``.
-        """
-        field = self._episode.glint
-        draws = self.np_random.random((6, 4))
-        intr = self._intrinsics
-        true_pixels = np.array(truth["pixels"]).reshape(6, 2)
-        points = true_pixels[:, None, :] + self._glint_disc  # (6, M, 2)
-        rays = self._glint_rays(truth, (points[..., 0] - intr.cx) / intr.fx,
-                                (points[..., 1] - intr.cy) / intr.fy)
-        level = truth["level"]
-        (px, py, _), (ax, ay, _) = truth["position"], truth["hull_axis"]
-        norm = math.hypot(ax, ay)
-        ax, ay = ax / norm, ay / norm
-        half = self._hull_half
-        means = np.empty(points.shape[:2])
-        for k, camera in enumerate(truth["cameras"]):
-            rows = slice(3 * k, 3 * k + 3)
-            height = camera[2] - level
-            means[rows] = field.pixel_means(rays[rows], height, intr.fx)
-            # Where each ray meets the water: outside the hull's footprint?
-            dx = camera[0] + height * rays[rows, :, 0] - px
-            dy = camera[1] + height * rays[rows, :, 1] - py
-            along = np.clip(dx * ax + dy * ay, -half, half)
-            means[rows] *= np.hypot(dx - along * ax, dy - along * ay) > WATERLINE_HALF_WIDTH
-        means *= ((points[..., 0] >= 0.0) & (points[..., 0] < intr.width)
-                  & (points[..., 1] >= 0.0) & (points[..., 1] < intr.height))
-        means[~np.array(seen)] = 0.0
-        total = means.sum(axis=1)
-        probability = -np.expm1(-total)
-        state = np.zeros(6, dtype=np.int8)
-        pixels = list(truth["pixels"])
-        seen = list(seen)
-        reach = self.glint.bloom + 0.5
-        for k in np.flatnonzero(draws[:, 0] < probability).tolist():
-            cumulative = np.cumsum(means[k])
-            pick = min(int(np.searchsorted(cumulative, draws[k, 1] * cumulative[-1],
-                                           side="right")), len(cumulative) - 1)
-            u, v = (points[k, pick] + draws[k, 2:] - 0.5).tolist()
-            if math.hypot(u - pixels[2 * k], v - pixels[2 * k + 1]) <= reach:
-                state[k], seen[k] = 2, False
-            else:
-                state[k], pixels[2 * k], pixels[2 * k + 1] = 1, u, v
-        self._episode.glint_frame = {
-            "glint_corners": state.reshape(2, 3),
-            "glint_probability": probability.reshape(2, 3),
-        }
-        return pixels, seen
-
-    def _render_glint_pair(self, truth: dict) -> np.ndarray:
-        """``stereo``: the pair with the frame's glints saturated on the water.
-
-        Each pixel that shows the water (its rendered range is the water
-        plane's) holds a glint with probability ``1 - exp(-mean)``
-        (``GlintField.pixel_means``; one uniform a pixel); a glint saturates
-        the pixels within ``bloom`` px of it.
-        """
-        self._pose_scene()
-        pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
-        field = self._episode.glint
-        rng = self.np_random
-        w, h = self._width, self._height
-        level = truth["level"]
-        state = np.zeros((2, 3), dtype=np.int8)
-        spots_in_view, expected = [0, 0], [0.0, 0.0]
-        radius2 = self.glint.detector_radius ** 2
-        # The head is level: both cameras look along the same rays from the same height;
-        # a pixel's footprint on the water is (height / f)^2 (GlintField.pixel_means,
-        # d_z = -1), and the density wants the unit direction back towards the camera.
-        height = truth["cameras"][0][2] - level
-        rays = self._glint_rays(truth, *self._glint_view)
-        means_both = field.density(-rays[..., 0], -rays[..., 1], -rays[..., 2])
-        means_both *= (height / self._intrinsics.fx) ** 2
-        water_range = height * self._glint_ray_length
-        for k in range(2):
-            water = np.abs(ranges[:, k * w:(k + 1) * w] - water_range) < GLINT_WATER_TOLERANCE
-            means = means_both * water
-            glints = rng.random((h, w), dtype=np.float32) < -np.expm1(-means)
-            saturated = np.zeros((h, w), dtype=bool)
-            for i, j in self._glint_bloom:  # the bloom: each glint shifted by (i, j)
-                saturated[max(i, 0):h + min(i, 0), max(j, 0):w + min(j, 0)] |= (
-                    glints[max(-i, 0):h - max(i, 0), max(-j, 0):w - max(j, 0)])
-            pair[:, k * w:(k + 1) * w][saturated] = 255
-            rows, cols = np.nonzero(glints)
-            spots_in_view[k], expected[k] = int(rows.size), float(means.sum())
-            for j, seen in enumerate(truth["visible"][k]):
-                if not seen:
-                    continue
-                u, v = truth["pixels"][6 * k + 2 * j:6 * k + 2 * j + 2]
-                if saturated[int(v), int(u)]:
-                    state[k, j] = 2
-                elif np.any((cols + 0.5 - u) ** 2 + (rows + 0.5 - v) ** 2 <= radius2):
-                    state[k, j] = 1
-        self._episode.glint_frame = {
-            "glint_corners": state,
-            "glints_in_view": np.array(spots_in_view),
-            "glint_expected": np.array(expected),
-        }
-        return pair
 
     # ------------------------------------------------------------------ pickling
     def _set_runtime_state(self, state: dict) -> None:
