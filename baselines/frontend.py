@@ -19,12 +19,13 @@ inner agent alone.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np
 
-from baselines.registry import AgentSpec, agent_spec, register_agent
+from baselines.registry import AgentSpec, agent_spec
 
 
 class FrontEndAgent:
@@ -54,22 +55,30 @@ class FrontEndAgent:
         return out
 
 
-def register_front_end_agent(
+@dataclasses.dataclass(frozen=True)
+class FrontEndFactory:
+    """``factory(env)``: :class:`FrontEndAgent` of ``front_end(env)`` before agent ``inner``
+    (looked up when the agent is built, so the two may be declared in either order)."""
+
+    front_end: Callable[[gym.Env], object]
+    inner: str
+
+    def __call__(self, env: gym.Env) -> FrontEndAgent:
+        return FrontEndAgent(self.front_end(env), agent_spec(self.inner).factory(env))
+
+
+def front_end_spec(
     name: str,
     inner: str,
-    front_end_factory: Callable[[gym.Env], object],
+    front_end: Callable[[gym.Env], object],
     obs_mode: str,
     env_ids: tuple[str, ...],
     description: str,
     heavy: bool = False,
-) -> None:
-    """Register ``name``: front end ``front_end_factory(env)`` before agent ``inner``.
+) -> AgentSpec:
+    """Agent ``name``: front end ``front_end(env)`` before agent ``inner``.
 
-    The inner agent is looked up when the agent is built, so the two may be
-    registered in either order. ``heavy``: as :attr:`AgentSpec.heavy`.
+    ``heavy``: as :attr:`AgentSpec.heavy`.
     """
-
-    def factory(env: gym.Env) -> FrontEndAgent:
-        return FrontEndAgent(front_end_factory(env), agent_spec(inner).factory(env))
-
-    register_agent(AgentSpec(name, factory, obs_mode, env_ids, description, heavy=heavy))
+    return AgentSpec(name, FrontEndFactory(front_end, inner), obs_mode, env_ids, description,
+                     heavy=heavy)

@@ -1,7 +1,8 @@
 """Kalman-filter pieces shared by the baselines' filters.
 
-Used by the docking EKF and MHE arrival cost (:mod:`baselines.docking.observers`),
-the lamp-array blob and camera filters (:mod:`baselines.vision.lamp_array`), and
+Used by the docking EKF and MHE arrival cost (:mod:`baselines.docking.estimation.observers`),
+the lamp-array blob and camera filters (:mod:`baselines.docking.perception.lamp_tracking`,
+:mod:`baselines.docking.estimation.camera_position`), and
 the acoustic GM-PHD update and ``ls-kf`` filter (:mod:`baselines.acoustic`).
 Everything broadcasts over leading axes, so one call can update a bank of filters.
 """

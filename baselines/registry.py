@@ -127,6 +127,8 @@ _REGISTRY: dict[str, AgentSpec] = {}
 
 
 def register_agent(spec: AgentSpec) -> None:
+    """Add an agent beside the catalogue's (a policy file, a test's agent); names are unique."""
+    _load_builtin()
     if spec.name in _REGISTRY:
         raise ValueError(f"agent {spec.name!r} is already registered")
     _REGISTRY[spec.name] = spec
@@ -151,23 +153,74 @@ def agent_names() -> list[str]:
 
 
 def make_agent(name: str, env: gym.Env) -> Agent:
-    """Build agent ``name`` for ``env`` (wrapped or not)."""
-    return agent_spec(name).factory(env.unwrapped)
+    """Build agent ``name`` for ``env`` (wrapped or not).
+
+    Raises:
+        KeyError: no agent is called ``name``.
+        ValueError: the agent does not apply to the environment (its id, when
+            it was made with ``gym.make``) or to its ``obs_mode``
+            (:meth:`AgentSpec.skip_reason`).
+    """
+    spec = agent_spec(name)
+    unwrapped = env.unwrapped
+    obs_mode = getattr(unwrapped, "obs_mode", None)
+    env_id = unwrapped.spec.id if unwrapped.spec is not None else None
+    where = env_id or type(unwrapped).__name__
+    reason = spec.skip_reason(env_id) if env_id is not None else None
+    if reason is None and obs_mode is not None and obs_mode not in spec.obs_modes:
+        needed = " or ".join(f"obs_mode={mode!r}" for mode in spec.obs_modes)
+        reason = f"it needs {needed}, got obs_mode={obs_mode!r}"
+    if reason is not None:
+        raise ValueError(f"agent {name!r} does not apply to {where}: {reason}")
+    return spec.factory(unwrapped)
 
 
-#: Modules whose import registers the built-in agents (one line per module).
-BUILTIN_AGENT_MODULES = (
-    "baselines.agents.random_agent",
-    "baselines.agents.pd_docking",
-    "baselines.acoustic.agents",
-    "baselines.lars.agents",
-    "baselines.rl.agents",
-    "baselines.docking.agents",
-    "baselines.vision.agents",
-    "baselines.lars.ltat_agents",
-)
+@dataclasses.dataclass(frozen=True)
+class LazyFactory:
+    """``factory(env)``: import ``target`` (``"module:attribute[.attribute]"``) when first
+    called, then ``target(env, **kwargs)``. Picklable (strings only), so a spec travels
+    to worker processes; the import happens where the agent is built."""
+
+    target: str
+    kwargs: Mapping[str, Any] = dataclasses.field(default_factory=dict, hash=False)
+
+    def resolve(self) -> Callable:
+        module_name, _, attributes = self.target.partition(":")
+        if not attributes:
+            raise ValueError(f"factory {self.target!r} must be 'module:attribute'")
+        value = importlib.import_module(module_name)
+        for attribute in attributes.split("."):
+            value = getattr(value, attribute)
+        return value
+
+    def __call__(self, env: gym.Env) -> Agent:
+        return self.resolve()(env, **self.kwargs)
+
+
+def lazy(target: str, **kwargs) -> LazyFactory:
+    """A factory that imports ``target`` (``"module:attribute"``) only when an agent is built."""
+    return LazyFactory(target, dict(kwargs))
+
+
+def env_ids_of(module: str) -> tuple[str, ...]:
+    """Every registered environment id whose entry point is a class of ``module``."""
+    ids = tuple(env_id for env_id, entry_point in auv_envs.ENVIRONMENTS.items()
+                if entry_point.partition(":")[0] == module)
+    if not ids:
+        raise ValueError(f"no environment is registered from module {module!r}")
+    return ids
+
+
+_BUILTIN_LOADED = False
 
 
 def _load_builtin() -> None:
-    for module in BUILTIN_AGENT_MODULES:
-        importlib.import_module(module)
+    """Register the catalogue's agents (:mod:`baselines.catalogue`) once."""
+    global _BUILTIN_LOADED
+    if _BUILTIN_LOADED:
+        return
+    _BUILTIN_LOADED = True
+    from baselines.catalogue import builtin_specs  # the catalogue imports this module
+
+    for spec in builtin_specs():
+        register_agent(spec)

@@ -1,7 +1,7 @@
 """The project's seed ranges, in one place, so that training never sees an evaluation seed.
 
 * ``[1000, 99999]`` (:data:`TRAIN_SEED_RANGE`): the Siamese tracker's training sequences
-  (:mod:`baselines.lars.siamese`); ``train.py`` training seeds stay below
+  (:mod:`baselines.lars.training.siamese`); ``train.py`` training seeds stay below
   :data:`TRAIN_EVAL_SEED_BASE` (checked in :mod:`baselines.rl.config`).
 * ``90000 ...`` (:data:`TRAIN_EVAL_SEED_BASE`): the held-out episodes ``train.py``
   evaluates on while it trains.

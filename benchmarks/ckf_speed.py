@@ -23,7 +23,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from baselines.lars.agents import GATE_3DOF, CKFPDAgent
-from baselines.lars.ckf import (
+from baselines.lars.estimation.ckf import (
     CubatureKalmanFilter,
     HeaveSurgeModel,
     position_measurement,

@@ -13,7 +13,7 @@
 2. **GM-PHD update.** Along a ``gmphd-gci`` run on the same episode, the
    inputs of the bank's update (each band's predicted mixture with the
    adaptive birth, its valid fixes and their covariances) are handed to
-   :func:`baselines.acoustic.gmphd.gmphd_update` and to Stone Soup's
+   :func:`baselines.acoustic.estimation.gmphd.gmphd_update` and to Stone Soup's
    ``PHDUpdater`` (with a ``KalmanUpdater``, one ``LinearGaussian``
    measurement model per fix carrying that fix's covariance; hypotheses are
    built outside its timer, so Stone Soup is timed on its update alone).
@@ -41,7 +41,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
-from baselines.acoustic.gmphd import compact_fixes, gmphd_update
+from baselines.acoustic.estimation.gmphd import compact_fixes, gmphd_update
 from baselines.registry import make_agent
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
@@ -80,7 +80,7 @@ def update_inputs(env, data, seed: int, count: int = 200):
 
     Returns up to ``count`` steps' (weights, means, covariances, fixes z, R,
     valid, p_detect (Q,), kappa), the fixes compacted by
-    :func:`~baselines.acoustic.gmphd.compact_fixes`, as ``GaussianMixturePHDBank.update``
+    :func:`~baselines.acoustic.estimation.gmphd.compact_fixes`, as ``GaussianMixturePHDBank.update``
     passes them.
     """
     agent = make_agent("gmphd-gci", env)

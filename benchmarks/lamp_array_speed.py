@@ -25,8 +25,9 @@ import cv2  # noqa: E402
 import gymnasium as gym  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
+from baselines.docking.perception.front_end import LampArrayFrontEnd  # noqa: E402
+from baselines.docking.perception.segmentation import segment_lamps  # noqa: E402
 from baselines.registry import make_agent  # noqa: E402
-from baselines.vision.lamp_array import LampArrayFrontEnd, segment_lamps  # noqa: E402
 
 TARGET_FPS = 100.0
 ENV_IDS = ("auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1")

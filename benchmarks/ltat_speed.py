@@ -28,8 +28,8 @@ import torch  # noqa: E402
 
 from auv_envs.datasets.lars import tracking_action  # noqa: E402
 from auv_envs.tasks.lars import CONTROL_PERIOD, LARSCaptureEnv  # noqa: E402
-from baselines.lars.ltat import LTATFrontEnd  # noqa: E402
-from baselines.lars.siamese import Pyramid, SiameseTracker, marker_box  # noqa: E402
+from baselines.lars.perception.front_end import LTATFrontEnd  # noqa: E402
+from baselines.lars.perception.siamese import Pyramid, SiameseTracker, marker_box  # noqa: E402
 
 TARGET_FPS = 25.0
 

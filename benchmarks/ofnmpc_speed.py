@@ -29,7 +29,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from baselines.docking.agents import OFNMPCAgent
-from baselines.docking.ofnmpc import OFNMPCConfig
+from baselines.docking.control.ofnmpc import OFNMPCConfig
 
 ENV_ID = "auv_envs/DockingStation-v1"
 TARGETS_MS = {"ekf": (10.0, 25.0), "mhe": (30.0, None)}

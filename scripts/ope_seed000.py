@@ -4,7 +4,7 @@ One-pass evaluation (OTB, Wu et al. 2013), as in seed 000 §3: each tracker
 starts from the true box of the first frame and runs through the sequence
 without restarts. The target is the AUV's marker box (the axis-aligned box of
 the three projected marker corners, clipped to the image; see
-:mod:`baselines.lars.siamese`); both views of every frame count, frames
+:mod:`baselines.lars.perception.siamese`); both views of every frame count, frames
 whose marker lies outside the image are left out.
 
 * success(t): fraction of frames with IoU(output, truth) > t, t in [0, 1];
@@ -13,7 +13,7 @@ whose marker lies outside the image are left out.
   20 px ranks trackers.
 
 Three rows: the Siamese tracker alone (same network; its own template
-update: every frame a view scores >= ``TrackerParams.update_score``), LTAT as
+update: every frame a view scores >= ``SiameseTrackerParams.update_score``), LTAT as
 shipped (templates updated on every ``sample_every``-th confident, verified
 frame), and LTAT with its boxes left as the tracker's (never snapped to the
 verified corners), which isolates what re-detection alone adds.
@@ -60,14 +60,15 @@ from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
 from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 from baselines.evaluation import EVAL_SEED_BASE, write_figures  # noqa: E402
-from baselines.lars.ltat import LTATParams, LTATracker, MarkerCornerExtractor  # noqa: E402
-from baselines.lars.siamese import (  # noqa: E402
+from baselines.lars.perception.corners import MarkerCornerExtractor  # noqa: E402
+from baselines.lars.perception.ltat import LTATParams, LTATracker  # noqa: E402
+from baselines.lars.perception.siamese import (  # noqa: E402
     Pyramid,
     SiameseTracker,
     load_siamese,
     marker_box,
-    read_frame,
 )
+from baselines.lars.training.siamese import read_frame  # noqa: E402
 from baselines.stats import bootstrap_interval  # noqa: E402
 
 KINDS = ("siamese", "ltat-tracker-box", "ltat")

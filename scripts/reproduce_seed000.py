@@ -62,7 +62,7 @@ from auv_envs.tasks.lars import CONTROL_PERIOD  # noqa: E402
 from auv_envs.tasks.lars_sea import SeaSample, ShipPose  # noqa: E402
 from baselines.evaluation import run_episode, write_figures  # noqa: E402
 from baselines.lars.agents import CKFPDAgent  # noqa: E402
-from baselines.lars.marker import MarkerLocaliser, marker_attitude  # noqa: E402
+from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude  # noqa: E402
 from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
 from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
 

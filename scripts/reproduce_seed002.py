@@ -44,10 +44,10 @@ import auv_envs  # noqa: F401
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
 from auv_envs.core.frames import rotation_from_euler
 from auv_envs.metrics import clear_mot_labelled
-from baselines.agents.pd_docking import DockingPDAgent
+from baselines.docking.agents import DockingPDAgent
+from baselines.docking.perception.front_end import LampArrayFrontEnd
 from baselines.evaluation import write_figures
 from baselines.stats import bootstrap_interval
-from baselines.vision.lamp_array import LampArrayFrontEnd
 
 ENV_ID = "auv_envs/LampArrayDocking-v1"
 ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v1")

@@ -43,7 +43,7 @@ import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
 from auv_envs.tasks.acoustic import TCFE_BIN_WIDTH, AcousticTrackingEnv
-from baselines.acoustic.positioning import METHODS, LeastSquaresPositioner
+from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec
 from baselines.stats import bootstrap_interval

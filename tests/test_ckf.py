@@ -1,4 +1,4 @@
-"""The cubature Kalman filter and seed 000's motion model (baselines/lars/ckf.py)."""
+"""The cubature Kalman filter and seed 000's motion model (baselines/lars/estimation/ckf.py)."""
 
 import datetime
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from baselines.lars.ckf import (
+from baselines.lars.estimation.ckf import (
     CubatureKalmanFilter,
     HeaveSurgeModel,
     covariance_root,

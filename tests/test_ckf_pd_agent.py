@@ -10,7 +10,7 @@ import auv_envs  # noqa: F401
 from auv_envs.tasks.lars_scene import auv_rotation
 from baselines.evaluation import run_episode
 from baselines.lars.agents import CKFPDAgent
-from baselines.lars.marker import MarkerLocaliser, marker_attitude
+from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude
 from baselines.registry import agent_names, agent_spec, make_agent
 
 ENV_ID = "auv_envs/LARSCapture-v0"

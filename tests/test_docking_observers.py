@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from baselines.docking.observers import (
+from baselines.docking.estimation.observers import (
     DockingEKF,
     DockingMHE,
     ExtendedKalmanFilter,

@@ -10,6 +10,7 @@ import pytest
 
 from baselines import evaluation
 from baselines.agents.random_agent import RandomAgent
+from baselines.commands.evaluate import parse_seeds
 from baselines.evaluation import (
     EVAL_SEED_BASE,
     EpisodeCache,
@@ -17,7 +18,6 @@ from baselines.evaluation import (
     EpisodeTask,
     default_seeds,
     evaluate_all,
-    parse_seeds,
     plan,
     resolve_env_kwargs,
     run_episode,
@@ -294,14 +294,14 @@ def test_rerun_reads_the_cache_and_runs_only_missing_episodes(tmp_path, monkeypa
     assert first.stats.ran == 4 and first.stats.cached == 0
     assert len(list(tmp_path.glob("*.json"))) == 4
 
-    real_run_task = evaluation.run_task
+    real_run_task = evaluation.backends.run_task
     calls = []
 
     def counting_run_task(task, agent_modules=(), video=None):
         calls.append(task)
         return real_run_task(task, agent_modules, video)
 
-    monkeypatch.setattr(evaluation, "run_task", counting_run_task)
+    monkeypatch.setattr(evaluation.backends, "run_task", counting_run_task)
     second = evaluate_all(**args)
     assert calls == [] and second.stats.cached == 4 and second.stats.ran == 0
     assert [_comparable(r) for r in second.rows] == [_comparable(r) for r in first.rows]
@@ -316,7 +316,7 @@ def test_rerun_reads_the_cache_and_runs_only_missing_episodes(tmp_path, monkeypa
 
 
 def test_interrupted_run_keeps_every_finished_episode(tmp_path, monkeypatch):
-    real_run_task = evaluation.run_task
+    real_run_task = evaluation.backends.run_task
     calls = []
 
     def interrupted(task, agent_modules=(), video=None):
@@ -325,13 +325,13 @@ def test_interrupted_run_keeps_every_finished_episode(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real_run_task(task, agent_modules, video)
 
-    monkeypatch.setattr(evaluation, "run_task", interrupted)
+    monkeypatch.setattr(evaluation.backends, "run_task", interrupted)
     args = dict(env_ids=[DOCK], agents=["random"], seeds=[1, 2, 3, 4], cache_dir=tmp_path)
     with pytest.raises(KeyboardInterrupt):
         evaluate_all(**args)
     assert len(list(tmp_path.glob("*.json"))) == 2
     assert not list(tmp_path.glob(".*tmp"))  # no half-written files
-    monkeypatch.setattr(evaluation, "run_task", real_run_task)
+    monkeypatch.setattr(evaluation.backends, "run_task", real_run_task)
     resumed = evaluate_all(**args)
     assert resumed.stats.cached == 2 and resumed.stats.ran == 2
 
@@ -398,7 +398,7 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
     def failing_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(evaluation.os, "replace", failing_replace)
+    monkeypatch.setattr(evaluation.cache.os, "replace", failing_replace)
     with pytest.raises(OSError, match="disk full"):
         evaluation.atomic_write(target, "newer")
     assert target.read_text() == "new"
@@ -429,7 +429,7 @@ def test_cached_episodes_of_other_code_run_again(tmp_path, monkeypatch):
     first = evaluate_all(**args)
     assert first.stats.ran == 1
     assert evaluate_all(**args).stats.cached == 1
-    monkeypatch.setattr(evaluation, "code_fingerprint", lambda: "edited-code")
+    monkeypatch.setattr(evaluation.episodes, "code_fingerprint", lambda: "edited-code")
     again = evaluate_all(**args)
     assert again.stats.ran == 1 and again.stats.cached == 0
     assert [_comparable(r) for r in again.rows] == [_comparable(r) for r in first.rows]

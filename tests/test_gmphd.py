@@ -5,8 +5,8 @@ import datetime
 import numpy as np
 import pytest
 
-from baselines.acoustic.gci import GeneralizedCovarianceIntersection, LabelledExtractor
-from baselines.acoustic.gmphd import (
+from baselines.acoustic.estimation.gci import GeneralizedCovarianceIntersection, LabelledExtractor
+from baselines.acoustic.estimation.gmphd import (
     POSITION_H,
     AdaptiveBirth,
     ConstantVelocityModel,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from auv_envs.tasks.acoustic import STATIC_POINTS, AcousticTrackingEnv
-from baselines.acoustic.positioning import (
+from baselines.acoustic.perception.positioning import (
     METHODS,
     ClockOffsetEstimator,
     LeastSquaresPositioner,

@@ -13,21 +13,19 @@ import pytest
 import auv_envs  # noqa: F401
 from auv_envs.core.camera import CameraIntrinsics, points_in_camera, project
 from auv_envs.core.frames import rotation_from_euler
-from baselines.frontend import FrontEndAgent
-from baselines.kalman import kalman_gain
-from baselines.registry import agent_spec, make_agent
-from baselines.vision.lamp_array import (
+from baselines.docking.estimation.camera_position import CameraPositionFilter
+from baselines.docking.perception.front_end import LampArrayFrontEnd
+from baselines.docking.perception.identity import identify_l_shape, ring_labelings
+from baselines.docking.perception.lamp_tracking import (
     DETECTED,
     PREDICTED,
     BlobEKF,
-    CameraPositionFilter,
-    LampArrayFrontEnd,
-    SegmentationParams,
-    TrackerParams,
-    identify_l_shape,
-    ring_labelings,
-    segment_lamps,
+    LampTrackerParams,
 )
+from baselines.docking.perception.segmentation import SegmentationParams, segment_lamps
+from baselines.frontend import FrontEndAgent
+from baselines.kalman import kalman_gain
+from baselines.registry import agent_spec, make_agent
 from tests.conftest import DOCKING_IDS
 
 LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1"
@@ -154,18 +152,39 @@ def test_tracks_survive_an_occlusion_and_reassign_correctly(rendered, hidden):
     assert front_end.stats()["lamp_initialisations"] == 1  # never re-initialised
 
 
+class _PoisonedInfo(dict):
+    """An empty info dict that fails the test on any read (item, membership, iteration,
+    length or truth value, views, copies)."""
+
+    def _read(self, *args, **kwargs):
+        raise AssertionError("the front end read info")
+
+    __getitem__ = __contains__ = __iter__ = __len__ = __reversed__ = __or__ = _read
+    get = keys = items = values = copy = pop = setdefault = _read
+
+
 def test_front_end_never_reads_info(rendered):
-    class Untouchable(dict):
-        def __getitem__(self, key):
-            raise AssertionError(f"front end read info[{key!r}]")
-
-        def get(self, *args):
-            raise AssertionError("front end read info")
-
+    # The same frames through three front ends: with an empty info, with the true lamp
+    # pixels and visibility in info, and with an info that fails on any read. The
+    # features are the same bit for bit: nothing in info reaches them.
     _, frames, cal = rendered
-    front_end = LampArrayFrontEnd(cal)
-    for obs, _, _ in frames[:3]:
-        front_end(obs, Untouchable())
+    frames = frames[:4]
+    infos = {
+        "empty": [{} for _ in frames],
+        "truth": [{"true_pixels": px.copy(), "true_visible": vis.copy()}
+                  for _, px, vis in frames],
+        "poisoned": [_PoisonedInfo() for _ in frames],
+    }
+    outputs = {}
+    for kind, kind_infos in infos.items():
+        front_end = LampArrayFrontEnd(cal)
+        outputs[kind] = [front_end(obs, info)
+                         for (obs, _, _), info in zip(frames, kind_infos, strict=True)]
+    for kind in ("truth", "poisoned"):
+        for step, (a, b) in enumerate(zip(outputs["empty"], outputs[kind], strict=True)):
+            assert a.keys() == b.keys()
+            for key in a:
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{kind} {step} {key}")
 
 
 def test_reset_starts_over_and_reruns_identically(rendered):
@@ -385,9 +404,9 @@ def test_bad_configuration_raises(lamp_front_end):
         with pytest.raises(ValueError, match="offset"):
             SegmentationParams(offset=bad)
     with pytest.raises(ValueError, match="gate_px"):
-        TrackerParams(gate_px=math.inf)
+        LampTrackerParams(gate_px=math.inf)
     with pytest.raises(ValueError, match="lost_after"):
-        TrackerParams(lost_after=0)
+        LampTrackerParams(lost_after=0)
 
 
 def test_bad_segmentation_and_identity_input_raises():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from baselines.lars.control import (
+from baselines.lars.control.arm import (
     FOLLOW,
     STRIKE,
     TRACK,

@@ -15,10 +15,10 @@ from auv_envs.tasks.lars_scene import (
     MARKER_SIDES,
     MOTION_RANGES,
     MarkerGeometry,
-    marker_pitch_yaw,
     sample_motion,
     uniform_draws,
 )
+from baselines.lars.perception.marker import marker_pitch_yaw
 
 
 def _left_camera_to_world(env, points_left):

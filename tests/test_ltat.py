@@ -23,14 +23,10 @@ from auv_envs.datasets.lars import tracking_action  # noqa: E402
 from auv_envs.metrics import box_iou  # noqa: E402
 from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
 from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
-from baselines.lars.ltat import (  # noqa: E402
-    LTATFrontEnd,
-    MarkerCornerExtractor,
-    OnlineDetector,
-    find_marker_pair,
-    match_stereo,
-)
-from baselines.lars.siamese import (  # noqa: E402
+from baselines.lars.perception.corners import MarkerCornerExtractor  # noqa: E402
+from baselines.lars.perception.detector import OnlineDetector  # noqa: E402
+from baselines.lars.perception.front_end import LTATFrontEnd  # noqa: E402
+from baselines.lars.perception.siamese import (  # noqa: E402
     ARCHITECTURE,
     META_FILE,
     WEIGHTS_FILE,
@@ -41,6 +37,7 @@ from baselines.lars.siamese import (  # noqa: E402
     load_siamese,
     marker_box,
 )
+from baselines.lars.perception.stereo import find_marker_pair, match_stereo  # noqa: E402
 from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
 
 #: Severe-sea episode with a wash-over over the marker at steps 16-34 and
@@ -123,7 +120,7 @@ def _copy_weights(tmp_path):
 def test_missing_weights_name_the_training_command(tmp_path):
     target = _copy_weights(tmp_path)
     (target / WEIGHTS_FILE).unlink()
-    with pytest.raises(FileNotFoundError, match="baselines.lars.siamese train"):
+    with pytest.raises(FileNotFoundError, match="baselines.lars.training.siamese train"):
         load_siamese(target)
     with pytest.raises(FileNotFoundError, match="missing"):
         load_siamese(tmp_path / "nowhere")
@@ -364,6 +361,6 @@ def test_front_end_rejects_wrong_images(calm_rollout):
     with pytest.raises(ValueError, match="'stereo' observation"):
         front({"pixels": np.zeros((2, 3, 2))}, {})
     with pytest.raises(ValueError, match="obs_mode='stereo'"):
-        from baselines.lars.ltat_agents import make_front_end
+        from baselines.lars.agents import make_front_end
 
         make_front_end(LARSCaptureEnv(obs_mode="features"))

@@ -8,10 +8,10 @@ import pytest
 
 from baselines import registry
 from baselines.docking.agents import OFNMPCAgent
-from baselines.docking.observers import DockingEKF
-from baselines.docking.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
+from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
+from baselines.docking.estimation.observers import DockingEKF
 from baselines.evaluation import run_episode
-from baselines.registry import BUILTIN_AGENT_MODULES, make_agent
+from baselines.registry import make_agent
 from tests.conftest import DOCKING_IDS, make_env
 from tests.test_agents import assert_docked
 
@@ -103,11 +103,8 @@ def test_non_finite_estimate_raises(controller):
 
 
 def test_agents_are_registered_for_both_docking_envs():
-    assert "baselines.docking.agents" in BUILTIN_AGENT_MODULES
-    # Importing baselines.docking.agents (above) registered them; reading the table
-    # directly avoids importing every other builtin agent module (torch etc.).
     for name in ("ofnmpc-ekf", "ofnmpc-mhe"):
-        spec = registry._REGISTRY[name]
+        spec = registry.agent_spec(name)
         assert spec.obs_mode == "features"
         assert all(spec.applies_to(e) for e in DOCKING_IDS)
 
@@ -173,7 +170,7 @@ def test_compiled_solver_gives_the_same_plan(calibration, tmp_path, monkeypatch)
 
 def test_without_a_compiler_the_solver_warns_and_runs_uncompiled(calibration, tmp_path,
                                                                   monkeypatch):
-    import baselines.docking.ofnmpc as module
+    import baselines.docking.control.ofnmpc as module
 
     monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
     monkeypatch.setattr(module.shutil, "which", lambda name: None)
@@ -190,7 +187,7 @@ def test_processes_needing_the_same_library_compile_it_once(tmp_path, monkeypatc
 
     import casadi as ca
 
-    import baselines.docking.ofnmpc as module
+    import baselines.docking.control.ofnmpc as module
 
     monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
     builds, build = [], module._build_library

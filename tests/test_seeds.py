@@ -19,7 +19,7 @@ def test_ranges_are_disjoint_and_ordered():
 def test_every_module_uses_the_one_definition():
     from baselines import evaluation
     from baselines.commands import evaluate
-    from baselines.lars import siamese
+    from baselines.lars.training import siamese
     from baselines.rl import config, training
 
     assert evaluation.EVAL_SEED_BASE is seeds.EVAL_SEED_BASE

@@ -19,6 +19,7 @@ from stable_baselines3.common.policies import MultiInputActorCriticPolicy
 
 import train as train_cli
 from baselines.evaluation import EVAL_SEED_BASE, run_episode
+from baselines.parsing import parse_value
 from baselines.registry import agent_spec, make_agent
 from baselines.rl import agents, training
 from baselines.rl.checkpoint import CheckpointError, latest_checkpoint
@@ -26,7 +27,6 @@ from baselines.rl.config import (
     TRAIN_EVAL_SEED_BASE,
     ConfigError,
     parse_overrides,
-    parse_value,
     resolve_config,
 )
 from baselines.rl.export import export_policy

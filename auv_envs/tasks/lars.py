@@ -146,6 +146,8 @@ class LARSCalibration:
         marker_sides: (0.15, 0.4, 0.4) m.
         capture_point_body: (3,) the AUV's lifting eye in its body frame.
         auv_length, auv_diameter, auv_mass: Explore-100-like AUV (Table 1).
+        auv_freeboard: height of the hull's top line above the local water
+            level, m (the AUV floats this proud).
         tolerances: success tolerances.
         workspace: (3, 2) box the arm end must stay inside, in the ship's
             frame (the world frame unless a ``sea`` moves the ship).
@@ -170,6 +172,7 @@ class LARSCalibration:
     auv_length: float
     auv_diameter: float
     auv_mass: float
+    auv_freeboard: float
     tolerances: CaptureTolerances
     workspace: np.ndarray
     pixel_noise_std: float
@@ -546,6 +549,7 @@ class LARSCaptureEnv(TaskEnv):
             auv_length=AUV_LENGTH,
             auv_diameter=AUV_DIAMETER,
             auv_mass=AUV_MASS,
+            auv_freeboard=AUV_FREEBOARD,
             tolerances=tolerances or CaptureTolerances(),
             workspace=_read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
             pixel_noise_std=float(pixel_noise_std),

@@ -194,29 +194,6 @@ def sample_motion(rng: np.random.Generator, overrides: dict | None = None) -> AU
     return AUVMotion(**values)
 
 
-def marker_pitch_yaw(corners, depth_offset: float) -> tuple[float, float]:
-    """AUV pitch and yaw from the marker's corners (seed 000, eqs. 4-6).
-
-    Args:
-        corners: (3, 3) A1, A2 (base) and A3 (apex) in a z-up frame whose y
-            axis is the reference heading, so that eq. 6's
-            ``arctan((x3 - x4) / (y3 - y4))`` is the yaw. For corners in the
-            world frame of this task (heading reference +x, yaw counter-
-            clockwise), pass them with x and y swapped: ``corners[:, [1, 0, 2]]``.
-        depth_offset: ``D`` of eq. 4.
-
-    Returns:
-        ``(pitch, yaw)`` in radians; pitch is nose-up positive.
-    """
-    a = np.asarray(corners, dtype=float)
-    x4, y4 = 0.5 * (a[0, 0] + a[1, 0]), 0.5 * (a[0, 1] + a[1, 1])
-    z4 = 0.5 * (a[0, 2] + a[1, 2]) + depth_offset  # eq. 4
-    dx, dy, dz = a[2, 0] - x4, a[2, 1] - y4, a[2, 2] - z4
-    pitch = math.atan(dz / math.hypot(dx, dy))  # eq. 5
-    yaw = math.atan2(dx, dy)  # eq. 6 (atan2 keeps the quadrant)
-    return pitch, yaw
-
-
 def build_lars_model(
     baseline: float, fovy_deg: float, marker: MarkerGeometry, analog_marker: MarkerGeometry
 ) -> mujoco.MjModel:

@@ -18,8 +18,8 @@ The action is clipped to the tank.
 **Clock calibration** (all three agents, on by default; our addition to seed
 004): every agent corrects the TDOAs of its own bands with an online estimate
 of the nodes' clock offsets
-(:class:`~baselines.acoustic.positioning.ClockOffsetEstimator`). The offsets
-bias every fix of an episode alike, so without it the shared bias, not the
+(:class:`~baselines.acoustic.perception.positioning.ClockOffsetEstimator`).
+The offsets bias every fix of an episode alike, so without it the shared bias, not the
 per-band noise that GCI averages out, dominates the error.
 ``clock_calibration=False`` runs the paper's pipeline on the raw TDOAs.
 
@@ -37,21 +37,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.acoustic.gci import GeneralizedCovarianceIntersection, LabelledExtractor
-from baselines.acoustic.gmphd import (
+from baselines.acoustic.estimation.gci import (
+    GeneralizedCovarianceIntersection,
+    LabelledExtractor,
+)
+from baselines.acoustic.estimation.gmphd import (
     POSITION_H,
     AdaptiveBirth,
     ConstantVelocityModel,
     GaussianMixturePHDBank,
     MixtureReducer,
 )
-from baselines.acoustic.positioning import (
+from baselines.acoustic.perception.positioning import (
     ClockOffsetEstimator,
     LeastSquaresPositioner,
     work_area_centre,
 )
 from baselines.kalman import joseph_covariance, kalman_gain
-from baselines.registry import AgentSpec, register_agent
 
 ENV_IDS = ("auv_envs/AcousticTracking-v0",)
 OBS_KEYS = ("tdoa", "azimuth", "elevation", "mask")
@@ -132,8 +134,8 @@ class GMPHDGCIAgent:
       prune_threshold: T_prune (1e-5), also the extraction threshold.
       max_components: per-band and fused component cap.
       clock_calibration: correct the TDOAs with online clock-offset estimates
-        (:class:`~baselines.acoustic.positioning.ClockOffsetEstimator`, our
-        addition to seed 004); False feeds the raw TDOAs as the paper does.
+        (:class:`~baselines.acoustic.perception.positioning.ClockOffsetEstimator`,
+        our addition to seed 004); False feeds the raw TDOAs as the paper does.
     """
 
     def __init__(self, env, bands=None, gci_weights=None, accel_std: float = 1.0,
@@ -263,11 +265,3 @@ def single_band_agent(env, **kwargs) -> GMPHDGCIAgent:
     """``gmphd-single``: :class:`GMPHDGCIAgent` on :func:`best_single_band` (kwargs pass on)."""
     _check_env(env, "gmphd-single")
     return GMPHDGCIAgent(env, bands=(best_single_band(env),), **kwargs)
-
-
-register_agent(AgentSpec("gmphd-gci", GMPHDGCIAgent, "measurements", ENV_IDS,
-                         "seed 004: fused TDOA-DOA LS, per-band GM-PHD, GCI fusion"))
-register_agent(AgentSpec("gmphd-single", single_band_agent, "measurements", ENV_IDS,
-                         "GM-PHD with DBSCAN birth on the single best band"))
-register_agent(AgentSpec("ls-kf", LSKalmanAgent, "measurements", ENV_IDS,
-                         "fused LS fixes + Kalman filter with nearest-neighbour gating"))

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from baselines.registry import AgentSpec, register_agent
-
 
 class RandomAgent:
     """Samples the action space uniformly from its own seeded generator."""
@@ -20,14 +18,3 @@ class RandomAgent:
     def act(self, observation, info: dict) -> np.ndarray:
         low, high = self._space.low, self._space.high
         return self._rng.uniform(low, high).astype(self._space.dtype)
-
-
-register_agent(
-    AgentSpec(
-        name="random",
-        factory=RandomAgent,
-        obs_mode="state",
-        env_ids=None,
-        description="uniform random actions",
-    )
-)

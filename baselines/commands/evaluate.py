@@ -40,20 +40,18 @@ from auv_envs.record import check_speed, parse_size
 from baselines import leaderboard
 from baselines.evaluation import (
     BACKENDS,
-    EVAL_SEED_BASE,
     POLICY_PREFIX,
     VideoSpec,
     bound_rows,
     check_names,
-    default_seeds,
     env_parameters,
     evaluate_all,
     import_agent_modules,
-    parse_seeds,
     resolve_env_kwargs,
     summarise,
 )
 from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_modes
+from baselines.seeds import EVAL_SEED_BASE, default_seeds
 
 #: Environment arguments of the default run; ``--env-kwargs`` overrides them
 #: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
@@ -66,6 +64,19 @@ DEFAULT_LEVELS: tuple[str, ...] = ("paper", "hard")
 
 def default_workers() -> int:
     return max(1, min(4, os.cpu_count() or 1))
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds``: ``"A-B"`` (inclusive) or ``"A,B,C"`` -> list of seeds."""
+    try:
+        if "-" in text.strip("-"):
+            first, last = (int(x) for x in text.split("-", 1))
+            if last < first:
+                raise ValueError
+            return list(range(first, last + 1))
+        return [int(x) for x in text.split(",")]
+    except ValueError as exc:
+        raise ValueError(f"seeds must look like 'A-B' or 'A,B,C', got {text!r}") from exc
 
 
 def resolve_env_ids(names) -> list[str]:

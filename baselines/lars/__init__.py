@@ -1,4 +1,9 @@
-"""Seed 000 LARS capture baselines.
+"""Seed 000 LARS capture baselines, cut by role.
 
-LTAT perception, cubature Kalman filter, quintic trajectories and PD arm control.
+* :mod:`baselines.lars.perception`: Siamese tracker, online detector, LTAT,
+  marker corners and the marker pose measurement.
+* :mod:`baselines.lars.estimation`: cubature Kalman filter and the AUV motion model.
+* :mod:`baselines.lars.control`: quintic trajectories, IK and PD arm control.
+* :mod:`baselines.lars.training`: offline training of the Siamese tracker.
+* :mod:`baselines.lars.agents`: the agents that wire them, and their registrations.
 """

@@ -1,4 +1,6 @@
-"""Seed 000's estimation-and-control agent for ``auv_envs/LARSCapture-v0``: ``ckf-pd``.
+"""Seed 000's LARS capture agents, and every LARS registration.
+
+``ckf-pd``, ``ckf-pd-state`` and ``ltat-ckf-pd`` on ``auv_envs/LARSCapture-v0``. ``ckf-pd``:
 
 ``features`` observation (marker corners in both images, joint states)
 -> stereo triangulation and hand-eye transform (eqs. 2-3) -> pitch and yaw
@@ -11,7 +13,8 @@ as normalised joint torques.
 
 Eq. 8's heave frequency ``C`` and mean level are not given to the agent: it
 starts from the documented scene (a 7 s swell about the floating AUV's level)
-and refits both from its own measured heights (:func:`~baselines.lars.ckf.fit_heave`).
+and refits both from its own measured heights
+(:func:`~baselines.lars.estimation.ckf.fit_heave`).
 
 The agent acts on any dict with the ``features`` layout (``pixels``,
 ``visible``, ``joint_position``, ``joint_velocity``), so a perception front
@@ -23,6 +26,15 @@ calibration, never ``info``.
 the same strategy, trajectory and control fed the true AUV state of the
 ``state`` observation, the bar the ``difficulty`` levels are calibrated
 against (``docs/difficulty.md``).
+
+``ltat-ckf-pd``: seed 000's LTAT perception
+(:class:`baselines.lars.perception.front_end.LTATFrontEnd`) turns the
+``stereo`` observation into the ``features`` one, and ``ckf-pd`` acts on
+that.
+
+The parts live by role: :mod:`baselines.lars.perception`,
+:mod:`baselines.lars.estimation`, :mod:`baselines.lars.control`; this module
+only wires them; :mod:`baselines.catalogue` declares the agents.
 """
 
 from __future__ import annotations
@@ -31,26 +43,22 @@ import math
 
 import numpy as np
 
-from auv_envs.tasks.lars_scene import AUV_FREEBOARD, auv_rotation
-from baselines.lars.ckf import (
-    CubatureKalmanFilter,
-    HeaveSurgeModel,
-    fit_heave,
-    position_measurement,
-    white_acceleration_noise,
-)
-from baselines.lars.control import (
+from baselines.lars.control.arm import (
     FOLLOW,
-    KD,
-    KP,
     STRIKE,
     CaptureStrategy,
     ComputedTorquePD,
     SampledTrajectory,
     joint_reference,
 )
-from baselines.lars.marker import MarkerLocaliser
-from baselines.registry import AgentSpec, register_agent
+from baselines.lars.estimation.ckf import (
+    CubatureKalmanFilter,
+    HeaveSurgeModel,
+    fit_heave,
+    position_measurement,
+    white_acceleration_noise,
+)
+from baselines.lars.perception.marker import MarkerLocaliser, attitude_rotation
 
 ENV_IDS = ("auv_envs/LARSCapture-v0",)
 FEATURE_KEYS = ("pixels", "visible", "joint_position", "joint_velocity")
@@ -90,11 +98,11 @@ class CKFPDAgent:
         env: an unwrapped ``LARSCaptureEnv`` with ``control="torque"``.
         pixel_std: pixel noise (px) the fixes assume at the start (default: the
             calibration's; raised to the noise measured in the observations,
-            see :class:`~baselines.lars.marker.MarkerLocaliser`).
+            see :class:`~baselines.lars.perception.marker.MarkerLocaliser`).
         accel_std: (3,) white-acceleration process noise of the CKF, m/s^2.
         gate: chi-square gate on the fixes' innovation (``None``: no gate).
         hover_height, strike_duration, follow_timeout: see
-            :class:`~baselines.lars.control.CaptureStrategy`.
+            :class:`~baselines.lars.control.arm.CaptureStrategy`.
         sample_period: s between sampled targets (quintic re-plans).
         lookahead: s ahead of the present the tracking targets are sampled.
         heave_window: s of past heights the heave fit uses.
@@ -110,7 +118,7 @@ class CKFPDAgent:
         adapt_pixel_noise: raise the assumed pixel noise to the one measured
             in the observations (``MarkerLocaliser(adapt=...)``).
         strike: ``False`` tracks only (for estimation experiments).
-        kp, kd: eq. 30's gains.
+        kp, kd: eq. 30's gains (default: ``calibration.position_gains``).
     """
 
     def __init__(self, env, pixel_std: float | None = None, accel_std=(0.02, 0.02, 0.05),
@@ -122,7 +130,7 @@ class CKFPDAgent:
                  heave_omega_bounds=(0.5, 1.6), attitude_memory: int = 50,
                  relock_after: float = 1.0, settle_time: float = 0.5,
                  adapt_pixel_noise: bool = True, strike: bool = True,
-                 kp: float = KP, kd: float = KD):
+                 kp: float | None = None, kd: float | None = None):
         cal = _check_env(env)
         self.calibration = cal
         self.dt = float(cal.control_period)
@@ -132,7 +140,10 @@ class CKFPDAgent:
         if attitude_memory < 1 or heave_min_span <= 0 or heave_window < heave_min_span:
             raise ValueError("need attitude_memory >= 1 and 0 < heave_min_span <= heave_window")
         self.localiser = MarkerLocaliser(cal, pixel_std, adapt=adapt_pixel_noise)
-        self.controller = ComputedTorquePD(cal.arm, cal.torque_limits, kp, kd)
+        default_kp, default_kd = cal.position_gains
+        self.controller = ComputedTorquePD(
+            cal.arm, cal.torque_limits, default_kp if kp is None else kp,
+            default_kd if kd is None else kd)
         self.strategy = CaptureStrategy(hover_height, strike_duration, follow_timeout)
         self.trajectory = SampledTrajectory()
         self.strike_enabled = bool(strike)
@@ -152,7 +163,7 @@ class CKFPDAgent:
         self._tip_in_end = np.asarray(cal.capture_tip_in_end, dtype=float)
         self._radius = cal.auv_diameter / 2.0
         self._prior_model = HeaveSurgeModel(
-            self.dt, 2.0 * math.pi / PRIOR_HEAVE_PERIOD, AUV_FREEBOARD - self._radius)
+            self.dt, 2.0 * math.pi / PRIOR_HEAVE_PERIOD, cal.auv_freeboard - self._radius)
         self.reset()
 
     # ------------------------------------------------------------------ protocol
@@ -277,7 +288,7 @@ class CKFPDAgent:
         else:
             self._pitch += w * (pitch - self._pitch)
             self._yaw += w * (yaw - self._yaw)
-        self._rotation = auv_rotation(self._pitch, self._yaw)
+        self._rotation = attitude_rotation(self._pitch, self._yaw)
 
     def _refit_heave(self, t: float) -> None:
         while self._heights and self._heights[0][0] < t - self._heave_window:
@@ -372,7 +383,7 @@ class TrueStateCKFPDAgent(CKFPDAgent):
         self._step += 1
         self.filter.initialise(np.concatenate((position, velocity)), np.eye(6) * 1e-8)
         self._pitch, self._yaw = float(obs[21]), float(obs[22])
-        self._rotation = auv_rotation(self._pitch, self._yaw)
+        self._rotation = attitude_rotation(self._pitch, self._yaw)
         self._heights.append((t, float(position[2])))
         if self._step % self._refit_every == 0:
             self._refit_heave(t)
@@ -381,19 +392,12 @@ class TrueStateCKFPDAgent(CKFPDAgent):
         return self._control(t, q, qd)
 
 
-def _make(env) -> CKFPDAgent:
-    return CKFPDAgent(env)
+def make_front_end(env):
+    """LTAT front end from the env's documented calibration (weights: the shipped ones)."""
+    if getattr(env, "obs_mode", None) != "stereo":
+        raise ValueError(f"ltat-ckf-pd needs obs_mode='stereo', got "
+                         f"{getattr(env, 'obs_mode', None)!r}")
+    # Imported here: torch and the weights load only when the agent is built.
+    from baselines.lars.perception.front_end import LTATFrontEnd
 
-
-def _make_true_state(env) -> TrueStateCKFPDAgent:
-    return TrueStateCKFPDAgent(env)
-
-
-register_agent(AgentSpec(
-    "ckf-pd", _make, "features", ENV_IDS,
-    "seed 000 estimation+control: stereo marker fixes -> CKF -> quintic + IK + PD (torques)",
-))
-register_agent(AgentSpec(
-    "ckf-pd-state", _make_true_state, "state", ENV_IDS,
-    "privileged reference: ckf-pd's capture strategy + quintic + IK + PD on the true AUV state",
-))
+    return LTATFrontEnd(env.calibration)

@@ -107,13 +107,11 @@ def register_external_policy(path: str | Path) -> str:
     return name
 
 
-def register_policies(root: Path | None = None) -> list[str]:
-    """Register every policy under ``root``; returns their names."""
-    names = []
-    for directory in policy_directories(root):
-        register_agent(policy_spec(directory))
-        names.append(directory.name)
-    return names
+def shipped_policy_specs(root: Path | None = None) -> list[AgentSpec]:
+    """The registry entries of every policy under ``root`` (default: ``assets/policies``);
+    :mod:`baselines.catalogue` declares them."""
+    return [policy_spec(directory) for directory in policy_directories(root)]
 
 
-SHIPPED = register_policies()
+#: Names of the shipped policies.
+SHIPPED = tuple(directory.name for directory in policy_directories())

@@ -15,13 +15,13 @@ two kinds of keys:
 Command-line overrides are ``key=value`` strings; dotted keys reach into
 mappings (``policy_kwargs.net_arch=[64, 64]``). Values are parsed as Python
 literals (:func:`ast.literal_eval`) or else as YAML scalars
-(:func:`yaml.safe_load`), never evaluated as code. Unknown keys and values of
+(:func:`yaml.safe_load`), never evaluated as code
+(:func:`baselines.parsing.parse_value`). Unknown keys and values of
 the wrong type raise :class:`ConfigError` naming the valid choices.
 """
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import copy
 import dataclasses
@@ -34,6 +34,7 @@ import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
 from baselines.evaluation import atomic_write
+from baselines.parsing import parse_value
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE
 
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
@@ -152,31 +153,22 @@ def load_hyperparams(algo: str, hyperparams_dir: Path | None = None) -> dict:
     return data
 
 
-def parse_value(text: str):
-    """A command-line value: a Python literal, else a YAML scalar; never code.
-
-    ``"3e-4"`` -> 0.0003, ``"[64, 64]"`` -> [64, 64], ``"true"`` -> True,
-    ``"tanh"`` -> ``"tanh"``.
-    """
-    try:
-        return ast.literal_eval(text)
-    except (ValueError, SyntaxError, MemoryError, RecursionError):
-        pass
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"cannot parse value {text!r}: {exc}") from exc
-
-
 def parse_overrides(items: list[str] | tuple[str, ...]) -> dict:
-    """``["n_steps=64", "policy_kwargs.net_arch=[64,64]"]`` -> ``{dotted key: value}``."""
+    """``["n_steps=64", "policy_kwargs.net_arch=[64,64]"]`` -> ``{dotted key: value}``.
+
+    Values are read by :func:`baselines.parsing.parse_value` (a Python literal,
+    else a YAML scalar); one it cannot read raises :class:`ConfigError`.
+    """
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not key:
             raise ConfigError(f"an override must look like key=value, got {item!r}")
-        out[key] = parse_value(value.strip())
+        try:
+            out[key] = parse_value(value.strip())
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
     return out
 
 

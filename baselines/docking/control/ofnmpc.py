@@ -25,6 +25,23 @@ fewer target variables through the horizon makes each solve cheaper than
 with the velocity target as free variables, which the solver drove to zero
 anyway.)
 
+The optimal control problem solved each control step (seed 003 eqs. 13-16,
+with eq. 10's constraints softened), over ``N`` shooting intervals of ``t_s``
+seconds, parameters ``(x_hat, d_hat, r)``::
+
+    min   sum_{k=0}^{N-1} ( ||X_k - x_s||_Q^2 + ||U_k - u_s||_R^2 + rho_1 s_k + rho_2 s_k^2 )
+          + ||X_N - x_s||_P^2
+    over  X_0..X_N, U_0..U_{N-1}, u_s, s_0..s_{N-1}
+    s.t.  X_0 = x_hat
+          X_{k+1} = F(X_k, U_k, d_hat)                one RK4 step of the nominal model
+          x_s = (r, 0),   f_nu(x_s, u_s, d_hat) = 0    target condition
+          -tau_max <= U_k <= tau_max,   -tau_max <= u_s <= tau_max
+          g(X_k) + s_k >= 0,   s_k >= 0                soft state constraints (below)
+
+with ``Q = diag(state_weights)``, ``R = diag(input_weights / tau_max^2)``,
+``P = terminal_scale Q`` and ``(rho_1, rho_2) = slack_weights``
+(:class:`OFNMPCConfig`). The first input ``U_0`` is applied.
+
 Constraints (seed 003 eq. 10, Fig. 6): input limits (hard); soft, with one
 slack per stage and an exact L1 penalty: the nose not behind the entrance
 plane, the hull above the seabed, the nose inside an approach wedge opening
@@ -76,7 +93,7 @@ try:
 except ImportError:  # not POSIX
     fcntl = None
 
-from baselines.docking.observers import N_INPUT, N_STATE, PSI, VisualObservationModel
+from baselines.docking.estimation.observers import N_INPUT, N_STATE, PSI, VisualObservationModel
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,16 +1,61 @@
 """Gaussian-mixture PHD filters, one per sub-band, with DBSCAN adaptive birth (seed 004 §2).
 
-The state is ``x = (x, y, z, vx, vy, vz)`` under the constant-velocity model
-of seed 004 §2.1 applied per axis (``F = [[1, T], [0, 1]]``,
-``Q = sigma_q^2 [[T^4/4, T^3/2], [T^3/2, T^2]]``), and the measurement is a
-position fix ``z = H x + v`` with ``H = [I_3, 0]`` and the fix's own
-covariance ``R`` (from :mod:`~baselines.acoustic.positioning`).
+**Models** (seed 004 §2.1). The state is ``x = (x, y, z, vx, vy, vz)`` under the
+constant-velocity model of seed 004 §2.1 applied per axis::
+
+    x_t = F x_{t-1} + w_{t-1},   w ~ N(0, Q),
+    F = [[1, T], [0, 1]] (x) I_3,   Q = sigma_q^2 [[T^4/4, T^3/2], [T^3/2, T^2]] (x) I_3
+
+(:class:`ConstantVelocityModel`), and the measurement is a position fix
+``z = H x + v``, ``v ~ N(0, R_z)``, with ``H = [I_3, 0]`` and the fix's own
+covariance ``R_z`` (from :mod:`~baselines.acoustic.perception.positioning`).
 
 The recursion is the GM-PHD filter of Vo & Ma (IEEE TSP 54(11), 2006), Table I
 (prediction, update) and Table II (pruning and merging), with seed 004 §2.2's
-adaptive birth: the valid fixes of all bands not already explained by a
-confident component are clustered with DBSCAN, and each cluster gives one
-birth component at its centroid with weight proportional to its size.
+adaptive birth. Each band ``q`` keeps its own intensity
+``v_{t-1,q}(x) = sum_j w^(j) N(x; m^(j), P^(j))``; every component carries a label.
+
+**Prediction with adaptive birth** (Table I, steps 1-2; seed 004 §2.2,
+:meth:`GaussianMixturePHDBank.predict`)::
+
+    v_{t|t-1}(x) = sum_j p_S w^(j) N(x; F m^(j), F P^(j) F^T + Q) + gamma_t(x)
+    gamma_t(x)   = sum_k w_gamma^(k) N(x; m_gamma^(k), P_gamma)
+
+The birth :class:`AdaptiveBirth` pools the valid fixes of all bands at time t,
+drops those within ``exclusion_radius`` of a confirmed component
+(``w >= confirmed_weight``: already explained), and clusters the rest with
+DBSCAN; cluster ``C_k`` gives ``m_gamma^(k) = (mean of C_k, 0, 0, 0)``, the
+predefined ``P_gamma = diag(sigma_p^2 I_3, sigma_v^2 I_3)`` and a weight
+proportional to its size, ``w_gamma^(k) = w_b |C_k| / n_sources``. The birth is
+the same in every band, with fresh labels per band; survivors keep theirs.
+
+**Update** (Table I, steps 3-4; :func:`gmphd_update`), per band with its own
+fixes ``Z_{t,q}``::
+
+    v_{t,q}(x) = (1 - p_D) v_{t|t-1}(x) + sum_{z in Z_{t,q}} sum_j w^(j)(z) N(x; m^(j)(z), P^(j)(z))
+
+    S^(j)(z) = H P^(j) H^T + R_z,      K^(j)(z) = P^(j) H^T S^(j)(z)^{-1}
+    m^(j)(z) = m^(j) + K^(j)(z) (z - H m^(j))
+    P^(j)(z) = (I - K H) P^(j) (I - K H)^T + K R_z K^T
+    w^(j)(z) = p_D w^(j) N(z; H m^(j), S^(j)(z))
+               / (kappa + p_D sum_l w^(l) N(z; H m^(l), S^(l)(z)))
+
+with ``kappa`` the uniform clutter intensity. Because each fix has its own
+``R_z``, the gain and covariance depend on ``z``; the covariance is in Joseph
+form (equal to Vo & Ma's ``(I - K H) P`` in exact arithmetic). Each updated
+component keeps the label of the predicted component it came from.
+
+**Pruning and merging** (Table II; :class:`MixtureReducer`): components with
+``w <= T`` are dropped; then, repeatedly, the heaviest remaining component
+``j`` absorbs the set ``L`` of remaining components ``i`` with
+``(m^(i) - m^(j))^T P^(i)^{-1} (m^(i) - m^(j)) <= U`` into::
+
+    w~ = sum_{i in L} w^(i),   m~ = (1 / w~) sum_{i in L} w^(i) m^(i)
+    P~ = (1 / w~) sum_{i in L} w^(i) (P^(i) + (m~ - m^(i)) (m~ - m^(i))^T)
+
+taking ``j``'s label, until none remain or ``J_max`` components are formed
+(the loop stops at ``J_max``: the components kept are the first ``J_max``
+merged, in the order of their heaviest members).
 
 The bank keeps the Q mixtures padded to a common number of slots (weight 0
 marks an empty slot) so that prediction and update run once for all bands.
@@ -244,7 +289,8 @@ class MixtureReducer:
 
         Returns:
           (weights (Q, J), means, covariances, labels), J <= max_components,
-          heaviest first in each band; a band's empty slots (weight 0, identity
+          each band's components in the order of their heaviest members (the
+          seeds of the merges); a band's empty slots (weight 0, identity
           covariance, label -1) come after its components.
         """
         q_, d = weights.shape[0], means.shape[-1]

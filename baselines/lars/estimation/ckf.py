@@ -1,21 +1,79 @@
-"""Cubature Kalman filter and the AUV motion model of seed 000 (§2.3, eqs. 7-8, 13-28).
+"""Cubature Kalman filter and the AUV motion model it runs on (seed 000, §2.3, eqs. 7-28).
+
+Components, each with one role:
 
 * :class:`CubatureKalmanFilter`: the third-degree spherical-radial CKF
   (Arasaratnam and Haykin 2009), generic over a process function ``f`` and a
-  measurement function ``h`` with additive Gaussian noise. Its ``2n`` cubature
-  points are ``x + S xi_i`` with ``P = S S^T`` and ``xi_i = sqrt(n) (+-e_i)``,
-  weights ``1 / 2n`` (eqs. 13-16); :meth:`~CubatureKalmanFilter.predict` is
-  eqs. 17-19 and :meth:`~CubatureKalmanFilter.update` eqs. 20-28.
-* :class:`HeaveSurgeModel`: eq. 8's motion on the state of eq. 7,
-  ``(x, y, z, vx, vy, vz)``: uniform surge along x, y held, and a sinusoidal
-  heave of angular frequency ``C`` along z about the mean level ``z_mean``.
+  measurement function ``h`` with additive Gaussian noise.
+* :class:`HeaveSurgeModel`: eq. 8's motion, the process model ``f``.
+* :func:`white_acceleration_noise`: the process noise ``Q``.
+* :func:`position_measurement`: eq. 9, the measurement model ``h``.
 * :func:`fit_heave`: least-squares sinusoid fit of measured heights, which
   gives eq. 8's ``C`` ("determined by the sine wave period") and the mean
   level when the agent does not know them.
-* :func:`position_measurement`: eq. 9, ``Z = H X`` with ``H = [I 0]``.
 
-Every function takes and returns plain numpy arrays; the filters vectorise the
-``2n`` points as the rows of one ``(2n, n)`` array.
+**State** (eq. 7): ``X = (x, y, z, vx, vy, vz)``, the AUV's centre of gravity
+and its velocity (m, m/s), ``n = 6``.
+
+**Cubature points** (eqs. 13-16). For ``N(x, P)`` in ``n`` dimensions, with
+``S`` a square root ``P = S S^T`` (Cholesky; a clipped eigen-decomposition
+when round-off leaves ``P`` indefinite, :func:`covariance_root`) and ``e_i``
+the unit vectors::
+
+    xi_i     =  sqrt(n) e_i,   xi_(n+i) = -sqrt(n) e_i,   i = 1..n   (eq. 13, m = 2n)
+    w_i      =  1 / (2n)                                             (eq. 14)
+    chi_i    =  x + S xi_i,    i = 1..2n                             (eqs. 15-16)
+
+**Time update** (eqs. 17-19), :meth:`CubatureKalmanFilter.predict`::
+
+    chi*_i   =  f(chi_i)                                             (eq. 17)
+    x-       =  sum_i w_i chi*_i                                     (eq. 18)
+    P-       =  sum_i w_i (chi*_i - x-)(chi*_i - x-)^T + Q           (eq. 19)
+
+(eq. 19 is printed as ``sum w chi* chi*^T - x- x-^T + Q``; the form about
+the mean is the same sum without the cancellation of two large terms).
+
+**Measurement update** (eqs. 20-28), :meth:`CubatureKalmanFilter.update`,
+with the points ``chi_i`` redrawn from ``N(x-, P-)`` (eqs. 20-21)::
+
+    Z_i      =  h(chi_i)                                             (eq. 22)
+    z^       =  sum_i w_i Z_i                                        (eq. 23)
+    Pz       =  sum_i w_i (Z_i - z^)(Z_i - z^)^T + R                 (eq. 24)
+    Pxz      =  sum_i w_i (chi_i - x-)(Z_i - z^)^T                   (eq. 25)
+    K        =  Pxz Pz^-1                                            (eq. 26)
+    x+       =  x- + K (z - z^)                                      (eq. 27)
+    P+       =  P- - K Pz K^T  =  P- - K Pxz^T                       (eq. 28)
+
+``P+`` is then symmetrised. Not in the paper: an optional chi-square gate
+rejects ``z`` (the estimate unchanged) when the normalised innovation
+squared ``(z - z^)^T Pz^-1 (z - z^)`` exceeds it.
+
+**Process model** (eq. 8), :class:`HeaveSurgeModel`: with sampling interval
+``T``, heave angular frequency ``C`` and mean level ``z_mean``,
+``X_k = F X_(k-1) + (I - F) z_mean e_z + n_k`` where ``F`` moves
+``x += T vx`` (uniform surge), ``y += T vy`` (``vy`` a slow drift the
+process noise keeps near zero), holds ``vx, vy``, and advances the heave
+pair by the exact solution of ``z'' = -C^2 (z - z_mean)`` over one step::
+
+    z_k  - z_mean  =  cos(C T) (z_(k-1) - z_mean) + sin(C T) / C  vz_(k-1)
+    vz_k           = -C sin(C T) (z_(k-1) - z_mean) + cos(C T) vz_(k-1)
+
+or, with ``discretisation="euler"``, its first-order form
+``z_k = z_(k-1) + T vz_(k-1)``, ``vz_k = vz_(k-1) - C^2 T (z_(k-1) - z_mean)``
+(eq. 8 as printed, ``z + C T vz`` and ``vz - C T z``, with its velocity read
+as the scaled rate ``z'/C``). The process noise ``n_k ~ N(0, Q)`` is white
+acceleration of spectral density ``q = sigma^2`` per axis,
+``Q_axis = q [[T^3/3, T^2/2], [T^2/2, T]]`` on each (position, velocity)
+pair.
+
+**Measurement model** (eq. 9), :func:`position_measurement`:
+``Z_k = H X_k + m_k``, ``H = [I_3 0]``, ``m_k ~ N(0, R_k)``, where the
+``ckf-pd`` agent passes each fix's own ``R_k`` (the marker corners' pixel
+noise carried through the triangulation of eq. 2, see
+:class:`~baselines.lars.perception.marker.MarkerLocaliser`).
+
+Every function takes and returns plain numpy arrays; the filter vectorises
+the ``2n`` points as the rows of one ``(2n, n)`` array.
 """
 
 from __future__ import annotations

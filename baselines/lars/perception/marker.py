@@ -1,13 +1,13 @@
-"""The AUV's position and attitude from the triangle marker seen by the stereo pair.
+"""The marker pose measurement: the AUV's position and attitude from the stereo marker.
 
-Seed 000, §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the
-left and right images are triangulated in the left camera frame (eq. 2,
-through :func:`auv_envs.core.stereo.triangulate`), carried to the arm base
-(world) frame by the hand-eye transform composed with the arm's forward
-kinematics (eq. 3, ``LARSCalibration.camera_poses``), and give the AUV's pitch
-and yaw (eqs. 4-6, :func:`auv_envs.tasks.lars_scene.marker_pitch_yaw`). With
-the attitude, the marker's known place on the hull turns the corners into the
-AUV's centre of gravity and its capture point (lifting eye).
+Seed 000, §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the left and right
+images are triangulated in the left camera frame (eq. 2, through
+:func:`auv_envs.core.stereo.triangulate`), carried to the arm base (world)
+frame by the hand-eye transform composed with the arm's forward kinematics
+(eq. 3, ``LARSCalibration.camera_poses``), and give the AUV's pitch and yaw
+(eqs. 4-6, :func:`marker_pitch_yaw`). With the attitude, the marker's known
+place on the hull turns the corners into the AUV's centre of gravity and its
+capture point (lifting eye).
 
 Eq. 4 adds the marker's offset ``D`` (base midpoint below the hull's top
 line) along the world vertical; on a pitched hull it lies along the body's
@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
+from auv_envs.core import frames
 from auv_envs.core.stereo import StereoRig, triangulate
-from auv_envs.tasks.lars_scene import auv_rotation, marker_pitch_yaw
 
 #: Floor on the pixel noise the measurement covariance assumes (px): detectors
 #: are never better than sub-pixel, and a zero covariance would make the
@@ -35,6 +35,51 @@ MIN_PIXEL_STD = 0.3
 MIN_DISPARITY = 1.0
 #: Matched corners behind the measured pixel noise before it is trusted.
 ADAPT_MIN_CORNERS = 30
+
+
+def attitude_rotation(pitch: float, yaw: float) -> np.ndarray:
+    """Body-to-world rotation (3, 3) of the level-rolled AUV with nose-up ``pitch`` and ``yaw``.
+
+    The attitude convention of ``auv_envs/LARSCapture-v0`` (pitch nose up,
+    yaw from world +x, counter-clockwise seen from above) through
+    :func:`auv_envs.core.frames.rotation_from_euler`, whose ZYX pitch is
+    nose-down positive, hence the sign.
+    """
+    return frames.rotation_from_euler(0.0, -pitch, yaw)
+
+
+def marker_pitch_yaw(corners, depth_offset: float) -> tuple[float, float]:
+    """AUV pitch and yaw from the marker's corners (seed 000, eqs. 4-6).
+
+    With A1, A2 the base corners, A3 the apex and ``D`` the marker's offset
+    below the hull's top line, the base midpoint raised to the top line is
+
+    * eq. 4: ``(x4, y4, z4) = ((x1 + x2) / 2, (y1 + y2) / 2, (z1 + z2) / 2 + D)``,
+
+    and the apex direction from it gives
+
+    * eq. 5: ``pitch = arctan((z3 - z4) / sqrt((x3 - x4)^2 + (y3 - y4)^2))``,
+    * eq. 6: ``yaw = arctan((x3 - x4) / (y3 - y4))`` (``atan2`` here, which keeps
+      the quadrant).
+
+    Args:
+        corners: (3, 3) A1, A2 (base) and A3 (apex) in a z-up frame whose y
+            axis is the reference heading, so that eq. 6's
+            ``arctan((x3 - x4) / (y3 - y4))`` is the yaw. For corners in the
+            world frame of this task (heading reference +x, yaw counter-
+            clockwise), pass them with x and y swapped: ``corners[:, [1, 0, 2]]``.
+        depth_offset: ``D`` of eq. 4.
+
+    Returns:
+        ``(pitch, yaw)`` in radians; pitch is nose-up positive.
+    """
+    a = np.asarray(corners, dtype=float)
+    x4, y4 = 0.5 * (a[0, 0] + a[1, 0]), 0.5 * (a[0, 1] + a[1, 1])
+    z4 = 0.5 * (a[0, 2] + a[1, 2]) + depth_offset  # eq. 4
+    dx, dy, dz = a[2, 0] - x4, a[2, 1] - y4, a[2, 2] - z4
+    pitch = math.atan(dz / math.hypot(dx, dy))  # eq. 5
+    yaw = math.atan2(dx, dy)  # eq. 6 (atan2 keeps the quadrant)
+    return pitch, yaw
 
 
 def marker_attitude(corners, depth_offset: float, refine: bool = True,
@@ -54,7 +99,7 @@ def marker_attitude(corners, depth_offset: float, refine: bool = True,
     if refine:
         for _ in range(passes):
             # shift the base so that eq. 4's "+ D z" lands at "+ D body_z"
-            shift = depth_offset * (auv_rotation(pitch, yaw)[:, 2] - (0.0, 0.0, 1.0))
+            shift = depth_offset * (attitude_rotation(pitch, yaw)[:, 2] - (0.0, 0.0, 1.0))
             moved = a.copy()
             moved[:2] += shift
             pitch, yaw = marker_pitch_yaw(moved[:, swap], depth_offset)

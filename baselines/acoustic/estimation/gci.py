@@ -31,6 +31,12 @@ with ``S_q = P_q / omega_q``, ``Lambda = sum_q S_q^{-1}``,
     log K = -1/2 [sum_q (d log 2 pi + log det S_q + m_q^T S_q^{-1} m_q)
                   - (d log 2 pi - log det Lambda + eta^T Lambda^{-1} eta)].
 
+A fused term, one component ``i_q`` from each band, is then
+
+    w = K prod_q w_{i_q}^{omega_q} kappa(omega_q, P_{i_q}),
+    m = Lambda^{-1} eta,   P = Lambda^{-1},
+
+and carries the label of its component in the first band used.
 For single Gaussians this is covariance intersection:
 ``C^{-1} = sum_q omega_q P_q^{-1}``. The terms are expanded band by band,
 summing the information (a matrix sum per term, no inversion); whenever the
@@ -40,6 +46,10 @@ sorted by weight, and those at or below ``min_weight`` are dropped. A band
 with ``omega_q = 0`` contributes ``v^0 = 1`` exactly and is skipped; so is a
 band whose mixture is empty (documented choice: an empty band carries no
 information here rather than vetoing every target).
+
+**Extraction** (seed 004 §2.3, :class:`LabelledExtractor`): the output is
+``X_t = {(m^(j), l^(j)) | w^(j) > T_prune}``, with the labels kept from one step
+to the next by matching positions (Hungarian assignment, gated).
 """
 
 from __future__ import annotations
@@ -49,7 +59,7 @@ import math
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from baselines.acoustic.gmphd import GaussianMixture
+from baselines.acoustic.estimation.gmphd import GaussianMixture
 
 LOG_2PI = math.log(2.0 * math.pi)
 

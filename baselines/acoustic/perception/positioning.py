@@ -34,9 +34,17 @@ deviation under the documented noise model of the calibration
 TDOA row (``sigma_d = c hypot(std(tau_1i), clock_offset_std)``),
 ``rho_i sigma_alpha`` for an azimuth row (``rho_i`` the horizontal range) and
 ``D_i sigma_theta`` for an elevation row; then the same normal equations are
-solved again with the weighted rows. The weighted chi-square of the residuals
-gates each fix, and fixes outside the tank (multipath mirror images lie above
-the surface or below the bottom) are marked invalid.
+solved again with the weighted rows: with ``A``, ``b`` the method's stacked
+rows (``[R; I~]``, ``[E; N~]`` when fused) and ``W = diag(1 / sigma_r^2)``,
+
+    omega = (A^T W A)^{-1} A^T W b,    Cov(x, y, z) = [(A^T W A)^{-1}]_{1:3, 1:3},
+    chi2  = (A omega - b)^T W (A omega - b)
+
+(``W = I`` with ``weighting="none"``; every solve adds a relative ridge of
+1e-12 to ``A^T W A``, below round-off for a well-posed system). The weighted
+chi-square of the residuals gates each fix, and fixes outside the tank
+(multipath mirror images lie above the surface or below the bottom) are
+marked invalid.
 
 **Variance factor** (our addition, the global model test of least-squares
 adjustment; e.g. Koch, *Parameter Estimation and Hypothesis Testing in Linear

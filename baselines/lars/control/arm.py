@@ -1,17 +1,29 @@
-"""LARS arm control for the capture (seed 000, §2.4 and §3.4).
+"""LARS arm control: quintic trajectory, inverse kinematics, PD, capture strategy (seed 000).
+
+Seed 000, §2.4 (eqs. 29-30) and §3.4:
 
 * :class:`QuinticSegment`: fifth-order polynomial between two sampled
   targets with position, velocity and acceleration given at both ends ("we
   performed fifth-order polynomial interpolation trajectory planning between
-  the sampling points").
+  the sampling points"). Over ``tau = t - t0`` in ``[0, T]``,
+  ``p(tau) = sum_k c_k tau^k`` (k = 0..5) with ``c_0 = p0``, ``c_1 = v0``,
+  ``c_2 = a0 / 2`` and, with ``dp = p1 - p0``::
+
+      c_3 = (20 dp - (8 v1 + 12 v0) T - (3 a0 - a1) T^2) / (2 T^3)
+      c_4 = (-30 dp + (14 v1 + 16 v0) T + (3 a0 - 2 a1) T^2) / (2 T^4)
+      c_5 = (12 dp - 6 (v1 + v0) T + (a1 - a0) T^2) / (2 T^5)
+
+  so that ``p, p', p''`` equal ``(p0, v0, a0)`` at ``tau = 0`` and
+  ``(p1, v1, a1)`` at ``tau = T``.
 * :class:`SampledTrajectory`: re-plans a quintic from the current reference
   to a new sampled target, so the reference stays continuous in position,
   velocity and acceleration.
 * :func:`joint_reference`: inverse kinematics of a Cartesian reference
   (``ArmModel.inverse_kinematics`` and its Jacobian) to joint angle, rate and
-  acceleration.
-* :class:`ComputedTorquePD`: eq. 30's PD law (``Kp = 160``, ``Kd = 20``) on
-  the joint error, through eq. 29's model ``tau = M(q) qdd + C(q, qd) + G(q)``,
+  acceleration: ``q = IK(p)``, ``qd = J^-1 v``, ``qdd = J^-1 (a - Jdot qd)``.
+* :class:`ComputedTorquePD`: eq. 30's PD law on the joint error
+  ``e = q_ref - q``, ``qdd = qdd_ref + Kd e' + Kp e`` (``Kp = 160``,
+  ``Kd = 20``), through eq. 29's model ``tau = M(q) qdd + C(q, qd) + G(q)``,
   as torques normalised by the actuator limits.
 * :class:`CaptureStrategy`: "we kept the LARS end approximately 0.8 m above
   the AUV ... when the AUV began to sink ..., we controlled the LARS to quickly
@@ -25,11 +37,10 @@ import math
 
 import numpy as np
 
-from auv_envs.tasks.lars import POSITION_GAINS
-
-#: Seed 000, eq. 30 and §3.4: "Kp = 160 and Kd = 20" (the gains the env's
-#: ``control="position"`` inner loop uses, ``calibration.position_gains``).
-KP, KD = POSITION_GAINS
+#: Seed 000, eq. 30 and §3.4: "Kp = 160 and Kd = 20". The env's
+#: ``calibration.position_gains`` carries the same numbers (the gains of its
+#: ``control="position"`` inner loop); the ``ckf-pd`` agent reads them there.
+KP, KD = 160.0, 20.0
 
 # Powers and derivative factors of the quintic, built once (evaluated every step).
 _EXPONENTS = np.arange(6)

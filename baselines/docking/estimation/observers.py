@@ -24,6 +24,67 @@ visual pose estimation.
 
 Only visible lights enter an update: the measurement rows of lights that are
 not visible are dropped (EKF) or get zero weight (MHE).
+
+Equations (what the code below implements; ``Delta t`` = ``calibration.control_period``).
+
+Process model (seed 003 eqs. 7-8, 11): state ``x = (eta, nu)``, pose
+``eta = (x, y, z, psi)`` in the DS frame, body velocities ``nu = (u, v, w, r)``,
+input ``tau = (X, Y, Z, N)``; ``calibration.nominal_model``
+(:class:`~auv_envs.core.hydrodynamics.NominalModel`)::
+
+    eta_dot = (u cos psi - v sin psi,  u sin psi + v cos psi,  w,  r)
+    m_k nu_dot_k = tau_k + d_k + f_h,k(nu) - c_RB,k(nu)        k = X, Y, Z, N
+    x_{k+1} = F(x_k, tau_k, d)                                  one RK4 step over Delta t
+
+with ``m_k`` the rigid-body plus added inertia, ``f_h = -C_A(nu) nu - D(nu) nu - g``
+(added-mass Coriolis, damping, restoring), ``c_RB = C_RB(nu) nu``, roll and pitch zero.
+
+Augmented disturbance state (seed 003 eq. 12), the EKF's process model and the
+MHE's arrival-cost recursion (:func:`augmented_transition`)::
+
+    z = (x, d) in R^12,   z_{k+1} = f(z_k, tau_k) + q_k = (F(x_k, tau_k, d_k), d_k) + q_k
+    q_k ~ N(0, Q),   Q = diag(sigma_pose^2, sigma_nu^2, sigma_d^2)     (ObserverNoise)
+
+Measurement model (seed 003 eqs. 33-36; :class:`VisualObservationModel`), with
+roll ``phi`` and pitch ``theta`` from the INS, light ``p_i`` in the DS frame,
+camera extrinsics ``(R_bc, r_c)``::
+
+    c_i = R_bc^T (R(phi, theta, psi)^T (p_i - (x, y, z)) - r_c) = (X_i, Y_i, Z_i)
+    h(x) = (f_x X_1/Z_1 + c_x, f_y Y_1/Z_1 + c_y, ..., u, v, w, r, psi)
+    y_k = h(x_k) + v_k,   v_k ~ N(0, R),   R = diag(sigma_px^2 .., sigma_nu^2 .., sigma_psi^2)
+
+(the rows of lights not visible are dropped; the measured yaw is unwrapped to
+within pi of the estimate's heading).
+
+EKF (seed 003 eqs. 17-28; :class:`ExtendedKalmanFilter`, :class:`DockingEKF`),
+each control step with the input ``tau_{k-1}`` applied during the last period::
+
+    prediction   z_k|k-1 = f(z_{k-1}, tau_{k-1}),   A = df/dz (z_{k-1}, tau_{k-1})
+                 P_k|k-1 = A P_{k-1} A^T + Q                           (eqs. 22-23)
+    update       H = [dh/dx, 0],   K = P_k|k-1 H^T (H P_k|k-1 H^T + R)^-1
+                 z_k = z_k|k-1 + K (y_k - h(z_k|k-1))
+                 P_k = (I - K H) P_k|k-1 (I - K H)^T + K R K^T         (eqs. 26-28, Joseph)
+
+initialised from a least-squares pose fit to the first
+measurement with two visible lights (:func:`initial_state`), ``d_0 = 0`` with
+covariance ``diag(initial_disturbance_std^2)``.
+
+MHE (seed 003 eqs. 29-32; :class:`DockingMHE`) over the window of the last
+``M`` measurements: decision variables the states ``X_0..X_{M-1}`` and the input
+deviations ``W_0..W_{M-2}`` (the real input is ``tau_j + W_j``; no augmented
+state), subject to the original model ``X_{j+1} = F(X_j, tau_j + W_j, 0)``::
+
+    min  1/2 ||L ((X_0, W_0) - (x_bar, w_bar))||^2                      arrival cost
+       + 1/2 sum_{j=0}^{M-1} ||Omega_j (y_j - h(X_j))||^2                 measurements
+       + 1/2 sum_{j=0}^{M-3} ||(W_{j+1} - W_j) / sigma_w||^2               input random walk
+
+with ``Omega_j = diag(1/sigma)`` on the rows that carry data and 0 elsewhere,
+and ``L^T L = P^-1``. Arrival cost ("filtering", Rao, Rawlings & Mayne 2003):
+when the window slides, ``P`` takes the EKF update with the dropped slot's data
+and the prediction to the next slot, both linearised at the MHE estimate
+``(X_0, W_0)``, with ``Q``'s disturbance block set to ``sigma_w^2``; the prior
+mean becomes ``(x_bar, w_bar) = (X_1, W_min(1, M-2))``. The estimate handed on is the
+state at the latest measurement and ``d = W`` on the last transition.
 """
 
 from __future__ import annotations

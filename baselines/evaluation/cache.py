@@ -1,0 +1,117 @@
+"""Finished episodes on disk: atomic writes, rows as JSON, and the per-episode cache.
+
+:class:`EpisodeCache` writes every finished episode at once (one JSON file per
+episode, atomic, named by :meth:`~baselines.evaluation.episodes.EpisodeTask.key`),
+so a rerun skips it and an interrupted run loses only the episodes in flight.
+Failed rows are not cached, so a rerun retries them. :func:`atomic_write` and
+:func:`write_figures` also serve the leaderboard, the training runs and the
+reproduction scripts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import tempfile
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+
+from baselines.evaluation.episodes import EpisodeRow, EpisodeTask, jsonable
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+#: Mode of a file :func:`atomic_write` creates: what ``open(path, "w")`` would
+#: give (``mkstemp`` alone creates 0600 files, unreadable to a web server
+#: serving the leaderboard).
+_FILE_MODE = 0o666 & ~_umask()
+
+
+def atomic_write(path: str | Path, data: str | bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``.
+
+    Readers see the old file or the whole new one, never a partial write. The
+    file gets the permissions of a plain ``open(path, "w")`` (0666 less the umask).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            os.fchmod(handle.fileno(), _FILE_MODE)
+            handle.write(data.encode() if isinstance(data, str) else data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_figures(path: str | Path, figures: dict) -> None:
+    """Write a reproduction script's figures to ``path`` as JSON and say so.
+
+    NumPy scalars are written as floats; the write is atomic (:func:`atomic_write`).
+    """
+    atomic_write(path, json.dumps(figures, indent=1, default=float))
+    print(f"figures written to {path}")
+
+
+def row_to_dict(row: EpisodeRow) -> dict:
+    """``row`` as JSON data (:func:`~baselines.evaluation.episodes.jsonable`)."""
+    return jsonable(dataclasses.asdict(row))
+
+
+def row_from_dict(data: Mapping) -> EpisodeRow:
+    """Inverse of :func:`row_to_dict` (JSON ``null`` numbers come back as NaN)."""
+    fields = {f.name for f in dataclasses.fields(EpisodeRow)}
+    values = {k: v for k, v in data.items() if k in fields}
+    for name in ("episode_return", "wall_time_s"):
+        if values.get(name) is None:
+            values[name] = math.nan
+    return EpisodeRow(**values)
+
+
+class EpisodeCache:
+    """One JSON file per finished episode under ``directory``, named by the task's key.
+
+    A file that cannot be read or belongs to another task (a corrupt or
+    foreign file) is reported with a ``RuntimeWarning`` and treated as
+    missing, so the episode runs again and the file is overwritten.
+
+    The key covers the task, the package version and the code
+    (:func:`code_fingerprint`): after an agent or an environment changes, its
+    episodes run again. ``refresh`` (``--no-cache``) reruns everything anyway,
+    e.g. after a dependency upgrade, which the fingerprint does not see.
+    """
+
+    def __init__(self, directory: str | Path):
+        self.directory = Path(directory)
+
+    def path(self, task: EpisodeTask) -> Path:
+        return self.directory / f"{task.key()}.json"
+
+    def load(self, task: EpisodeTask) -> EpisodeRow | None:
+        path = self.path(task)
+        if not path.exists():
+            return None
+        try:
+            data = json.loads(path.read_text())
+            if data.get("task") != jsonable(task.identity()):
+                raise ValueError("it was written for another task")
+            return row_from_dict(data["row"])
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            warnings.warn(f"ignoring unreadable cached episode {path}: {exc}; rerunning it",
+                          RuntimeWarning, stacklevel=2)
+            return None
+
+    def store(self, task: EpisodeTask, row: EpisodeRow) -> None:
+        payload = {"task": jsonable(task.identity()), "row": row_to_dict(row)}
+        atomic_write(self.path(task), json.dumps(payload, indent=1))

@@ -1,0 +1,1 @@
+"""Offline training for the LARS baselines (the Siamese tracker's weights)."""

@@ -1,5 +1,0 @@
-"""Vision front ends.
-
-Seed 002's lamp-array tracker: adaptive thresholding, blobs, per-lamp EKFs, Hungarian
-assignment.
-"""
