@@ -2,7 +2,7 @@
 
 Every registered environment class declares the contract these tests read:
 ``obs_modes``, ``reward_terms`` and ``metric_keys`` (class attributes), a
-privileged ``info["true_position"]``, and its MuJoCo data at ``_physics.data``.
+privileged ``info["true_position"]``, and its MuJoCo data at ``physics.data``.
 """
 
 from __future__ import annotations
