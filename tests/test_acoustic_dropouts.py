@@ -292,7 +292,7 @@ def test_rl_flattening_carries_the_node_mask():
         obs, _ = env.reset(seed=2)
         assert env.observation_space.contains(obs)
         assert obs.shape == (spaces.flatdim(inner),)
-        raw = env.unwrapped._observation(0)
+        raw, _ = gym.make(ENV_ID, difficulty="hard", time_limit=1.0).unwrapped.reset(seed=2)
         np.testing.assert_array_equal(obs, spaces.flatten(inner, raw))
         obs, *_ = env.step(env.action_space.sample())
         assert np.all(np.isfinite(obs))
@@ -309,7 +309,7 @@ def test_render_draws_no_ray_from_an_out_node():
             obs, _, _, _, info = env.step(info["true_position"])
         frame = env.render()
         assert frame.shape == (120, 160, 3) and frame.dtype == np.uint8
-        segments = env.unwrapped._plot._rays[0].get_segments()
+        segments = env.unwrapped.plot.ray_segments("top")
         out = ~obs["node_mask"].astype(bool)
         # Matplotlib keeps a segment's finite vertices: an undrawn ray is its node alone.
         drawn = np.array([len(s) == 2 for s in segments]).reshape(-1, 8)

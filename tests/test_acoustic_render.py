@@ -79,7 +79,7 @@ def test_pixels_change_where_the_source_moves():
     end = info["true_position"]
     assert np.linalg.norm(end[:2] - start[:2]) > 5.0  # a move the top view resolves
 
-    plot = env._plot
+    plot = env.plot
     changed = np.any(before != after, axis=-1)
     left, top, right, bottom = plot.panel_box("top")
     inside = changed[top:bottom, left:right]
@@ -135,7 +135,7 @@ def test_no_render_mode_renders_none():
     env = AcousticTrackingEnv(time_limit=1.0)
     env.reset(seed=0)
     assert env.render() is None
-    assert env._plot is None
+    assert env.plot is None
     env.close()
 
 
@@ -159,7 +159,7 @@ def test_through_gym_make():
     assert frame.shape == (240, 320, 3)
     not_blank(frame)
     env.close()
-    assert env.unwrapped._plot is None
+    assert env.unwrapped.plot is None
 
 
 def test_close_then_close_and_render_again():
@@ -167,7 +167,7 @@ def test_close_then_close_and_render_again():
     run(env, 10)
     first = env.render()
     env.close()
-    assert env._plot is None
+    assert env.plot is None
     env.close()  # twice: no error
     np.testing.assert_array_equal(env.render(), first)  # a fresh plot, the same picture
     env.close()
@@ -178,9 +178,9 @@ def test_pickled_env_renders_the_same_frame():
     run(env, 120, seed=4)
     frame = env.render()
     copy = pickle.loads(pickle.dumps(env))
-    assert copy._init_kwargs["render_size"] == (320, 240)
+    assert copy.render().shape == (240, 320, 3)
     np.testing.assert_array_equal(copy.render(), frame)
-    action = env._episode.truths[0]
+    action = np.array([150.0, 150.0, -15.0])
     for _ in range(60):  # and steps on identically
         out_a, out_b = env.step(action), copy.step(action)
         for key in out_a[0]:

@@ -129,12 +129,12 @@ def test_truth_pixels_match_hand_projection(make_env, position, euler):
     u = env.unwrapped
     env.reset(seed=0)
     u.physics.set_state(position, euler, np.zeros(6))
-    truth = u._truth()
+    pixels, visible = u.lights_in_view()
     lights = u.calibration.light_positions
     expected = _hand_projection(position, euler, lights, 640, 480, 0.0)
-    np.testing.assert_allclose(truth["pixels"], expected, atol=1e-8)
+    np.testing.assert_allclose(pixels, expected, atol=1e-8)
     # All six lights are in view (through the open funnel) from these poses.
-    assert truth["visible"].all()
+    assert visible.all()
 
 
 def test_known_pose_known_pixels(make_env):
@@ -143,7 +143,7 @@ def test_known_pose_known_pixels(make_env):
     u = env.unwrapped
     env.reset(seed=0)
     u.physics.set_state((-6.0, 0.3, -0.2), (0.0, 0.0, 0.1), np.zeros(6))
-    pixels = u._truth()["pixels"]
+    pixels = u.lights_in_view()[0]
     # Yawed to port (counter-clockwise) and displaced to port: the station
     # appears right of the image centre; light_0 (top) above light_3 (bottom).
     assert np.all(pixels[:, 0] > 320.0)
@@ -185,7 +185,7 @@ def test_light_on_optical_axis_projects_to_principal_point(make_env, env_id, lig
     cam_pos = light - 5.0 * axis_world
     position = cam_pos - r_body @ np.array([NOSE, 0.0, 0.0])
     u.physics.set_state(position, euler, np.zeros(6))
-    pixels = u._truth()["pixels"]
+    pixels = u.lights_in_view()[0]
     np.testing.assert_allclose(pixels[light_index], [200.0, 150.0], atol=1e-8)
     # The other lights are off-centre.
     others = np.delete(pixels, light_index, axis=0)
@@ -199,7 +199,7 @@ def test_truth_pixels_match_opencv_project_points(make_env, env_id):
     env.reset(seed=0)
     position, euler = (-7.0, 0.4, 0.3), (0.05, -0.03, -0.08)
     u.physics.set_state(position, euler, np.zeros(6))
-    pixels = u._truth()["pixels"]
+    pixels = u.lights_in_view()[0]
     cal = u.calibration
     r_body = rotation_from_euler(*euler)
     cam_pos = np.asarray(position) + r_body @ np.asarray(cal.extrinsics.position)
@@ -228,9 +228,9 @@ def test_vehicle_facing_away_sees_no_lights(make_env):
     u = env.unwrapped
     env.reset(seed=0)
     u.physics.set_state((-6.0, 0.0, 0.0), (0.0, 0.0, math.pi), np.zeros(6))
-    truth = u._truth()
-    assert not truth["visible"].any()
-    assert np.isnan(truth["pixels"]).all()
+    pixels, visible = u.lights_in_view()
+    assert not visible.any()
+    assert np.isnan(pixels).all()
 
 
 def test_inside_image_boundaries():
@@ -321,15 +321,15 @@ def test_rendered_lamps_lie_at_projected_pixels(make_env, env_id, position, eule
     u = env.unwrapped
     env.reset(seed=0)
     u.physics.set_state(position, euler, np.zeros(6))
-    truth = u._truth()
-    image = u._observation(truth)["image"]
+    pixels, visible = u.lights_in_view()
+    image = u.camera_renderer.render(u.physics.data)
     assert image.shape == (height, width, 3) and image.dtype == np.uint8
     expected = _hand_projection(
         position, euler, u.calibration.light_positions, width, height, CAMERA_PITCH_DEG[env_id]
     )
     for i in light_indices:
-        assert truth["visible"][i]
-        np.testing.assert_allclose(truth["pixels"][i], expected[i], atol=1e-8)
+        assert visible[i]
+        np.testing.assert_allclose(pixels[i], expected[i], atol=1e-8)
         win, bright, centroid = _bright_blob_centroid(image, expected[i])
         assert win.max(axis=(0, 1)).min() > 150, f"light {i}: no bright lamp near {expected[i]}"
         assert bright.sum() >= 4

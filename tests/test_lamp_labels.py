@@ -19,9 +19,9 @@ def image_env(request):
 def test_geom_ids_name_real_geoms_and_leave_the_next_render_alone(image_env):
     env = image_env
     env.reset(seed=3)
-    before = env._render_camera(env.camera_renderer)
+    before = env.camera_renderer.render(env.physics.data)
     ids = env.camera_renderer.render_geom_ids(env.physics.data)
-    after = env._render_camera(env.camera_renderer)
+    after = env.camera_renderer.render(env.physics.data)
     np.testing.assert_array_equal(before, after)  # the segmentation flags are put back
     assert ids.shape == before.shape[:2] and ids.dtype == np.int32
     assert ids.min() >= -1 and ids.max() < env.physics.model.ngeom

@@ -250,7 +250,7 @@ def test_stereo_glints_are_saturated_where_the_model_says():
     f = cal.stereo.left.fx
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     cam_rays = np.stack(((u - width / 2) / f, (v - height / 2) / f, np.ones_like(u)), -1)
-    field = env._episode.glint
+    field = env.glint_field
     counts = expected = 0.0
     spot_sum, spot_pixels, model_sum = np.zeros(2), 0, np.zeros(2)
     for _ in range(25):
@@ -294,7 +294,7 @@ def test_glitter_centres_on_the_suns_mirror_image():
     offsets = []
     for _ in range(10):
         obs, *_, info = env.step(tracking_action(env, info))
-        clean = env._render_pair()[:, :width]
+        clean = env.camera_renderer.render(env.physics.data)[:, :width]
         changed = np.any(obs["left"] != clean, axis=-1)
         pose = cal.camera_poses(env.physics.data.qpos)[0]
         camera = pose[:3, 3]

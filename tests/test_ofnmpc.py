@@ -34,7 +34,7 @@ def test_target_conditions_hold_inside_the_solution(controller, calibration):
     d = np.array([5.0, -4.0, 3.0, 1.5])
     result = controller.solve(np.array([-6.0, 0.3, -0.2, 0.05, 0.2, 0.0, 0.0, 0.0]), d)
     assert result.success
-    chi, _ = controller._stages(controller._solution)
+    chi, _ = controller.last_plan()
     us = chi[0, 8:12]
     target = np.concatenate([calibration.target_position, [0.0], np.zeros(4)])
     # Holding the docking pose at rest is an equilibrium of the nominal model: the
@@ -84,7 +84,7 @@ def test_solver_failure_applies_the_shifted_previous_plan(calibration):
     x = np.array([-6.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     first = ctrl.solve(x, np.zeros(4))
     assert first.success and not first.fallback
-    plan = ctrl._inputs(ctrl._solution).copy()
+    plan = ctrl.last_plan()[1].copy()
     outcomes = [ctrl.solve(x, np.array([0.0, 0.0, 500.0, 0.0])) for _ in range(4)]
     assert all(r.fallback and not r.success for r in outcomes)
     assert ctrl.failures == 4
@@ -231,7 +231,7 @@ def test_an_estimate_beyond_max_distance_takes_the_fallback_without_solving(cali
     ctrl = OffsetFreeNMPC(calibration, OFNMPCConfig(max_distance=100.0))
     x = np.array([-6.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     assert ctrl.solve(x, np.zeros(4)).success
-    plan = ctrl._inputs(ctrl._solution).copy()
+    plan = ctrl.last_plan()[1].copy()
     far = x.copy()
     far[:3] = (-2.4e8, -3.0e6, 1.8e7)
     result = ctrl.solve(far, np.zeros(4))

@@ -32,7 +32,7 @@ def _flat_vectors(space: spaces.Space, observations: list) -> list[np.ndarray]:
     env = FlattenObservation(_FixedObservations(space, observations))
     assert env.observation_space == spaces.flatten_space(space)
     plain = all(isinstance(s, spaces.Box | spaces.MultiBinary) for s in space.spaces.values())
-    assert (env._keys is not None) == plain  # the one-concatenate path is the one under test
+    assert env.concatenates == plain  # the one-concatenate path is the one under test
     out = [env.reset()[0]]
     out += [env.step(np.zeros(1, np.float32))[0] for _ in observations[1:]]
     return out

@@ -213,13 +213,14 @@ def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
             np.testing.assert_array_equal(x, y)
     assert plain.np_random.bit_generator.state == none.np_random.bit_generator.state
     # The seed-000 sinusoid and a ship at rest.
-    m = none._episode.motion
+    m = none.auv_motion
     for k, (_, _, info) in enumerate(b):
         z = heave(k * none.dt, m.heave_amplitude, m.omega, m.heave_phase)[0]
         assert info["true_position"][2] == z + (AUV_FREEBOARD - AUV_DIAMETER / 2.0)
         assert info["true_pitch"] == m.pitch and "ship_motion" not in info
     q = none.physics.data.qpos
-    np.testing.assert_array_equal(b[-1][2]["end_position"], none._arm.forward_kinematics(q))
+    np.testing.assert_array_equal(b[-1][2]["end_position"],
+                                  none.calibration.arm.forward_kinematics(q))
     # No draws beyond the documented ones: motion (8) and arm offset (2) uniforms,
     # then the pixel noise (12 normals per observation) in features mode.
     rng = np.random.default_rng(7)

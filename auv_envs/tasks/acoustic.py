@@ -622,6 +622,12 @@ class AcousticTrackingEnv(TaskEnv):
             raise RuntimeError("no step taken yet: nothing to summarise")
         return {"k": self._episode.steps, "error": float("nan")}
 
+    @property
+    def plot(self):
+        """The :class:`~auv_envs.tasks.acoustic_render.TankPlot` that draws ``render()``'s
+        frames: built on the first render, None before it and after ``close()``."""
+        return self._plot
+
     def _render_frame(self) -> np.ndarray:
         """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``).
 

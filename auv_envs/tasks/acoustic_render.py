@@ -326,6 +326,13 @@ class TankPlot:
         self._background = None
 
     # ------------------------------------------------------------------ frames
+    def ray_segments(self, view: str) -> list:
+        """The direction rays drawn in the ``"top"`` or ``"side"`` view of the last
+        frame, one (2, 2) segment per node and detection (a ray not drawn keeps only
+        its finite vertex)."""
+        index = {"top": 0, "side": 1}[view]
+        return self._rays[index].get_segments()
+
     def frame(self, time: float | None = None, trail=None, estimate=None,
               estimate_trail=None, azimuth=None, elevation=None, origin=None,
               error: float = float("nan"), rmse: float = float("nan")) -> np.ndarray:

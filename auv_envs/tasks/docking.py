@@ -636,8 +636,9 @@ class DockingEnv(TaskEnv):
         if vehicle is not None and vehicle != self._params:
             self._use_vehicle(vehicle)
         super()._set_runtime_state(state)
-        if self._optics is not None:  # the episode's failed lamps live in the model too
-            self.physics.show_lamps(self._episode.outages.failed)
+        outages = self._episode.outages
+        if outages is not None:  # the episode's failed lamps live in the model too
+            self.physics.show_lamps(outages.failed)
 
     def _use_vehicle(self, vehicle: VehicleParams) -> None:
         """Make ``vehicle`` the simulated one: MuJoCo's mass and inertia, the hull wrench."""
@@ -853,6 +854,15 @@ class DockingEnv(TaskEnv):
                                         self._optics, cal.intrinsics.fy, self.np_random)
         low, high = self._pixel_bounds
         return np.clip(pixels, low, high), detected
+
+    def lights_in_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where the camera sees each light now, geometrically: ``(pixels (n, 2),
+        visible (n,) bool)``, the projection of each light's centre (NaN outside the
+        image) and a clear line of sight to it inside the image; what
+        ``info["true_pixels"]`` and ``info["true_visible"]`` report after a step (there
+        zero where not visible). Draws nothing from the generator."""
+        truth = self._truth()
+        return truth["pixels"], truth["visible"]
 
     def lamps_in_image(self) -> tuple[np.ndarray, np.ndarray]:
         """Each lamp as a person labelling the camera's frame marks it: ``(pixels (n, 2),

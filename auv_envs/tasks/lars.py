@@ -732,6 +732,18 @@ class LARSCaptureEnv(TaskEnv):
         return self._view.render(self.physics.data)
 
     # ------------------------------------------------------------------ internals
+    @property
+    def auv_motion(self) -> AUVMotion | None:
+        """The episode's AUV motion (surge, sway, heave sinusoid, attitude; drawn at
+        reset, None before the first)."""
+        return self._episode.motion
+
+    @property
+    def glint_field(self) -> GlintField | None:
+        """The episode's sun-glint field (``glint``; None without glint or before the
+        first reset)."""
+        return self._episode.glint
+
     def _prepare_episode_constants(self, motion: AUVMotion) -> None:
         """The AUV's per-episode geometry in world axes, as floats for the per-step code,
         and the episode's sea channels when there is a sea.

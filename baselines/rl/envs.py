@@ -63,6 +63,12 @@ class FlattenObservation(gym.wrappers.FlattenObservation):
         )
         self._keys = tuple(space.spaces) if plain else None
 
+    @property
+    def concatenates(self) -> bool:
+        """Whether observations flatten by one concatenation of their keys (every entry a
+        ``Box`` or ``MultiBinary``), rather than through Gymnasium's ``flatten``."""
+        return self._keys is not None
+
     def observation(self, observation):
         if self._keys is None:
             return super().observation(observation)

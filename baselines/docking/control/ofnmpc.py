@@ -449,6 +449,14 @@ class OffsetFreeNMPC:
                           fallback=True, solve_time=elapsed, iterations=iterations,
                           status=status)
 
+    def last_plan(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The last successful solution: ``(chi (N + 1, nx), tau (N, 4))``, the stages'
+        decision states and the planned generalized forces; None before the first."""
+        if self._solution is None:
+            return None
+        chi, _ = self._stages(self._solution)
+        return chi, self._inputs(self._solution)
+
     def _stages(self, solution: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(chi (N + 1, nx), v (N, nu))`` of a decision vector."""
         n = self.config.horizon
