@@ -1,12 +1,12 @@
-"""Tracking metrics for the acoustic end-effector tracking task (SPEC §3, seed 004 §3.3-3.4).
+"""Tracking metrics for the acoustic end-effector tracking task (SPEC §3, [GMPHD] §3.3-3.4).
 
 Single-target trajectory metrics:
 
 * :func:`position_errors`, :func:`rmse`, :func:`max_error`, :func:`count_missing`: per-step
-  Euclidean error and its summaries (seed 004 §3.3, "Average / Maximum RMSE").
+  Euclidean error and its summaries ([GMPHD] §3.3, "Average / Maximum RMSE").
 * :func:`assign_track_labels` and :func:`track_fragmentation_count`: the track
-  fragmentation count (TFC, seed 004 §3.3).
-* :func:`tcfe`: tracking-curve fluctuation entropy (TCFE, seed 004 §3.4).
+  fragmentation count (TFC, [GMPHD] §3.3).
+* :func:`tcfe`: tracking-curve fluctuation entropy (TCFE, [GMPHD] §3.4).
 
 Set metrics (any number of targets and estimates per step):
 
@@ -16,7 +16,7 @@ Set metrics (any number of targets and estimates per step):
   García-Fernández & Svensson, "Generalized optimal sub-pattern assignment metric",
   FUSION 2017, arXiv:1601.05585, Definition 1 and Proposition 1).
 
-Multi-object tracking (seed 002 §3.2):
+Multi-object tracking ([LAMP] §3.2):
 
 * :func:`clear_mot` and :func:`clear_mot_labelled`: CLEAR MOT (Bernardin & Stiefelhagen,
   EURASIP JIVP 2008): PRCN, RCLL, FP, FN, IDs, FM, MOTA, MOTP; py-motmetrics is its test oracle.
@@ -180,7 +180,7 @@ def _present_errors(estimates, truth, allow_missing: bool) -> np.ndarray:
 
 
 def rmse(estimates, truth, *, allow_missing: bool = False) -> float:
-    """Root-mean-square position error over a trajectory (seed 004 §3.3).
+    """Root-mean-square position error over a trajectory ([GMPHD] §3.3).
 
     RMSE = sqrt( (1/|S|) Σ_{t∈S} ||x̂_t - x_t||² ), with S the scored steps.
 
@@ -205,7 +205,7 @@ def rmse(estimates, truth, *, allow_missing: bool = False) -> float:
 
 
 def max_error(estimates, truth, *, allow_missing: bool = False) -> float:
-    """Maximum per-step position error max_{t∈S} ||x̂_t - x_t||_2 (seed 004 §3.3, "Maximum").
+    """Maximum per-step position error max_{t∈S} ||x̂_t - x_t||_2 ([GMPHD] §3.3, "Maximum").
 
     Missing estimates are handled exactly as in :func:`rmse`.
     """
@@ -335,7 +335,7 @@ def assign_track_labels(estimates: Sequence, labels: Sequence, truth, gate: floa
 def track_fragmentation_count(assigned_labels) -> int:
     """Track fragmentation count (TFC): how often the track on a target is lost and re-initiated.
 
-    Seed 004 §3.3 defines TFC only in words. Here, per target, let ℓ_t be the label of the
+    [GMPHD] §3.3 defines TFC only in words. Here, per target, let ℓ_t be the label of the
     track assigned to it at step t (``None`` or -1: no track within the gate; see
     :func:`assign_track_labels`). An *event* is a step t with ℓ_t assigned such that the
     target was tracked before and either
@@ -386,9 +386,9 @@ def track_fragmentation_count(assigned_labels) -> int:
 
 def tcfe(estimates, *, bin_width: float = 0.01, num_bins: int | None = None,
          order: int = 1) -> float:
-    """Tracking-curve fluctuation entropy (TCFE, seed 004 §3.4), in nats.
+    """Tracking-curve fluctuation entropy (TCFE, [GMPHD] §3.4), in nats.
 
-    Seed 004 defines TCFE as "the information entropy of the sequence of differences between
+    [GMPHD] defines TCFE as "the information entropy of the sequence of differences between
     consecutive estimated positions" without a binning; this is the precise version used here.
 
     1. Step lengths s_t = ||Δ^order x̂_t||_2: with ``order=1`` (the default, the paper's
@@ -410,7 +410,7 @@ def tcfe(estimates, *, bin_width: float = 0.01, num_bins: int | None = None,
     Interpretation: with the defaults (1 cm bins, unbounded, order 1) and the 100 Hz
     measurement rate of SPEC §3, noise-free motion below 1 m/s keeps every step in bin 0
     (TCFE = 0). A track in which 1 % (2 %) of the steps jump into one other bin scores
-    0.056 (0.098), the magnitude of seed 004's 0.05-0.09 for its own method; white jitter of
+    0.056 (0.098), the magnitude of [GMPHD]'s 0.05-0.09 for its own method; white jitter of
     1 cm per axis spreads the steps over several bins and scores about 1.4. TCFE depends on
     the sampling step and on the bin width: only compare values computed with the same ones,
     and at another rate choose ``bin_width`` at least twice the largest true displacement per
@@ -598,7 +598,7 @@ def gospa(X, Y, c: float, p: float, alpha: float = 2.0) -> GOSPAResult:
 
 
 class ClearMOT(NamedTuple):
-    """CLEAR MOT summary (Bernardin & Stiefelhagen, EURASIP JIVP 2008, §2.1-2.2; seed 002 §3.2).
+    """CLEAR MOT summary (Bernardin & Stiefelhagen, EURASIP JIVP 2008, §2.1-2.2; [LAMP] §3.2).
 
     Ratios are fractions (multiply by 100 for percent); a ratio whose denominator is 0 is NaN.
     """

@@ -3,8 +3,8 @@
 A *front end* turns each image observation (``image`` or ``stereo`` obs mode)
 into the ``features`` observation of the same environment; the inner agent
 acts on that. This is how the classical pipelines split perception from
-estimation and control (seed 002's lamp tracker in front of seed 003's
-OFNMPC; seed 000's LTAT in front of its CKF + PD).
+estimation and control ([LAMP]'s lamp tracker in front of [OFNMPC]'s
+OFNMPC; [LTAT]'s LTAT in front of its CKF + PD).
 
 A front end keeps the protocol::
 

@@ -13,7 +13,7 @@ import numpy as np
 
 
 def kalman_gain(cov: np.ndarray, jacobian: np.ndarray, noise_cov: np.ndarray) -> np.ndarray:
-    """``K = P H^T (H P H^T + R)^-1`` (seed 003 eqs. 26-28), by a linear solve.
+    """``K = P H^T (H P H^T + R)^-1`` ([OFNMPC] eqs. 26-28), by a linear solve.
 
     Args:
       cov: (..., n, n) predicted P; jacobian: (..., m, n) H; noise_cov: (..., m, m) R.

@@ -1,6 +1,6 @@
 """Cost of one cubature Kalman filter step (predict + update) as ``ckf-pd`` runs it.
 
-Seed 000's filter: 6 states, 3 measured, eq. 8's heave/surge model, a
+[LTAT]'s filter: 6 states, 3 measured, eq. 8's heave/surge model, a
 per-fix measurement covariance and the innovation gate. Target (issue 6): a
 step <= 100 us. Also prints the step's share of the LARS control period and
 the whole agent's ``act`` (perception geometry + CKF + planning + IK + PD)

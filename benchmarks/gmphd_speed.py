@@ -1,4 +1,4 @@
-"""Per-step cost of the seed 004 tracking agents, and the GM-PHD update against Stone Soup.
+"""Per-step cost of the [GMPHD] tracking agents, and the GM-PHD update against Stone Soup.
 
     PYTHONPATH=. python benchmarks/gmphd_speed.py [--steps 1000] [--seed 0] [--updates 200]
 

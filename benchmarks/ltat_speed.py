@@ -1,4 +1,4 @@
-"""LTAT perception speed: stereo pairs per second at 640x480 (seed 000's real-time bar: 25 FPS).
+"""LTAT perception speed: stereo pairs per second at 640x480 ([LTAT]'s real-time bar: 25 FPS).
 
 Renders a severe-sea episode once (wash-overs and analogs; the arm follows
 the AUV with the dataset exporter's privileged tracking action), then times

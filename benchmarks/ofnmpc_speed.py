@@ -1,8 +1,8 @@
-"""Per-control-step cost of the seed 003 agents: observer update + NMPC solve (N = 20).
+"""Per-control-step cost of the [OFNMPC] agents: observer update + NMPC solve (N = 20).
 
     PYTHONPATH=. python benchmarks/ofnmpc_speed.py [--steps 150] [--no-vm] [--ipopt]
 
-Each agent flies one episode of ``DockingStation-v1`` in seed 003's Scenario 2
+Each agent flies one episode of ``DockingStation-v1`` in [OFNMPC]'s Scenario 2
 (``scenario="current"``, current towards 90 deg, 5 px / 0.02 m/s noise) and
 ``agent.act`` is timed per step (the environment step is excluded; the first
 step, which initialises the pose and builds the warm start, is dropped). Both

@@ -5,7 +5,7 @@
         [--first-seed 620000] [--json PATH]
 
 Episode ``i`` uses seed ``--first-seed + i`` and, in the ``current`` scenario (default),
-seed 003's current direction ``DIRECTIONS[i % 5]`` (Scenario 2's five directions). The
+[OFNMPC]'s current direction ``DIRECTIONS[i % 5]`` (Scenario 2's five directions). The
 ``hard`` headroom rule (``docs/difficulty.md``): the best non-privileged agent succeeds in
 <= 80 % of episodes, a privileged one (``-state``) in >= 90 %.
 """
@@ -23,7 +23,7 @@ from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec
 from baselines.stats import wilson_interval
 
-#: Seed 003 Scenario 2's current directions, deg (DS frame).
+#: [OFNMPC] Scenario 2's current directions, deg (DS frame).
 DIRECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)
 
 

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 CHROMIUM = "/usr/bin/chromium"
-#: Flags that keep Chromium quiet on a closed network (FACTS.md).
+#: Flags that keep Chromium from reaching out (it runs on closed networks, e.g. CI).
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update",
                  "--disable-sync"]

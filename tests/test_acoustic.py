@@ -11,11 +11,11 @@ import pytest
 
 from auv_envs import metrics
 from auv_envs.core.acoustics import (
+    GMPHD_FLOW_NOISE_LEVEL,
     ORIGIN_BOTTOM,
     ORIGIN_CLUTTER,
     ORIGIN_SURFACE,
     ORIGIN_TARGET,
-    SEED004_FLOW_NOISE_LEVEL,
     AcousticConfig,
     ambient_noise_level,
     flow_noise_level,
@@ -31,7 +31,7 @@ def make(**kwargs) -> gym.Env:
 
 
 def geometric(position, hydrophones, c):
-    """Independent reference: TDOA vs node 1, azimuth, seed 004's elevation angle."""
+    """Independent reference: TDOA vs node 1, azimuth, [GMPHD]'s elevation angle."""
     d = np.asarray(position) - hydrophones
     ranges = np.sqrt((d**2).sum(axis=1))
     tdoa = (ranges[1:] - ranges[0]) / c
@@ -370,7 +370,7 @@ def test_tcfe_order_two_hand_worked():
 
 def test_episode_tcfe_fluctuation_scores_the_estimate_not_the_motion():
     """The truth as the estimate scores 0 on ``tcfe_fluctuation``; 1 cm white jitter on it
-    scores well above 0; ``tcfe`` is seed 004's first-difference reading of the same data."""
+    scores well above 0; ``tcfe`` is [GMPHD]'s first-difference reading of the same data."""
     rng = np.random.default_rng(0)
     scores, sent = {}, {}
     for name, jitter in (("truth", 0.0), ("jitter", 0.01)):
@@ -392,7 +392,7 @@ def test_episode_tcfe_fluctuation_scores_the_estimate_not_the_motion():
 
 # --------------------------------------------------------------------------- flow noise
 
-FLOW = AcousticConfig(flow_noise_level=SEED004_FLOW_NOISE_LEVEL)
+FLOW = AcousticConfig(flow_noise_level=GMPHD_FLOW_NOISE_LEVEL)
 
 
 def test_flow_noise_model_matches_the_documented_formula():
@@ -413,7 +413,7 @@ def test_flow_noise_model_matches_the_documented_formula():
     rise = cal.array.flow_noise_rise([0.0, 0.5, 4.0, 8.0])
     assert np.all(rise[0] == 0) and np.all(np.diff(rise[1]) < 0)
     np.testing.assert_allclose(rise[3] - rise[2], 60 * math.log10(2), atol=1e-3)
-    flow = flow_noise_level(cal.band_centres, 0.5, SEED004_FLOW_NOISE_LEVEL)
+    flow = flow_noise_level(cal.band_centres, 0.5, GMPHD_FLOW_NOISE_LEVEL)
     np.testing.assert_allclose(
         rise[1], 10 * np.log10(1 + 10 ** ((flow - ambient_noise_level(cal.band_centres)) / 10)))
     # No flow-noise level: nothing rises whatever the current.

@@ -1,4 +1,4 @@
-"""The cubature Kalman filter and seed 000's motion model (baselines/lars/estimation/ckf.py)."""
+"""The cubature Kalman filter and [LTAT]'s motion model (baselines/lars/estimation/ckf.py)."""
 
 import datetime
 import math

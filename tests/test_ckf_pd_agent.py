@@ -1,4 +1,4 @@
-"""Seed 000's marker geometry and the ``ckf-pd`` agent on LARSCapture-v0."""
+"""[LTAT]'s marker geometry and the ``ckf-pd`` agent on LARSCapture-v0."""
 
 import math
 

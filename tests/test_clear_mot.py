@@ -18,7 +18,7 @@ MM_NAMES = ("precision", "recall", "num_false_positives", "num_misses", "num_swi
 def _motmetrics(gt_ids, gt_pts, hyp_ids, hyp_pts, threshold):
     acc = mm.MOTAccumulator(auto_id=True)
     for oi, op, hi, hp in zip(gt_ids, gt_pts, hyp_ids, hyp_pts, strict=True):
-        # FACTS.md: norm2squared_matrix returns squared distances; MOTP is a mean distance.
+        # motmetrics' norm2squared_matrix returns squared distances; MOTP is a mean distance.
         d2 = mm.distances.norm2squared_matrix(op, hp, max_d2=threshold**2)
         acc.update(oi, hi, np.sqrt(d2))
     summary = mm.metrics.create().compute(acc, metrics=list(MM_NAMES), name="x")

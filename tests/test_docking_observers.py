@@ -1,4 +1,4 @@
-"""Seed 003 observers: EKF = Kalman filter on a linear model, the visual model and its
+"""[OFNMPC] observers: EKF = Kalman filter on a linear model, the visual model and its
 Jacobian, and the MHE recovering the state from a noise-free sequence."""
 
 from __future__ import annotations

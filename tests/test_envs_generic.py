@@ -276,7 +276,7 @@ def test_vector_env_matches_single_env(env_id):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_env_class_docstring_documents_the_contract(env_id):
-    # STYLE.md convention 6: every environment is documented in its class docstring.
+    # Every environment is documented in its class docstring, as Gymnasium's MuJoCo v5 envs.
     env = gym.make(env_id)
     try:
         doc = type(env.unwrapped).__doc__ or ""

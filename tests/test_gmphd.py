@@ -1,4 +1,4 @@
-"""GM-PHD update (Stone Soup oracle), GCI fusion (closed form), agents (seed 004 §2)."""
+"""GM-PHD update (Stone Soup oracle), GCI fusion (closed form), agents ([GMPHD] §2)."""
 
 import datetime
 

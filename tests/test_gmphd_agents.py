@@ -1,4 +1,4 @@
-"""The seed 004 tracking agents on AcousticTracking-v0."""
+"""The [GMPHD] tracking agents on AcousticTracking-v0."""
 
 import dataclasses
 

@@ -1,4 +1,4 @@
-"""Least-squares TDOA / DOA / fused positioning (seed 004 §1.1-1.3)."""
+"""Least-squares TDOA / DOA / fused positioning ([GMPHD] §1.1-1.3)."""
 
 import dataclasses
 

@@ -1,4 +1,4 @@
-"""Seed 002's lamp-array front end on rendered docking frames, its parts, and bad input."""
+"""[LAMP]'s lamp-array front end on rendered docking frames, its parts, and bad input."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""LARS capture: stereo geometry, rendered marker corners, marker orientation (seed 000)."""
+"""LARS capture: stereo geometry, rendered marker corners, marker orientation [LTAT]."""
 
 from __future__ import annotations
 

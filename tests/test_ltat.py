@@ -1,4 +1,4 @@
-"""LTAT perception (seed 000 §2.1): shipped tracker weights and their checks, marker
+"""LTAT perception ([LTAT] §2.1): shipped tracker weights and their checks, marker
 corners against the true projections, the online detector, re-acquisition after a
 wash-over, and the ``ltat-ckf-pd`` registration.
 

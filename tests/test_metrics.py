@@ -391,7 +391,7 @@ def test_tcfe_default_bins_have_no_upper_limit():
 
 def test_tcfe_defaults_small_for_smooth_large_for_erratic():
     # 100 steps of 5 mm (0.5 m/s at 100 Hz) with 1 % of steps jumping 2.5 cm:
-    # -(0.99 ln 0.99 + 0.01 ln 0.01) = 0.056, the size of seed 004's values.
+    # -(0.99 ln 0.99 + 0.01 ln 0.01) = 0.056, the size of [GMPHD]'s values.
     steps = np.full(100, 0.005)
     steps[40] = 0.025
     x = np.stack([np.concatenate([[0.0], np.cumsum(steps)]), np.zeros(101), np.zeros(101)], 1)

@@ -1,4 +1,4 @@
-"""Seed 003 OFNMPC: target conditions inside the NLP, offset-free closed loop, solver
+"""[OFNMPC] OFNMPC: target conditions inside the NLP, offset-free closed loop, solver
 fallback, and a short seeded docking episode of the registered agent."""
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def test_target_conditions_hold_inside_the_solution(controller, calibration):
 def test_offset_free_on_nominal_model_with_constant_unmodelled_force(calibration):
     """Plant = nominal model + constant force; pixels from the visual model. The closed
     loop settles on the docking point with zero offset and the EKF's disturbance
-    estimate converges to the force (seed 003 §3.2)."""
+    estimate converges to the force ([OFNMPC] §3.2)."""
     force = np.array([12.0, -15.0, 10.0, 4.0])
     model = calibration.nominal_model
     observer = DockingEKF(calibration)

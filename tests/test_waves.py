@@ -212,7 +212,7 @@ def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
         for x, y in zip(_leaves(ia), _leaves(ib), strict=True):
             np.testing.assert_array_equal(x, y)
     assert plain.np_random.bit_generator.state == none.np_random.bit_generator.state
-    # The seed-000 sinusoid and a ship at rest.
+    # The [LTAT] sinusoid and a ship at rest.
     m = none.auv_motion
     for k, (_, _, info) in enumerate(b):
         z = heave(k * none.dt, m.heave_amplitude, m.omega, m.heave_phase)[0]

@@ -1,4 +1,4 @@
-"""Passive acoustic measurements of a broadband source by a hydrophone array (seed 004).
+"""Passive acoustic measurements of a broadband source by a hydrophone array [GMPHD].
 
 The source (an end effector) emits a broadband signal that every node of an
 array of ``N`` hydrophones receives. The signal is split into ``Q`` frequency
@@ -6,9 +6,9 @@ sub-bands; per band and sample period (``1 / fs``) the array reports a *set*
 of detections. A detection is the vector
 
 * ``tdoa`` (N-1,): time differences of arrival against node 1,
-  ``tau_1i = t_i - t_1`` (seed 004 §1.1: ``c * tau_1i = D_i - D_1``), seconds;
+  ``tau_1i = t_i - t_1`` ([GMPHD] §1.1: ``c * tau_1i = D_i - D_1``), seconds;
 * ``azimuth`` (N,): ``alpha_i = atan2(y - y_i, x - x_i)`` in (-pi, pi];
-* ``elevation`` (N,): seed 004 §1.2's angle ``theta_i`` with
+* ``elevation`` (N,): [GMPHD] §1.2's angle ``theta_i`` with
   ``tan(theta_i) = hypot(x - x_i, y - y_i) / (z - z_i)``, i.e. the angle
   between the upward vertical through node ``i`` and the line to the source,
   in [0, pi].
@@ -41,7 +41,7 @@ its fields):
   straight above or below a node). Noisy azimuths are wrapped to (-pi, pi]
   and elevations clipped to [0, pi].
 * **Flow noise** (off unless ``flow_noise_level`` is set; our addition to
-  seed 004, whose tank currents come from three current generators): the
+  [GMPHD], whose tank currents come from three current generators): the
   generators' radiated noise fills the tank as a uniform reverberant field
   whose spectrum level follows Ross's classical source-spectrum model
   (Ross, *Mechanics of Underwater Noise*, 1976; as summarised by Wales &
@@ -61,7 +61,7 @@ its fields):
   TDOA is then scaled by ``c / c_true``: a bias that grows with the range
   difference and that no averaging over bands removes.
 * **Propagation delay** (off unless ``propagation_delay``): sound takes
-  ``R / c`` to reach a node (0.03-0.28 s across seed 004's tank), so a
+  ``R / c`` to reach a node (0.03-0.28 s across [GMPHD]'s tank), so a
   measurement made at time ``t`` describes where a moving source was when it
   emitted. A node's angles see the source at its own emission time
   ``t - R_i / c``; the TDOAs, which align the same emitted stretch of signal at
@@ -161,12 +161,12 @@ SOUND_SPEED_ERROR_LIMIT = 0.05
 #: Reference flow speed (m/s) and frequency (Hz) of ``AcousticConfig.flow_noise_level``.
 FLOW_NOISE_REF_SPEED = 1.0
 FLOW_NOISE_REF_FREQUENCY = 1000.0
-#: The flow-noise level the seed 004 reproduction uses (dB re 1 uPa^2/Hz at
+#: The flow-noise level the [GMPHD] reproduction uses (dB re 1 uPa^2/Hz at
 #: 1 m/s and 1 kHz). Our choice, as ``source_level`` is: at 0.5 m/s, the top of
-#: seed 004's high current range, it raises the noise of the 20 kHz band by
+#: [GMPHD]'s high current range, it raises the noise of the 20 kHz band by
 #: 23 dB and of the 110 kHz band by 10 dB; at 0.15 m/s, the top of the low
 #: range, by 0.6 and 0.0 dB (:meth:`HydrophoneArray.flow_noise_rise`).
-SEED004_FLOW_NOISE_LEVEL = 94.0
+GMPHD_FLOW_NOISE_LEVEL = 94.0
 
 
 def flow_noise_level(frequency_hz, speed, level: float) -> np.ndarray:
@@ -193,12 +193,12 @@ class AcousticConfig:
     """Parameters of the measurement model (see the module docstring).
 
     Defaults: ten 8-kHz bands centred at 20, 30, ..., 110 kHz, fs = 100 Hz and
-    Q = 10 as in seed 004's experiments; c = 1500 m/s. The source level,
+    Q = 10 as in [GMPHD]'s experiments; c = 1500 m/s. The source level,
     aperture, floors, clock offsets and clutter rate are our choices, set so
     that detections fade and get noisier with range in the high bands.
     ``flow_noise_level`` (dB re 1 uPa^2/Hz at 1 m/s and 1 kHz) switches the
     current generators' flow noise on; None (the default) leaves it out, and
-    ``SEED004_FLOW_NOISE_LEVEL`` is the level seed 004's reproduction uses.
+    ``GMPHD_FLOW_NOISE_LEVEL`` is the level [GMPHD]'s reproduction uses.
     ``node_dropout_rate`` (1/s, a working node's rate of dropping out; 0, the
     default, switches dropouts off) and ``node_dropout_duration`` (s, the mean
     outage) set the nodes' Gilbert-Elliott outages (module docstring).

@@ -227,12 +227,12 @@ DOF4 = (0, 1, 2, 5)
 
 
 class NominalModel:
-    """The 4-DOF (surge, sway, heave, yaw) prediction model of seed 003.
+    """The 4-DOF (surge, sway, heave, yaw) prediction model of [OFNMPC].
 
     State ``x = (x, y, z, psi, u, v, w, r)`` (world position, yaw, body
     velocities), input ``tau = (X, Y, Z, N)``, optional additive generalized
-    disturbance ``d`` (4) as in seed 003's offset-free formulation (eq. 12).
-    Roll and pitch are taken as zero (seed 003: stabilised by conventional
+    disturbance ``d`` (4) as in [OFNMPC]'s offset-free formulation (eq. 12).
+    Roll and pitch are taken as zero ([OFNMPC]: stabilised by conventional
     controllers). The dynamics reuse :func:`hydrodynamic_force` and
     :func:`rigid_body_coriolis`, so the model is the plant's model restricted
     to 4 DOF, with whatever mismatch ``params`` carries.

@@ -108,7 +108,7 @@ def segments_cross_box(starts: np.ndarray, ends: np.ndarray, center, half_size) 
 
 
 def heave(t: float, amplitude: float, omega: float, phase: float) -> tuple[float, float]:
-    """Sinusoidal heave (seed 000, motion model) and its rate at time ``t``."""
+    """Sinusoidal heave ([LTAT], motion model) and its rate at time ``t``."""
     arg = omega * t + phase
     return amplitude * math.sin(arg), amplitude * omega * math.cos(arg)
 

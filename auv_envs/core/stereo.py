@@ -1,4 +1,4 @@
-"""Rectified binocular camera: calibration, projection and triangulation (seed 000, eq. 2).
+"""Rectified binocular camera: calibration, projection and triangulation ([LTAT], eq. 2).
 
 Both cameras share intrinsics and orientation; the right camera sits
 ``baseline`` metres along the left camera's +x axis (OpenCV axes: x right,
@@ -46,7 +46,7 @@ class StereoRig:
 
 
 def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
-    """Left-camera-frame points (N, 3) from matched pixels (seed 000, eq. 2).
+    """Left-camera-frame points (N, 3) from matched pixels ([LTAT], eq. 2).
 
     Eq. 2 with image coordinates measured from the principal point
     (``x = u - cx``, ``y = v - cy``) and the disparity ``d = x_L - x_R``:

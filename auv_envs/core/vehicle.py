@@ -138,7 +138,7 @@ class PlantPerturbation:
     """How far the simulated vehicle may deviate from its nominal parameters, per episode.
 
     Hydrodynamic coefficients identified for a real vehicle are uncertain by
-    tens of per cent (seed 003 tests its controllers against exactly such a
+    tens of per cent ([OFNMPC] tests its controllers against exactly such a
     mismatch of the damping diagonals), and its trim drifts with payload and
     water density. Each episode draws, from its own generator:
 
@@ -263,10 +263,10 @@ def _spheroid_vehicle(
 def hovering_auv() -> VehicleParams:
     """The fully actuated hovering AUV of the docking tasks.
 
-    A 1.8 m x 0.44 m prolate-spheroid hull (the size class of seed 003's
-    multi-thruster trench AUV, whose table of parameters is not reproduced in
-    the digest). Mass from displacement with 10 N net positive buoyancy
-    (SPEC.md section 2); inertia of a homogeneous spheroid; added mass from
+    A 1.8 m x 0.44 m prolate-spheroid hull (the size class of [OFNMPC]'s
+    multi-thruster trench AUV, whose parameters we do not have). Mass from
+    displacement with 10 N net positive buoyancy (the buoyancy [OFNMPC]'s
+    observers estimate); inertia of a homogeneous spheroid; added mass from
     Lamb's k-factors (Fossen 2021, section 8.4.2); quadratic drag from
     0.5 rho C_d A with C_d = 0.3 axially and 1.0 across; BG = 0.15 m, large
     enough for passive roll/pitch stability against the Munk moment up to
@@ -275,7 +275,7 @@ def hovering_auv() -> VehicleParams:
     """
     return _spheroid_vehicle(
         name="hovering-auv",
-        source="spheroid hull sized after seed 003's fully actuated AUV; "
+        source="spheroid hull sized after [OFNMPC]'s fully actuated AUV; "
         "added mass: Imlay (1961) / Fossen (2021) section 8.4.2",
         length=1.8,
         diameter=0.44,

@@ -1,4 +1,4 @@
-"""Acoustic tracking of an underwater manipulator's end effector (seed 004).
+"""Acoustic tracking of an underwater manipulator's end effector [GMPHD].
 
 ``auv_envs/AcousticTracking-v0``: an acoustic source on the end effector of a
 6-DOF arm, carried through a 300 m x 300 m tank by a neutrally buoyant
@@ -27,7 +27,7 @@ from auv_envs import metrics
 from auv_envs.core import difficulty as levels
 from auv_envs.core import passive
 from auv_envs.core.acoustics import (
-    SEED004_FLOW_NOISE_LEVEL,
+    GMPHD_FLOW_NOISE_LEVEL,
     AcousticConfig,
     HydrophoneArray,
     Measurements,
@@ -43,9 +43,9 @@ from auv_envs.core.env import (
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
-#: Current speed ranges in m/s (seed 004 §3.4's disturbance levels).
+#: Current speed ranges in m/s ([GMPHD] §3.4's disturbance levels).
 DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
-#: Seed 004 Table 1: the five static end-effector positions (tank frame, m).
+#: [GMPHD] Table 1: the five static end-effector positions (tank frame, m).
 STATIC_POINTS = (
     (50.0, 102.0, -10.0),
     (170.0, 234.0, -15.5),
@@ -53,7 +53,7 @@ STATIC_POINTS = (
     (289.0, 245.0, -8.0),
     (47.0, 251.0, -20.0),
 )
-#: TCFE (seed 004 §3.4) as the episode metrics report it. ``tcfe`` is the paper's literal
+#: TCFE ([GMPHD] §3.4) as the episode metrics report it. ``tcfe`` is the paper's literal
 #: definition: the entropy of the lengths of the differences between consecutive estimates
 #: (:func:`auv_envs.metrics.tcfe`, first differences) in 1 cm bins. That reading also bins the
 #: end effector's own speed: it moves at up to 0.9-2.3 m/s (0-2.3 cm per 10 ms step; seeds
@@ -84,25 +84,25 @@ RENDER_TRAIL = 10.0
 RENDER_CLOSEUP = 2.0
 
 
-#: The ``paper`` level's measurement model: seed 004's tank (§4.1: 300 m x 300 m, water at
+#: The ``paper`` level's measurement model: [GMPHD]'s tank (§4.1: 300 m x 300 m, water at
 #: 20 +- 2 degC, three current generators, precisely surveyed node positions). Each parameter
 #: beyond the defaults is physical (:mod:`auv_envs.core.acoustics` documents the models):
 #:
-#: * ``flow_noise_level``: the current generators' radiated noise (``SEED004_FLOW_NOISE_LEVEL``).
+#: * ``flow_noise_level``: the current generators' radiated noise (``GMPHD_FLOW_NOISE_LEVEL``).
 #: * ``propagation_delay``: sound takes R / c to reach a node, so a moving source is heard
 #:   where it was (not a parameter: the physics of a finite sound speed).
 #: * ``sound_speed_error_std`` 1 m/s: the tank's mean temperature known to about 0.3 degC
 #:   (dc/dT = 3.2 m/s per degC at 20 degC, Mackenzie 1981); our assumption.
 #: * ``fluctuation_intensity`` 3.5e-4, the rms fractional sound-speed fluctuation (about
 #:   0.1 degC of thermal microstructure and the generators' turbulence; correlation length
-#:   10 m and time 2 s, our assumptions): calibrated against seed 004's dynamic RMSE (0.18 m
+#:   10 m and time 2 s, our assumptions): calibrated against [GMPHD]'s dynamic RMSE (0.18 m
 #:   average, Table 2).
 #: * ``source_level`` 110 dB re 1 uPa at 1 m (10 dB below the ``easy`` source): calibrated
-#:   against seed 004's static positioning error (0.11 m average over Table 1's five points);
+#:   against [GMPHD]'s static positioning error (0.11 m average over Table 1's five points);
 #:   it also makes each band's own noise, which fusing the bands averages, matter beside the
 #:   errors the bands share.
 PAPER_ACOUSTICS = AcousticConfig(
-    flow_noise_level=SEED004_FLOW_NOISE_LEVEL,
+    flow_noise_level=GMPHD_FLOW_NOISE_LEVEL,
     propagation_delay=True,
     sound_speed_error_std=1.0,
     fluctuation_intensity=3.5e-4,
@@ -110,7 +110,7 @@ PAPER_ACOUSTICS = AcousticConfig(
     fluctuation_time=2.0,
     source_level=110.0,
 )
-#: The ``hard`` level: beyond seed 004's tank. A quieter source (105 dB) so that the far
+#: The ``hard`` level: beyond [GMPHD]'s tank. A quieter source (105 dB) so that the far
 #: nodes and the high bands fade, twice the microstructure (7e-4), a temperature known to
 #: 1 degC (3 m/s), band fading of the saturated (Rayleigh) regime (5.6 dB rms, Flatte et al.
 #: 1979), boundaries that reflect more (surface 2 dB, bottom 6 dB loss: stronger ghosts),
@@ -314,7 +314,7 @@ class AcousticPhysics:
 
 
 class AcousticTrackingEnv(TaskEnv):
-    """Track an underwater arm's end effector with an 8-node hydrophone array (seed 004).
+    """Track an underwater arm's end effector with an 8-node hydrophone array [GMPHD].
 
     **Description.** A 300 m x 300 m x 30 m tank (tank frame: origin at a
     surface corner, z up) holds eight hydrophone nodes on its walls. A 6-DOF
@@ -329,7 +329,7 @@ class AcousticTrackingEnv(TaskEnv):
     :mod:`auv_envs.core.acoustics` for the documented model. By default the
     current moves the arm but leaves the measurements alone; with
     ``acoustic=AcousticConfig(flow_noise_level=...)`` (e.g.
-    ``SEED004_FLOW_NOISE_LEVEL``) the current generators' flow noise grows
+    ``GMPHD_FLOW_NOISE_LEVEL``) the current generators' flow noise grows
     with the current's speed in each sample period and lowers every band's
     SNR, most in the low bands (noisier delays and angles, more misses).
 
@@ -382,7 +382,7 @@ class AcousticTrackingEnv(TaskEnv):
     ``episode_metrics``: RMSE, maximum error, TFC, TCFE and mean OSPA of the
     estimates (:mod:`auv_envs.metrics`), ``error_bias`` (the norm of the mean
     error vector, the systematic part of the RMSE) and ``success``. ``tcfe`` is
-    seed 004's TCFE, the entropy of the estimate's consecutive differences in
+    [GMPHD]'s TCFE, the entropy of the estimate's consecutive differences in
     1 cm bins (``TCFE_BIN_WIDTH``), which also scores the end effector's speed
     profile; ``tcfe_fluctuation`` is the entropy of the second differences, 0
     for the true motion, so it measures only the tracking curve's fluctuation.
@@ -764,7 +764,7 @@ class AcousticTrackingEnv(TaskEnv):
         """The Cramer-Rao bound (m) on the RMSE of a fix of a static point, from this
         environment's own measurement model: one sample period of every band's direct-path
         detection (:meth:`~auv_envs.core.acoustics.HydrophoneArray.position_crb`), averaged
-        over seed 004's five test points, with the flow noise of the middle of the
+        over [GMPHD]'s five test points, with the flow noise of the middle of the
         ``disturbance`` level's current range. The physical limit of one period's
         information; a tracker that integrates many periods of a slow target can go below
         it, and the errors every band shares (clock offsets, sound-speed error, wander) are
@@ -787,7 +787,7 @@ class AcousticTrackingEnv(TaskEnv):
             # The systematic part of the error: rmse^2 = error_bias^2 + (random part)^2.
             "error_bias": float(np.linalg.norm(np.mean(est - truth, axis=0))),
             "tfc": metrics.track_fragmentation_count(labels),
-            # Seed 004 §3.4's TCFE as written (first differences), and the same
+            # [GMPHD] §3.4's TCFE as written (first differences), and the same
             # entropy on second differences, which the true motion leaves at 0.
             "tcfe": metrics.tcfe(est, bin_width=TCFE_BIN_WIDTH),
             "tcfe_fluctuation": metrics.tcfe(est, bin_width=TCFE_BIN_WIDTH, order=2),

@@ -1,11 +1,11 @@
-"""Docking-station approach guided by lights (seeds 003 and 002).
+"""Docking-station approach guided by lights ([OFNMPC] and [LAMP]).
 
 Two registered layouts share this file:
 
 * ``auv_envs/DockingStation-v1``: six lights symmetric around the entrance
-  (seed 003).
+  [OFNMPC].
 * ``auv_envs/LampArrayDocking-v1``: asymmetric L-shaped array of four lamps
-  under a recovery fork (seed 002).
+  under a recovery fork [LAMP].
 """
 
 from __future__ import annotations
@@ -58,13 +58,13 @@ OBS_MODES = ("state", "features", "image")
 SCENARIOS = ("mismatch", "current")
 
 #: Default nominal-model damping scale (surge, sway, heave, roll, pitch, yaw):
-#: the controller's D diagonals differ from the plant's as in seed 003's
+#: the controller's D diagonals differ from the plant's as in [OFNMPC]'s
 #: comparison of D between plant and prediction model.
 DEFAULT_DAMPING_MISMATCH = (0.7, 1.4, 1.3, 1.0, 1.0, 0.6)
 
-#: Seed 003 Scenario 2 current speed, m/s.
+#: [OFNMPC] Scenario 2 current speed, m/s.
 SCENARIO_CURRENT_SPEED = 0.3
-#: Seed 003 Scenario 2 noise: 5 px on the light pixels, 0.02 m/s on velocities.
+#: [OFNMPC] Scenario 2 noise: 5 px on the light pixels, 0.02 m/s on velocities.
 SCENARIO_PIXEL_NOISE = 5.0
 SCENARIO_VELOCITY_NOISE = 0.02
 #: Yaw-rate and attitude noise in the noisy scenario (INS grade; our choice).
@@ -132,17 +132,17 @@ class DockingDisturbances:
 
 # ------------------------------------------------------------------ difficulty levels
 #: ``paper`` level, plant (both layouts; ``docs/difficulty.md``).
-#: Calibrated on seed 003 Scenario 2 (Table 4, Figs. 15-16: OFNMPC-EKF docks in 5 of 5 current
+#: Calibrated on [OFNMPC] Scenario 2 (Table 4, Figs. 15-16: OFNMPC-EKF docks in 5 of 5 current
 #: directions, OFNMPC-MHE in 3 of 5) with the band EKF >= 80 %, MHE >= 60 % of episodes.
 #:
 #: * ``current``: Gauss–Markov current about the scenario's 0.3 m/s (Fossen 2011, ch. 8):
 #:   ``speed_std`` 0.1 m/s, ``direction_std_deg`` 30 deg, ``time_constant`` 30 s (our choice,
-#:   calibrated on Table 4), ``max_speed`` 0.3 m/s (seed 003 §4: "the maximum current was
+#:   calibrated on Table 4), ``max_speed`` 0.3 m/s ([OFNMPC] §4: "the maximum current was
 #:   maintained at 0.3 m/s").
-#: * ``plant``: ``damping`` 0.3 (relative half-range of each damping coefficient: seed 003's
+#: * ``plant``: ``damping`` 0.3 (relative half-range of each damping coefficient: [OFNMPC]'s
 #:   comparison of the D diagonals of plant and prediction model differs by tens of per cent),
 #:   ``mass`` 0.1 (relative; our choice), ``net_buoyancy`` 5 N (half the 10 N positive
-#:   buoyancy whose estimate seed 003 shows in Fig. 10; trim drift, our choice).
+#:   buoyancy whose estimate [OFNMPC] shows in Fig. 10; trim drift, our choice).
 #: * ``thruster_time_constant`` 0.5 s (first-order thruster lag of Yoerger, Cooke and
 #:   Slotine 1990; our choice of value for a small electric thruster).
 PAPER_DISTURBANCES = DockingDisturbances(
@@ -151,24 +151,24 @@ PAPER_DISTURBANCES = DockingDisturbances(
     plant=PlantPerturbation(mass=0.1, damping=0.3, net_buoyancy=5.0),
     thruster_time_constant=0.5,
 )
-#: ``paper`` level, water of ``DockingStation`` (seed 003, a simulated sea docking): Jerlov
+#: ``paper`` level, water of ``DockingStation`` ([OFNMPC], a simulated sea docking): Jerlov
 #: coastal type 1C (Jerlov 1976; ``K_d`` per channel), every other optics value the
 #: :class:`WaterOptics` default (its docstring gives their sources). Calibrated with the
-#: plant on seed 003 Table 4 as above.
+#: plant on [OFNMPC] Table 4 as above.
 PAPER_OPTICS = WaterOptics.jerlov("1C")
-#: ``paper`` level, water of ``LampArrayDocking`` (seed 002: a laboratory tank, §2.2.4, with
+#: ``paper`` level, water of ``LampArrayDocking`` ([LAMP]: a laboratory tank, §2.2.4, with
 #: suspended matter, §2.2): Jerlov 5C (turbid coastal) with lamps 200 times the sensor's full
 #: scale (``lamp_radiance``, the exposure set for the dim water; our choice) and a narrow glow
 #: (``glow_angle`` 0.02 rad per unit scattering depth: a mean forward-scattering angle of
-#: 0.04 rad, Wells 1973): the saturated halos that make seed 002's lamp blobs large.
-#: Calibrated on seed 002 Table 4 (PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px) and Fig. 11:
+#: 0.04 rad, Wells 1973): the saturated halos that make [LAMP]'s lamp blobs large.
+#: Calibrated on [LAMP] Table 4 (PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px) and Fig. 11:
 #: on fresh sequences the lamp tracker measures PRCN 97.0 %, MOTA 77.8 %, MOTP 3.95 px
 #: (band MOTA 75-95 %, PRCN >= 95 %, MOTP >= 3 px; ``docs/difficulty.md``).
 PAPER_LAMP_ARRAY_OPTICS = WaterOptics.jerlov("5C", lamp_radiance=200.0, glow_angle=0.02)
 
-#: ``hard`` level, plant (both layouts): beyond seed 003 Scenario 2. ``current``: 0.1 m/s
+#: ``hard`` level, plant (both layouts): beyond [OFNMPC] Scenario 2. ``current``: 0.1 m/s
 #: speed and 30 deg direction standard deviation, 30 s correlation time (Fossen 2011, ch. 8),
-#: up to 0.45 m/s (1.5 times seed 003's maximum); ``plant``: damping +-40 %, mass +-10 %,
+#: up to 0.45 m/s (1.5 times [OFNMPC]'s maximum); ``plant``: damping +-40 %, mass +-10 %,
 #: net buoyancy +-5 N; thrusters lag 0.7 s. Our choices, checked against the headroom rule
 #: (``docs/difficulty.md``): the privileged ``ofnmpc-state`` docks in >= 90 % of episodes.
 HARD_DISTURBANCES = DockingDisturbances(
@@ -262,7 +262,7 @@ class _EpisodeState:
 
 
 class DockingEnv(TaskEnv):
-    """AUV approach to a light-guided docking station (seed 003 / seed 002).
+    """AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).
 
     **Description.** A fully actuated hovering AUV (6-DOF MuJoCo rigid body
     with Fossen hydrodynamics: added mass including the acceleration term,
@@ -339,7 +339,7 @@ class DockingEnv(TaskEnv):
     episode end also ``episode_metrics`` (a dict; ``docking_time`` is None
     without success).
 
-    **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: seed 003
+    **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: [OFNMPC]
     Scenario 1, model mismatch only; ``"current"``: Scenario 2),
     ``current_direction``, ``image_size`` (W, H; default 640x480, also the
     pixel frame of ``features``), ``model_mismatch`` (False: nominal model =
@@ -366,9 +366,9 @@ class DockingEnv(TaskEnv):
     ``disturbances=PAPER_DISTURBANCES`` (Gauss–Markov current about the
     scenario's, 0.1 m/s and 30 deg spread, 30 s correlation, at most 0.3
     m/s; damping +-30 %, mass +-10 %, net buoyancy +-5 N; 0.5 s thruster
-    lag) and Jerlov 1C water (six lights, seed 003) or the turbid
-    laboratory water of seed 002 (lamp array: Jerlov 5C, bright lamps with
-    saturated halos), calibrated on seed 003 Table 4 and seed 002 Table 4;
+    lag) and Jerlov 1C water (six lights, [OFNMPC]) or the turbid
+    laboratory water of [LAMP] (lamp array: Jerlov 5C, bright lamps with
+    saturated halos), calibrated on [OFNMPC] Table 4 and [LAMP] Table 4;
     ``"hard"`` sets a current of up to 0.45 m/s, damping +-40 %, a 0.7 s
     lag and Jerlov 7C water with 10 % failed lamps and passing occluders
     (``HARD_DISTURBANCES``, ``HARD_OPTICS``). Each value's unit and source
@@ -872,8 +872,8 @@ class DockingEnv(TaskEnv):
         ``info["true_pixels"]`` is the projection of a lamp's centre and
         ``info["true_visible"]`` a clear line of sight to it. A lamp sphere
         partly behind the station's structure still shows, off its centre,
-        and is labelled where it shows; seed 002's tracking figures are
-        scored against these labels (``scripts/reproduce_seed002.py``). A
+        and is labelled where it shows; [LAMP]'s tracking figures are
+        scored against these labels (``scripts/reproduce_lamp_array.py``). A
         lamp that failed (``optics``) is drawn unlit and not labelled. One
         segmentation draw (:meth:`CameraRenderer.render_geom_ids`); draws
         nothing from the generator.
@@ -956,7 +956,7 @@ _NO_VIOLATIONS = {"fov": False, "behind_entrance": False, "seabed": False}
 class DockingStationEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
         "**Version history.**",
-        "Layout: six lights around the entrance (seed 003).\n\n    **Version history.**",
+        "Layout: six lights around the entrance [OFNMPC].\n\n    **Version history.**",
     )
     layout = SIX_LIGHTS
 
@@ -964,11 +964,11 @@ class DockingStationEnv(DockingEnv):
 class LampArrayDockingEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
         "**Version history.**",
-        "Layout: L-shaped four-lamp array A, B, C, D (seed 002); camera tilted 20 deg down."
+        "Layout: L-shaped four-lamp array A, B, C, D [LAMP]; camera tilted 20 deg down."
         "\n\n    **Version history.**",
     )
     layout = LAMP_ARRAY
-    #: ``difficulty`` levels: as :class:`DockingEnv`'s, with the laboratory water of seed 002
+    #: ``difficulty`` levels: as :class:`DockingEnv`'s, with the laboratory water of [LAMP]
     #: at ``paper`` (:data:`PAPER_LAMP_ARRAY_OPTICS`).
     difficulty_presets = {
         "easy": {},

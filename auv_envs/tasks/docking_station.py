@@ -1,8 +1,8 @@
 """The docking scene: light layouts, the composed MuJoCo model and its physics accessors.
 
 What the docking task (:mod:`auv_envs.tasks.docking`) simulates and reads: a
-station with its lights (:class:`StationLayout`: six lights, seed 003; the
-L-shaped lamp array, seed 002), the vehicle with its forward and chase
+station with its lights (:class:`StationLayout`: six lights, [OFNMPC]; the
+L-shaped lamp array, [LAMP]), the vehicle with its forward and chase
 cameras (:func:`build_docking_model`), and :class:`DockingPhysics`, the named
 accessors of the compiled model (the hull's pose and velocity, the lights,
 the camera, lines of sight, the contact shortcut).

@@ -1,4 +1,4 @@
-"""Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision (seed 000).
+"""Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision [LTAT].
 
 Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
 is described in :mod:`auv_envs.tasks.lars_scene`, the arm's kinematics and
@@ -64,7 +64,7 @@ PHYSICS_TIMESTEP = 0.01
 FRAME_SKIP = 4
 #: Seconds per env step (``calibration.control_period``).
 CONTROL_PERIOD = PHYSICS_TIMESTEP * FRAME_SKIP
-#: Seed 000, eq. 30: Kp = 160, Kd = 20, used by ``control="position"`` as the
+#: [LTAT], eq. 30: Kp = 160, Kd = 20, used by ``control="position"`` as the
 #: acceleration gains of a computed-torque inner loop (eqs. 29-30).
 POSITION_GAINS = (160.0, 20.0)
 #: Capture head geometry in the arm-end frame (x along the ship at q1 = 0,
@@ -83,7 +83,7 @@ DEFAULT_PIXEL_NOISE_STD = 1.0
 #: scene's 5-9 s heave periods). The AUV's largest heave excursion in a
 #: 30 s episode then averages 0.17 m, near the 0.2 m amplitude the paper's
 #: sine has on every cycle (§3.1, Figs. 9/14c). Calibrated so that ``ckf-pd`` and
-#: ``ltat-ckf-pd`` keep seed 000's capture (Fig. 15c, about 28 mm, success
+#: ``ltat-ckf-pd`` keep [LTAT]'s capture (Fig. 15c, about 28 mm, success
 #: >= 90 %) in ``sea_state="calm"``; figures in ``docs/difficulty.md``.
 PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
 #: ``difficulty="hard"``: a steeper, shorter sea, JONSWAP Hs = 0.4 m, Tp = 7 s
@@ -100,7 +100,7 @@ HARD_PIXEL_NOISE_STD = 3.0
 #: equinox to the solstice between latitudes 30 and 50 deg (noon elevation
 #: 90 deg - latitude + declination, declination 0-23.4 deg); the wind is the
 #: one that raises ``HARD_SEA`` (4.3 m/s, Cox–Munk sigma^2 = 0.025). Not at
-#: ``paper``: seed 000 reports no glint, and that level is calibrated without.
+#: ``paper``: [LTAT] reports no glint, and that level is calibrated without.
 HARD_GLINT = SunGlint(sun_elevation=(math.radians(40.0), math.radians(80.0)))
 
 #: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
@@ -119,7 +119,7 @@ WATERLINE_HALF_WIDTH = math.sqrt(
 class CaptureTolerances:
     """Success: the capture tip within ``position`` (m) of the AUV's capture
     point with a relative speed below ``speed`` (m/s). The paper's final
-    capture error was about 28 mm (seed 000, §3)."""
+    capture error was about 28 mm ([LTAT], §3)."""
 
     position: float = 0.05
     speed: float = 0.25
@@ -132,7 +132,7 @@ class LARSCalibration:
     Attributes:
         stereo: the rectified stereo pair (intrinsics of both cameras, baseline).
         left_in_end, right_in_end: (4, 4) hand-eye transforms: pose of each
-            camera (OpenCV axes) in the arm-end frame (seed 000, eq. 3's
+            camera (OpenCV axes) in the arm-end frame ([LTAT], eq. 3's
             ``t_c H``).
         capture_tip_in_end: (3,) the capture device's tip in the arm-end frame.
         arm: kinematics (forward, inverse, Jacobian) and dynamics M(q),
@@ -188,7 +188,7 @@ class LARSCalibration:
     def camera_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """World poses (4, 4) of the left and right cameras (OpenCV axes) at ``q``.
 
-        Forward kinematics composed with the hand-eye transforms (seed 000, eq. 3).
+        Forward kinematics composed with the hand-eye transforms ([LTAT], eq. 3).
         """
         end = self.end_pose(q)
         return end @ self.left_in_end, end @ self.right_in_end
@@ -263,7 +263,7 @@ class _EpisodeState:
 
 
 class LARSCaptureEnv(TaskEnv):
-    """Capture of a surfaced AUV by a ship's launch-and-recovery arm (seed 000).
+    """Capture of a surfaced AUV by a ship's launch-and-recovery arm [LTAT].
 
     **Description.** The side of a mother ship carries a 3-DOF articulated
     LARS arm (slew, shoulder, elbow; boom 2.2 m / 80 kg, jib 1.8 m / 45 kg,
@@ -402,7 +402,7 @@ class LARSCaptureEnv(TaskEnv):
     ship's side, the arm, the AUV and the sea surface, which heaves with the
     local wave; ``"stereo"``: the stereo pair side by side, each camera at
     ``render_size``), ``render_size`` (W, H, default 640x480), ``sea``
-    (``SeaSpectrum`` or None, default: the seed-000 sinusoid, bit-identical
+    (``SeaSpectrum`` or None, default: the [LTAT] sinusoid, bit-identical
     to the env without the argument and with no extra draws;
     ``calibration.sea`` reports the model), ``glint``
     (:class:`~auv_envs.tasks.lars_sea.SunGlint`; ``False``: off whatever the
@@ -412,7 +412,7 @@ class LARSCaptureEnv(TaskEnv):
     ``glint`` given explicitly override the level's): ``"easy"`` (default):
     the release above, bit for bit; ``"paper"``: ``sea=PAPER_SEA`` (JONSWAP
     Hs 0.3 m, Tp 9 s, a low swell whose largest crests heave the AUV by
-    about the paper's 0.2 m), calibrated on seed 000's 28 mm capture in
+    about the paper's 0.2 m), calibrated on [LTAT]'s 28 mm capture in
     ``calm`` sea, no glint; ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m,
     Tp 7 s), ``pixel_noise_std=3.0`` px and ``glint=HARD_GLINT`` (a sun
     40-80 deg high), where ``ckf-pd`` succeeds in at most 80 % of episodes
@@ -648,7 +648,7 @@ class LARSCaptureEnv(TaskEnv):
         self._episode = _EpisodeState(motion=motion, wash=wash, analogs=analogs, waves=waves)
         self._prepare_episode_constants(motion)
 
-        # The arm end 0.8 m above the AUV's top (seed 000 tracks at about
+        # The arm end 0.8 m above the AUV's top ([LTAT] tracks at about
         # 0.8 m), the cameras over the AUV: within 1 m of the AUV's CG.
         top = self._auv_position(0.0)[2] + AUV_DIAMETER / 2.0
         offset = uniform_draws(rng, ((-0.2, 0.2), (-0.1, 0.1)))
@@ -787,7 +787,7 @@ class LARSCaptureEnv(TaskEnv):
         return sample.auv_roll, m.pitch + sample.auv_pitch
 
     def _auv_position(self, t: float) -> tuple[float, float, float]:
-        """AUV CG position at time ``t`` (seed 000 motion model, or the sea's heave)."""
+        """AUV CG position at time ``t`` ([LTAT] motion model, or the sea's heave)."""
         m = self._episode.motion
         if self._sea is None:
             level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]

@@ -1,4 +1,4 @@
-"""The 3-DOF launch-and-recovery arm (LARS) of the capture task (seed 000, §2.4).
+"""The 3-DOF launch-and-recovery arm (LARS) of the capture task ([LTAT], §2.4).
 
 Kinematics: a slew joint ``q1`` about the vertical axis, then two luffing
 joints, shoulder ``q2`` (boom elevation above the horizontal) and elbow ``q3``
@@ -7,7 +7,7 @@ the arm points outboard along world +y. The capture head at the jib tip is
 held level by a gimbal, so the arm-end frame is the tip position with the
 orientation ``Rz(q1)`` (x along the ship at ``q1 = 0``, y outboard, z up).
 
-Dynamics (seed 000, eq. 29): ``tau = M(q) qdd + C(q, qd) + G(q)``. The terms
+Dynamics ([LTAT], eq. 29): ``tau = M(q) qdd + C(q, qd) + G(q)``. The terms
 come from the same MuJoCo model that drives the plant, evaluated on a private
 ``MjData`` so that calling them never disturbs the simulation.
 """

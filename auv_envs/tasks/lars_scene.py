@@ -1,6 +1,6 @@
 """The LARS capture scene: AUV and marker geometry, the AUV's motion, the MJCF model.
 
-Geometry (seed 000, §2.2.2 and Table 1): an Explore-100-like AUV, 1.8 m long,
+Geometry ([LTAT], §2.2.2 and Table 1): an Explore-100-like AUV, 1.8 m long,
 0.2 m in diameter, 47 kg, with an isosceles-triangle marker of sides 0.15,
 0.4 and 0.4 m painted on its top surface. The base corners A1 (port) and A2
 (starboard) lie on the curved hull, the apex A3 on the top line towards the
@@ -21,14 +21,14 @@ from dm_control import mjcf
 from auv_envs.core import frames, passive
 from auv_envs.core.assets import asset_path
 
-#: Explore-100-like AUV (seed 000, Table 1).
+#: Explore-100-like AUV ([LTAT], Table 1).
 AUV_LENGTH = 1.8
 AUV_DIAMETER = 0.2
 AUV_MASS = 47.0
 #: Height of the hull's top line above the local water level, m ("upper
 #: surface just above the water": 47 kg displace ~81 % of the hull).
 AUV_FREEBOARD = 0.05
-#: Marker sides (base, leg, leg), m (seed 000, Fig. 5).
+#: Marker sides (base, leg, leg), m ([LTAT], Fig. 5).
 MARKER_SIDES = (0.15, 0.4, 0.4)
 #: The paint's radius: 1.5 mm proud of the hull so it renders above it.
 MARKER_RADIUS = AUV_DIAMETER / 2.0 + 0.0015
@@ -107,7 +107,7 @@ class MarkerGeometry:
 
 @dataclasses.dataclass(frozen=True)
 class AUVMotion:
-    """The AUV's motion in one episode (seed 000, §2.3: uniform surge along X,
+    """The AUV's motion in one episode ([LTAT], §2.3: uniform surge along X,
     fixed Y, sinusoidal heave along Z), plus constant yaw and pitch offsets.
 
     The local water level heaves with the AUV (it floats on the wave):

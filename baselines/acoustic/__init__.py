@@ -1,4 +1,4 @@
-"""Seed 004's acoustic tracking pipeline: LS positioning, GM-PHD per band, GCI fusion.
+"""[GMPHD]'s acoustic tracking pipeline: LS positioning, GM-PHD per band, GCI fusion.
 
 Components by role (one role each, wired through constructors):
 

@@ -1,8 +1,8 @@
-"""Seed 004's tracking agents for ``auv_envs/AcousticTracking-v0``.
+"""[GMPHD]'s tracking agents for ``auv_envs/AcousticTracking-v0``.
 
 * ``gmphd-gci``: fused TDOA-DOA fixes -> one GM-PHD filter per sub-band with
   DBSCAN adaptive birth -> GCI of the Q mixtures (omega_q = 1/Q) -> labelled
-  extraction above T_prune (seed 004 §1.3, §2.2, §2.3, §3.1).
+  extraction above T_prune ([GMPHD] §1.3, §2.2, §2.3, §3.1).
 * ``gmphd-single``: the same pipeline on one band (the band with the smallest
   angle noise at the work-area centre, from the calibration's noise model).
 * ``ls-kf``: fused fixes of all bands -> a single Kalman filter on the same
@@ -123,7 +123,7 @@ class _FixSource:
 
 
 class GMPHDGCIAgent:
-    """Multi-band GM-PHD tracking with GCI fusion (seed 004 §2).
+    """Multi-band GM-PHD tracking with GCI fusion ([GMPHD] §2).
 
     Args:
       env: an unwrapped ``AcousticTrackingEnv`` with ``obs_mode="measurements"``.
@@ -135,7 +135,7 @@ class GMPHDGCIAgent:
       max_components: per-band and fused component cap.
       clock_calibration: correct the TDOAs with online clock-offset estimates
         (:class:`~baselines.acoustic.perception.positioning.ClockOffsetEstimator`,
-        our addition to seed 004); False feeds the raw TDOAs as the paper does.
+        our addition to [GMPHD]); False feeds the raw TDOAs as the paper does.
     """
 
     def __init__(self, env, bands=None, gci_weights=None, accel_std: float = 1.0,

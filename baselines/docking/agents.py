@@ -4,7 +4,7 @@ ground truth is for metrics).
 
 * ``pd-state`` (:class:`DockingPDAgent`): the scripted PD reference controller
   (:mod:`baselines.docking.control.pd`) on the privileged ``state`` observation.
-* ``ofnmpc-ekf`` and ``ofnmpc-mhe`` (:class:`OFNMPCAgent`; seed 003, Algorithms 1 and 2):
+* ``ofnmpc-ekf`` and ``ofnmpc-mhe`` (:class:`OFNMPCAgent`; [OFNMPC], Algorithms 1 and 2):
   each control step the observer (:mod:`baselines.docking.estimation.observers`) takes the
   features observation (light pixels, visibility mask, DVL/INS velocities, attitude) and the
   input applied during the last period, and returns the state and disturbance estimate; the
@@ -13,7 +13,7 @@ ground truth is for metrics).
   least two lights visible) the agent commands zero force and counts the step in
   ``stats()["waiting_steps"]``.
 * ``ofnmpc-state`` (:class:`StateOFNMPCAgent`): the same NMPC fed the true state.
-* ``ofnmpc-ekf-image`` and ``ofnmpc-mhe-image``: seed 002's lamp-array front end
+* ``ofnmpc-ekf-image`` and ``ofnmpc-mhe-image``: [LAMP]'s lamp-array front end
   (:class:`~baselines.docking.perception.front_end.LampArrayFrontEnd`) on each ``image``
   observation hands the resulting ``features`` observation to the ``ofnmpc-ekf`` /
   ``ofnmpc-mhe`` agents. Both are ``heavy``: a failed
@@ -75,7 +75,7 @@ class OFNMPCAgent:
         observer: ``"ekf"`` or ``"mhe"``.
         config: NMPC tuning.
         mhe_config: MHE tuning (``observer="mhe"`` only).
-        nominal_model: the model shared by observer and NMPC (seed 003: "the
+        nominal_model: the model shared by observer and NMPC ([OFNMPC]: "the
             process models of EKF and MHE are the same as the prediction model");
             default ``calibration.nominal_model``.
     """
@@ -152,7 +152,7 @@ class StateOFNMPCAgent:
     disturbance observer on that exact state: each step, the nominal model
     predicts the velocities from the last state, input and disturbance, and
     the disturbance moves by ``gain`` times the force that would explain the
-    miss (``M (nu - nu_predicted) / dt``, the innovation of seed 003's
+    miss (``M (nu - nu_predicted) / dt``, the innovation of [OFNMPC]'s
     augmented model with a perfect measurement). It reads neither ``info``
     nor the current in the observation: what the offset-free NMPC does
     without the vision and observer error, for the ``hard`` headroom check.

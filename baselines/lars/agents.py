@@ -1,4 +1,4 @@
-"""Seed 000's LARS capture agents, and every LARS registration.
+"""[LTAT]'s LARS capture agents (declared in :mod:`baselines.catalogue`).
 
 ``ckf-pd``, ``ckf-pd-state`` and ``ltat-ckf-pd`` on ``auv_envs/LARSCapture-v0``. ``ckf-pd``:
 
@@ -18,7 +18,7 @@ and refits both from its own measured heights
 
 The agent acts on any dict with the ``features`` layout (``pixels``,
 ``visible``, ``joint_position``, ``joint_velocity``), so a perception front
-end (seed 000's LTAT on ``stereo`` images) can stand in front of it through
+end ([LTAT]'s LTAT on ``stereo`` images) can stand in front of it through
 :mod:`baselines.frontend`. It reads only the observation and the documented
 calibration, never ``info``.
 
@@ -27,7 +27,7 @@ the same strategy, trajectory and control fed the true AUV state of the
 ``state`` observation, the bar the ``difficulty`` levels are calibrated
 against (``docs/difficulty.md``).
 
-``ltat-ckf-pd``: seed 000's LTAT perception
+``ltat-ckf-pd``: [LTAT]'s LTAT perception
 (:class:`baselines.lars.perception.front_end.LTATFrontEnd`) turns the
 ``stereo`` observation into the ``features`` one, and ``ckf-pd`` acts on
 that.
@@ -92,7 +92,7 @@ def _features(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
 
 
 class CKFPDAgent:
-    """Stereo marker fixes -> CKF -> quintic + IK + computed-torque PD (seed 000).
+    """Stereo marker fixes -> CKF -> quintic + IK + computed-torque PD [LTAT].
 
     Args:
         env: an unwrapped ``LARSCaptureEnv`` with ``control="torque"``.

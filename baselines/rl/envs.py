@@ -158,8 +158,8 @@ def normalize_arguments(config: TrainConfig, observation_space: spaces.Space) ->
 def make_vec_env(config: TrainConfig, envs: list[gym.Env] | None = None) -> VecEnv:
     """``DummyVecEnv`` of ``n_envs`` wrapped environments (or of ``envs``), normalised if asked.
 
-    On 2 cores ``SubprocVecEnv`` is slower than stepping in-process
-    (FACTS.md), and in-process envs can be checkpointed by pickling them.
+    On 2 cores ``SubprocVecEnv`` is slower than stepping in-process (measured on a
+    2-core machine), and in-process envs can be checkpointed by pickling them.
     """
     if envs is None:
         envs = [make_env(config) for _ in range(config.run["n_envs"])]

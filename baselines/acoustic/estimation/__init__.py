@@ -1,4 +1,4 @@
-"""Acoustic estimation (seed 004 §2): position fixes of Q sub-bands -> labelled target states.
+"""Acoustic estimation ([GMPHD] §2): position fixes of Q sub-bands -> labelled target states.
 
 * :mod:`.gmphd`: one GM-PHD filter per sub-band (prediction, DBSCAN adaptive birth,
   update, pruning and merging, §2.1-2.2).

@@ -1,6 +1,6 @@
 """Generalized covariance intersection of the band mixtures, and labelled extraction.
 
-**Fusion** (seed 004 §2.3): ``v_fused(x) = prod_q v_q(x)^{omega_q}`` with
+**Fusion** ([GMPHD] §2.3): ``v_fused(x) = prod_q v_q(x)^{omega_q}`` with
 ``sum_q omega_q = 1``. For Poisson multi-object densities the GCI
 (Chernoff / exponential-mixture) fusion is again Poisson with exactly this
 un-normalised geometric mean as its intensity (Clark, Julier, Mahler and
@@ -47,7 +47,7 @@ with ``omega_q = 0`` contributes ``v^0 = 1`` exactly and is skipped; so is a
 band whose mixture is empty (documented choice: an empty band carries no
 information here rather than vetoing every target).
 
-**Extraction** (seed 004 §2.3, :class:`LabelledExtractor`): the output is
+**Extraction** ([GMPHD] §2.3, :class:`LabelledExtractor`): the output is
 ``X_t = {(m^(j), l^(j)) | w^(j) > T_prune}``, with the labels kept from one step
 to the next by matching positions (Hungarian assignment, gated).
 """
@@ -81,10 +81,10 @@ def _terms(L: np.ndarray, h: np.ndarray, s: np.ndarray, base: np.ndarray):
 
 
 class GeneralizedCovarianceIntersection:
-    """GCI fusion of Q Gaussian-mixture PHDs (seed 004 §2.3).
+    """GCI fusion of Q Gaussian-mixture PHDs ([GMPHD] §2.3).
 
     Args:
-      weights: omega_q, non-negative, summing to 1 (seed 004: 1/Q each).
+      weights: omega_q, non-negative, summing to 1 ([GMPHD]: 1/Q each).
       max_components: cap on the fused expansion after each band.
       min_weight: fused terms at or below this weight are dropped.
     """
@@ -147,7 +147,7 @@ class GeneralizedCovarianceIntersection:
 
 
 class LabelledExtractor:
-    """State extraction with persistent labels (seed 004 §2.3's X_t = {(m, l) | w > T}).
+    """State extraction with persistent labels ([GMPHD] §2.3's X_t = {(m, l) | w > T}).
 
     Components above ``threshold`` are extracted. Labels are kept across
     time by matching the extracted positions to the previous step's labelled
@@ -155,7 +155,7 @@ class LabelledExtractor:
     ``gate`` metres; an unmatched estimate starts a new label).
 
     Args:
-      threshold: extraction weight threshold (seed 004: T_prune = 1e-5).
+      threshold: extraction weight threshold ([GMPHD]: T_prune = 1e-5).
       gate: association gate (m).
     """
 

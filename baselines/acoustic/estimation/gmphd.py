@@ -1,7 +1,7 @@
-"""Gaussian-mixture PHD filters, one per sub-band, with DBSCAN adaptive birth (seed 004 §2).
+"""Gaussian-mixture PHD filters, one per sub-band, with DBSCAN adaptive birth ([GMPHD] §2).
 
-**Models** (seed 004 §2.1). The state is ``x = (x, y, z, vx, vy, vz)`` under the
-constant-velocity model of seed 004 §2.1 applied per axis::
+**Models** ([GMPHD] §2.1). The state is ``x = (x, y, z, vx, vy, vz)`` under the
+constant-velocity model of [GMPHD] §2.1 applied per axis::
 
     x_t = F x_{t-1} + w_{t-1},   w ~ N(0, Q),
     F = [[1, T], [0, 1]] (x) I_3,   Q = sigma_q^2 [[T^4/4, T^3/2], [T^3/2, T^2]] (x) I_3
@@ -11,11 +11,11 @@ constant-velocity model of seed 004 §2.1 applied per axis::
 covariance ``R_z`` (from :mod:`~baselines.acoustic.perception.positioning`).
 
 The recursion is the GM-PHD filter of Vo & Ma (IEEE TSP 54(11), 2006), Table I
-(prediction, update) and Table II (pruning and merging), with seed 004 §2.2's
+(prediction, update) and Table II (pruning and merging), with [GMPHD] §2.2's
 adaptive birth. Each band ``q`` keeps its own intensity
 ``v_{t-1,q}(x) = sum_j w^(j) N(x; m^(j), P^(j))``; every component carries a label.
 
-**Prediction with adaptive birth** (Table I, steps 1-2; seed 004 §2.2,
+**Prediction with adaptive birth** (Table I, steps 1-2; [GMPHD] §2.2,
 :meth:`GaussianMixturePHDBank.predict`)::
 
     v_{t|t-1}(x) = sum_j p_S w^(j) N(x; F m^(j), F P^(j) F^T + Q) + gamma_t(x)
@@ -105,7 +105,7 @@ class GaussianMixture:
 
 
 class ConstantVelocityModel:
-    """Seed 004 §2.1's constant-velocity model on each of the three axes.
+    """[GMPHD] §2.1's constant-velocity model on each of the three axes.
 
     Args:
       dt: sampling interval T (s).
@@ -128,7 +128,7 @@ class ConstantVelocityModel:
 
 
 class AdaptiveBirth:
-    """Measurement-driven birth from DBSCAN clusters (seed 004 §2.2).
+    """Measurement-driven birth from DBSCAN clusters ([GMPHD] §2.2).
 
     Args:
       eps: DBSCAN neighbourhood radius (m).
@@ -254,7 +254,7 @@ class MixtureReducer:
     """Pruning, merging and capping (Vo & Ma 2006, Table II), batched over bands.
 
     Args:
-      prune_threshold: T (seed 004: 1e-5); components at or below it are dropped.
+      prune_threshold: T ([GMPHD]: 1e-5); components at or below it are dropped.
       merge_threshold: U, squared Mahalanobis distance for merging.
       max_components: J_max, the cap (the heaviest are kept).
     """
@@ -351,7 +351,7 @@ class GaussianMixturePHDBank:
       motion: the :class:`ConstantVelocityModel`.
       birth: the :class:`AdaptiveBirth`.
       reducer: the :class:`MixtureReducer`.
-      p_survival: p_S (seed 004: 0.99).
+      p_survival: p_S ([GMPHD]: 0.99).
       p_detect: (Q,) or scalar detection probability of a valid fix.
       clutter_density: kappa, the uniform clutter intensity of fixes (per m^3).
     """

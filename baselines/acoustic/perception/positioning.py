@@ -1,4 +1,4 @@
-"""Per-detection least-squares positioning from TDOA and DOA (seed 004 §1.1-1.3).
+"""Per-detection least-squares positioning from TDOA and DOA ([GMPHD] §1.1-1.3).
 
 Unknowns ``omega = (x, y, z, D_1)`` with ``D_1`` the range to node 1. All
 coordinates are taken relative to the array centroid ``h_bar`` (conditioning
@@ -58,7 +58,7 @@ variance factor ``chi2 / dof``; otherwise it is kept. The residual gate is
 correspondingly loose (``chi2 / dof <= 1000``, noise up to about 30 times the
 model's): false alarms, random measurement vectors, score 10^4 and more.
 
-**Clock offsets** (our addition; seed 004 only notes TDOA's "sensitivity to
+**Clock offsets** (our addition; [GMPHD] only notes TDOA's "sensitivity to
 synchronization errors", §1.3): each node's clock offset against node 1 is
 constant over an episode, so it biases every TDOA fix alike and no fusion of
 bands removes it. :class:`ClockOffsetEstimator` estimates the offsets online
@@ -121,7 +121,7 @@ class PositionFixes:
 
 
 def tdoa_rows(tdoa: np.ndarray, nodes: np.ndarray, sound_speed: float):
-    """The linearised TDOA system ``R omega = E`` (seed 004 §1.1).
+    """The linearised TDOA system ``R omega = E`` ([GMPHD] §1.1).
 
     Args:
       tdoa: (..., N-1) time differences ``t_i - t_1`` (s).
@@ -142,7 +142,7 @@ def tdoa_rows(tdoa: np.ndarray, nodes: np.ndarray, sound_speed: float):
 
 
 def doa_rows(azimuth: np.ndarray, elevation: np.ndarray, nodes: np.ndarray):
-    """The DOA system ``I p = N`` (seed 004 §1.2), two unit-norm rows per node.
+    """The DOA system ``I p = N`` ([GMPHD] §1.2), two unit-norm rows per node.
 
     Args:
       azimuth, elevation: (..., N) angles (rad; elevation from the upward vertical).

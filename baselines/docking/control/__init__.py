@@ -1,1 +1,1 @@
-"""Docking control: seed 003's offset-free NMPC and the scripted PD reference controller."""
+"""Docking control: [OFNMPC]'s offset-free NMPC and the scripted PD reference controller."""

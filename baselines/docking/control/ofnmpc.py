@@ -1,12 +1,12 @@
-"""Offset-free nonlinear MPC for docking (seed 003 §3.2), built in CasADi.
+"""Offset-free nonlinear MPC for docking ([OFNMPC] §3.2), built in CasADi.
 
 The prediction model is the env's 4-DOF :class:`~auv_envs.core.hydrodynamics.NominalModel`
 (from ``calibration.nominal_model``; no second copy of the dynamics), augmented
-with a constant generalized disturbance ``d`` (seed 003 eq. 12) and
-discretised by one RK4 step per shooting interval (seed 003 §3.4, multiple
+with a constant generalized disturbance ``d`` ([OFNMPC] eq. 12) and
+discretised by one RK4 step per shooting interval ([OFNMPC] §3.4, multiple
 shooting). The observer's estimates ``(x_hat, d_hat)`` are parameters.
 
-Offset-free formulation (seed 003 eqs. 13-16): the target state and input
+Offset-free formulation ([OFNMPC] eqs. 13-16): the target state and input
 ``(x_s, u_s)`` are decision variables tied by equality constraints inside the
 NLP::
 
@@ -25,7 +25,7 @@ fewer target variables through the horizon makes each solve cheaper than
 with the velocity target as free variables, which the solver drove to zero
 anyway.)
 
-The optimal control problem solved each control step (seed 003 eqs. 13-16,
+The optimal control problem solved each control step ([OFNMPC] eqs. 13-16,
 with eq. 10's constraints softened), over ``N`` shooting intervals of ``t_s``
 seconds, parameters ``(x_hat, d_hat, r)``::
 
@@ -42,7 +42,7 @@ with ``Q = diag(state_weights)``, ``R = diag(input_weights / tau_max^2)``,
 ``P = terminal_scale Q`` and ``(rho_1, rho_2) = slack_weights``
 (:class:`OFNMPCConfig`). The first input ``U_0`` is applied.
 
-Constraints (seed 003 eq. 10, Fig. 6): input limits (hard); soft, with one
+Constraints ([OFNMPC] eq. 10, Fig. 6): input limits (hard); soft, with one
 slack per stage and an exact L1 penalty: the nose not behind the entrance
 plane, the hull above the seabed, the nose inside an approach wedge opening
 from the entrance (horizontal and vertical position constraints), a speed
@@ -101,7 +101,7 @@ class OFNMPCConfig:
     """Tuning of the offset-free NMPC.
 
     Attributes:
-        horizon: shooting intervals N (seed 003: N >= 20).
+        horizon: shooting intervals N ([OFNMPC]: N >= 20).
         shooting_interval: seconds per interval (one RK4 step each).
         state_weights: Q diagonal on ``x_k - x_s`` (x, y, z, psi, u, v, w, r).
         input_weights: R diagonal on ``(u_k - u_s) / thrust_limits``.
@@ -246,7 +246,7 @@ class NMPCResult:
 
 
 class OffsetFreeNMPC:
-    """Seed 003's OFNMPC on the env's nominal model.
+    """[OFNMPC]'s OFNMPC on the env's nominal model.
 
     Args:
         calibration: the docking env's ``calibration``.

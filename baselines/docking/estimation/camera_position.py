@@ -1,7 +1,7 @@
-"""The rigid-array observer of the lamp tracker: an EKF on the camera position (seed 002).
+"""The rigid-array observer of the lamp tracker: an EKF on the camera position [LAMP].
 
-Seed 002 §2.2.3 2) weighs each lamp's own prediction with the lamp's position predicted by the
-rigid array. Seed 002 does not say how that prediction is made; ours is
+[LAMP] §2.2.3 2) weighs each lamp's own prediction with the lamp's position predicted by the
+rigid array. [LAMP] does not say how that prediction is made; ours is
 :class:`CameraPositionFilter`, a small EKF on the camera centre in the array's (DS) frame, fed
 by the INS attitude and DVL velocity that the observation carries and by the tracked lamps.
 Each update also estimates that frame's INS attitude error. It keeps out-of-view lamps
@@ -39,7 +39,7 @@ class CameraPositionFilter:
     small camera rotation error ``dtheta`` (prior N(0, attitude_sigma^2 I), forgotten at the
     next frame), and projections use it until then.
 
-    Model (ours; seed 002 §2.2.3 2) only asks for the array's rigid-body prediction).
+    Model (ours; [LAMP] §2.2.3 2) only asks for the array's rigid-body prediction).
     ``R_k`` is the measured camera-to-DS rotation of frame k (INS attitude times the
     extrinsics), ``p_i`` lamp i in the DS frame, ``K`` the pinhole intrinsics::
 

@@ -1,6 +1,6 @@
-"""State and disturbance observers of seed 003 that read the guide lights' pixels directly.
+"""State and disturbance observers of [OFNMPC] that read the guide lights' pixels directly.
 
-Seed 003 §3.3: the observers of the offset-free NMPC estimate the vehicle state
+[OFNMPC] §3.3: the observers of the offset-free NMPC estimate the vehicle state
 *and* the generalized disturbance from the light pixel coordinates through a
 visual observation model (eqs. 33-36), plus DVL/INS velocities; no separate
 visual pose estimation.
@@ -9,14 +9,14 @@ visual pose estimation.
   from a 4-DOF state ``(x, y, z, psi, u, v, w, r)``, with roll and pitch taken
   from the INS (the 4-DOF prediction model assumes them zero; the camera does
   not). Jacobians by CasADi's automatic differentiation.
-* :class:`ExtendedKalmanFilter` — generic EKF (seed 003 eqs. 17-28), Joseph
+* :class:`ExtendedKalmanFilter` — generic EKF ([OFNMPC] eqs. 17-28), Joseph
   form update; on a linear-Gaussian model it is the Kalman filter.
 * :class:`DockingEKF` — that EKF on the disturbance-augmented state
-  ``(pose, velocity, d)`` (seed 003 eq. 12: ``d`` a constant generalized force).
+  ``(pose, velocity, d)`` ([OFNMPC] eq. 12: ``d`` a constant generalized force).
 * :class:`DockingMHE` — moving horizon estimation with the *original* model
-  (seed 003 eqs. 29-32): states and the real input (nominal input plus a
+  ([OFNMPC] eqs. 29-32): states and the real input (nominal input plus a
   generalized-force deviation ``w``) over the last N measurements are the
-  decision variables. Seed 003's MHE diverged in 2 of 5 runs; ours adds an
+  decision variables. [OFNMPC]'s MHE diverged in 2 of 5 runs; ours adds an
   arrival cost whose weight is the EKF covariance recursion run along the MHE
   estimates (Rao, Rawlings & Mayne 2003, "filtering" arrival cost) and a
   random-walk penalty on ``w``, which keeps the estimate as well-behaved as the
@@ -27,7 +27,7 @@ not visible are dropped (EKF) or get zero weight (MHE).
 
 Equations (what the code below implements; ``Delta t`` = ``calibration.control_period``).
 
-Process model (seed 003 eqs. 7-8, 11): state ``x = (eta, nu)``, pose
+Process model ([OFNMPC] eqs. 7-8, 11): state ``x = (eta, nu)``, pose
 ``eta = (x, y, z, psi)`` in the DS frame, body velocities ``nu = (u, v, w, r)``,
 input ``tau = (X, Y, Z, N)``; ``calibration.nominal_model``
 (:class:`~auv_envs.core.hydrodynamics.NominalModel`)::
@@ -39,13 +39,13 @@ input ``tau = (X, Y, Z, N)``; ``calibration.nominal_model``
 with ``m_k`` the rigid-body plus added inertia, ``f_h = -C_A(nu) nu - D(nu) nu - g``
 (added-mass Coriolis, damping, restoring), ``c_RB = C_RB(nu) nu``, roll and pitch zero.
 
-Augmented disturbance state (seed 003 eq. 12), the EKF's process model and the
+Augmented disturbance state ([OFNMPC] eq. 12), the EKF's process model and the
 MHE's arrival-cost recursion (:func:`augmented_transition`)::
 
     z = (x, d) in R^12,   z_{k+1} = f(z_k, tau_k) + q_k = (F(x_k, tau_k, d_k), d_k) + q_k
     q_k ~ N(0, Q),   Q = diag(sigma_pose^2, sigma_nu^2, sigma_d^2)     (ObserverNoise)
 
-Measurement model (seed 003 eqs. 33-36; :class:`VisualObservationModel`), with
+Measurement model ([OFNMPC] eqs. 33-36; :class:`VisualObservationModel`), with
 roll ``phi`` and pitch ``theta`` from the INS, light ``p_i`` in the DS frame,
 camera extrinsics ``(R_bc, r_c)``::
 
@@ -56,7 +56,7 @@ camera extrinsics ``(R_bc, r_c)``::
 (the rows of lights not visible are dropped; the measured yaw is unwrapped to
 within pi of the estimate's heading).
 
-EKF (seed 003 eqs. 17-28; :class:`ExtendedKalmanFilter`, :class:`DockingEKF`),
+EKF ([OFNMPC] eqs. 17-28; :class:`ExtendedKalmanFilter`, :class:`DockingEKF`),
 each control step with the input ``tau_{k-1}`` applied during the last period::
 
     prediction   z_k|k-1 = f(z_{k-1}, tau_{k-1}),   A = df/dz (z_{k-1}, tau_{k-1})
@@ -69,7 +69,7 @@ initialised from a least-squares pose fit to the first
 measurement with two visible lights (:func:`initial_state`), ``d_0 = 0`` with
 covariance ``diag(initial_disturbance_std^2)``.
 
-MHE (seed 003 eqs. 29-32; :class:`DockingMHE`) over the window of the last
+MHE ([OFNMPC] eqs. 29-32; :class:`DockingMHE`) over the window of the last
 ``M`` measurements: decision variables the states ``X_0..X_{M-1}`` and the input
 deviations ``W_0..W_{M-2}`` (the real input is ``tau_j + W_j``; no augmented
 state), subject to the original model ``X_{j+1} = F(X_j, tau_j + W_j, 0)``::
@@ -110,7 +110,7 @@ N_SENSOR = 5
 
 
 class VisualObservationModel:
-    """Pixel coordinates of the DS lights as a function of the 4-DOF state (seed 003 eq. 33).
+    """Pixel coordinates of the DS lights as a function of the 4-DOF state ([OFNMPC] eq. 33).
 
     A light at ``p_i`` (DS frame) is seen in the OpenCV camera frame at
     ``R_bc^T (R(phi, theta, psi)^T (p_i - eta) - r_c)`` and projected with the
@@ -210,7 +210,7 @@ class ObserverNoise:
     with floors, so that the noise-free scenario does not make the filters
     overconfident in a model that is not exact (roll/pitch coupling, RK4).
     Process noise per control period: pose and velocity for the unmodelled
-    dynamics, ``disturbance`` for the random walk of ``d`` (seed 003 eq. 12).
+    dynamics, ``disturbance`` for the random walk of ``d`` ([OFNMPC] eq. 12).
     """
 
     pixel: float
@@ -252,7 +252,7 @@ class ObserverNoise:
 
 
 def augmented_transition(model: NominalModel, dt: float) -> ca.Function:
-    """``(z, tau) -> (z_next, dz_next/dz)`` of the disturbance-augmented model (seed 003 eq. 12).
+    """``(z, tau) -> (z_next, dz_next/dz)`` of the disturbance-augmented model ([OFNMPC] eq. 12).
 
     ``z = (x, d)``: the nominal model's RK4 step over ``dt`` driven by
     ``tau + d``; ``d`` constant.
@@ -267,7 +267,7 @@ def augmented_transition(model: NominalModel, dt: float) -> ca.Function:
 
 
 class ExtendedKalmanFilter:
-    """Extended Kalman filter (seed 003 eqs. 17-28).
+    """Extended Kalman filter ([OFNMPC] eqs. 17-28).
 
     Args:
         transition: ``(x, u) -> (f(x, u), df/dx)`` (a CasADi ``Function`` or
@@ -323,7 +323,7 @@ MAX_LIGHT_RANGE = 30.0
 
 def initial_state(model: VisualObservationModel, meas: Measurement, noise: ObserverNoise,
                   max_range: float = MAX_LIGHT_RANGE):
-    """Least-squares pose from the first measurement (seed 003 eq. 33 inverted).
+    """Least-squares pose from the first measurement ([OFNMPC] eq. 33 inverted).
 
     Solves for ``(x, y, z, psi)`` with the visual model and the INS heading
     (``scipy.optimize.least_squares``, Jacobian from CasADi), velocities from
@@ -497,7 +497,7 @@ class DockingMHE:
     Window of ``M`` measurements at times ``t-M+1 .. t``: states ``X_0..X_{M-1}``
     and input deviations ``W_0..W_{M-2}`` with ``X_{j+1} = F(X_j, tau_j + W_j)``
     (exact dynamics; ``W`` is the generalized force the nominal model lacks).
-    Cost (seed 003 eq. 30, plus the terms that keep it convergent)::
+    Cost ([OFNMPC] eq. 30, plus the terms that keep it convergent)::
 
         ||L (X_0 - x_bar, W_0 - w_bar)||^2                  arrival cost
         + sum_j ||(y_j - h(X_j)) / sigma||^2 over data rows  measurements

@@ -1,19 +1,19 @@
-"""Seed 002's lamp tracker as a front end: an image of guide lamps -> labelled pixel tracks.
+"""[LAMP]'s lamp tracker as a front end: an image of guide lamps -> labelled pixel tracks.
 
-The pipeline follows seed 002 §2 (Zhang et al., "Monocular vision guided lamp array tracking
+The pipeline follows [LAMP] §2 (Zhang et al., "Monocular vision guided lamp array tracking
 method for the UUV recovery process", J. Unmanned Undersea Systems 29(4), 2021); this module
 composes its parts, each in its own module:
 
 1. **Improved adaptive thresholding** (§2.1.2): a classic local-mean adaptive threshold
    pre-segments the frame into foreground regions (BLOB analysis); each region then gets its own
-   threshold (Otsu's, seed 002 ref. [9]) inside its bounding box; morphological closing, opening
+   threshold (Otsu's, [LAMP] ref. [9]) inside its bounding box; morphological closing, opening
    and hole filling smooth the lamp silhouettes
    (:func:`~baselines.docking.perception.segmentation.segment_lamps`).
 2. **Blob analysis** (§2.1.1, §2.2.3 1)): centre, area and bounding box of each lamp blob
    (:class:`~baselines.docking.perception.segmentation.Blobs`).
 3. **Identity at initialisation** (§2.2.2): when every lamp is detected, the lamps are labelled by
    geometry: for the L-shaped array A, B, C, D by the shape of the L
-   (:func:`~baselines.docking.perception.identity.identify_l_shape`: seed 002 uses edge
+   (:func:`~baselines.docking.perception.identity.identify_l_shape`: [LAMP] uses edge
    lengths; we use the line A-B-C, B between A and C, and the side D is on, which a perspective
    view keeps); for a convex ring such as the six symmetric docking lights by their cyclic order
    and the fit of the rigid array with the INS attitude
@@ -26,9 +26,9 @@ composes its parts, each in its own module:
    array (:class:`~baselines.docking.estimation.camera_position.CameraPositionFilter`);
    detections are assigned with ``scipy.optimize.linear_sum_assignment`` under a gate.
 6. **Corrected tracks** (§2.2.3 steps 3-4): matched lamps are corrected by their detection;
-   lamps out of view (or occluded) keep a prediction (seed 002 Fig. 10 b, d).
+   lamps out of view (or occluded) keep a prediction ([LAMP] Fig. 10 b, d).
 
-Our choices where seed 002 is silent, each measured on this package's renders (the blob centre
+Our choices where [LAMP] is silent, each measured on this package's renders (the blob centre
 and the rigid-array observer are explained in their modules):
 
 * A lamp is reported visible only when its centre is: the pixels where the rest of the array
@@ -71,7 +71,7 @@ BORDER_SIGMA_SCALE = 4.0
 
 
 class LampArrayFrontEnd:
-    """Seed 002's lamp tracker as a front end (see :mod:`baselines.frontend`).
+    """[LAMP]'s lamp tracker as a front end (see :mod:`baselines.frontend`).
 
     ``front_end(observation, info)`` turns an ``image`` observation of a docking env into its
     ``features`` observation: ``pixels`` (n, 2) float32 (zero where not visible), ``visible``
@@ -83,7 +83,7 @@ class LampArrayFrontEnd:
     Args:
         calibration: the env's ``calibration`` (intrinsics, extrinsics, light positions and
             labels, control period).
-        identity: ``"l-shape"`` (lamps A, B, C, D of seed 002), ``"ring"`` (a convex planar
+        identity: ``"l-shape"`` (lamps A, B, C, D of [LAMP]), ``"ring"`` (a convex planar
             array seen from the front) or ``"auto"`` (l-shape for labels A, B, C, D, else ring).
         segmentation: :class:`SegmentationParams`.
         tracking: :class:`LampTrackerParams`.
@@ -212,7 +212,7 @@ class LampArrayFrontEnd:
         return image, velocity, attitude
 
     def _initialise(self, gray: np.ndarray, blobs: Blobs) -> None:
-        """Label the lamps once enough are detected, alone and whole (seed 002 §2.2.1-2.2.2):
+        """Label the lamps once enough are detected, alone and whole ([LAMP] §2.2.1-2.2.2):
         all four of the L-shaped array, at least ``ring_init_min`` lights of a ring."""
         p = self.params
         k = len(blobs)
@@ -232,7 +232,7 @@ class LampArrayFrontEnd:
         residual = self._pose.initialise(labels, blobs.centres, p.pixel_sigma)
         if not residual <= p.init_max_residual:
             return  # the labelled array does not fit the rigid layout: wait for a better frame
-        # The lamps are identical (seed 002 §1.2), so radius x depth is the same for all; a
+        # The lamps are identical ([LAMP] §1.2), so radius x depth is the same for all; a
         # blob much smaller than its depth allows is a lamp partly hidden.
         depth = (self._points[labels] - self._pose.t) @ self._pose.world_to_cam[2]
         size = blobs.radii * depth
@@ -403,7 +403,8 @@ class LampArrayFrontEnd:
         valid = np.isfinite(cost)
         if not valid.any():
             return []
-        # A gated-out pair costs more than any full set of valid pairs (FACTS.md: no inf).
+        # A gated-out pair costs more than any full set of valid pairs (an inf cost
+        # would make SciPy's linear_sum_assignment raise on an infeasible set).
         big = p.gate_chi2 * (min(n, m) + 1) + 1.0
         rows, cols = linear_sum_assignment(np.where(valid, cost, big))
         return [(int(i), int(j)) for i, j in zip(rows, cols, strict=True) if valid[i, j]]

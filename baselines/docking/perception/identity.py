@@ -1,7 +1,7 @@
-"""Lamp identity at initialisation (seed 002 §2.2.2): which detection is which lamp.
+"""Lamp identity at initialisation ([LAMP] §2.2.2): which detection is which lamp.
 
 When every lamp is detected, the lamps are labelled by geometry: for the L-shaped array A, B,
-C, D by the shape of the L (:func:`identify_l_shape`: seed 002 uses edge lengths; we use the
+C, D by the shape of the L (:func:`identify_l_shape`: [LAMP] uses edge lengths; we use the
 line A-B-C, B between A and C, and the side D is on, which a perspective view keeps); for a
 convex ring such as the six symmetric docking lights by their cyclic order
 (:func:`ring_labelings`, our documented rule), the front end keeping the candidate that fits
@@ -17,9 +17,9 @@ import numpy as np
 
 def identify_l_shape(centres: np.ndarray, layout: np.ndarray,
                      collinear_tol: float = 0.08) -> np.ndarray | None:
-    """Label four detections as lamps A, B, C, D of seed 002's L-shaped array (§2.2.2).
+    """Label four detections as lamps A, B, C, D of [LAMP]'s L-shaped array (§2.2.2).
 
-    A, B, C lie on a line and D beside C (seed 002 §1.2, Fig. 2). Seed 002 tells them apart
+    A, B, C lie on a line and D beside C ([LAMP] §1.2, Fig. 2). [LAMP] tells them apart
     by the edge lengths of the detected quadrilateral; a perspective view changes lengths, so
     this rule uses the properties that survive it:
 

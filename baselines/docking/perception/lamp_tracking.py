@@ -1,6 +1,6 @@
-"""Per-lamp tracking state of seed 002 (§2.2.3): one EKF per lamp on its blob features.
+"""Per-lamp tracking state of [LAMP] (§2.2.3): one EKF per lamp on its blob features.
 
-* :class:`BlobEKF` - the EKF on one lamp's blob (seed 002 §2.2.3 1)).
+* :class:`BlobEKF` - the EKF on one lamp's blob ([LAMP] §2.2.3 1)).
 * :class:`LampTrackerParams` - the tracker's noise, gates and thresholds.
 * :class:`LampTracks` - every lamp's track after a frame, with a status code
   (:data:`UNINITIALISED`, :data:`DETECTED`, :data:`MERGED`, :data:`PREDICTED`).
@@ -24,7 +24,7 @@ STATUS_NAMES = ("uninitialised", "detected", "merged", "predicted")
 
 
 class BlobEKF:
-    """EKF on one lamp's blob features (seed 002 §2.2.3 1)).
+    """EKF on one lamp's blob features ([LAMP] §2.2.3 1)).
 
     State ``x = (u, v, du, dv, s, ds)``: blob centre (px), its velocity (px/s), the lamp's
     apparent radius ``s`` (px) and its rate, each pair a constant-velocity model. Measurement
@@ -128,7 +128,7 @@ class LampTrackerParams:
         centre_halo: a lamp is seen when the (2 halo + 1)^2 pixels around the array's
             prediction of its centre are all lamp-bright.
         ring_init_min: lights of a ring that must be detected to initialise (the L-shaped
-            array needs all four, as in seed 002).
+            array needs all four, as in [LAMP]).
     """
 
     pixel_sigma: float = 0.7

@@ -1,11 +1,11 @@
-"""Lamp segmentation of seed 002 (§2.1): a grayscale frame -> the lamp blobs in it.
+"""Lamp segmentation of [LAMP] (§2.1): a grayscale frame -> the lamp blobs in it.
 
-Seed 002 §2.1.2's improved adaptive thresholding (a local-mean pre-segmentation, then Otsu's
+[LAMP] §2.1.2's improved adaptive thresholding (a local-mean pre-segmentation, then Otsu's
 threshold per region, morphological smoothing and hole filling) followed by the blob analysis
 of §2.1.1 / §2.2.3 1): centre, radius, area and bounding box of each lamp blob
 (:func:`segment_lamps`).
 
-Our choice where seed 002 is silent: the lamp centre is the centre of the blob's minimum
+Our choice where [LAMP] is silent: the lamp centre is the centre of the blob's minimum
 enclosing circle, not its first moment. A lamp is a sphere whose silhouette is a disc, and the
 circle through its outermost points is unchanged when a structure hides less than half of it
 (the rail under the lamps of ``LampArrayDocking-v1`` clips their lower edge; the first moment
@@ -23,13 +23,13 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class SegmentationParams:
-    """Improved adaptive thresholding (seed 002 §2.1.2).
+    """Improved adaptive thresholding ([LAMP] §2.1.2).
 
     Attributes:
         block_size: neighbourhood of the pre-segmentation's local mean (odd), px.
         offset: a pre-segmented pixel is brighter than its local mean by more than this.
         min_peak: a region is a lamp candidate only if its brightest pixel reaches this (the
-            lamps are the brightest things in the scene; seed 002 ignores stray light, §4).
+            lamps are the brightest things in the scene; [LAMP] ignores stray light, §4).
         min_area: smallest lamp blob, px.
         margin: the per-region threshold is computed in the region's box grown by this, px.
         kernel: side of the elliptical structuring element of closing and opening, px.
@@ -106,7 +106,7 @@ def _merge_boxes(boxes: list[list[int]]) -> list[list[int]]:
 
 
 def segment_lamps(gray: np.ndarray, params: SegmentationParams | None = None) -> Blobs:
-    """Lamp blobs in a grayscale frame by seed 002's improved adaptive thresholding (§2.1.2).
+    """Lamp blobs in a grayscale frame by [LAMP]'s improved adaptive thresholding (§2.1.2).
 
     1. Pre-segmentation: ``cv2.adaptiveThreshold`` (local mean + offset) and its connected
        regions (external contours) give foreground regions; regions without a pixel of at

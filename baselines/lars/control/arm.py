@@ -1,6 +1,6 @@
-"""LARS arm control: quintic trajectory, inverse kinematics, PD, capture strategy (seed 000).
+"""LARS arm control: quintic trajectory, inverse kinematics, PD, capture strategy [LTAT].
 
-Seed 000, §2.4 (eqs. 29-30) and §3.4:
+[LTAT], §2.4 (eqs. 29-30) and §3.4:
 
 * :class:`QuinticSegment`: fifth-order polynomial between two sampled
   targets with position, velocity and acceleration given at both ends ("we
@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-#: Seed 000, eq. 30 and §3.4: "Kp = 160 and Kd = 20". The env's
+#: [LTAT], eq. 30 and §3.4: "Kp = 160 and Kd = 20". The env's
 #: ``calibration.position_gains`` carries the same numbers (the gains of its
 #: ``control="position"`` inner loop); the ``ckf-pd`` agent reads them there.
 KP, KD = 160.0, 20.0
@@ -178,7 +178,7 @@ TRACK, STRIKE, FOLLOW = "track", "strike", "follow"
 
 @dataclasses.dataclass
 class CaptureStrategy:
-    """When to hover, strike and follow (seed 000, §3.4).
+    """When to hover, strike and follow ([LTAT], §3.4).
 
     ``track``: hold the arm end ``hover_height`` above the AUV's top with the
     cameras over the marker. ``strike``: once the estimate is ready and the

@@ -1,1 +1,1 @@
-"""LARS estimation (seed 000 §2.3): the cubature Kalman filter and the AUV motion model."""
+"""LARS estimation ([LTAT] §2.3): the cubature Kalman filter and the AUV motion model."""

@@ -1,4 +1,4 @@
-"""Cubature Kalman filter and the AUV motion model it runs on (seed 000, §2.3, eqs. 7-28).
+"""Cubature Kalman filter and the AUV motion model it runs on ([LTAT], §2.3, eqs. 7-28).
 
 Components, each with one role:
 
@@ -140,7 +140,7 @@ def _points(mean: np.ndarray, root: np.ndarray) -> np.ndarray:
 
 
 class CubatureKalmanFilter:
-    """Third-degree spherical-radial cubature Kalman filter (seed 000, eqs. 13-28).
+    """Third-degree spherical-radial cubature Kalman filter ([LTAT], eqs. 13-28).
 
     Args:
         transition: ``f``, maps an ``(k, n)`` array of states to the next states.
@@ -278,7 +278,7 @@ DISCRETISATIONS = ("exact", "euler")
 
 @dataclasses.dataclass(frozen=True)
 class HeaveSurgeModel:
-    """Seed 000's AUV motion (eq. 8) on the state ``(x, y, z, vx, vy, vz)`` of eq. 7.
+    """[LTAT]'s AUV motion (eq. 8) on the state ``(x, y, z, vx, vy, vz)`` of eq. 7.
 
     Uniform surge along x (``x += T vx``), y held (``y += T vy`` with ``vy``
     a slow drift the process noise keeps near zero), and a sinusoidal heave:

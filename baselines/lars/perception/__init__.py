@@ -1,4 +1,4 @@
-"""LARS perception (seed 000 §2.1-2.2): stereo images -> marker corners -> AUV pose fixes.
+"""LARS perception ([LTAT] §2.1-2.2): stereo images -> marker corners -> AUV pose fixes.
 
 * :mod:`.siamese`: the Siamese tracker at inference (network, crops, weights).
 * :mod:`.corners`: the marker's three corners in one image.

@@ -1,4 +1,4 @@
-"""The three corners of the AUV's painted triangle marker in one image (seed 000, §2.2).
+"""The three corners of the AUV's painted triangle marker in one image ([LTAT], §2.2).
 
 :class:`MarkerCornerExtractor` finds them inside a box (OpenCV colour
 threshold, contour, the largest triangle inscribed in its convex hull;

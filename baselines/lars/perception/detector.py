@@ -1,6 +1,6 @@
-"""The online-learned detector that finds the lost marker again (seed 000, §2.1.2).
+"""The online-learned detector that finds the lost marker again ([LTAT], §2.1.2).
 
-Seed 000's detector is a YOLOv5 trained *online*, during the episode, on the
+[LTAT]'s detector is a YOLOv5 trained *online*, during the episode, on the
 tracker's confident outputs. Ours is a linear classifier (scikit-learn
 ``RidgeClassifier``) on feature windows of the whole frame, embedded by the
 Siamese tracker's own network at the target's scale (a discriminative
@@ -99,7 +99,7 @@ def _thread_pools() -> ThreadpoolController:
 
 
 class OnlineDetector:
-    """A window classifier learnt during the episode (seed 000 §2.1.2's online detector).
+    """A window classifier learnt during the episode ([LTAT] §2.1.2's online detector).
 
     The frame is embedded by the Siamese network at the target's scale
     (``TEMPLATE_SIZE / s_z`` of the last confident box), every 8 x 8 window

@@ -1,4 +1,4 @@
-"""LTAT as a perception front end: stereo images -> marker corners (seed 000 §2.1).
+"""LTAT as a perception front end: stereo images -> marker corners ([LTAT] §2.1).
 
 :class:`LTATFrontEnd` turns the ``stereo`` observation of
 ``auv_envs/LARSCapture-v0`` into its ``features`` observation (protocol of
@@ -31,7 +31,7 @@ from baselines.lars.perception.stereo import find_marker_pair
 
 
 class LTATFrontEnd:
-    """Stereo images -> ``features`` observation of ``auv_envs/LARSCapture-v0`` (seed 000 §2.1).
+    """Stereo images -> ``features`` observation of ``auv_envs/LARSCapture-v0`` ([LTAT] §2.1).
 
     Front-end protocol of :mod:`baselines.frontend`: ``reset(seed)``,
     ``__call__(observation, info) -> features`` (``pixels`` (2, 3, 2)

@@ -1,6 +1,6 @@
-"""Long-term anti-interference tracking (LTAT) of the AUV's marker in both views (seed 000 §2.1.2).
+"""Long-term anti-interference tracking (LTAT) of the AUV's marker in both views ([LTAT] §2.1.2).
 
-Seed 000, §2.1.2: a Siamese tracker follows the target; a detector that
+[LTAT], §2.1.2: a Siamese tracker follows the target; a detector that
 learns *online* -- trained during the episode on the tracker's confident
 outputs -- finds the target again when the tracker's score drops below an
 empirical threshold, and its best region above its own threshold re-seeds the
@@ -36,7 +36,7 @@ from baselines.lars.perception.stereo import marker_side_ratios, rectified_check
 
 @dataclasses.dataclass(frozen=True)
 class LTATParams:
-    """Thresholds of the long-term logic (seed 000 §2.1.2's "empirical thresholds").
+    """Thresholds of the long-term logic ([LTAT] §2.1.2's "empirical thresholds").
 
     Attributes:
         lost_score: a view whose tracker score falls below this has lost the target.
@@ -94,7 +94,7 @@ class LTATOutput:
 
 
 class LTATracker:
-    """Siamese tracker of both views + online detector + corner extraction (seed 000 §2.1.2).
+    """Siamese tracker of both views + online detector + corner extraction ([LTAT] §2.1.2).
 
     Per frame:
 

@@ -1,6 +1,6 @@
 """The marker pose measurement: the AUV's position and attitude from the stereo marker.
 
-Seed 000, §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the left and right
+[LTAT], §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the left and right
 images are triangulated in the left camera frame (eq. 2, through
 :func:`auv_envs.core.stereo.triangulate`), carried to the arm base (world)
 frame by the hand-eye transform composed with the arm's forward kinematics
@@ -49,7 +49,7 @@ def attitude_rotation(pitch: float, yaw: float) -> np.ndarray:
 
 
 def marker_pitch_yaw(corners, depth_offset: float) -> tuple[float, float]:
-    """AUV pitch and yaw from the marker's corners (seed 000, eqs. 4-6).
+    """AUV pitch and yaw from the marker's corners ([LTAT], eqs. 4-6).
 
     With A1, A2 the base corners, A3 the apex and ``D`` the marker's offset
     below the hull's top line, the base midpoint raised to the top line is

@@ -1,6 +1,6 @@
-"""Siamese tracker of the AUV's marker at inference (seed 000, §2.1.1).
+"""Siamese tracker of the AUV's marker at inference ([LTAT], §2.1.1).
 
-Seed 000 tracks the AUV with SiamRPN: a Siamese sub-network embeds a template
+[LTAT] tracks the AUV with SiamRPN: a Siamese sub-network embeds a template
 crop and a search crop with shared weights, a correlation compares them, and
 a region-proposal head outputs the target's centre and box. This module is a
 small CPU-sized version of that design in torch:
@@ -277,7 +277,7 @@ class _ViewState:
 
 @dataclasses.dataclass(frozen=True)
 class SiameseTrackerParams:
-    """Inference settings (SiamRPN's, seed 000 §2.1.1).
+    """Inference settings (SiamRPN's, [LTAT] §2.1.1).
 
     Attributes:
         window_influence: weight of the cosine window against the score.

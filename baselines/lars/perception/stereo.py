@@ -1,8 +1,8 @@
-"""Marker corners of the two views matched and checked against the stereo pair (seed 000, §2.2).
+"""Marker corners of the two views matched and checked against the stereo pair ([LTAT], §2.2).
 
 * :func:`stereo_check`: corners of the two views matched by label and
   checked against the rectified geometry (same rows, positive disparity)
-  and the marker's known size (triangulated sides, seed 000 eq. 2);
+  and the marker's known size (triangulated sides, [LTAT] eq. 2);
   :func:`rectified_check`, :func:`marker_side_ratios` and
   :func:`marker_size_error` are its parts, :func:`match_stereo` its yes/no.
 * :func:`find_marker_pair`: the AUV's marker in a stereo pair without a
@@ -27,7 +27,7 @@ def stereo_check(
     """Whether the labelled corners of the two views are one marker of the known size.
 
     Checks the rectified geometry (each corner on the same row in both views,
-    positive disparity) and the sides of the triangulated triangle (seed 000
+    positive disparity) and the sides of the triangulated triangle ([LTAT]
     eq. 2) against ``sides`` = (|A1A2|, |A1A3|, |A2A3|) within a relative
     ``size_tolerance``.
 
@@ -62,7 +62,7 @@ def rectified_check(left: np.ndarray, right: np.ndarray, rig: StereoRig,
 
 
 def marker_side_ratios(left: np.ndarray, right: np.ndarray, rig: StereoRig, sides) -> np.ndarray:
-    """Triangulated sides (|A1A2|, |A1A3|, |A2A3|) over ``sides`` (seed 000 eq. 2)."""
+    """Triangulated sides (|A1A2|, |A1A3|, |A2A3|) over ``sides`` ([LTAT] eq. 2)."""
     pts = triangulate(rig, left, right)
     measured = np.array([np.linalg.norm(pts[0] - pts[1]), np.linalg.norm(pts[0] - pts[2]),
                          np.linalg.norm(pts[1] - pts[2])])

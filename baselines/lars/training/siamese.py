@@ -1,4 +1,4 @@
-"""Offline training of the Siamese marker tracker on our own renders (seed 000, §2.1.1).
+"""Offline training of the Siamese marker tracker on our own renders ([LTAT], §2.1.1).
 
 The network, crops and weight files are :mod:`baselines.lars.perception.siamese`'s;
 this module only makes the training data and fits the weights::
@@ -390,7 +390,7 @@ def train(out: Path, data_dir: Path, seed: int = 0, per_sea_state: int = 12, ste
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description="Siamese marker tracker for LARS (seed 000).")
+    parser = argparse.ArgumentParser(description="Siamese marker tracker for LARS [LTAT].")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("train", help="export training sequences and train the tracker")
     p.add_argument("--out", default="assets/lars/siamese", help="where weights.pt/meta.json go")

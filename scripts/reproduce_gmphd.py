@@ -1,16 +1,16 @@
-"""Reproduce seed 004's tables with the shipped agents (static positioning, RMSE/TFC, TCFE).
+"""Reproduce [GMPHD]'s tables with the shipped agents (static positioning, RMSE/TFC, TCFE).
 
-    PYTHONPATH=. python scripts/reproduce_seed004.py [--difficulty paper] [--seeds 20]
+    PYTHONPATH=. python scripts/reproduce_gmphd.py [--difficulty paper] [--seeds 20]
         [--first-seed 5000] [--time-limit 20] [--sections static,dynamic,variants,tcfe]
         [--json PATH]
 
 Every section runs the environment at ``--difficulty`` (default ``paper``, the
-level calibrated to seed 004's tank; ``easy`` is the released model) on
+level calibrated to [GMPHD]'s tank; ``easy`` is the released model) on
 seeds ``--first-seed``, ``--first-seed + 1``, ...; every figure is printed
 with its 95 % interval (percentile bootstrap of the mean over episodes) and,
 with ``--json``, written under the same names as the tables.
 
-1. ``static``: seed 004's five points (Table 1), ``--seeds`` episodes
+1. ``static``: [GMPHD]'s five points (Table 1), ``--seeds`` episodes
    spread over them: mean Euclidean error of the per-detection fixes of the
    fused, TDOA-only and DOA-only least squares (the detection origin in
    ``info`` is used only to score the source's detections; the solvers never
@@ -22,7 +22,7 @@ with ``--json``, written under the same names as the tables.
 3. ``variants``: the same episodes with the agents on the raw TDOAs
    (``clock_calibration=False``, the paper's pipeline), and with the
    hydrophone clock offsets switched off (``clock_offset_std = 0``).
-4. ``tcfe``: TCFE at low / medium / high current: ``tcfe`` (seed 004's
+4. ``tcfe``: TCFE at low / medium / high current: ``tcfe`` ([GMPHD]'s
    definition, the entropy of the estimate's consecutive differences) and
    ``tcfe_fluctuation`` (the same on second differences, 0 for the true
    motion), with the level's flow noise and in calm water (flow noise off).
@@ -61,7 +61,7 @@ def acoustic_model(difficulty: str) -> AcousticConfig:
 
 def static_errors(acoustic: AcousticConfig, seeds: range,
                   steps: int = 200) -> dict[str, list[float]]:
-    """Per episode (seed ``s`` at seed 004's point ``1 + s % 5``): mean fix error per method."""
+    """Per episode (seed ``s`` at [GMPHD]'s point ``1 + s % 5``): mean fix error per method."""
     out = {m: [] for m in METHODS}
     for seed in seeds:
         point = 1 + seed % 5
@@ -174,11 +174,11 @@ def main() -> None:
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     figures: dict = {"difficulty": args.difficulty, "first_seed": args.first_seed,
                      "episodes": args.seeds, "time_limit": args.time_limit}
-    print(f"# seed 004 reproduction, difficulty {args.difficulty!r}, seeds "
+    print(f"# [GMPHD] reproduction, difficulty {args.difficulty!r}, seeds "
           f"{seeds.start}-{seeds.stop - 1}")
 
     if "static" in sections:
-        print(f"\n## Static positioning error (m), seed 004 Table 1, {args.seeds} episodes of "
+        print(f"\n## Static positioning error (m), [GMPHD] Table 1, {args.seeds} episodes of "
               "200 steps over its five points (paper fused: 0.11 average)")
         figures["static"] = static_section(acoustic, seeds)
 
@@ -220,7 +220,7 @@ def tcfe_tables(runs: dict, truth: dict, what_water: str) -> dict:
     rows = {**{a: [runs[a, lvl] for lvl in LEVELS] for a in AGENTS},
             "truth": [truth[lvl] for lvl in LEVELS]}
     out: dict = {}
-    for key, what in (("tcfe", "first differences, seed 004's definition"),
+    for key, what in (("tcfe", "first differences, [GMPHD]'s definition"),
                       ("tcfe_fluctuation", "second differences, 0 for the true motion")):
         print(f"\n## {key}, {what_water} (nats; {what}; {100 * TCFE_BIN_WIDTH:g} cm bins) "
               f"by current level (paper gmphd-gci: 0.05 / 0.07 / 0.09)")

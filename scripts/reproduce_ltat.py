@@ -1,11 +1,11 @@
-"""Reproduce seed 000's estimation and control results with the shipped agents.
+"""Reproduce [LTAT]'s estimation and control results with the shipped agents.
 
-    PYTHONPATH=. python scripts/reproduce_seed000.py --out results/seed000 \\
+    PYTHONPATH=. python scripts/reproduce_ltat.py --out results/ltat \\
         [--difficulty paper] [--first-seed 1000] [--seas calm,severe] [--json PATH] \\
         [--estimation-episodes 10] [--capture-episodes 20] [--agents ckf-pd,ltat-ckf-pd]
 
 Every experiment runs the environment at ``--difficulty`` (default ``paper``,
-the level calibrated on seed 000's capture; ``easy`` is the released
+the level calibrated on [LTAT]'s capture; ``easy`` is the released
 sinusoidal heave) in each sea state of ``--seas``. Seeds: the tracking
 episodes use ``N, N+1, ...`` with ``N = --first-seed``, the attitude cases
 ``N + 1000, ...``, the capture episodes ``N + 2000, ...`` (the default 1000
@@ -34,7 +34,7 @@ tables.
    ``stereo`` images): success rate, final capture error (at the step the
    env declares the capture), failures.
 
-Everything printed is also written to ``OUT/seed000.json``; plots go to
+Everything printed is also written to ``OUT/ltat.json``; plots go to
 ``OUT/*.png``. The agents never read ``info``; the script does, to score them.
 """
 
@@ -244,7 +244,7 @@ def axis_panels(title: str, path: Path):
 
 
 def plot_trajectories(run: dict, sea: str, path: Path) -> None:
-    title = f"AUV position, {sea} sea: measured, true and CKF (seed 000 Figs. 9/11)"
+    title = f"AUV position, {sea} sea: measured, true and CKF ([LTAT] Figs. 9/11)"
     with axis_panels(title, path) as axes:
         for k, ax in enumerate(axes):
             ax.plot(run["time"], run["measured"][:, k], ".", ms=2, color="tab:orange",
@@ -259,7 +259,7 @@ def plot_trajectories(run: dict, sea: str, path: Path) -> None:
 def plot_errors(runs: list, sea: str, warmup: float, path: Path) -> None:
     run = runs[0]
     keep = run["time"] >= warmup
-    title = f"Mean position error per {BLOCK} frames, {sea} sea (seed 000 Figs. 10/12)"
+    title = f"Mean position error per {BLOCK} frames, {sea} sea ([LTAT] Figs. 10/12)"
     with axis_panels(title, path) as axes:
         for k, ax in enumerate(axes):
             for key, colour in (("measured", "tab:orange"), ("estimate", "tab:blue")):
@@ -287,7 +287,7 @@ def _interval(ci, spec=".1f", scale=1.0) -> str:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="results/seed000")
+    parser.add_argument("--out", default="results/ltat")
     parser.add_argument("--difficulty", choices=LEVELS, default="paper")
     parser.add_argument("--first-seed", type=int, default=DEFAULT_FIRST_SEED,
                         help="tracking seeds N, N+1, ...; attitude N+1000, ...; "
@@ -309,7 +309,7 @@ def main(argv=None) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {"arguments": vars(args)}
-    print(f"# seed 000 reproduction, difficulty {args.difficulty!r}, first seed "
+    print(f"# [LTAT] reproduction, difficulty {args.difficulty!r}, first seed "
           f"{args.first_seed}\n")
 
     print("## Position error per axis x / y / z (mm), tracking at 0.8 m (Figs. 9-12)\n")
@@ -370,10 +370,10 @@ def main(argv=None) -> None:
                   f"| {within} | {when} | {r['failures'] or '-'} "
                   f"| {r['seconds_per_episode']:.1f} |")
 
-    (out / "seed000.json").write_text(json.dumps(results, indent=2, default=float))
+    (out / "ltat.json").write_text(json.dumps(results, indent=2, default=float))
     if args.json:
         write_figures(args.json, results)
-    print(f"\nwrote {out / 'seed000.json'} and plots to {out}/")
+    print(f"\nwrote {out / 'ltat.json'} and plots to {out}/")
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
-"""Reproduce seed 003's simulations with the ``ofnmpc-ekf`` and ``ofnmpc-mhe`` agents.
+"""Reproduce [OFNMPC]'s simulations with the ``ofnmpc-ekf`` and ``ofnmpc-mhe`` agents.
 
-    PYTHONPATH=. python scripts/reproduce_seed003.py [--out results/seed003] [--difficulty paper]
+    PYTHONPATH=. python scripts/reproduce_ofnmpc.py [--out results/ofnmpc] [--difficulty paper]
         [--first-seed 100000] [--episodes 4] [--json PATH]
 
 Everything runs at ``--difficulty`` (default ``paper``: the disturbances and water of the
@@ -17,9 +17,9 @@ current), ``DockingStation-v1`` (``--env`` picks ``LampArrayDocking-v1``):
   (``scenario1_*.png``);
 * the steady-state disturbance estimate. The env's nominal model *knows* the
   10 N net buoyancy (it is part of the restoring forces of
-  ``calibration.nominal_model``), so with it ``d_Z`` settles near 0 N. Seed 003's
+  ``calibration.nominal_model``), so with it ``d_Z`` settles near 0 N. [OFNMPC]'s
   prediction model drops the restoring forces (its eq. 7), so its disturbance
-  estimate absorbs the buoyancy; the run "seed 003 model" uses the same
+  estimate absorbs the buoyancy; the run "[OFNMPC] model" uses the same
   :class:`NominalModel` with ``net_buoyancy=0`` to show that. Because an episode
   ends at the entrance while the vehicle still moves, the steady state is
   measured by station keeping at a set point 3 m in front of the entrance
@@ -27,7 +27,7 @@ current), ``DockingStation-v1`` (``--env`` picks ``LampArrayDocking-v1``):
 
 Scenario 2 (``scenario="current"``: 0.3 m/s current, 5 px / 0.02 m/s noise):
 five current directions, one episode each per observer (``--episodes`` for
-more seeds), a table like seed 003's Table 4 (success, docking time) and the
+more seeds), a table like [OFNMPC]'s Table 4 (success, docking time) and the
 trajectories
 (``scenario2_trajectories.png``). If the image-mode agents
 ``ofnmpc-ekf-image`` / ``ofnmpc-mhe-image`` are registered, they fly the same
@@ -107,8 +107,8 @@ def fly(env, agent, seed: int, hold_point=None) -> Trace:
     return trace
 
 
-def seed003_model(calibration) -> NominalModel:
-    """Seed 003's prediction model: the env's nominal model without restoring forces."""
+def ofnmpc_model(calibration) -> NominalModel:
+    """[OFNMPC]'s prediction model: the env's nominal model without restoring forces."""
     return NominalModel(dataclasses.replace(calibration.nominal_params, net_buoyancy=0.0))
 
 
@@ -161,7 +161,7 @@ def scenario1(args, out: Path) -> dict:
     holds = {}
     buoyancy = cal.nominal_params.net_buoyancy
     for label, model in ((f"env nominal model (knows the {buoyancy:g} N buoyancy)", None),
-                         ("seed 003 model (restoring forces dropped)", seed003_model(cal))):
+                         ("[OFNMPC] model (restoring forces dropped)", ofnmpc_model(cal))):
         for o in OBSERVERS:
             agent = OFNMPCAgent(hold_env.unwrapped, o, nominal_model=model)
             t = fly(hold_env, agent, args.seed, hold_point=hold_point)
@@ -169,7 +169,7 @@ def scenario1(args, out: Path) -> dict:
             mean = np.nanmean(tail, axis=0)
             print(f"| {label} | {o.upper()} | " + " | ".join(f"{v:.2f}" for v in mean) + " |")
             holds[f"{o.upper()}, {label.split(' (')[0]}"] = t
-            figures[f"steady_state_d_{o}_{'env' if model is None else 'seed003'}_model"] = [
+            figures[f"steady_state_d_{o}_{'env' if model is None else 'paper'}_model"] = [
                 float(v) for v in mean]
     plot_disturbances(holds, out / "scenario1_steady_state_disturbance.png",
                       "Station keeping: disturbance estimates")
@@ -318,7 +318,7 @@ def plot_disturbances(traces: dict, path: Path,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("results/seed003"))
+    parser.add_argument("--out", type=Path, default=Path("results/ofnmpc"))
     parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v1"])
     parser.add_argument("--difficulty", choices=DIFFICULTIES, default="paper")
     parser.add_argument("--first-seed", "--seed", dest="seed", type=int, default=100_000,

@@ -1,10 +1,10 @@
-"""Reproduce seed 002's tracking evaluation: the lamp-array front end under occlusion, CLEAR MOT.
+"""Reproduce [LAMP]'s tracking evaluation: the lamp-array front end under occlusion, CLEAR MOT.
 
-    PYTHONPATH=. python scripts/reproduce_seed002.py [--difficulty paper] [--seeds 5]
+    PYTHONPATH=. python scripts/reproduce_lamp_array.py [--difficulty paper] [--seeds 5]
         [--first-seed 0] [--frames 600] [--scenario mismatch] [--threshold 20]
         [--env auv_envs/LampArrayDocking-v1] [--json PATH]
 
-Seed 002 §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
+[LAMP] §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
 were out of view and reported PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px (Table 4).
 
 Here each sequence is a seeded ``LampArrayDocking-v1`` episode in ``image`` mode (640x480).
@@ -20,7 +20,7 @@ partly behind the station's structure absent, and the tracker's detections of th
 positives.) The tracker's hypotheses are the lamps it reports visible, with their labels as
 ids.
 
-Two scores are printed: from the frame where the front end initialised its tracks (seed 002
+Two scores are printed: from the frame where the front end initialised its tracks ([LAMP]
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
 (the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v1``
 runs the same evaluation on the six docking lights (the ring identity rule).
@@ -51,7 +51,7 @@ from baselines.stats import bootstrap_interval
 
 ENV_ID = "auv_envs/LampArrayDocking-v1"
 ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v1")
-#: Seed 002 Table 4 (targets) and its precision-plot threshold (Fig. 11: > 90 % at 13 px).
+#: [LAMP] Table 4 (targets) and its precision-plot threshold (Fig. 11: > 90 % at 13 px).
 PAPER = {"prcn": 0.9976, "mota": 0.8465, "motp_px": 13.24, "occluded": 0.3306}
 PRECISION_PLOT_PX = 13.0
 #: The pilot's clip on the along-axis error (m): faster transits than the docking default.
@@ -83,7 +83,7 @@ def excursions(rng: np.random.Generator, duration: float) -> list[tuple[float, n
     not stacked along the line of sight); each later leg holds a random point of the viewing
     box with a heading up to 70 deg off the array, for 3-6 s (lamps then leave the view or
     hide behind the station in 38.5 % of the lamp-frames after initialisation on seeds
-    630000-630019; seed 002: 33 %).
+    630000-630019; [LAMP]: 33 %).
     """
     legs = [(0.0, np.array([-3.5, 0.0, 1.3]), 0.0)]
     t = 15.0
@@ -239,7 +239,7 @@ def main() -> None:
         texts.append(f"{name.upper()} {f['pooled']:.2f} {unit} (per-sequence mean "
                      f"{f['mean']:.2f} [{f['ci95'][0]:.2f}, {f['ci95'][1]:.2f}])")
     print("from init, 95 % intervals: " + "; ".join(texts))
-    print(f"seed 002: occluded {100 * PAPER['occluded']:.2f} %, PRCN {100 * PAPER['prcn']:.2f} %, "
+    print(f"[LAMP]: occluded {100 * PAPER['occluded']:.2f} %, PRCN {100 * PAPER['prcn']:.2f} %, "
           f"MOTA {100 * PAPER['mota']:.2f} %, MOTP {PAPER['motp_px']:.2f} px")
     checks = {
         "occluded >= 33 %": total_init["occluded"] >= 0.33,

@@ -1,6 +1,6 @@
-"""Seed 000 Fig. 6: OPE success and precision of the Siamese tracker alone vs LTAT.
+"""[LTAT] Fig. 6: OPE success and precision of the Siamese tracker alone vs LTAT.
 
-One-pass evaluation (OTB, Wu et al. 2013), as in seed 000 §3: each tracker
+One-pass evaluation (OTB, Wu et al. 2013), as in [LTAT] §3: each tracker
 starts from the true box of the first frame and runs through the sequence
 without restarts. The target is the AUV's marker box (the axis-aligned box of
 the three projected marker corners, clipped to the image; see
@@ -26,12 +26,12 @@ whose marker is in view at frame 0, the severe ones the first seeds from
 N + 50000 whose labels also show a wash-over (a corner hidden by a crest) and
 an analog in view.
 
-    python scripts/ope_seed000.py [--difficulty paper] [--first-seed 100000] [--sequences 4]
-        [--steps 250] [--out results/ope_seed000] [--json PATH]
+    python scripts/ope_ltat.py [--difficulty paper] [--first-seed 100000] [--sequences 4]
+        [--steps 250] [--out results/ope_ltat] [--json PATH]
 
 Prints a Markdown table (success AUC and precision with 95 % bootstrap
-intervals over the scored views) and writes ``ope_seed000.png`` and
-``ope_seed000.json``; ``--json PATH`` writes the same figures there too.
+intervals over the scored views) and writes ``ope_ltat.png`` and
+``ope_ltat.json``; ``--json PATH`` writes the same figures there too.
 
 It also scores the corner extractor on the same sequences (every 3rd frame,
 views with all three corners visible): the pixel error of A1, A2, A3 found
@@ -207,8 +207,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sequences", type=int, default=4, help="per sea state")
     parser.add_argument("--steps", type=int, default=250, help="frames per sequence")
-    parser.add_argument("--data", default="build/ope_seed000_data")
-    parser.add_argument("--out", default="results/ope_seed000")
+    parser.add_argument("--data", default="build/ope_ltat_data")
+    parser.add_argument("--out", default="results/ope_ltat")
     parser.add_argument("--difficulty", choices=LEVELS, default="paper")
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_BASE,
                         help="calm sequences from seed N, severe from N + 50000 "
@@ -303,14 +303,14 @@ def main(argv=None) -> None:
             ax.grid(alpha=0.3)
             ax.legend(loc="lower right" if ax is axes[row, 1] else "lower left")
     fig.tight_layout()
-    fig.savefig(out / "ope_seed000.png", dpi=120)
+    fig.savefig(out / "ope_ltat.png", dpi=120)
     figures = {"difficulty": args.difficulty, "first_seed": args.first_seed,
                **{f"{sea}/{kind}": r for (sea, kind), r in results.items()},
                **{f"{sea}/corners": c for sea, c in corners.items()}}
-    (out / "ope_seed000.json").write_text(json.dumps(figures, indent=2))
+    (out / "ope_ltat.json").write_text(json.dumps(figures, indent=2))
     if args.json:
         write_figures(args.json, figures)
-    print(f"wrote {out / 'ope_seed000.png'} and {out / 'ope_seed000.json'}")
+    print(f"wrote {out / 'ope_ltat.png'} and {out / 'ope_ltat.json'}")
 
 
 if __name__ == "__main__":
