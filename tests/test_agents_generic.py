@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from baselines.catalogue import builtin_specs
 from baselines.registry import agent_names, agent_spec, make_agent
 from tests.conftest import ENV_IDS, IMAGE_MODES, env_class, make_env, obs_modes
 
@@ -121,8 +122,9 @@ def test_agent_short_episode_is_valid_and_seeded(name, env_id, mode):
         np.testing.assert_array_equal(a, b)
 
 
-def test_every_registered_agent_applies_somewhere():
-    assert {name for name, _, _ in CASES} == set(agent_names())
+def test_every_builtin_agent_applies_somewhere():
+    # The catalogue's agents, not agent_names(): other tests register agents of their own.
+    assert {spec.name for spec in builtin_specs()} <= {name for name, _, _ in CASES}
 
 
 def _misuses(name: str) -> list[tuple[str, str]]:
