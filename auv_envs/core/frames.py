@@ -62,6 +62,24 @@ def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
     return np.array(euler_floats(r))
 
 
+def rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
+    """:func:`rotation_from_euler` as rows of Python floats (per-step use)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+def rotate_rows(rows, point) -> tuple[float, float, float]:
+    """``rows @ point`` in Python floats (``rows`` as from :func:`rotation_rows`)."""
+    x, y, z = point
+    return tuple(a * x + b * y + c * z for a, b, c in rows)
+
+
 def euler_floats(rows) -> tuple[float, float, float]:
     """:func:`euler_from_rotation` in Python floats, for per-step use.
 

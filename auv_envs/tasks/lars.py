@@ -30,6 +30,12 @@ from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_bo
 from auv_envs.core.stereo import StereoRig
 from auv_envs.core.waves import SeaSpectrum, WaveRealisation, sea_state_code
 from auv_envs.tasks.lars_arm import ArmModel
+from auv_envs.tasks.lars_calibration import (
+    CaptureTolerances,
+    LARSCalibration,
+    read_only,
+    read_only_pose,
+)
 from auv_envs.tasks.lars_glint import GlintCamera
 from auv_envs.tasks.lars_physics import LARSPhysics
 from auv_envs.tasks.lars_scene import (
@@ -54,6 +60,7 @@ from auv_envs.tasks.lars_sea import (
     SeaSample,
     ShipPose,
     SunGlint,
+    sample_waves,
 )
 
 OBS_MODES = ("state", "features", "stereo")
@@ -113,128 +120,6 @@ DEFAULT_FOVY_DEG = 60.0
 #: floating ``AUV_FREEBOARD`` proud (the hull's footprint seen from above).
 WATERLINE_HALF_WIDTH = math.sqrt(
     (AUV_DIAMETER / 2.0) ** 2 - (AUV_DIAMETER / 2.0 - AUV_FREEBOARD) ** 2)
-
-
-@dataclasses.dataclass(frozen=True)
-class CaptureTolerances:
-    """Success: the capture tip within ``position`` (m) of the AUV's capture
-    point with a relative speed below ``speed`` (m/s). The paper's final
-    capture error was about 28 mm ([LTAT], §3)."""
-
-    position: float = 0.05
-    speed: float = 0.25
-
-
-@dataclasses.dataclass(frozen=True)
-class LARSCalibration:
-    """What a classical agent may know (read-only; arrays are not writeable).
-
-    Attributes:
-        stereo: the rectified stereo pair (intrinsics of both cameras, baseline).
-        left_in_end, right_in_end: (4, 4) hand-eye transforms: pose of each
-            camera (OpenCV axes) in the arm-end frame ([LTAT], eq. 3's
-            ``t_c H``).
-        capture_tip_in_end: (3,) the capture device's tip in the arm-end frame.
-        arm: kinematics (forward, inverse, Jacobian) and dynamics M(q),
-            C(q, qd), G(q) of the arm (eq. 29).
-        control_period: seconds per env step.
-        torque_limits: (3,) N m that scale the normalised torque action.
-        joint_limits: (3, 2) rad.
-        position_gains: (Kp, Kd) of the ``position`` inner loop (eq. 30).
-        marker: the marker's geometry on the hull (corners in the AUV body
-            frame, ``D`` of eq. 4).
-        marker_sides: (0.15, 0.4, 0.4) m.
-        capture_point_body: (3,) the AUV's lifting eye in its body frame.
-        auv_length, auv_diameter, auv_mass: Explore-100-like AUV (Table 1).
-        auv_freeboard: height of the hull's top line above the local water
-            level, m (the AUV floats this proud).
-        tolerances: success tolerances.
-        workspace: (3, 2) box the arm end must stay inside, in the ship's
-            frame (the world frame unless a ``sea`` moves the ship).
-        pixel_noise_std: std of the ``features`` pixel noise, px.
-        sea: the irregular-sea model (spectrum, AUV and ship responses,
-            wash-over and analog settings) of an env built with ``sea=``;
-            None otherwise.
-    """
-
-    stereo: StereoRig
-    left_in_end: np.ndarray
-    right_in_end: np.ndarray
-    capture_tip_in_end: np.ndarray
-    arm: ArmModel
-    control_period: float
-    torque_limits: np.ndarray
-    joint_limits: np.ndarray
-    position_gains: tuple[float, float]
-    marker: MarkerGeometry
-    marker_sides: tuple[float, float, float]
-    capture_point_body: np.ndarray
-    auv_length: float
-    auv_diameter: float
-    auv_mass: float
-    auv_freeboard: float
-    tolerances: CaptureTolerances
-    workspace: np.ndarray
-    pixel_noise_std: float
-    sea: LARSSeaModel | None = None
-
-    def end_pose(self, q) -> np.ndarray:
-        """World pose (4, 4) of the levelled arm-end frame at joint angles ``q``."""
-        out = np.eye(4)
-        out[:3, :3] = self.arm.end_rotation(q)
-        out[:3, 3] = self.arm.forward_kinematics(q)
-        return out
-
-    def camera_poses(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """World poses (4, 4) of the left and right cameras (OpenCV axes) at ``q``.
-
-        Forward kinematics composed with the hand-eye transforms ([LTAT], eq. 3).
-        """
-        end = self.end_pose(q)
-        return end @ self.left_in_end, end @ self.right_in_end
-
-
-def _read_only(values) -> np.ndarray:
-    out = np.array(values, dtype=float)
-    out.setflags(write=False)
-    return out
-
-
-def _pose(rotation: np.ndarray, translation) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = rotation
-    out[:3, 3] = translation
-    out.setflags(write=False)
-    return out
-
-
-def _rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
-    """:func:`auv_envs.core.frames.rotation_from_euler` as rows of floats (per-step use)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return (
-        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-        (-sp, cp * sr, cp * cr),
-    )
-
-
-def _rotate(rows, point) -> tuple[float, float, float]:
-    x, y, z = point
-    return tuple(a * x + b * y + c * z for a, b, c in rows)
-
-
-def _sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveRealisation:
-    """The episode's wave direction (drawn even when ``heading`` pins it) and realisation."""
-    drawn = rng.uniform(*sea.heading_range)
-    if heading is None:
-        heading = drawn
-    elif isinstance(heading, bool) or not (
-        isinstance(heading, int | float) and math.isfinite(heading)
-    ):
-        raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
-    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, float(heading), sea.band)
 
 
 @dataclasses.dataclass
@@ -535,9 +420,9 @@ class LARSCaptureEnv(TaskEnv):
         right_t = mount + (baseline / 2.0, 0.0, 0.0)
         self.calibration = LARSCalibration(
             stereo=StereoRig(intr, intr, float(baseline)),
-            left_in_end=_pose(R_END_CV, left_t),
-            right_in_end=_pose(R_END_CV, right_t),
-            capture_tip_in_end=_read_only(CAPTURE_TIP_IN_END),
+            left_in_end=read_only_pose(R_END_CV, left_t),
+            right_in_end=read_only_pose(R_END_CV, right_t),
+            capture_tip_in_end=read_only(CAPTURE_TIP_IN_END),
             arm=arm,
             control_period=self._dt,
             torque_limits=arm.torque_limits,
@@ -545,13 +430,13 @@ class LARSCaptureEnv(TaskEnv):
             position_gains=POSITION_GAINS,
             marker=marker,
             marker_sides=MARKER_SIDES,
-            capture_point_body=_read_only(CAPTURE_POINT_BODY),
+            capture_point_body=read_only(CAPTURE_POINT_BODY),
             auv_length=AUV_LENGTH,
             auv_diameter=AUV_DIAMETER,
             auv_mass=AUV_MASS,
             auv_freeboard=AUV_FREEBOARD,
             tolerances=tolerances or CaptureTolerances(),
-            workspace=_read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
+            workspace=read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
             pixel_noise_std=float(pixel_noise_std),
             sea=sea_model,
         )
@@ -634,7 +519,7 @@ class LARSCaptureEnv(TaskEnv):
         if unknown:
             raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
         motion = sample_motion(rng, options.get("motion"))
-        waves = None if sea is None else _sample_waves(rng, sea, options.get("wave_heading"))
+        waves = None if sea is None else sample_waves(rng, sea, options.get("wave_heading"))
         wash, analogs = None, ()
         if self.sea_state == "severe":
             if sea is None:
@@ -799,9 +684,9 @@ class LARSCaptureEnv(TaskEnv):
         """Marker corners (3 points), capture point and hull axis of the AUV at an
         attitude, in world axes (floats): the per-step twin of
         :meth:`_prepare_episode_constants` for a rolling, pitching AUV."""
-        rows = _rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
-        corners = [_rotate(rows, p) for p in self._corners_body]
-        capture = _rotate(rows, self._capture_point.tolist())
+        rows = frames.rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
+        corners = [frames.rotate_rows(rows, p) for p in self._corners_body]
+        capture = frames.rotate_rows(rows, self._capture_point.tolist())
         return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
 
     def _track_position(self, q_target: np.ndarray) -> None:

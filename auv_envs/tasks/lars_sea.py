@@ -414,3 +414,15 @@ class GlintField:
         area = height**2 / (focal**2 * safe**3)
         density = self.density(rays[..., 0] / norm, rays[..., 1] / norm, rays[..., 2] / norm)
         return np.where(down > 0.0, density * area, 0.0)
+
+
+def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveRealisation:
+    """The episode's wave direction (drawn even when ``heading`` pins it) and realisation."""
+    drawn = rng.uniform(*sea.heading_range)
+    if heading is None:
+        heading = drawn
+    elif isinstance(heading, bool) or not (
+        isinstance(heading, int | float) and math.isfinite(heading)
+    ):
+        raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
+    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, float(heading), sea.band)
