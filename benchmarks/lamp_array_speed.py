@@ -16,18 +16,15 @@ spent waiting for a core.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import cv2
+import gymnasium as gym
 
-import cv2  # noqa: E402
-import gymnasium as gym  # noqa: E402
-
-import auv_envs  # noqa: E402, F401
-from baselines.docking.perception.front_end import LampArrayFrontEnd  # noqa: E402
-from baselines.docking.perception.segmentation import segment_lamps  # noqa: E402
-from baselines.registry import make_agent  # noqa: E402
+import auv_envs  # noqa: F401
+from baselines.docking.perception.front_end import LampArrayFrontEnd
+from baselines.docking.perception.segmentation import segment_lamps
+from baselines.registry import make_agent
 
 TARGET_FPS = 100.0
 ENV_IDS = ("auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1")

@@ -12,17 +12,14 @@ Targets (issue 3): a stereo pair <= 1.3x a single view of the same size;
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import gymnasium as gym
+from throughput import steps_per_second  # benchmarks/ is the script's path
 
-import gymnasium as gym  # noqa: E402
-from throughput import steps_per_second  # noqa: E402  (benchmarks/ is the script's path)
-
-import auv_envs  # noqa: E402, F401
-from auv_envs.core.rendering import CameraRenderer  # noqa: E402
-from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
+import auv_envs  # noqa: F401
+from auv_envs.core.rendering import CameraRenderer
+from auv_envs.tasks.lars import LARSCaptureEnv
 
 
 def render_seconds(env: LARSCaptureEnv, views, size, n: int, repeats: int):

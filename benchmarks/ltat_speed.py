@@ -16,20 +16,18 @@ ratio is LTAT's rate over 25.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import torch  # noqa: E402
+import torch
 
-from auv_envs.datasets.lars import tracking_action  # noqa: E402
-from auv_envs.tasks.lars import CONTROL_PERIOD, LARSCaptureEnv  # noqa: E402
-from baselines.lars.perception.front_end import LTATFrontEnd  # noqa: E402
-from baselines.lars.perception.siamese import Pyramid, SiameseTracker, marker_box  # noqa: E402
+from auv_envs.datasets.lars import tracking_action
+from auv_envs.tasks.lars import CONTROL_PERIOD, LARSCaptureEnv
+from baselines.lars.perception.front_end import LTATFrontEnd
+from baselines.lars.perception.siamese import Pyramid, SiameseTracker, marker_box
 
 TARGET_FPS = 25.0
 

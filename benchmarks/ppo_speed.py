@@ -20,21 +20,18 @@ Target (issue 8): >= 0.8x on a ``features`` environment.
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import time
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import torch
+from stable_baselines3 import PPO
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
 
-import torch  # noqa: E402
-from stable_baselines3 import PPO  # noqa: E402
-from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
-from stable_baselines3.common.vec_env import VecNormalize  # noqa: E402
-
-import auv_envs  # noqa: E402
-from baselines.registry import env_obs_modes  # noqa: E402
-from baselines.rl.config import resolve_config  # noqa: E402
-from baselines.rl.training import algorithm_kwargs, build_model  # noqa: E402
+import auv_envs
+from baselines.registry import env_obs_modes
+from baselines.rl.config import resolve_config
+from baselines.rl.training import algorithm_kwargs, build_model
 
 #: Shared PPO settings (both sides).
 SETTINGS = {

@@ -17,16 +17,13 @@ auv_envs/LampArrayDocking-v1``.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import gymnasium as gym
+import numpy as np
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-
-import auv_envs  # noqa: E402
-from baselines.registry import env_obs_modes  # noqa: E402
+import auv_envs
+from baselines.registry import env_obs_modes
 
 IMAGE_MODES = ("image", "stereo")
 

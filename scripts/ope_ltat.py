@@ -44,32 +44,30 @@ from __future__ import annotations
 import argparse
 import collections
 import json
-import os
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
-from auv_envs.core.difficulty import LEVELS  # noqa: E402
-from auv_envs.datasets.lars import export_sequence, load_sequence  # noqa: E402
-from auv_envs.metrics import box_iou  # noqa: E402
-from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
-from baselines.evaluation import EVAL_SEED_BASE, write_figures  # noqa: E402
-from baselines.lars.perception.corners import MarkerCornerExtractor  # noqa: E402
-from baselines.lars.perception.ltat import LTATParams, LTATracker  # noqa: E402
-from baselines.lars.perception.siamese import (  # noqa: E402
+from auv_envs.core.difficulty import LEVELS
+from auv_envs.datasets.lars import export_sequence, load_sequence
+from auv_envs.metrics import box_iou
+from auv_envs.tasks.lars import LARSCaptureEnv
+from baselines.evaluation import EVAL_SEED_BASE, write_figures
+from baselines.lars.perception.corners import MarkerCornerExtractor
+from baselines.lars.perception.ltat import LTATParams, LTATracker
+from baselines.lars.perception.siamese import (
     Pyramid,
     SiameseTracker,
     load_siamese,
     marker_box,
 )
-from baselines.lars.training.siamese import read_frame  # noqa: E402
-from baselines.stats import bootstrap_interval  # noqa: E402
+from baselines.lars.training.siamese import read_frame
+from baselines.stats import bootstrap_interval
 
 KINDS = ("siamese", "ltat-tracker-box", "ltat")
 NAMES = {

@@ -44,27 +44,24 @@ import argparse
 import contextlib
 import json
 import math
-import os
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-import gymnasium as gym  # noqa: E402
-import matplotlib  # noqa: E402
+import gymnasium as gym
+import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-import auv_envs  # noqa: E402, F401
-from auv_envs.core.difficulty import LEVELS  # noqa: E402
-from auv_envs.tasks.lars import CONTROL_PERIOD  # noqa: E402
-from auv_envs.tasks.lars_sea import SeaSample, ShipPose  # noqa: E402
-from baselines.evaluation import run_episode, write_figures  # noqa: E402
-from baselines.lars.agents import CKFPDAgent  # noqa: E402
-from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude  # noqa: E402
-from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
-from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
+import auv_envs  # noqa: F401
+from auv_envs.core.difficulty import LEVELS
+from auv_envs.tasks.lars import CONTROL_PERIOD
+from auv_envs.tasks.lars_sea import SeaSample, ShipPose
+from baselines.evaluation import run_episode, write_figures
+from baselines.lars.agents import CKFPDAgent
+from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude
+from baselines.registry import agent_names, agent_spec, make_agent
+from baselines.stats import bootstrap_interval, wilson_interval
 
 ENV_ID = "auv_envs/LARSCapture-v0"
 SEAS = ("calm", "severe")

@@ -7,14 +7,10 @@ privileged ``info["true_position"]``, and its MuJoCo data at ``physics.data``.
 
 from __future__ import annotations
 
-import os
+import gymnasium as gym
+import pytest
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-import gymnasium as gym  # noqa: E402
-import pytest  # noqa: E402
-
-import auv_envs  # noqa: E402
+import auv_envs
 
 ENV_IDS = tuple(auv_envs.ENVIRONMENTS)
 DOCKING_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")

@@ -9,24 +9,21 @@ is read here only to score the front end, never passed to it.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import numpy as np
+import pytest
+import torch
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-import torch  # noqa: E402
-
-from auv_envs.core.assets import sha256_file  # noqa: E402
-from auv_envs.datasets.lars import tracking_action  # noqa: E402
-from auv_envs.metrics import box_iou  # noqa: E402
-from auv_envs.tasks.lars import LARSCaptureEnv  # noqa: E402
-from baselines.evaluation import EVAL_SEED_BASE  # noqa: E402
-from baselines.lars.perception.corners import MarkerCornerExtractor  # noqa: E402
-from baselines.lars.perception.detector import OnlineDetector  # noqa: E402
-from baselines.lars.perception.front_end import LTATFrontEnd  # noqa: E402
-from baselines.lars.perception.siamese import (  # noqa: E402
+from auv_envs.core.assets import sha256_file
+from auv_envs.datasets.lars import tracking_action
+from auv_envs.metrics import box_iou
+from auv_envs.tasks.lars import LARSCaptureEnv
+from baselines.evaluation import EVAL_SEED_BASE
+from baselines.lars.perception.corners import MarkerCornerExtractor
+from baselines.lars.perception.detector import OnlineDetector
+from baselines.lars.perception.front_end import LTATFrontEnd
+from baselines.lars.perception.siamese import (
     ARCHITECTURE,
     META_FILE,
     WEIGHTS_FILE,
@@ -37,8 +34,8 @@ from baselines.lars.perception.siamese import (  # noqa: E402
     load_siamese,
     marker_box,
 )
-from baselines.lars.perception.stereo import find_marker_pair, match_stereo  # noqa: E402
-from baselines.registry import agent_names, agent_spec, make_agent  # noqa: E402
+from baselines.lars.perception.stereo import find_marker_pair, match_stereo
+from baselines.registry import agent_names, agent_spec, make_agent
 
 #: Severe-sea episode with a wash-over over the marker at steps 16-34 and
 #: analogs in view (found with the privileged tracking arm; seeds >= 100000

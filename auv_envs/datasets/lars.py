@@ -38,17 +38,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from auv_envs.core.camera import points_in_camera, project  # noqa: E402
-from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv  # noqa: E402
-from auv_envs.tasks.lars_scene import auv_rotation  # noqa: E402
+from auv_envs.core.camera import points_in_camera, project
+from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv
+from auv_envs.tasks.lars_scene import auv_rotation
 
 FORMAT_VERSION = 1
 

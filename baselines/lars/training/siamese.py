@@ -24,7 +24,6 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -401,7 +400,6 @@ def main(argv=None) -> None:
     p.add_argument("--iterations", type=int, default=1000)
     p.add_argument("--batch", type=int, default=32)
     args = parser.parse_args(argv)
-    os.environ.setdefault("MUJOCO_GL", "egl")
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
     train(Path(args.out), Path(args.data), args.seed, args.sequences, args.steps,
