@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from auv_envs.core import difficulty as levels
 from auv_envs.core import passive
 
 #: Everything mj_step reads that is not derived: time, qpos, qvel, act,
@@ -189,12 +190,14 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     ``obs_modes`` (the ``obs_mode`` values it offers, the first the default),
     ``reward_terms`` (the names of the terms that sum to the reward, each
     reported as ``info["reward_<term>"]``), ``metric_keys`` (the ``info``
-    keys with the task's metrics at every step). Its ``__init__`` records its
-    arguments (:meth:`_accept_arguments`) and sets ``calibration`` (what an
-    agent may know), ``physics`` (the MuJoCo model and data with named
-    accessors), ``action_space``, ``observation_space``, ``dt`` and
-    ``max_episode_steps``, and ``_episode`` (everything else an episode
-    changes, with ``steps`` and ``done``).
+    keys with the task's metrics at every step), ``difficulty_presets`` (the
+    keywords each level of :mod:`auv_envs.core.difficulty` sets; the
+    constructor resolves its ``difficulty`` with :meth:`_apply_difficulty`).
+    Its ``__init__`` records its arguments (:meth:`_accept_arguments`) and
+    sets ``calibration`` (what an agent may know), ``physics`` (the MuJoCo
+    model and data with named accessors), ``action_space``,
+    ``observation_space``, ``dt`` and ``max_episode_steps``, and ``_episode``
+    (everything else an episode changes, with ``steps`` and ``done``).
 
     **Hooks** (the truth is a dict the task computes once a step and shares
     between them):
@@ -222,6 +225,7 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     obs_modes: ClassVar[tuple[str, ...]]
     reward_terms: ClassVar[tuple[str, ...]]
     metric_keys: ClassVar[tuple[str, ...]]
+    difficulty_presets: ClassVar[dict[str, dict[str, Any]]]
     #: Attributes holding renderers or plots, closed (and set to None) by :meth:`close`.
     _closeables: ClassVar[tuple[str, ...]] = ()
 
@@ -242,7 +246,25 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
                     and all(isinstance(v, str) and v for v in value)):
                 raise TypeError(f"{cls.__name__}.{name} must be a non-empty tuple of names, "
                                 f"got {value!r}")
+        presets = getattr(cls, "difficulty_presets", None)
+        if not isinstance(presets, dict):
+            raise TypeError(f"{cls.__name__}.difficulty_presets must be a dict of levels")
+        levels.check_presets(presets)
         cls._reward_keys = tuple(f"reward_{name}" for name in cls.reward_terms)
+
+    @classmethod
+    def preset(cls, level: str) -> dict[str, Any]:
+        """The keywords ``difficulty=level`` sets (a copy), to start a variation from."""
+        check_choice("difficulty", level, cls.difficulty_presets)
+        return dict(cls.difficulty_presets[level])
+
+    def _apply_difficulty(self, difficulty: str, **given) -> dict[str, Any]:
+        """Set ``self.difficulty`` and return the keywords ``given`` with every one left
+        None filled from the level's preset (:func:`auv_envs.core.difficulty.resolve`)."""
+        resolved = levels.resolve(self.difficulty_presets, difficulty, given)
+        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
+        self.difficulty = difficulty
+        return resolved
 
     # ------------------------------------------------------------------ the loop
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -480,10 +480,7 @@ class AcousticTrackingEnv(TaskEnv):
             physics_substeps=physics_substeps, render_mode=render_mode,
             render_size=render_size, difficulty=difficulty,
         )
-        acoustic = levels.resolve(self.difficulty_presets, difficulty,
-                                  {"acoustic": acoustic})["acoustic"]
-        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
-        self.difficulty = difficulty
+        acoustic = self._apply_difficulty(difficulty, acoustic=acoustic)["acoustic"]
         self._render_size = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = self._render_size
         check_positive_int("physics_substeps", physics_substeps)

@@ -447,11 +447,8 @@ class DockingEnv(TaskEnv):
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
             optics=optics, difficulty=difficulty,
         )
-        level = levels.resolve(self.difficulty_presets, difficulty,
-                               {"disturbances": disturbances, "optics": optics})
+        level = self._apply_difficulty(difficulty, disturbances=disturbances, optics=optics)
         disturbances, optics = level["disturbances"], level["optics"]
-        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
-        self.difficulty = difficulty
         disturbances = disturbances if disturbances is not None else DockingDisturbances()
         if not isinstance(disturbances, DockingDisturbances):
             raise TypeError(

@@ -357,8 +357,8 @@ class LARSCaptureEnv(TaskEnv):
             render_mode=render_mode, render_camera=render_camera,
             render_size=render_size, sea=sea, glint=glint, difficulty=difficulty,
         )
-        level = levels.resolve(self.difficulty_presets, difficulty,
-                               {"sea": sea, "pixel_noise_std": pixel_noise_std, "glint": glint})
+        level = self._apply_difficulty(difficulty, sea=sea, pixel_noise_std=pixel_noise_std,
+                                       glint=glint)
         sea, pixel_noise_std, glint = level["sea"], level["pixel_noise_std"], level["glint"]
         if glint is False:
             glint = None
@@ -366,8 +366,6 @@ class LARSCaptureEnv(TaskEnv):
             raise TypeError(f"glint must be a SunGlint, False or None, got {glint!r}")
         if pixel_noise_std is None:
             pixel_noise_std = DEFAULT_PIXEL_NOISE_STD
-        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
-        self.difficulty = difficulty
         check_choice("sea_state", sea_state, SEA_STATES)
         sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
         #: The sun-glint model (``SunGlint``), None when off.
