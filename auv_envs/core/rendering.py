@@ -44,7 +44,8 @@ class CameraRenderer:
                  headlight: tuple[float, float] | None = None, fog: bool = False,
                  skybox: bool = False):
         """Args:
-            model: the compiled model (its ``vis`` offscreen size grows if needed).
+            model: the compiled model (its ``vis`` offscreen size grows if needed;
+                this renderer's own buffer is exactly its images' size).
             cameras: names of the model's cameras, drawn left to right.
             width, height: size of each camera's image, pixels.
             headlight: ``(ambient, diffuse)`` grey levels of the headlight for
@@ -70,11 +71,21 @@ class CameraRenderer:
             cam.fixedcamid = model.camera(name).id
             self._cams.append(cam)
         total_width = self._width * len(cameras)
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, total_width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, self._height)
-        self._gl = mujoco.GLContext(total_width, self._height)
-        self._gl.make_current()
-        self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        # The offscreen framebuffer is made at the model's offwidth x offheight when the
+        # context is: sized to this renderer's images, a small image costs a small
+        # buffer to clear, draw and read (at the model's 1280x960 an 84x84 frame cost
+        # nearly what a 320x240 one did). The model keeps the larger of the two sizes,
+        # for renderers made from it elsewhere (mujoco.Renderer checks it).
+        offscreen = model.vis.global_
+        model_size = (offscreen.offwidth, offscreen.offheight)
+        offscreen.offwidth, offscreen.offheight = total_width, self._height
+        try:
+            self._gl = mujoco.GLContext(total_width, self._height)
+            self._gl.make_current()
+            self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+        finally:
+            offscreen.offwidth = max(model_size[0], total_width)
+            offscreen.offheight = max(model_size[1], self._height)
         self._scene = mujoco.MjvScene(model, maxgeom=1000)
         self._scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = fog
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
