@@ -2,8 +2,10 @@
 
 * :mod:`baselines.lars.perception`: Siamese tracker, online detector, LTAT,
   marker corners and the marker pose measurement.
-* :mod:`baselines.lars.estimation`: cubature Kalman filter and the AUV motion model.
-* :mod:`baselines.lars.control`: quintic trajectories, IK and PD arm control.
+* :mod:`baselines.lars.estimation`: cubature Kalman filter, the AUV motion model
+  and the AUV state estimators (marker fixes or the true state).
+* :mod:`baselines.lars.control`: quintic trajectories, IK, PD arm control and
+  the capture planner (phases, capture goal, re-planning).
 * :mod:`baselines.lars.training`: offline training of the Siamese tracker.
 * :mod:`baselines.lars.agents`: the agents that wire them (declared in :mod:`baselines.catalogue`).
 """

@@ -32,9 +32,17 @@ against (``docs/difficulty.md``).
 ``stereo`` observation into the ``features`` one, and ``ckf-pd`` acts on
 that.
 
-The parts live by role: :mod:`baselines.lars.perception`,
-:mod:`baselines.lars.estimation`, :mod:`baselines.lars.control`; this module
-only wires them; :mod:`baselines.catalogue` declares the agents.
+The parts live by role and this module only wires them from
+``env.calibration``; :mod:`baselines.catalogue` declares the agents:
+
+* perception: :class:`~baselines.lars.perception.marker.MarkerLocaliser`
+  (marker fixes, eqs. 2-6);
+* estimation: :class:`~baselines.lars.estimation.auv_state.MarkerAUVEstimator`
+  (CKF, heave refit, relock, attitude mean; ``ckf-pd-state``:
+  :class:`~baselines.lars.estimation.auv_state.TrueStateAUVEstimator`);
+* control: :class:`~baselines.lars.control.capture.CapturePlanner` (phases,
+  capture goal, quintic re-planning, IK) and
+  :class:`~baselines.lars.control.arm.ComputedTorquePD` (eqs. 29-30).
 """
 
 from __future__ import annotations
@@ -43,31 +51,23 @@ import math
 
 import numpy as np
 
-from baselines.lars.control.arm import (
-    FOLLOW,
-    STRIKE,
-    CaptureStrategy,
-    ComputedTorquePD,
-    SampledTrajectory,
-    joint_reference,
+from baselines.lars.control.arm import CaptureStrategy, ComputedTorquePD, SampledTrajectory
+from baselines.lars.control.capture import CapturePlanner
+from baselines.lars.estimation.auv_state import (
+    GATE_3DOF,
+    HeaveRefit,
+    MarkerAUVEstimator,
+    PitchYawMean,
+    TrueStateAUVEstimator,
+    prior_heave_model,
 )
-from baselines.lars.estimation.ckf import (
-    CubatureKalmanFilter,
-    HeaveSurgeModel,
-    fit_heave,
-    position_measurement,
-    white_acceleration_noise,
-)
-from baselines.lars.perception.marker import MarkerLocaliser, attitude_rotation
+from baselines.lars.perception.marker import MarkerLocaliser
 
 ENV_IDS = ("auv_envs/LARSCapture-v0",)
 FEATURE_KEYS = ("pixels", "visible", "joint_position", "joint_velocity")
-#: 99.9 % point of the chi-square distribution with 3 degrees of freedom: the
-#: innovation gate against mismatched corners.
-GATE_3DOF = 16.27
-#: Heave prior before the first fit: a 7 s swell (the paper's "C is
-#: determined by the sine wave period") about the level the AUV floats at.
-PRIOR_HEAVE_PERIOD = 7.0
+#: The counts :meth:`CKFPDAgent.stats` reports first, in this order.
+COUNT_KEYS = ("fixes", "partial_fixes", "bridged", "gated", "reinitialised",
+              "mismatched_corners", "ik_failures", "heave_fits")
 
 
 def _check_env(env):
@@ -93,6 +93,13 @@ def _features(observation) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
 
 class CKFPDAgent:
     """Stereo marker fixes -> CKF -> quintic + IK + computed-torque PD [LTAT].
+
+    Wiring, from ``env.calibration``: :class:`MarkerLocaliser` (perception)
+    -> :class:`~baselines.lars.estimation.auv_state.MarkerAUVEstimator`
+    (estimation, with :class:`~baselines.lars.estimation.auv_state.HeaveRefit`
+    and :class:`~baselines.lars.estimation.auv_state.PitchYawMean`) ->
+    :class:`~baselines.lars.control.capture.CapturePlanner` (capture
+    strategy, quintic, IK) -> :class:`~baselines.lars.control.arm.ComputedTorquePD`.
 
     Args:
         env: an unwrapped ``LARSCaptureEnv`` with ``control="torque"``.
@@ -144,68 +151,45 @@ class CKFPDAgent:
         self.controller = ComputedTorquePD(
             cal.arm, cal.torque_limits, default_kp if kp is None else kp,
             default_kd if kd is None else kd)
-        self.strategy = CaptureStrategy(hover_height, strike_duration, follow_timeout)
-        self.trajectory = SampledTrajectory()
-        self.strike_enabled = bool(strike)
-        self.gate = gate
-        self._accel_std = np.broadcast_to(np.asarray(accel_std, dtype=float), (3,)).copy()
-        self._replan_every = max(1, round(sample_period / self.dt))
-        self._lookahead = float(lookahead)
-        self._heave_window = float(heave_window)
-        self._heave_min_span = float(heave_min_span)
-        self._refit_every = max(1, round(heave_refit_period / self.dt))
-        self._omega_bounds = tuple(float(b) for b in heave_omega_bounds)
-        self._attitude_memory = int(attitude_memory)
-        self._relock_after = max(1, round(relock_after / self.dt))
-        self._settle_fixes = max(1, round(settle_time / self.dt))
-        # geometry (end frame, calibration): cameras' midpoint and capture tip
-        self._camera_in_end = 0.5 * (cal.left_in_end[:3, 3] + cal.right_in_end[:3, 3])
-        self._tip_in_end = np.asarray(cal.capture_tip_in_end, dtype=float)
-        self._radius = cal.auv_diameter / 2.0
-        self._prior_model = HeaveSurgeModel(
-            self.dt, 2.0 * math.pi / PRIOR_HEAVE_PERIOD, cal.auv_freeboard - self._radius)
+        strategy = CaptureStrategy(hover_height, strike_duration, follow_timeout)
+        radius = cal.auv_diameter / 2.0
+        heave = HeaveRefit(prior_heave_model(self.dt, cal.auv_freeboard - radius),
+                           heave_window, heave_min_span, heave_omega_bounds)
+        self.estimator = self._make_estimator(
+            heave, PitchYawMean(attitude_memory), accel_std=accel_std, gate=gate,
+            refit_period=heave_refit_period, relock_after=relock_after, settle_time=settle_time)
+        self.planner = CapturePlanner(
+            cal.arm, cal.joint_limits, self.localiser,
+            camera_in_end=0.5 * (cal.left_in_end[:3, 3] + cal.right_in_end[:3, 3]),
+            tip_in_end=np.asarray(cal.capture_tip_in_end, dtype=float), auv_radius=radius,
+            dt=self.dt, strategy=strategy, trajectory=SampledTrajectory(),
+            sample_period=sample_period, lookahead=lookahead, strike=strike)
         self.reset()
+
+    def _make_estimator(self, heave: HeaveRefit, attitude: PitchYawMean, **filter_args):
+        return MarkerAUVEstimator(self.localiser, heave, attitude, **filter_args)
 
     # ------------------------------------------------------------------ protocol
     def reset(self, seed: int | None = None) -> None:
         del seed  # deterministic
-        self.model = self._prior_model
-        self.filter = CubatureKalmanFilter(
-            self.model, position_measurement, white_acceleration_noise(self.dt, self._accel_std),
-            np.eye(3))
-        self.localiser.reset()
-        self.strategy.reset()
-        self.trajectory.reset()
+        self.estimator.reset()
+        self.planner.reset()
         self._step = 0
-        self._hold: np.ndarray | None = None
-        self._pitch = self._yaw = math.nan
-        self._attitude_fixes = 0
-        self._rotation: np.ndarray | None = None
-        self._heights: list[tuple[float, float]] = []
-        self._heave = None
-        self._gated_run = self._settling = 0
-        self._last_ref = None
-        self.last_measurement: np.ndarray | None = None
-        self._stats = dict.fromkeys(
-            ("fixes", "partial_fixes", "bridged", "gated", "reinitialised",
-             "mismatched_corners", "ik_failures", "heave_fits"), 0)
 
     def act(self, observation, info: dict) -> np.ndarray:
         del info  # never read: the agent sees only the observation and the calibration
         pixels, visible, q, qd = _features(observation)
         t = self._step * self.dt
         self._step += 1
-        self._estimate(t, pixels, visible, q)
-        if self._settling < self._settle_fixes:
-            # no (or a fresh) estimate: hold the arm where it is until the filter settles
-            if self._hold is None:
-                self._hold = q.copy()
-            self.trajectory.reset()
-            return self.controller.action(q, qd, self._hold, np.zeros(3), np.zeros(3))
-        self._hold = None
-        return self._control(t, q, qd)
+        self.estimator.update(t, pixels, visible, q)
+        return self.controller.action(q, qd, *self.planner.reference(t, q, qd, self.estimator))
 
     # ------------------------------------------------------------------ queries
+    @property
+    def last_measurement(self) -> np.ndarray | None:
+        """The AUV's CG measured from the last observation (``None`` when it gave none)."""
+        return self.estimator.last_measurement
+
     def position_estimate(self) -> np.ndarray | None:
         """The AUV's CG in the world (3,), the CKF's estimate; ``None`` before the first fix.
 
@@ -213,11 +197,12 @@ class CKFPDAgent:
         :meth:`act`: compare it with the ``info["true_position"]`` that came
         with that observation.
         """
-        return None if not self.filter.initialised else self.filter.mean[:3].copy()
+        return None if not self.estimator.initialised else self.estimator.mean[:3].copy()
 
     def attitude_estimate(self) -> tuple[float, float] | None:
         """``(pitch, yaw)`` in radians (running mean of the fixes), ``None`` before one."""
-        return None if self._rotation is None else (self._pitch, self._yaw)
+        est = self.estimator
+        return None if est.rotation is None else (est.pitch, est.yaw)
 
     def stats(self) -> dict:
         """Counts of this episode and the current estimates.
@@ -232,126 +217,18 @@ class CKFPDAgent:
         ``pixel_std`` (px, the noise the fixes assume now),
         ``pitch_deg``, ``yaw_deg``.
         """
-        out = dict(self._stats)
+        est, fit = self.estimator, self.estimator.fit
+        counts = dict(est.counts, ik_failures=self.planner.ik_failures)
+        out = {key: counts[key] for key in COUNT_KEYS}
         out.update(
-            phase=self.strategy.phase,
-            strikes=self.strategy.strikes,
-            heave_period=(2.0 * math.pi / self._heave.omega) if self._heave else math.nan,
+            phase=self.planner.strategy.phase,
+            strikes=self.planner.strategy.strikes,
+            heave_period=(2.0 * math.pi / fit.omega) if fit else math.nan,
             pixel_std=self.localiser.pixel_std,
-            pitch_deg=math.degrees(self._pitch),
-            yaw_deg=math.degrees(self._yaw),
+            pitch_deg=math.degrees(est.pitch),
+            yaw_deg=math.degrees(est.yaw),
         )
         return out
-
-    # ------------------------------------------------------------------ estimation
-    def _estimate(self, t: float, pixels, visible, q) -> None:
-        fix = self.localiser.locate(pixels, visible, q)
-        self._stats["mismatched_corners"] += fix.rejected
-        if self.filter.initialised:
-            self.filter.predict()
-        self.last_measurement = None
-        first_attitude = self._rotation is None and fix.pitch is not None
-        if first_attitude:
-            self._update_attitude(fix.pitch, fix.yaw)
-        if fix.count == 0 or self._rotation is None:
-            self._stats["bridged"] += self.filter.initialised
-            return
-        cg, cov = self.localiser.auv_position(fix, self._rotation)
-        if not self.filter.initialised or self._gated_run >= self._relock_after:
-            # first fix, or the filter lost lock (every fix gated for a while)
-            self._stats["reinitialised"] += self.filter.initialised
-            p0 = np.diag(np.concatenate((np.diag(cov), np.full(3, 0.2**2))))
-            self.filter.initialise(np.concatenate((cg, np.zeros(3))), p0)
-            self._gated_run = self._settling = 0
-        elif not self.filter.update(
-                cg, cov, self.gate if self._settling >= self._settle_fixes else None):
-            # (a settling filter has no basis yet to call a fix an outlier)
-            self._stats["gated"] += 1
-            self._gated_run += 1
-            self._stats["bridged"] += 1
-            return
-        self._gated_run = 0
-        self._settling += 1
-        self.last_measurement = cg
-        self._stats["fixes" if fix.count == 3 else "partial_fixes"] += 1
-        if fix.pitch is not None and not first_attitude:  # only from fixes that passed the gate
-            self._update_attitude(fix.pitch, fix.yaw)
-        self._heights.append((t, float(cg[2])))
-        if self._step % self._refit_every == 0:
-            self._refit_heave(t)
-
-    def _update_attitude(self, pitch: float, yaw: float) -> None:
-        self._attitude_fixes += 1
-        w = 1.0 / min(self._attitude_fixes, self._attitude_memory)
-        if self._rotation is None:
-            self._pitch, self._yaw = pitch, yaw
-        else:
-            self._pitch += w * (pitch - self._pitch)
-            self._yaw += w * (yaw - self._yaw)
-        self._rotation = attitude_rotation(self._pitch, self._yaw)
-
-    def _refit_heave(self, t: float) -> None:
-        while self._heights and self._heights[0][0] < t - self._heave_window:
-            self._heights.pop(0)
-        if not self._heights or t - self._heights[0][0] < self._heave_min_span:
-            return
-        times, z = np.array(self._heights).T
-        fit = fit_heave(times, z, self._omega_bounds)
-        self._heave = fit
-        self._stats["heave_fits"] += 1
-        self.model = self.model.with_heave(fit.omega, fit.mean)
-        self.filter.transition = self.model
-
-    # ------------------------------------------------------------------ control
-    def _control(self, t: float, q, qd) -> np.ndarray:
-        state = self.filter.mean
-        ready = self._heave is not None and self.strike_enabled
-        before = self.strategy.phase
-        phase = self.strategy.update(t, float(state[5]), ready)
-        sample = self._step % self._replan_every == 0
-        if self.trajectory.segment is None or phase != before or sample:
-            self._replan(t, phase, q, qd)
-        p, v, a = self.trajectory.reference(t)
-        try:
-            self._last_ref = joint_reference(self.calibration.arm, p, v, a)
-        except ValueError:
-            self._stats["ik_failures"] += 1
-            if self._last_ref is None:
-                self._last_ref = (self._hold, np.zeros(3), np.zeros(3))
-        q_ref, qd_ref, qdd_ref = self._last_ref
-        limits = self.calibration.joint_limits
-        q_ref = np.clip(q_ref, limits[:, 0], limits[:, 1])
-        return self.controller.action(q, qd, q_ref, qd_ref, qdd_ref)
-
-    def _replan(self, t: float, phase: str, q, qd) -> None:
-        arm = self.calibration.arm
-        start = (arm.forward_kinematics(q), arm.jacobian(q) @ qd, np.zeros(3))
-        if phase == STRIKE:
-            t_target = max(self.strategy.strike_end, t + self.dt)
-        else:
-            t_target = t + self._lookahead
-        goal = self._goal(phase, t_target - t)
-        self.trajectory.replan(t, start, t_target, goal)
-
-    def _goal(self, phase: str, horizon: float):
-        """The arm end's target ``(p, v, a)`` ``horizon`` s from now."""
-        pos, vel, acc = self.model.kinematics(self.filter.mean, horizon)
-        rot = self._rotation
-        if phase in (STRIKE, FOLLOW):
-            # the capture tip on the capture point (the tip hangs straight below the end)
-            return self.localiser.capture_point(pos, rot) - self._tip_in_end, vel, acc
-        top = pos[2] + self._radius
-        marker = self.localiser.marker_centre(pos, rot)
-        end = np.array([marker[0], marker[1], top + self.strategy.hover_height])
-        for _ in range(3):  # the cameras sit off the end, turned with the slew angle
-            try:
-                slew = self.calibration.arm.inverse_kinematics(end)[0]
-            except ValueError:
-                break
-            c, s = math.cos(slew), math.sin(slew)
-            ox, oy = self._camera_in_end[:2]
-            end[:2] = marker[:2] - (c * ox - s * oy, s * ox + c * oy)
-        return end, vel, acc
 
 
 class TrueStateCKFPDAgent(CKFPDAgent):
@@ -359,15 +236,20 @@ class TrueStateCKFPDAgent(CKFPDAgent):
     and PD fed the true AUV state from the ``state`` observation.
 
     What it measures is how much of the task the arm controller alone can
-    solve: the filter's state is the true centre of gravity and velocity every
-    step (no marker, no triangulation, no noise), the attitude the true pitch
-    and yaw. Positions are taken in the arm's (ship's) frame as ``ckf-pd``'s
-    fixes are: the forward kinematics of the joint angles plus the observed
-    AUV-minus-arm-end offset, velocities likewise (the ship's small roll and
-    pitch rotate the offset by a few degrees at most; ``ckf-pd`` makes the
-    same approximation through its levelled head). The strike still predicts
-    with the fitted eq. 8 model, as ``ckf-pd`` does.
+    solve: the estimate (:class:`~baselines.lars.estimation.auv_state.TrueStateAUVEstimator`)
+    is the true centre of gravity and velocity every step (no marker, no
+    triangulation, no noise), the attitude the true pitch and yaw. Positions
+    are taken in the arm's (ship's) frame as ``ckf-pd``'s fixes are: the
+    forward kinematics of the joint angles plus the observed AUV-minus-arm-end
+    offset, velocities likewise (the ship's small roll and pitch rotate the
+    offset by a few degrees at most; ``ckf-pd`` makes the same approximation
+    through its levelled head). The strike still predicts with the fitted
+    eq. 8 model, as ``ckf-pd`` does.
     """
+
+    def _make_estimator(self, heave: HeaveRefit, attitude: PitchYawMean, **filter_args):
+        del attitude  # the true attitude, not a mean of fixes
+        return TrueStateAUVEstimator(heave, filter_args["refit_period"])
 
     def act(self, observation, info: dict) -> np.ndarray:
         del info  # the privileged state is the observation itself
@@ -381,15 +263,8 @@ class TrueStateCKFPDAgent(CKFPDAgent):
         velocity = arm.jacobian(q) @ qd + obs[15:18] - obs[9:12]
         t = self._step * self.dt
         self._step += 1
-        self.filter.initialise(np.concatenate((position, velocity)), np.eye(6) * 1e-8)
-        self._pitch, self._yaw = float(obs[21]), float(obs[22])
-        self._rotation = attitude_rotation(self._pitch, self._yaw)
-        self._heights.append((t, float(position[2])))
-        if self._step % self._refit_every == 0:
-            self._refit_heave(t)
-        if self._hold is None:
-            self._hold = q.copy()
-        return self._control(t, q, qd)
+        self.estimator.update(t, position, velocity, float(obs[21]), float(obs[22]))
+        return self.controller.action(q, qd, *self.planner.reference(t, q, qd, self.estimator))
 
 
 def make_front_end(env):
