@@ -144,7 +144,25 @@ class PitchYawMean:
         self.rotation = attitude_rotation(self.pitch, self.yaw)
 
 
-class MarkerAUVEstimator:
+class _HeaveModelEstimate:
+    """What both estimators report through their heave model: the model, its last fit,
+    and the CG's kinematics ahead (from ``self.heave`` and ``self.mean``)."""
+
+    @property
+    def model(self) -> HeaveSurgeModel:
+        return self.heave.model
+
+    @property
+    def fit(self) -> HeaveFit | None:
+        """The last heave fit (``None`` before one)."""
+        return self.heave.fit
+
+    def kinematics(self, horizon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The CG's position, velocity and acceleration ``horizon`` s ahead (the model's)."""
+        return self.heave.model.kinematics(self.mean, horizon)
+
+
+class MarkerAUVEstimator(_HeaveModelEstimate):
     """The AUV's CG position and velocity, heave and attitude from stereo marker fixes [LTAT].
 
     Estimates the state of eq. 7, ``X = (x, y, z, vx, vy, vz)`` (the AUV's
@@ -240,15 +258,6 @@ class MarkerAUVEstimator:
         return self._settling >= self._settle_fixes
 
     @property
-    def model(self) -> HeaveSurgeModel:
-        return self.heave.model
-
-    @property
-    def fit(self) -> HeaveFit | None:
-        """The last heave fit (``None`` before one)."""
-        return self.heave.fit
-
-    @property
     def rotation(self) -> np.ndarray | None:
         return self.attitude.rotation
 
@@ -259,10 +268,6 @@ class MarkerAUVEstimator:
     @property
     def yaw(self) -> float:
         return self.attitude.yaw
-
-    def kinematics(self, horizon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The CG's position, velocity and acceleration ``horizon`` s ahead (the model's)."""
-        return self.heave.model.kinematics(self.filter.mean, horizon)
 
     # ------------------------------------------------------------------ update
     def update(self, t: float, pixels, visible, joint_position) -> None:
@@ -312,7 +317,7 @@ class MarkerAUVEstimator:
             self.filter.transition = self.heave.model
 
 
-class TrueStateAUVEstimator:
+class TrueStateAUVEstimator(_HeaveModelEstimate):
     """The estimator's outputs from the true AUV state (``ckf-pd-state``'s privileged stand-in).
 
     Each :meth:`update` takes the true CG position and velocity and the true
@@ -346,17 +351,6 @@ class TrueStateAUVEstimator:
     @property
     def initialised(self) -> bool:
         return self.mean is not None
-
-    @property
-    def model(self) -> HeaveSurgeModel:
-        return self.heave.model
-
-    @property
-    def fit(self) -> HeaveFit | None:
-        return self.heave.fit
-
-    def kinematics(self, horizon: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.heave.model.kinematics(self.mean, horizon)
 
     def update(self, t: float, position, velocity, pitch: float, yaw: float) -> None:
         """The true CG position and velocity (3 each) and attitude (rad) at time ``t`` (s)."""
