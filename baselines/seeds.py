@@ -3,6 +3,10 @@
 * ``[1000, 99999]`` (:data:`TRAIN_SEED_RANGE`): the Siamese tracker's training sequences
   (:mod:`baselines.lars.training.siamese`); ``train.py`` training seeds stay below
   :data:`TRAIN_EVAL_SEED_BASE` (checked in :mod:`baselines.rl.config`).
+* ``10000 ...`` (:data:`DATASET_SEED_BASE`): the default seeds of expert datasets
+  (:mod:`baselines.datasets`), inside :data:`TRAIN_SEED_RANGE`, clear of the Siamese
+  sequences and of ``train.py``'s first seeds; a dataset that reaches
+  :data:`TRAIN_EVAL_SEED_BASE` is warned about.
 * ``90000 ...`` (:data:`TRAIN_EVAL_SEED_BASE`): the held-out episodes ``train.py``
   evaluates on while it trains.
 * ``100000 ...`` (:data:`EVAL_SEED_BASE`): the leaderboard's frozen evaluation seeds
@@ -22,6 +26,9 @@ TRAIN_EVAL_SEED_BASE = 90_000
 #: Seeds of the Siamese tracker's training sequences (inclusive), below
 #: :data:`EVAL_SEED_BASE`.
 TRAIN_SEED_RANGE = (1000, 99999)
+#: Expert datasets (imitation, offline RL) record from this seed by default: training
+#: data, below :data:`TRAIN_EVAL_SEED_BASE` with room for 80000 episodes.
+DATASET_SEED_BASE = 10_000
 
 
 def default_seeds(episodes: int) -> list[int]:

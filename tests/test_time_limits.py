@@ -96,3 +96,18 @@ def test_sb3_sees_time_limit_truncation():
         assert infos[0]["episode_metrics"]["steps"] == 3
     finally:
         vec.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_gym_make_of_an_envs_spec_rebuilds_it(env_id):
+    """The summary wrapper is recorded in the spec (with its arguments: none), so
+    ``gym.make(env.spec)`` (as Minari's ``recover_environment`` does) rebuilds the env."""
+    env = gym.make(env_id, time_limit=2.0)
+    copy = gym.make(env.spec)
+    try:
+        assert isinstance(copy, auv_envs.core.env.EpisodeSummary)
+        assert copy.spec.kwargs == env.spec.kwargs
+        np.testing.assert_equal(copy.reset(seed=3)[0], env.reset(seed=3)[0])
+    finally:
+        env.close()
+        copy.close()

@@ -353,7 +353,7 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
         """The ``render_mode="rgb_array"`` frame."""
 
 
-class EpisodeSummary(gym.Wrapper):
+class EpisodeSummary(gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Puts the episode's summary in ``info`` when a wrapper below truncated the episode.
 
     Every ``auv_envs`` env writes ``info["episode_metrics"]`` on the step that
@@ -373,7 +373,9 @@ class EpisodeSummary(gym.Wrapper):
     """
 
     def __init__(self, env: gym.Env):
-        super().__init__(env)
+        # Recorded (no arguments) in the env's spec, so gym.make(env.spec) rebuilds it.
+        gym.utils.RecordConstructorArgs.__init__(self)
+        gym.Wrapper.__init__(self, env)
         unwrapped = env.unwrapped
         if unwrapped.spec is None:
             return
