@@ -179,3 +179,23 @@ def test_rotation_from_euler_casadi_equals_numpy():
     for roll, pitch, yaw in rng.uniform(-3.0, 3.0, (20, 3)):
         np.testing.assert_allclose(np.array(rotation([roll, pitch, yaw])),
                                    frames.rotation_from_euler(roll, pitch, yaw), atol=1e-15)
+
+
+def test_quaternion_helpers_match_mujoco():
+    """rotation_rows_from_quat is mju_quat2Mat; quat_integrate is mju_quatIntegrate
+    (the free joint's position update), also for a batch and at zero angular velocity."""
+    rng = np.random.default_rng(5)
+    quats = rng.normal(size=(6, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    omegas = rng.normal(size=(6, 3)) * 2.0
+    omegas[0] = 0.0
+    for quat, omega in zip(quats, omegas, strict=True):
+        expected = np.zeros(9)
+        mujoco.mju_quat2Mat(expected, quat)
+        np.testing.assert_allclose(frames.rotation_rows_from_quat(*quat), expected, atol=1e-15)
+        turned = quat.copy()
+        mujoco.mju_quatIntegrate(turned, omega, 0.03)
+        np.testing.assert_allclose(frames.quat_integrate(quat, omega, 0.03), turned, atol=1e-15)
+    batch = frames.quat_integrate(quats, omegas, 0.03)
+    for k in range(len(quats)):
+        np.testing.assert_allclose(batch[k], frames.quat_integrate(quats[k], omegas[k], 0.03))

@@ -56,6 +56,42 @@ def rotation_from_euler(roll, pitch, yaw, ops=np):
     return ops.vertcat(*(ops.horzcat(*row) for row in rows))
 
 
+def rotation_rows_from_quat(w, x, y, z) -> tuple:
+    """Body-to-world rotation of the unit quaternion ``(w, x, y, z)`` (MuJoCo's order), as
+    9 scalars row by row.
+
+    Plain arithmetic on the four components: floats, NumPy arrays or JAX arrays
+    (a batch at once, elementwise), as :func:`auv_envs.core.hydrodynamics.hydrodynamic_force`.
+    """
+    return (
+        1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y),
+    )
+
+
+def quat_integrate(quat, omega_body, h, ops=np):
+    """The unit quaternion ``quat`` (w, x, y, z) turned by the body-frame angular velocity
+    ``omega_body`` for ``h`` seconds: ``quat * exp(omega h / 2)``, normalised (MuJoCo's
+    free-joint position update). ``ops``: ``numpy`` or ``jax.numpy``; the last axis holds
+    the components, leading axes are a batch."""
+    angle = ops.linalg.norm(omega_body, axis=-1, keepdims=True) * h
+    half = 0.5 * angle
+    # sin(a/2)/a, with its limit 1/2 at a = 0 (the series keeps it smooth there).
+    safe = ops.where(angle > 1e-8, angle, 1.0)
+    scale = ops.where(angle > 1e-8, ops.sin(half) / safe, 0.5 - angle * angle / 48.0)
+    dq = ops.concatenate([ops.cos(half), omega_body * h * scale], axis=-1)
+    w1, x1, y1, z1 = (quat[..., k] for k in range(4))
+    w2, x2, y2, z2 = (dq[..., k] for k in range(4))
+    product = ops.stack([
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    ], axis=-1)
+    return product / ops.linalg.norm(product, axis=-1, keepdims=True)
+
+
 def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """ZYX Euler angles ``(roll, pitch, yaw)`` of a body-to-world rotation."""
     r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
