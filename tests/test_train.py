@@ -369,6 +369,18 @@ def test_exported_policy_acts_as_in_training(ppo_runs, tmp_path):
     env.close()
 
 
+def test_training_level_and_episode_length_do_not_bind_the_evaluation(ppo_runs, tmp_path):
+    """A policy trained at one difficulty level (or episode length) is evaluated at any;
+    its other environment arguments (e.g. LARS control) still bind."""
+    _, whole, _, _ = ppo_runs
+    path = export_policy(whole.run_dir, "ppo-test-level", tmp_path)
+    manifest = json.loads((path / "policy.json").read_text())
+    manifest["env_kwargs"] = {"difficulty": "paper", "time_limit": 10.0, "scenario": "current"}
+    (path / "policy.json").write_text(json.dumps(manifest))
+    spec = agents.policy_spec(path)
+    assert spec.env_kwargs == {"scenario": "current"}
+
+
 def test_exported_seed_carries_its_group(ppo_runs, tmp_path):
     _, whole, _, _ = ppo_runs
     path = export_policy(whole.run_dir, "ppo-test-s7", tmp_path, group="ppo-test")

@@ -42,8 +42,9 @@ def load_policy_agent(directory: str | Path, env) -> PolicyAgent:
     return PolicyAgent.from_directory(env, directory)
 
 
-#: Training arguments that do not bind an evaluation: the episode length.
-_TRAINING_ONLY_KWARGS = ("time_limit",)
+#: Training arguments that do not bind an evaluation: the episode length, and the
+#: difficulty level it trained at (the leaderboard runs a policy at every level).
+_TRAINING_ONLY_KWARGS = ("time_limit", "difficulty")
 
 
 def policy_spec(directory: Path, name: str | None = None) -> AgentSpec:
