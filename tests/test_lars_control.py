@@ -95,7 +95,7 @@ def test_inverse_kinematics_round_trip(env):
 
 def test_computed_torque_equals_inverse_dynamics_of_the_pd_acceleration(env):
     cal = env.unwrapped.calibration
-    pd = ComputedTorquePD(cal.arm, cal.torque_limits)
+    pd = ComputedTorquePD(cal.arm, cal.torque_limits, *cal.position_gains)
     q, qd = np.array([0.1, 0.2, -1.4]), np.array([0.05, -0.1, 0.2])
     q_ref, qd_ref, qdd_ref = q + 0.01, np.zeros(3), np.array([0.1, 0.0, -0.1])
     accel = qdd_ref + 20.0 * (qd_ref - qd) + 160.0 * (q_ref - q)
@@ -104,14 +104,14 @@ def test_computed_torque_equals_inverse_dynamics_of_the_pd_acceleration(env):
     action = pd.action(q, qd, q_ref, qd_ref, qdd_ref)
     assert np.all(np.abs(action) <= 1.0)
     with pytest.raises(ValueError, match="gains"):
-        ComputedTorquePD(cal.arm, cal.torque_limits, kp=0.0)
+        ComputedTorquePD(cal.arm, cal.torque_limits, kp=0.0, kd=cal.position_gains[1])
 
 
 def test_pd_tracks_a_quintic_move_in_the_simulator(env):
     """The arm end follows a 0.3 m quintic move in MuJoCo through IK + PD (torques)."""
     unwrapped = env.unwrapped
     cal = unwrapped.calibration
-    pd = ComputedTorquePD(cal.arm, cal.torque_limits)
+    pd = ComputedTorquePD(cal.arm, cal.torque_limits, *cal.position_gains)
     obs, _ = env.reset(seed=0)
     q0 = obs["joint_position"].astype(float)
     p0 = cal.arm.forward_kinematics(q0)

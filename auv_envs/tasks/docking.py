@@ -388,7 +388,7 @@ class DockingEnv(TaskEnv):
     and draw no extra random numbers); ``difficulty`` (default ``"easy"``,
     the release). Rendering (both versions; dynamics and rewards unchanged):
     the seabed is drawn on a 2 m grid instead of 0.1 m, which makes a frame
-    4-5 times cheaper (``docs/speed.md``); an ``image`` observation can
+    3-4 times cheaper (``docs/speed.md``); an ``image`` observation can
     differ from before at a few pixels where objects meet the seabed (at
     most 6 of 7,056 pixels at 84x84, 13 grey levels, on 168 checked frames;
     none or one in the turbid water of ``hard``).

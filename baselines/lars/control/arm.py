@@ -37,11 +37,6 @@ import math
 
 import numpy as np
 
-#: [LTAT], eq. 30 and §3.4: "Kp = 160 and Kd = 20". The env's
-#: ``calibration.position_gains`` carries the same numbers (the gains of its
-#: ``control="position"`` inner loop); the ``ckf-pd`` agent reads them there.
-KP, KD = 160.0, 20.0
-
 # Powers and derivative factors of the quintic, built once (evaluated every step).
 _EXPONENTS = np.arange(6)
 _RATE_FACTORS = np.arange(1, 6)
@@ -152,10 +147,11 @@ class ComputedTorquePD:
     Args:
         arm: the ``ArmModel`` (M, C, G of eq. 29).
         torque_limits: (3,) N m, the env's action scale.
-        kp, kd: eq. 30's gains (1/s^2, 1/s).
+        kp, kd: eq. 30's gains (1/s^2, 1/s): [LTAT] §3.4's Kp = 160, Kd = 20 are the
+            env's ``calibration.position_gains``.
     """
 
-    def __init__(self, arm, torque_limits, kp: float = KP, kd: float = KD):
+    def __init__(self, arm, torque_limits, kp: float, kd: float):
         if not (kp > 0 and kd > 0):
             raise ValueError(f"gains must be positive, got kp={kp}, kd={kd}")
         self.arm = arm
