@@ -56,12 +56,13 @@ class DockingPlantMJX:
         model.geom_contype[:] = 0
         model.geom_conaffinity[:] = 0
         self.model = mjx.put_model(model)
-        self._data = mjx.make_data(model)
+        #: An MJX data of the model at rest (the template each evaluation fills).
+        self.rest_data = mjx.make_data(model)
         hull = env.hull
         self.hull = HullForceModel(hull.params, hull.body_id, hull.qvel_adr)
         self.timestep = float(model.opt.timestep)
         self.substeps = round(env.dt / self.timestep)
-        self.step = jax.jit(jax.vmap(self._step))
+        self.step = jax.jit(jax.vmap(self.advance))
         self.acceleration = jax.jit(jax.vmap(self._acceleration))
 
     def _acceleration(self, qpos, qvel, tau, current):
@@ -74,7 +75,7 @@ class DockingPlantMJX:
         # The free joint's generalized force: world force at the CG, body torque.
         qfrc = jnp.stack([r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2,
                           r20 * f0 + r21 * f1 + r22 * f2, m0, m1, m2])
-        data = self._data.replace(qpos=qpos, qvel=qvel, qfrc_applied=qfrc)
+        data = self.rest_data.replace(qpos=qpos, qvel=qvel, qfrc_applied=qfrc)
         return mjx.forward(self.model, data).qacc
 
     def _integrate(self, qpos, velocity, h):
@@ -95,7 +96,9 @@ class DockingPlantMJX:
         acceleration = sum(b * a for b, a in zip(RK4_WEIGHTS, accelerations, strict=True))
         return self._integrate(qpos, velocity, h), qvel + h * acceleration
 
-    def _step(self, qpos, qvel, tau, current):
+    def advance(self, qpos, qvel, tau, current):
+        """One vehicle one control period on (``physics_substeps`` RK4 steps); :meth:`step`
+        is this batched and compiled."""
         for _ in range(self.substeps):
             qpos, qvel = self._rk4(qpos, qvel, tau, current)
         return qpos, qvel

@@ -15,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core.frames import R_MJCAM_TO_CV
+from auv_envs.core.ops import FLOATS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,6 +102,36 @@ def inside_image(
     return ((pixels >= margin) & (pixels < upper)).all(axis=1)
 
 
+def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, ops=FLOATS):
+    """The pinhole projection of one world offset from the camera centre, in scalar arithmetic.
+
+    The model of :func:`points_in_camera`, :func:`project` and
+    :func:`inside_image` (tested equal to them), written once for every
+    backend of :mod:`auv_envs.core.ops`: Python floats (:func:`project_few`,
+    an environment's per-step path) or JAX arrays (the batched environments,
+    a batch of points elementwise).
+
+    Args:
+        intrinsics: camera intrinsics.
+        dx, dy, dz: the point minus the camera centre, world frame.
+        cam_rotation_world: rotation from the OpenCV camera frame to the
+            world as 3 rows of 3 scalars.
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
+
+    Returns:
+        ``(u, v, in_image)``: the pixel (NaN behind the camera) and whether
+        the point is in front of the camera and inside the image.
+    """
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cam_rotation_world
+    depth = dx * r02 + dy * r12 + dz * r22
+    front = depth > 1e-6
+    depth = ops.where(front, depth, 1.0)
+    u = (dx * r00 + dy * r10 + dz * r20) / depth * intrinsics.fx + intrinsics.cx
+    v = (dx * r01 + dy * r11 + dz * r21) / depth * intrinsics.fy + intrinsics.cy
+    inside = front & (0.0 <= u) & (u < intrinsics.width) & (0.0 <= v) & (v < intrinsics.height)
+    return ops.where(front, u, math.nan), ops.where(front, v, math.nan), inside
+
+
 def project_few(
     intrinsics: CameraIntrinsics,
     points_world: list,
@@ -109,8 +140,7 @@ def project_few(
 ) -> tuple[list, list]:
     """Project a handful of world points into the image: an environment's per-step path.
 
-    The same model as :func:`points_in_camera`, :func:`project` and
-    :func:`inside_image` (tested equal to them), in Python floats: for the few
+    :func:`project_point` in Python floats, point by point: for the few
     points an environment projects every step (six lights, say), NumPy's
     per-call overhead is several times the arithmetic.
 
@@ -126,22 +156,12 @@ def project_few(
         behind the camera) and whether each point is in front of the camera
         and inside the image.
     """
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cam_rotation_world
     px, py, pz = cam_position_world
-    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
-    width, height = intrinsics.width, intrinsics.height
     pixels, in_image = [], []
     for x, y, z in points_world:
-        dx, dy, dz = x - px, y - py, z - pz
-        depth = dx * r02 + dy * r12 + dz * r22
-        if depth > 1e-6:
-            u = (dx * r00 + dy * r10 + dz * r20) / depth * fx + cx
-            v = (dx * r01 + dy * r11 + dz * r21) / depth * fy + cy
-            pixels.append((u, v))
-            in_image.append(0.0 <= u < width and 0.0 <= v < height)
-        else:
-            pixels.append((math.nan, math.nan))
-            in_image.append(False)
+        u, v, inside = project_point(intrinsics, x - px, y - py, z - pz, cam_rotation_world)
+        pixels.append((u, v))
+        in_image.append(inside)
     return pixels, in_image
 
 

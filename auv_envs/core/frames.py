@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from auv_envs.core.ops import FLOATS
+
 #: Rotation from MuJoCo's camera frame (-z forward, y up) to OpenCV's
 #: (z forward, y down). Its own inverse.
 R_MJCAM_TO_CV = np.diag([1.0, -1.0, -1.0])
@@ -116,15 +118,17 @@ def rotate_rows(rows, point) -> tuple[float, float, float]:
     return tuple(a * x + b * y + c * z for a, b, c in rows)
 
 
-def euler_floats(rows) -> tuple[float, float, float]:
-    """:func:`euler_from_rotation` in Python floats, for per-step use.
+def euler_floats(rows, ops=FLOATS) -> tuple[float, float, float]:
+    """:func:`euler_from_rotation` in scalar arithmetic: Python floats for per-step use,
+    or any backend of :mod:`auv_envs.core.ops` (JAX arrays elementwise).
 
     Args:
-        rows: the rotation as 3 rows of 3 floats (nested sequences).
+        rows: the rotation as 3 rows of 3 scalars (nested sequences).
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
     """
-    pitch = -math.asin(min(1.0, max(-1.0, rows[2][0])))
-    roll = math.atan2(rows[2][1], rows[2][2])
-    yaw = math.atan2(rows[1][0], rows[0][0])
+    pitch = -ops.asin(ops.clip(rows[2][0], -1.0, 1.0))
+    roll = ops.atan2(rows[2][1], rows[2][2])
+    yaw = ops.atan2(rows[1][0], rows[0][0])
     return roll, pitch, yaw
 
 
@@ -145,12 +149,15 @@ def compose_rows(a, b) -> tuple:
     )
 
 
-def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Unit quaternion ``(w, x, y, z)`` (MuJoCo order) for ZYX Euler angles."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.array(
+def quat_from_euler(roll, pitch, yaw, xp=np):
+    """Unit quaternion ``(w, x, y, z)`` (MuJoCo order) for ZYX Euler angles.
+
+    ``xp``: the array module, ``numpy`` (the default) or ``jax.numpy``.
+    """
+    cr, sr = xp.cos(roll / 2), xp.sin(roll / 2)
+    cp, sp = xp.cos(pitch / 2), xp.sin(pitch / 2)
+    cy, sy = xp.cos(yaw / 2), xp.sin(yaw / 2)
+    return xp.array(
         [
             cr * cp * cy + sr * sp * sy,
             sr * cp * cy - cr * sp * sy,
@@ -161,8 +168,9 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 def wrap_angle(angle):
-    """Wrap an angle (or array of angles) to ``[-pi, pi)``; a Python float stays a float."""
-    if type(angle) is float:  # per-step scalar path: no NumPy round trip
+    """Wrap an angle (or array of angles) to ``[-pi, pi)``; a Python float stays a float,
+    and a JAX array stays a JAX array."""
+    if type(angle) is float or hasattr(angle, "at"):  # a Python float or a JAX array
         return (angle + math.pi) % (2.0 * math.pi) - math.pi
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 

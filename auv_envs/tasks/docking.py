@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core import frames, passive
+from auv_envs.core import passive
 from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
@@ -44,6 +44,7 @@ from auv_envs.core.vehicle import (
     thruster_lag_gain,
     with_damping_mismatch,
 )
+from auv_envs.tasks.docking_rules import FAILURE_REASONS, DockingRules, DockingTolerances
 from auv_envs.tasks.docking_station import (
     CHASE_HEADLIGHT,
     LAMP_ARRAY,
@@ -79,21 +80,6 @@ CONTROL_PERIOD = 0.1
 #: Euler, the v0 plant: first order, centimetres and degrees from the converged
 #: solution after 10 s at its 0.05 s step; ``docs/physics.md``).
 INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4, "euler": mujoco.mjtIntegrator.mjINT_EULER}
-
-@dataclasses.dataclass(frozen=True)
-class DockingTolerances:
-    """Allowable deviations at the entrance (success), our documented defaults.
-
-    The nose must be within ``longitudinal`` of the entrance plane, within
-    ``lateral`` / ``vertical`` of the docking axis, and the heading within
-    ``heading_deg`` of the station's axis.
-    """
-
-    lateral: float = 0.2
-    vertical: float = 0.2
-    heading_deg: float = 10.0
-    longitudinal: float = 0.15
-
 
 @dataclasses.dataclass(frozen=True)
 class DockingDisturbances:
@@ -542,11 +528,19 @@ class DockingEnv(TaskEnv):
         self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
         # Per-step constants as Python floats (the step path works in floats).
         self._thrust = tuple(float(t) for t in self._params.thrust_limits)
-        self._cam_rot_body = self.calibration.extrinsics.rotation
-        self._cam_pos_body = self.calibration.extrinsics.position
         self._lights = [tuple(p) for p in light_positions.tolist()]
-        self._hull_axes = (nose, self._params.diameter / 2, self._params.diameter / 2)
-        self._heading_tolerance = math.radians(self.calibration.tolerances.heading_deg)
+        #: The task's geometry and rules (:mod:`auv_envs.tasks.docking_rules`), which the
+        #: batched environment evaluates too.
+        self.rules = DockingRules(
+            intrinsics=self.calibration.intrinsics,
+            camera_position=self.calibration.extrinsics.position,
+            camera_rotation=self.calibration.extrinsics.rotation,
+            lights=tuple(self._lights), nose_offset=nose,
+            hull_axes=(nose, self._params.diameter / 2, self._params.diameter / 2),
+            seabed_z=self.physics.seabed_z, tolerances=self.calibration.tolerances,
+            min_visible=self._min_visible, lights_lost_timeout=self._lost_timeout,
+            control_period=self._dt,
+        )
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
@@ -621,7 +615,7 @@ class DockingEnv(TaskEnv):
             self._episode.outages = outages
             self.physics.show_lamps(outages.failed)
         truth = self._truth()
-        self._episode.prev_potential = self._potential(truth)
+        self._episode.prev_potential = self.rules.potential(truth)
         self._episode.min_lights_visible = truth["n_visible"]
         extras = {}
         if draws:
@@ -681,42 +675,27 @@ class DockingEnv(TaskEnv):
         return self._truth()
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        ep = self._episode
-        tol = self.calibration.tolerances
+        ep, rules = self._episode, self.rules
         n_visible = truth["n_visible"]
         ep.min_lights_visible = min(ep.min_lights_visible, n_visible)
         fov_violation = n_visible < self._min_visible
-        ep.lost_time = ep.lost_time + self._dt if fov_violation else 0.0
+        ep.lost_time = rules.lights_lost_time(ep.lost_time, fov_violation)
         ep.fov_violations += int(fov_violation)
 
-        docked = self._docked(truth, tol)
-        behind = truth["longitudinal"] > tol.longitudinal and not docked
-        seabed = truth["seabed_clearance"] <= 0.0
-        failure = ""
-        if behind:
-            failure = "behind_entrance"
-        elif seabed:
-            failure = "seabed"
-        elif ep.lost_time > self._lost_timeout:
-            failure = "lights_lost"
-        elif truth["distance"] > 30.0:
-            failure = "out_of_bounds"
-
-        potential = self._potential(truth)
-        ax, ay, az, an = action.tolist()
-        terms = {
-            "progress": ep.prev_potential - potential,
-            "control": -0.001 * (ax * ax + ay * ay + az * az + an * an),
-            "visibility": -0.01 if fov_violation else 0.0,
-            "success": 10.0 if docked else 0.0,
-            "failure": -10.0 if failure else 0.0,
-        }
+        docked = rules.docked(truth)
+        flags = rules.failures(truth, docked, ep.lost_time)
+        code = rules.failure_index(flags)
+        failure = FAILURE_REASONS[code - 1] if code else ""
+        potential = rules.potential(truth)
+        terms = rules.reward_terms(ep.prev_potential, potential, action.tolist(), fov_violation,
+                                   docked, bool(failure))
         ep.prev_potential = potential
         if docked:
             ep.success = True
             ep.docking_time = ep.steps * self._dt
         ep.failure_reason = failure
-        truth["violations"] = {"fov": fov_violation, "behind_entrance": behind, "seabed": seabed}
+        truth["violations"] = {"fov": fov_violation, "behind_entrance": flags[0],
+                               "seabed": flags[1]}
         if self._optics is not None and self.obs_mode == "features":
             ep.outages = ep.outages.advance(self._optics, self._dt, self.np_random)
         return terms, docked or bool(failure)
@@ -732,29 +711,12 @@ class DockingEnv(TaskEnv):
         overhead would cost several times the arithmetic.
         """
         phys = self.physics
-        pos, r, qvel = phys.kinematics()
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = r
-        x, y, z = pos
-        vx, vy, vz = qvel[0], qvel[1], qvel[2]
-        velocity = [
-            vx * r00 + vy * r10 + vz * r20,
-            vx * r01 + vy * r11 + vz * r21,
-            vx * r02 + vy * r12 + vz * r22,
-            qvel[3], qvel[4], qvel[5],
-        ]
-        bx, by, bz = self._cam_pos_body
-        cam_pos = (
-            x + r00 * bx + r01 * by + r02 * bz,
-            y + r10 * bx + r11 * by + r12 * bz,
-            z + r20 * bx + r21 * by + r22 * bz,
-        )
-        rows = ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22))
-        cam_rot = frames.compose_rows(rows, self._cam_rot_body)
+        truth = self.rules.kinematics(*phys.kinematics())
+        cam_pos = truth["camera_position"]
         pixels, in_image = project_few(
-            self.calibration.intrinsics, self._lights, cam_pos, cam_rot
+            self.calibration.intrinsics, self._lights, cam_pos, truth.pop("camera_rows")
         )
         visible = phys.unoccluded(cam_pos, self._lights, in_image)
-        euler = frames.euler_floats(rows)
         pixel_array = np.array(pixels)
         visible_array = np.array(visible)
         # The observation/info convention: zero (not NaN) where not visible.
@@ -762,69 +724,29 @@ class DockingEnv(TaskEnv):
             visible_pixels = pixel_array.copy()
         else:
             visible_pixels = np.where(visible_array[:, None], pixel_array, 0.0)
-        offset = self.calibration.nose_offset
-        nose = (x + r00 * offset, y + r10 * offset, z + r20 * offset)
-        ax, ay, az = self._hull_axes
-        half_height = math.sqrt((ax * r20) ** 2 + (ay * r21) ** 2 + (az * r22) ** 2)
-        return {
-            "position": pos,
-            "camera_position": cam_pos,
-            "euler": euler,
-            "velocity": velocity,
-            "pixels": pixel_array,
-            "visible": visible_array,
-            "visible_pixels": visible_pixels,
-            "n_visible": sum(visible),
-            "longitudinal": nose[0],
-            "lateral": nose[1],
-            "vertical": nose[2],
-            "heading": euler[2],
-            "distance": math.sqrt(nose[0] ** 2 + nose[1] ** 2 + nose[2] ** 2),
-            "seabed_clearance": z - half_height - phys.seabed_z,
-        }
-
-    @staticmethod
-    def _potential(truth: dict) -> float:
-        return truth["distance"] + 0.5 * abs(truth["heading"])
-
-    def _docked(self, truth: dict, tol: DockingTolerances) -> bool:
-        return (
-            abs(truth["longitudinal"]) <= tol.longitudinal
-            and abs(truth["lateral"]) <= tol.lateral
-            and abs(truth["vertical"]) <= tol.vertical
-            and abs(truth["heading"]) <= self._heading_tolerance
-        )
+        truth.update(pixels=pixel_array, visible=visible_array, visible_pixels=visible_pixels,
+                     n_visible=sum(visible))
+        return truth
 
     def _sensors(self, truth: dict) -> dict:
-        rng = self.np_random
         cal = self.calibration
-        u, v, w, _, _, r = truth["velocity"]
-        roll, pitch, yaw = truth["euler"]
+        noise = None
         if cal.velocity_noise_std > 0:
             # One draw of 7 standard normals, scaled: the same numbers, in the
             # same order, as normal(0, s_v, 3), normal(0, s_r), normal(0, s_a, 3)
             # (Generator.normal is loc + scale * standard_normal), at a third of the cost.
-            n0, n1, n2, n3, n4, n5, n6 = rng.standard_normal(7).tolist()
-            s_v, s_r, s_a = (
-                cal.velocity_noise_std, cal.yaw_rate_noise_std, cal.attitude_noise_std
-            )
-            u, v, w, r = u + s_v * n0, v + s_v * n1, w + s_v * n2, r + s_r * n3
-            roll, pitch, yaw = roll + s_a * n4, pitch + s_a * n5, yaw + s_a * n6
+            noise = self.np_random.standard_normal(7).tolist()
+        velocity, attitude = self.rules.sensor_readings(truth, noise, (
+            cal.velocity_noise_std, cal.yaw_rate_noise_std, cal.attitude_noise_std))
         return {
-            "velocity": np.array((u, v, w, r), dtype=np.float32),
-            "attitude": np.array((roll, pitch, frames.wrap_angle(yaw)), dtype=np.float32),
+            "velocity": np.array(velocity, dtype=np.float32),
+            "attitude": np.array(attitude, dtype=np.float32),
         }
 
     def _observation(self, truth: dict):
         if self.obs_mode == "state":
-            roll, pitch, yaw = truth["euler"]
-            return np.array(
-                [
-                    *truth["position"], roll, pitch, math.cos(yaw), math.sin(yaw),
-                    *truth["velocity"], *self._episode.current.tolist(),
-                ],
-                dtype=np.float32,
-            )
+            return np.array(self.rules.state_observation(truth, self._episode.current.tolist()),
+                            dtype=np.float32)
         sensors = self._sensors(truth)
         if self.obs_mode == "features":
             visible = truth["visible"]

@@ -1,0 +1,134 @@
+"""The batched JAX docking environments as a Gymnasium ``VectorEnv``, NumPy in and out.
+
+::
+
+    envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=1024, obs_mode="features")
+    obs, info = envs.reset(seed=0)
+    obs, reward, terminated, truncated, info = envs.step(actions)   # (1024, 4) float32
+
+The ids ``auv_envs/DockingStationMJX-v1`` and ``auv_envs/LampArrayDockingMJX-v1``
+have only a ``vector_entry_point``: Gymnasium refuses that mode for an id
+registered with additional wrappers, and the CPU ids carry one (their episode
+summary). Episodes reset themselves on the step that ends them
+(``AutoresetMode.SAME_STEP``): that step returns the new episode's first
+observation; ``info["final_obs"]`` holds the observation that ended each
+episode and ``info["episode_metrics"]`` its summary, each with a mask
+(``info["_final_obs"]``, ``info["_episode_metrics"]``) of the environments
+that ended.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX, failure_reason
+
+
+class DockingVectorEnv(VectorEnv):
+    """``num_envs`` docking environments stepped in one compiled JAX call.
+
+    Args:
+        num_envs: the batch size.
+        env_id: the CPU environment it twins (``auv_envs/DockingStation-v1`` or
+            ``auv_envs/LampArrayDocking-v1``).
+        obs_mode: ``"state"`` or ``"features"``.
+        max_episode_steps: episode length in steps (Gymnasium passes the
+            registered one); None: the env's ``time_limit``.
+        **env_kwargs: the environment's arguments (:class:`DockingMJX`).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v1",
+                 obs_mode: str = "features", max_episode_steps: int | None = None,
+                 **env_kwargs):
+        if not (isinstance(num_envs, int) and num_envs >= 1):
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        self.env = DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs)
+        if max_episode_steps is not None:
+            if not (isinstance(max_episode_steps, int) and max_episode_steps >= 1):
+                raise ValueError(f"max_episode_steps must be a positive int, got "
+                                 f"{max_episode_steps!r}")
+            self.env.max_episode_steps = max_episode_steps
+        self.num_envs = num_envs
+        self.single_observation_space = self.env.observation_space
+        self.single_action_space = self.env.action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._reset = jax.jit(jax.vmap(self.env.reset))
+        self._step = jax.jit(jax.vmap(self.env.step))
+        self.state = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start every environment's episode; ``seed`` seeds JAX's generator for the batch."""
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"the batched environment takes no reset options, got {options}")
+        if seed is None:
+            seed = int(self.np_random.integers(2 ** 31))
+        keys = jax.random.split(jax.random.PRNGKey(seed), self.num_envs)
+        self.state = self._reset(keys)
+        return self._numpy(self.state.obs), {}
+
+    def step(self, actions):
+        if self.state is None:
+            raise RuntimeError("step() called before reset()")
+        actions = np.asarray(actions, dtype=np.float32)
+        if actions.shape != self.action_space.shape:
+            raise ValueError(f"actions must have shape {self.action_space.shape}, got "
+                             f"{actions.shape}")
+        if not np.isfinite(actions).all():
+            raise ValueError("actions must be finite (NaN or inf given)")
+        self.state = self._step(self.state, jnp.asarray(actions))
+        state = self.state
+        info = state.info
+        terminated = np.asarray(info["terminated"])
+        truncated = np.asarray(info["truncation"])
+        done = terminated | truncated
+        metrics = {key: np.asarray(value) for key, value in state.metrics.items()}
+        infos = {key: metrics[key] for key in STEP_METRICS}
+        infos.update({key: metrics[key] for key in metrics if key.startswith("reward_")})
+        if done.any():
+            infos["final_obs"] = self._numpy(info["final_obs"])
+            infos["_final_obs"] = done
+            infos["episode_metrics"] = self.episode_metrics(metrics)
+            infos["_episode_metrics"] = done
+        return (self._numpy(state.obs), np.asarray(state.reward), terminated, truncated, infos)
+
+    def episode_metrics(self, metrics: dict) -> dict:
+        """The episodes' summaries in the CPU env's names (arrays over the batch)."""
+        success = metrics["episode_success"]
+        steps = metrics["episode_steps"]
+        docking_time = metrics["episode_docking_time"]
+        return {
+            "success": success,
+            "failure_reason": np.array([failure_reason(int(code), bool(ok)) for code, ok in
+                                        zip(metrics["episode_failure"], success, strict=True)]),
+            "docking_time": docking_time,
+            "steps": steps,
+            "final_distance": metrics["distance_to_entrance"],
+            "final_lateral_error": metrics["lateral_error"],
+            "final_vertical_error": metrics["vertical_error"],
+            "final_heading_error_deg": np.degrees(metrics["heading_error"]),
+            "fov_violation_steps": metrics["episode_fov_violation_steps"],
+            "min_lights_visible": metrics["episode_min_lights_visible"],
+            "control_effort": metrics["episode_control_effort"],
+        }
+
+    @staticmethod
+    def _numpy(tree):
+        return jax.tree_util.tree_map(np.asarray, tree)
+
+
+def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
+    """``auv_envs/DockingStationMJX-v1``: :class:`DockingVectorEnv` of the six-light station."""
+    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingStation-v1", **kwargs)
+
+
+def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
+    """``auv_envs/LampArrayDockingMJX-v1``: :class:`DockingVectorEnv` of the lamp array."""
+    return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v1", **kwargs)

@@ -1,0 +1,56 @@
+"""Array backends for equations written once in scalar arithmetic.
+
+The per-step rules of an environment (frames, camera projection, rewards,
+termination) are written as plain arithmetic on scalars plus a few functions
+taken from an ``ops`` namespace. The CPU environments pass :data:`FLOATS`
+(Python floats: for a handful of numbers per step NumPy's call overhead
+exceeds the arithmetic); the batched environments pass :func:`jax_ops`, and
+the same code then evaluates a batch of JAX arrays elementwise, inside
+``jit`` and ``vmap``. The dynamics accept ``math``, ``numpy`` or ``casadi``
+modules the same way (:mod:`auv_envs.core.hydrodynamics`).
+
+Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``,
+``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
+``logical_not`` and ``any_of(items)``. Comparisons combine with ``&`` and
+``|``, which serve Python bools and boolean arrays alike.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+
+
+def _where(condition, a, b):
+    return a if condition else b
+
+
+def _clip(x, low, high):
+    return min(high, max(low, x))
+
+
+#: Python floats (and bools): :mod:`math`, with ``where`` a conditional expression.
+FLOATS = types.SimpleNamespace(
+    name="floats",
+    sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
+    asin=math.asin, clip=_clip, where=_where, minimum=min, maximum=max,
+    logical_not=lambda x: not x, any_of=any,
+)
+
+
+def jax_ops() -> types.SimpleNamespace:
+    """``jax.numpy`` under the names of :data:`FLOATS` (imports JAX on first use)."""
+    import jax.numpy as jnp
+
+    def any_of(items):
+        out = False
+        for item in items:
+            out = out | item
+        return out
+
+    return types.SimpleNamespace(
+        name="jax",
+        sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan2=jnp.arctan2,
+        asin=jnp.arcsin, clip=jnp.clip, where=jnp.where, minimum=jnp.minimum,
+        maximum=jnp.maximum, logical_not=jnp.logical_not, any_of=any_of,
+    )
