@@ -1,13 +1,20 @@
-"""Batched docking plant on MJX against the CPU plant, in the same run.
+"""The batched docking environment and plant on MJX against the CPU ones, in the same run.
 
-The MJX plant (:class:`auv_envs.batched.docking.DockingPlantMJX`) steps a batch
-of vehicles one control period (0.1 s, RK4 with the hull wrench at every
-stage) per compiled call; the reference is the CPU environment's plant, the
-same physics through MuJoCo's ``mj_step`` with the passive-force callback, one
-vehicle at a time. Both are timed here, so their ratio compares them on this
-machine. This is the plant alone: the batched environment's observations,
-rewards and episode logic are not built yet, so this is not issue 21's
-``features`` target (batched env >= 3x ``SyncVectorEnv``).
+Two tables, each with its reference timed in the same run, so the ratios
+compare them on this machine:
+
+* **environment**: ``features`` env-steps per second of the batched JAX
+  environment (:class:`auv_envs.batched.docking_env.DockingMJX`) against the
+  CPU environment through Gymnasium's ``SyncVectorEnv`` (issue 21's target:
+  >= 3x at the best batch size). Two ways to drive the batch: through
+  ``gym.make_vec("auv_envs/DockingStationMJX-v1")`` (NumPy in and out every
+  step, as a Python learner uses it) and fused, ``steps`` steps in one
+  compiled ``jax.lax.scan`` (as a compiled learner uses it). The action is
+  held (surge 0.3); episodes that end reset themselves.
+* **plant**: the MJX plant (:class:`auv_envs.batched.docking.DockingPlantMJX`)
+  one control period (0.1 s, RK4 with the hull wrench at every stage) per
+  compiled call against the CPU environment's plant, MuJoCo's ``mj_step`` with
+  the passive-force callback, one vehicle at a time.
 
     python benchmarks/batched_speed.py [--batches 1 64 256 1024 4096] [--steps 50]
 
@@ -23,10 +30,66 @@ import time
 import gymnasium as gym
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.batched.docking import DockingPlantMJX
+from auv_envs.batched.docking_env import DockingMJX
 from auv_envs.core import passive
+
+ENV_ID = "auv_envs/DockingStation-v1"
+#: The held action: surge at 30 % of the thrust limit.
+ACTION = (0.3, 0.0, 0.0, 0.0)
+
+
+def sync_vector_rate(num_envs: int, steps: int, repeats: int) -> float:
+    """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
+    envs = gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="sync",
+                        obs_mode="features")
+    actions = np.tile(np.array(ACTION, np.float32), (num_envs, 1))
+    envs.reset(seed=0)
+    best = 0.0
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(steps):
+            envs.step(actions)
+        best = max(best, num_envs * steps / (time.perf_counter() - start))
+    envs.close()
+    return best
+
+
+def make_vec_rate(batch: int, steps: int, repeats: int) -> float:
+    """``features`` env-steps per second through ``gym.make_vec`` (NumPy every step)."""
+    envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=batch, obs_mode="features")
+    actions = np.tile(np.array(ACTION, np.float32), (batch, 1))
+    envs.reset(seed=0)
+    envs.step(actions)  # compile
+    best = 0.0
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(steps):
+            envs.step(actions)
+        best = max(best, batch * steps / (time.perf_counter() - start))
+    return best
+
+
+def fused_rate(env: DockingMJX, batch: int, steps: int, repeats: int) -> float:
+    """``features`` env-steps per second, ``steps`` steps fused in one compiled scan."""
+    action = jnp.tile(jnp.asarray(ACTION, jnp.float32), (batch, 1))
+    step = jax.vmap(env.step)
+
+    @jax.jit
+    def rollout(state):
+        return jax.lax.scan(lambda s, _: (step(s, action), None), state, None, length=steps)[0]
+
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), batch))
+    jax.block_until_ready(rollout(state))  # compile
+    best = 0.0
+    for _ in range(repeats):
+        start = time.perf_counter()
+        state = jax.block_until_ready(rollout(state))
+        best = max(best, batch * steps / (time.perf_counter() - start))
+    return best
 
 
 def cpu_plant_rate(env, steps: int, repeats: int) -> float:
@@ -67,10 +130,24 @@ def main(argv=None) -> None:
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 256, 1024, 4096])
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--no-plant", action="store_true", help="skip the plant table")
     args = parser.parse_args(argv)
-    env = gym.make("auv_envs/DockingStation-v1").unwrapped
-    plant = DockingPlantMJX(env)
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")
+    batched = DockingMJX(ENV_ID, obs_mode="features")
+    print("\n| batch | make_vec env-steps/s | fused scan env-steps/s | SyncVectorEnv env-steps/s "
+          "(same run) | ratio make_vec | ratio fused |")
+    print("|---|---|---|---|---|---|")
+    for batch in args.batches:
+        via_numpy = make_vec_rate(batch, args.steps, args.repeats)
+        fused = fused_rate(batched, batch, args.steps, args.repeats)
+        reference = sync_vector_rate(8, max(50, args.steps * 2), args.repeats)
+        print(f"| {batch} | {via_numpy:,.0f} | {fused:,.0f} | {reference:,.0f} | "
+              f"{via_numpy / reference:.2f} | {fused / reference:.2f} |", flush=True)
+    if args.no_plant:
+        return
+    env = gym.make(ENV_ID).unwrapped
+    plant = DockingPlantMJX(env)
+    print()
     print("| batch | MJX plant vehicle-steps/s | CPU plant steps/s (same run) | ratio |")
     print("|---|---|---|---|")
     for batch in args.batches:

@@ -21,6 +21,8 @@ import jax.numpy as jnp  # noqa: E402
 
 import auv_envs  # noqa: E402,F401
 from auv_envs.batched.docking_env import DockingMJX, failure_reason  # noqa: E402
+from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
+from auv_envs.tasks.docking import DockingDisturbances  # noqa: E402
 
 LAYOUTS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
 
@@ -49,7 +51,9 @@ def _start(cpu, seed):
     """Reset the CPU env; return its first ``state`` observation, plant state and current."""
     obs, info = cpu.reset(seed=seed)
     data = cpu.physics.data
-    return obs, data.qpos.copy(), data.qvel.copy(), info["current"]
+    current = info["current"]
+    polar = np.array([np.hypot(current[0], current[1]), np.arctan2(current[1], current[0])])
+    return obs, data.qpos.copy(), data.qvel.copy(), polar
 
 
 @pytest.mark.parametrize("env_id", LAYOUTS)
@@ -63,7 +67,7 @@ def test_same_start_and_actions_stay_within_1cm_and_1px_over_20s(env_id):
     starts = [_start(state_env, seed) for seed in seeds]
     states = jax.jit(jax.vmap(batched.reset_to))(
         np.stack([s[1] for s in starts]), np.stack([s[2] for s in starts]),
-        np.stack([s[3] for s in starts]), jax.random.split(jax.random.PRNGKey(0), len(seeds)))
+        jax.random.split(jax.random.PRNGKey(0), len(seeds)), np.stack([s[3] for s in starts]))
     worst_position = worst_pixel = 0.0
     compared_pixels = 0
     # The CPU runs the seeds one after the other, the batch all at once.
@@ -116,8 +120,8 @@ def test_a_fixed_policy_docks_or_fails_alike_on_95_of_100_seeds():
         cpu_outcomes.append(info["episode_metrics"]["success"])
     batched = DockingMJX(env_id, obs_mode="state", scenario="current", auto_reset=False)
     states = jax.jit(jax.vmap(batched.reset_to))(
-        *(np.stack([s[k] for s in starts]) for k in range(3)),
-        jax.random.split(jax.random.PRNGKey(1), len(starts)))
+        np.stack([s[0] for s in starts]), np.stack([s[1] for s in starts]),
+        jax.random.split(jax.random.PRNGKey(1), len(starts)), np.stack([s[2] for s in starts]))
     step = jax.jit(jax.vmap(batched.step))
     done = np.zeros(len(starts), dtype=bool)
     outcomes = np.zeros(len(starts), dtype=bool)
@@ -130,6 +134,92 @@ def test_a_fixed_policy_docks_or_fails_alike_on_95_of_100_seeds():
     # A sharp test: the policy neither always docks nor always fails.
     assert 10 <= cpu_outcomes.sum() <= 90
     assert (outcomes == cpu_outcomes).sum() >= 95
+
+
+def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():
+    """The ``paper`` plant's deterministic parts: the same vehicle draws and actions."""
+    disturbances = DockingDisturbances(
+        plant=PlantPerturbation(mass=0.1, damping=0.3, net_buoyancy=5.0),
+        thruster_time_constant=0.5)
+    env_id = "auv_envs/DockingStation-v1"
+    cpu = gym.make(env_id, obs_mode="state", disturbances=disturbances).unwrapped
+    batched = DockingMJX(env_id, obs_mode="state", disturbances=disturbances,
+                         auto_reset=False)
+    reset_to = jax.jit(batched.reset_to)
+    step = jax.jit(batched.step)
+    worst = 0.0
+    for seed in (4, 18):
+        obs, info = cpu.reset(seed=seed)
+        assert info["plant"]["mass_scale"] != 1.0
+        state = reset_to(cpu.physics.data.qpos.copy(), cpu.physics.data.qvel.copy(),
+                         jax.random.PRNGKey(seed), plant_draws=info["plant"])
+        for _ in range(200):
+            action = line_of_sight_policy(obs)[0]
+            obs, _, terminated, truncated, info = cpu.step(action)
+            state = step(state, jnp.asarray(action))
+            assert not (terminated or truncated)
+            np.testing.assert_allclose(np.asarray(state.info["thrust"]), info["thrust"],
+                                       rtol=1e-4, atol=1e-3)
+            worst = max(worst, float(np.abs(np.asarray(state.data["qpos"][:3])
+                                            - info["true_position"]).max()))
+    assert worst < 0.01
+    # Without the episode's vehicle the plant is another one: the check can fail.
+    state = reset_to(cpu.physics.data.qpos.copy(), cpu.physics.data.qvel.copy(),
+                     jax.random.PRNGKey(0))
+    assert float(state.info["plant"]["mass_scale"]) != pytest.approx(
+        info["plant"]["mass_scale"] if "plant" in info else 0.0)
+
+
+@pytest.mark.parametrize(("env_id", "level"), [
+    ("auv_envs/DockingStation-v1", "paper"), ("auv_envs/LampArrayDocking-v1", "paper"),
+    ("auv_envs/DockingStation-v1", "hard")])
+def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level):
+    """Random draws differ between the two generators; their effects must not.
+
+    The share of the lamps in view that the camera detects (the water's
+    detection model, failed lamps, occluders) over 40 CPU episodes of 6 s and
+    400 batched ones; and the Gauss–Markov current's mean speed after 6 s in
+    the batch against 4000 draws of the CPU env's process.
+    """
+    episodes, batch, steps = 40, 400, 60
+    action = np.array([0.3, 0.0, 0.0, 0.0], np.float32)
+    cpu = gym.make(env_id, obs_mode="features", difficulty=level).unwrapped
+    detected = in_view = 0
+    for seed in range(900, 900 + episodes):
+        cpu.reset(seed=seed)
+        for _ in range(steps):
+            obs, _, terminated, truncated, info = cpu.step(action)
+            detected += int(obs["visible"].sum())
+            in_view += info["lights_visible"]
+            if terminated or truncated:
+                break
+    batched = DockingMJX(env_id, obs_mode="features", difficulty=level, auto_reset=False)
+    state = jax.jit(jax.vmap(batched.reset))(jax.random.split(jax.random.PRNGKey(9), batch))
+    step = jax.jit(jax.vmap(batched.step))
+    alive = np.ones(batch, dtype=bool)
+    batch_detected = batch_in_view = 0
+    for _ in range(steps):
+        state = step(state, jnp.tile(action, (batch, 1)))
+        batch_detected += int((np.asarray(state.obs["visible"]).sum(1) * alive).sum())
+        batch_in_view += int((np.asarray(state.metrics["lights_visible"]) * alive).sum())
+        alive &= ~np.asarray(state.done)
+    share, batch_share = detected / in_view, batch_detected / batch_in_view
+    assert in_view > 5000
+    assert abs(share - batch_share) < 0.04, (share, batch_share)
+    # The current: the CPU env's process (its own generator), 6 s after its start.
+    current = cpu.calibration.disturbances.current
+    rng = np.random.default_rng(0)
+    speeds = []
+    for _ in range(4000):
+        speed, direction = current.start(0.0, 1.0, rng)
+        for _ in range(steps):
+            speed, direction = current.advance(speed, direction, 0.0, 1.0, cpu.dt, rng)
+        speeds.append(speed)
+    batch_speeds = np.asarray(state.info["current_polar"])[:, 0]
+    np.testing.assert_allclose(np.hypot(*np.asarray(state.info["current"])[:, :2].T),
+                               batch_speeds, rtol=1e-5, atol=1e-6)
+    assert np.mean(speeds) > 0.05  # the current varies at this level
+    assert abs(np.mean(batch_speeds) - np.mean(speeds)) < 0.15 * np.mean(speeds)
 
 
 def test_make_vec_speaks_numpy_and_resets_finished_episodes():
@@ -165,8 +255,8 @@ def test_make_vec_speaks_numpy_and_resets_finished_episodes():
 
 
 def test_refuses_what_it_does_not_build():
-    with pytest.raises(NotImplementedError, match="difficulty"):
-        DockingMJX("auv_envs/DockingStation-v1", difficulty="paper")
+    with pytest.raises(ValueError, match="difficulty"):
+        DockingMJX("auv_envs/DockingStation-v1", difficulty="extreme")
     with pytest.raises(ValueError, match="obs_mode"):
         DockingMJX("auv_envs/DockingStation-v1", obs_mode="image")
     with pytest.raises(ValueError, match="rk4"):

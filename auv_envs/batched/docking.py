@@ -63,12 +63,11 @@ class DockingPlantMJX:
         self.timestep = float(model.opt.timestep)
         self.substeps = round(env.dt / self.timestep)
         self.step = jax.jit(jax.vmap(self.advance))
-        self.acceleration = jax.jit(jax.vmap(self._acceleration))
 
-    def _acceleration(self, qpos, qvel, tau, current):
+    def _acceleration(self, qpos, qvel, tau, current, hull, model):
         """``qacc (6,)`` of one vehicle under the hull wrench at ``(qpos, qvel)``."""
         rot = frames.rotation_rows_from_quat(qpos[3], qpos[4], qpos[5], qpos[6])
-        f0, f1, f2, m0, m1, m2 = self.hull.wrench(
+        f0, f1, f2, m0, m1, m2 = hull.wrench(
             rot, tuple(qvel[k] for k in range(6)), tuple(tau[k] for k in range(6)),
             tuple(current[k] for k in range(3)))
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
@@ -76,29 +75,44 @@ class DockingPlantMJX:
         qfrc = jnp.stack([r00 * f0 + r01 * f1 + r02 * f2, r10 * f0 + r11 * f1 + r12 * f2,
                           r20 * f0 + r21 * f1 + r22 * f2, m0, m1, m2])
         data = self.rest_data.replace(qpos=qpos, qvel=qvel, qfrc_applied=qfrc)
-        return mjx.forward(self.model, data).qacc
+        return mjx.forward(model, data).qacc
 
     def _integrate(self, qpos, velocity, h):
         """``qpos`` moved by the free-joint velocity ``velocity`` for ``h`` s."""
         return jnp.concatenate([qpos[:3] + h * velocity[:3],
                                 frames.quat_integrate(qpos[3:], velocity[3:], h, ops=jnp)])
 
-    def _rk4(self, qpos, qvel, tau, current):
+    def _rk4(self, qpos, qvel, tau, current, hull, model):
         """One MuJoCo RK4 step of ``timestep`` s."""
         h = self.timestep
-        velocities, accelerations = [qvel], [self._acceleration(qpos, qvel, tau, current)]
+        velocities = [qvel]
+        accelerations = [self._acceleration(qpos, qvel, tau, current, hull, model)]
         for a in RK4_STAGES:
             stage_qvel = qvel + h * a * accelerations[-1]
             stage_qpos = self._integrate(qpos, a * velocities[-1], h)
             velocities.append(stage_qvel)
-            accelerations.append(self._acceleration(stage_qpos, stage_qvel, tau, current))
+            accelerations.append(
+                self._acceleration(stage_qpos, stage_qvel, tau, current, hull, model))
         velocity = sum(b * v for b, v in zip(RK4_WEIGHTS, velocities, strict=True))
         acceleration = sum(b * a for b, a in zip(RK4_WEIGHTS, accelerations, strict=True))
         return self._integrate(qpos, velocity, h), qvel + h * acceleration
 
-    def advance(self, qpos, qvel, tau, current):
+    def advance(self, qpos, qvel, tau, current, vehicle=None):
         """One vehicle one control period on (``physics_substeps`` RK4 steps); :meth:`step`
-        is this batched and compiled."""
+        is this batched and compiled.
+
+        ``vehicle``: the simulated vehicle's parameters when they differ from the
+        env's (:meth:`auv_envs.core.vehicle.PlantPerturbation.apply` on JAX
+        scalars): its mass and inertia go into the MJX model, its hydrodynamics
+        into the hull wrench, as the CPU env does for a perturbed episode.
+        """
+        hull, model = self.hull, self.model
+        if vehicle is not None:
+            hull = HullForceModel(vehicle, hull.body_id, hull.qvel_adr)
+            body = hull.body_id
+            model = model.replace(
+                body_mass=model.body_mass.at[body].set(vehicle.mass),
+                body_inertia=model.body_inertia.at[body].set(jnp.stack(vehicle.inertia)))
         for _ in range(self.substeps):
-            qpos, qvel = self._rk4(qpos, qvel, tau, current)
+            qpos, qvel = self._rk4(qpos, qvel, tau, current, hull, model)
         return qpos, qvel

@@ -21,13 +21,18 @@ state then holds the new episode's first observation, and
 ``info["final_obs"]`` and ``metrics`` the one that ended. ``data`` is the
 plant state ``(qpos, qvel)``, not a full ``mjx.Data``.
 
-What differs from the CPU environment: the episodes' random draws come from
-JAX's generator, so a seed gives other episodes than the CPU env's (the
-start distribution is the same); everything runs in float32. Supported:
-``state`` and ``features``; both scenarios (the ``current`` scenario's
-current and sensor noise). Not built yet: the ``paper`` and ``hard``
-levels' disturbances and water (``difficulty``, ``disturbances``, ``optics``)
-and the ``image`` mode; asking for them raises ``NotImplementedError``.
+Every argument of the CPU environment applies: both scenarios (the
+``current`` scenario's current and sensor noise) and every ``difficulty``
+level with its disturbances (the Gauss–Markov current, the per-episode
+perturbation of the simulated vehicle, the thruster lag) and its water (lamp
+detection, failed lamps, passing occluders), each through the CPU env's own
+code (:mod:`auv_envs.core.sea`, :mod:`auv_envs.core.vehicle`,
+:mod:`auv_envs.core.optics`) given JAX's draws. What differs from the CPU
+environment: the episodes' random draws come from JAX's generator, so a seed
+gives other episodes than the CPU env's (the distributions are the same);
+everything runs in float32; the hull has no contacts (MJX has no
+ellipsoid-box collision), so where the CPU hull would touch the station's
+structure the batched one passes through it. ``image`` is not built.
 """
 
 from __future__ import annotations
@@ -45,6 +50,9 @@ from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.core import frames
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
+from auv_envs.core.optics import LampOutages, lamp_detections
+from auv_envs.core.sea import current_components
+from auv_envs.core.vehicle import PlantPerturbation, lagged_thrust, thruster_lag_gain
 from auv_envs.tasks.docking import SCENARIO_CURRENT_SPEED
 from auv_envs.tasks.docking_rules import FAILURE_REASONS
 
@@ -102,11 +110,6 @@ class DockingMJX:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"the batched environment builds obs_mode {OBS_MODES}, got "
                              f"{obs_mode!r}")
-        for name in ("difficulty", "disturbances", "optics"):
-            if name in env_kwargs and env_kwargs[name] not in (None, "easy"):
-                raise NotImplementedError(
-                    f"{name}={env_kwargs[name]!r}: the batched environment has no disturbances "
-                    "or water optics yet (difficulty 'easy' only)")
         cpu = gym.make(env_id, obs_mode=obs_mode, **env_kwargs).unwrapped
         self.cpu_env = cpu
         self.env_id = env_id
@@ -123,6 +126,10 @@ class DockingMJX:
         self.action_space = cpu.action_space
         self.ops = jax_ops()
         self._thrust = jnp.asarray(cal.thrust_limits, dtype=jnp.float32)
+        #: The level's disturbances and water (the CPU env's, resolved from ``difficulty``).
+        self.disturbances, self.optics = cal.disturbances, cal.optics
+        self._thruster_gain = thruster_lag_gain(self.disturbances.thruster_time_constant,
+                                                cal.control_period)
         lights = np.asarray(cal.light_positions, dtype=np.float32)
         self._lights = tuple(jnp.asarray(lights[:, k]) for k in range(3))
         self._n_lights = len(lights)
@@ -171,16 +178,21 @@ class DockingMJX:
         yaw = jnp.arctan2(-y, -x) + jax.random.uniform(keys[3], (), minval=-1.0, maxval=1.0) \
             * math.radians(10.0)
         surge = jax.random.uniform(keys[4], (), minval=0.0, maxval=0.3)
-        if self.scenario == "current":
+        qpos, qvel = self.start_state(x, y, z, yaw, surge)
+        varying = self.disturbances.current
+        if self.scenario == "current" or varying.active:
+            speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
             direction = (jnp.float32(math.radians(self.current_direction))
                          if self.current_direction is not None
                          else jax.random.uniform(keys[5], (), maxval=2.0 * math.pi))
-            current = jnp.stack([SCENARIO_CURRENT_SPEED * jnp.cos(direction),
-                                 SCENARIO_CURRENT_SPEED * jnp.sin(direction), 0.0])
+            polar = (speed, direction)
+            if varying.active:
+                polar = varying.start_from(speed, direction,
+                                           *jax.random.normal(keys[6], (2,)), self.ops)
+            mean = (speed, direction)
         else:
-            current = jnp.zeros(3)
-        qpos, qvel = self.start_state(x, y, z, yaw, surge)
-        return self.reset_to(qpos, qvel, current, rng)
+            polar = mean = (0.0, 0.0)
+        return self.reset_to(qpos, qvel, rng, current_polar=polar, current_mean=mean)
 
     @staticmethod
     def start_state(x, y, z, yaw, surge) -> tuple[jax.Array, jax.Array]:
@@ -191,38 +203,89 @@ class DockingMJX:
         qvel = jnp.stack([surge * jnp.cos(yaw), surge * jnp.sin(yaw), zero, zero, zero, zero])
         return qpos, qvel
 
-    def reset_to(self, qpos, qvel, current, rng: jax.Array) -> State:
-        """An episode starting from the plant state ``(qpos, qvel)`` in the world ``current``.
+    def reset_to(self, qpos, qvel, rng: jax.Array, current_polar=(0.0, 0.0),
+                 current_mean=None, plant_draws: dict | None = None) -> State:
+        """An episode starting from the plant state ``(qpos, qvel)``.
 
-        The equivalence tests start the CPU and the batched env alike this way.
+        ``current_polar``: the current's (speed m/s, direction rad) now,
+        ``current_mean`` the mean it varies about (default: the same);
+        ``plant_draws``: the simulated vehicle's draws as the CPU env reports them
+        (``info["plant"]`` at reset: ``mass_scale``, ``linear_damping_scale``,
+        ``quadratic_damping_scale``, ``net_buoyancy_offset``), for a level with a
+        plant perturbation. The rest of the episode's draws (the vehicle when
+        not given, the lamps out) come from ``rng``. The equivalence tests start
+        the CPU and the batched env alike this way.
         """
+        ops = self.ops
         qpos, qvel = jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32)
-        current = jnp.asarray(current, jnp.float32)
-        truth = self._truth(qpos, qvel)
-        rng, obs_key = jax.random.split(rng)
-        obs = self._observation(truth, current, obs_key)
+        polar = jnp.asarray(current_polar, jnp.float32)
+        mean = polar if current_mean is None else jnp.asarray(current_mean, jnp.float32)
+        rng, vehicle_key, lamp_key, obs_key = jax.random.split(rng, 4)
         zero, false = jnp.float32(0.0), jnp.bool_(False)
         info = {
-            "rng": rng, "steps": jnp.int32(0), "current": current,
-            "lost_time": zero, "prev_potential": self.rules.potential(truth),
-            "success": false, "failure": jnp.int32(0), "docking_time": jnp.float32(jnp.nan),
-            "fov_violations": jnp.int32(0), "min_lights_visible": truth["n_visible"],
+            "rng": rng, "steps": jnp.int32(0), "current_polar": polar, "current_mean": mean,
+            "current": jnp.stack(current_components(polar[0], polar[1], ops)).astype(jnp.float32),
+            "lost_time": zero, "success": false, "failure": jnp.int32(0),
+            "docking_time": jnp.float32(jnp.nan), "fov_violations": jnp.int32(0),
             "control_effort": zero, "terminated": false, "truncation": false,
-            "final_obs": obs,
         }
+        plant = self.disturbances.plant
+        if plant.active and plant_draws is not None:
+            info["plant"] = {
+                "mass_scale": jnp.float32(plant_draws["mass_scale"]),
+                "damping_scale": jnp.asarray([*plant_draws["linear_damping_scale"],
+                                              *plant_draws["quadratic_damping_scale"]],
+                                             jnp.float32),
+                "net_buoyancy_offset": jnp.float32(plant_draws["net_buoyancy_offset"]),
+            }
+        elif plant.active:
+            keys = jax.random.split(vehicle_key, 3)
+            info["plant"] = {
+                "mass_scale": jax.random.uniform(keys[0], (), minval=1.0 - plant.mass,
+                                                 maxval=1.0 + plant.mass),
+                "damping_scale": jax.random.uniform(keys[1], (12,), minval=1.0 - plant.damping,
+                                                    maxval=1.0 + plant.damping),
+                "net_buoyancy_offset": jax.random.uniform(
+                    keys[2], (), minval=-plant.net_buoyancy, maxval=plant.net_buoyancy),
+            }
+        if self._thruster_gain != 1.0:
+            info["thrust"] = jnp.zeros(4, jnp.float32)
+        if self.optics is not None:
+            failed_key, occluded_key = jax.random.split(lamp_key)
+            n = self._n_lights
+            info["failed"] = jax.random.uniform(failed_key, (n,)) \
+                < self.optics.lamp_failure_probability
+            info["occluded"] = jax.random.uniform(occluded_key, (n,)) \
+                < LampOutages.occluded_share(self.optics)
+        truth = self._truth(qpos, qvel)
+        obs = self._observation(truth, info, obs_key)
+        info.update(prev_potential=self.rules.potential(truth),
+                    min_lights_visible=truth["n_visible"], final_obs=obs)
         metrics = self._metrics(truth, info, {term: zero for term in self.cpu_env.reward_terms})
         return State({"qpos": qpos, "qvel": qvel}, obs, zero, false, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1])."""
-        info = state.info
+        info = dict(state.info)
+        ops = self.ops
+        rng, current_key, lamp_key, obs_key, reset_key = jax.random.split(info["rng"], 5)
         action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
         force = action * self._thrust
+        if self._thruster_gain != 1.0:  # first-order thrusters: the force moves to the command
+            force = lagged_thrust(info["thrust"], force, self._thruster_gain)
+            info["thrust"] = force
+        varying = self.disturbances.current
+        if varying.active:
+            polar = varying.relax(info["current_polar"][0], info["current_polar"][1],
+                                  info["current_mean"][0], info["current_mean"][1], self.dt,
+                                  *jax.random.normal(current_key, (2,)), ops)
+            info["current_polar"] = jnp.stack(polar).astype(jnp.float32)
+            info["current"] = jnp.stack(current_components(*polar, ops)).astype(jnp.float32)
         tau = jnp.stack([force[0], force[1], force[2], 0.0, 0.0, force[3]])
         qpos, qvel = self.plant.advance(state.data["qpos"], state.data["qvel"], tau,
-                                            info["current"])
+                                        info["current"], self._vehicle(info))
         truth = self._truth(qpos, qvel)
-        rules, ops = self.rules, self.ops
+        rules = self.rules
         steps = info["steps"] + 1
         fov_violation = truth["n_visible"] < rules.min_visible
         lost_time = rules.lights_lost_time(info["lost_time"], fov_violation, ops)
@@ -236,10 +299,13 @@ class DockingMJX:
         reward = sum(terms.values())
         terminated = docked | (code > 0)
         truncated = jnp.logical_not(terminated) & (steps >= self.max_episode_steps)
-        rng, obs_key, reset_key = jax.random.split(info["rng"], 3)
-        obs = self._observation(truth, info["current"], obs_key)
-        info = {
-            **info, "rng": rng, "steps": steps, "lost_time": lost_time,
+        if self.optics is not None and self.obs_mode == "features":  # occluders pass
+            u = jax.random.uniform(lamp_key, (self._n_lights,))
+            info["occluded"] = LampOutages.occlusions_after(info["occluded"], self.optics,
+                                                            self.dt, u, xp=jnp)
+        obs = self._observation(truth, info, obs_key)
+        info.update({
+            "rng": rng, "steps": steps, "lost_time": lost_time,
             "prev_potential": potential, "success": info["success"] | docked,
             "failure": code,
             "docking_time": jnp.where(docked, steps * self.dt, info["docking_time"]),
@@ -247,7 +313,7 @@ class DockingMJX:
             "min_lights_visible": jnp.minimum(info["min_lights_visible"], truth["n_visible"]),
             "control_effort": info["control_effort"] + jnp.sum(force * force) * self.dt,
             "terminated": terminated, "truncation": truncated, "final_obs": obs,
-        }
+        })
         done = terminated | truncated
         stepped = State({"qpos": qpos, "qvel": qvel}, obs, reward, done,
                         self._metrics(truth, info, terms), info)
@@ -289,12 +355,21 @@ class DockingMJX:
 
         return jax.vmap(clear)(targets)
 
-    def _observation(self, truth: dict, current, key):
+    def _vehicle(self, info: dict):
+        """The episode's simulated vehicle (None: the env's own)."""
+        if "plant" not in info:
+            return None
+        draws = info["plant"]
+        return PlantPerturbation.apply(self.plant.hull.params, draws["mass_scale"],
+                                       draws["damping_scale"], draws["net_buoyancy_offset"])
+
+    def _observation(self, truth: dict, info: dict, key):
         if self.obs_mode == "state":
+            current = info["current"]
             return jnp.stack(self.rules.state_observation(
                 truth, tuple(current[k] for k in range(3)), self.ops)).astype(jnp.float32)
         cal = self.calibration
-        pixel_key, sensor_key = jax.random.split(key)
+        pixel_key, sensor_key, lamp_key, centroid_key = jax.random.split(key, 4)
         noise = None
         if cal.velocity_noise_std > 0:
             noise = tuple(jax.random.normal(sensor_key, (7,)))
@@ -302,10 +377,18 @@ class DockingMJX:
             cal.velocity_noise_std, cal.yaw_rate_noise_std, cal.attitude_noise_std))
         visible = truth["visible"]
         pixels = truth["visible_pixels"]
+        low, high = self._pixel_bounds
         if cal.pixel_noise_std > 0:  # as the CPU env: noise, masked again, clipped
             pixels = pixels + cal.pixel_noise_std * jax.random.normal(pixel_key, pixels.shape)
-            pixels = jnp.where(visible[:, None], pixels, 0.0)
-            pixels = jnp.clip(pixels, *self._pixel_bounds)
+            pixels = jnp.clip(jnp.where(visible[:, None], pixels, 0.0), low, high)
+        if self.optics is not None:  # the lamps the camera detects through the water
+            lights = jnp.stack(self._lights, axis=-1)
+            distance = jnp.linalg.norm(lights - jnp.stack(truth["camera_position"]), axis=-1)
+            pixels, visible = lamp_detections(
+                pixels, visible, distance, info["failed"] | info["occluded"], self.optics,
+                cal.intrinsics.fy, jax.random.uniform(lamp_key, (self._n_lights,)),
+                jax.random.normal(centroid_key, (self._n_lights, 2)), xp=jnp)
+            pixels = jnp.clip(pixels, low, high)
         return {"pixels": pixels.astype(jnp.float32), "visible": visible.astype(jnp.int8),
                 "velocity": jnp.stack(velocity).astype(jnp.float32),
                 "attitude": jnp.stack(attitude).astype(jnp.float32)}

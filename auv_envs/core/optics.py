@@ -235,29 +235,38 @@ class WaterOptics:
                    water_type=water_type, **parameters)
 
     # ------------------------------------------------------------------ shared terms
-    def scattering_depth(self, distance) -> np.ndarray:
-        """``τ_s = min(β) d``: the optical depth that scatters into the glow."""
-        return min(self.attenuation) * np.asarray(distance, dtype=float)
+    def scattering_depth(self, distance, xp=np) -> np.ndarray:
+        """``τ_s = min(β) d``: the optical depth that scatters into the glow.
 
-    def glow_width(self, distance, focal_px: float) -> np.ndarray:
+        ``xp`` (here and in the detection model below): the array module,
+        ``numpy`` (the default) or ``jax.numpy``."""
+        return min(self.attenuation) * _as_float(distance, xp)
+
+    def glow_width(self, distance, focal_px: float, xp=np) -> np.ndarray:
         """Standard deviation of a lamp's glow at range ``distance`` (m), pixels."""
-        return focal_px * self.glow_angle * self.scattering_depth(distance)
+        return focal_px * self.glow_angle * self.scattering_depth(distance, xp)
 
-    def lamp_contrast(self, distance) -> np.ndarray:
+    def lamp_contrast(self, distance, xp=np) -> np.ndarray:
         """Received contrast ``C`` of a lamp at range ``distance`` (m), its best channel."""
-        d = np.maximum(np.asarray(distance, dtype=float), 1e-3)
-        received = self.lamp_intensity * np.exp(-np.multiply.outer(d, self.attenuation))
-        veil = np.maximum(np.asarray(self.veiling_light), _GREY_LEVEL)
+        d = xp.maximum(_as_float(distance, xp), 1e-3)
+        received = self.lamp_intensity * xp.exp(-(d[..., None] * xp.asarray(self.attenuation)))
+        veil = xp.maximum(xp.asarray(self.veiling_light), _GREY_LEVEL)
         return (received / veil).max(axis=-1) / (d * d)
 
-    def detection_probability(self, distance) -> np.ndarray:
+    def detection_probability(self, distance, xp=np) -> np.ndarray:
         """Probability that a lamp in view at range ``distance`` (m) is detected."""
-        ratio = self.detection_contrast / self.lamp_contrast(distance)
+        ratio = self.detection_contrast / self.lamp_contrast(distance, xp)
         return 1.0 / (1.0 + ratio ** self.detection_slope)
 
-    def centroid_std(self, distance, focal_px: float) -> np.ndarray:
+    def centroid_std(self, distance, focal_px: float, xp=np) -> np.ndarray:
         """Standard deviation of a detected lamp's centroid (each axis), pixels."""
-        return self.centroid_noise + self.centroid_blur_ratio * self.glow_width(distance, focal_px)
+        return self.centroid_noise + self.centroid_blur_ratio * self.glow_width(
+            distance, focal_px, xp)
+
+
+def _as_float(values, xp):
+    """``values`` as a float array of ``xp`` (NumPy: float64)."""
+    return np.asarray(values, dtype=float) if xp is np else xp.asarray(values)
 
 
 # ---------------------------------------------------------------------- images
@@ -371,17 +380,27 @@ class LampOutages:
     @classmethod
     def start(cls, optics: WaterOptics, n_lamps: int, rng: np.random.Generator) -> LampOutages:
         """An episode's outages: failures, and occlusions from their stationary distribution."""
-        rate_time = optics.occlusion_rate * optics.occlusion_duration
         failed = rng.random(n_lamps) < optics.lamp_failure_probability
-        occluded = rng.random(n_lamps) < rate_time / (1.0 + rate_time)
+        occluded = rng.random(n_lamps) < cls.occluded_share(optics)
         return cls(failed, occluded)
+
+    @staticmethod
+    def occluded_share(optics: WaterOptics) -> float:
+        """The stationary probability that a lamp is hidden by an occluder."""
+        rate_time = optics.occlusion_rate * optics.occlusion_duration
+        return rate_time / (1.0 + rate_time)
 
     def advance(self, optics: WaterOptics, dt: float, rng: np.random.Generator) -> LampOutages:
         """The outages ``dt`` seconds later (exact transition probabilities of the process)."""
+        u = rng.random(self.occluded.shape[0])
+        return LampOutages(self.failed, self.occlusions_after(self.occluded, optics, dt, u))
+
+    @staticmethod
+    def occlusions_after(occluded, optics: WaterOptics, dt: float, u, xp=np):
+        """The occlusions ``dt`` seconds after ``occluded`` given one uniform draw per lamp."""
         appear = -math.expm1(-optics.occlusion_rate * dt)
         clear = -math.expm1(-dt / optics.occlusion_duration)
-        u = rng.random(self.occluded.shape[0])
-        return LampOutages(self.failed, np.where(self.occluded, u >= clear, u < appear))
+        return xp.where(occluded, u >= clear, u < appear)
 
     @property
     def out(self) -> np.ndarray:
@@ -416,6 +435,13 @@ def detect_lamps(pixels: np.ndarray, visible: np.ndarray, distance: np.ndarray,
     n = len(visible)
     u = rng.random(n)
     noise = rng.standard_normal((n, 2))
-    detected = visible & ~outages.out & (u < optics.detection_probability(distance))
-    noisy = pixels + noise * optics.centroid_std(distance, focal_px)[:, None]
-    return np.where(detected[:, None], noisy, 0.0), detected
+    return lamp_detections(pixels, visible, distance, outages.out, optics, focal_px, u, noise)
+
+
+def lamp_detections(pixels, visible, distance, out, optics: WaterOptics, focal_px: float,
+                    u, noise, xp=np):
+    """:func:`detect_lamps` given its draws: ``u`` (n,) uniform and ``noise`` (n, 2)
+    standard normal, with ``out`` the lamps failed or hidden; ``xp`` the array module."""
+    detected = visible & ~out & (u < optics.detection_probability(distance, xp))
+    noisy = pixels + noise * optics.centroid_std(distance, focal_px, xp)[:, None]
+    return xp.where(detected[:, None], noisy, 0.0), detected

@@ -14,6 +14,8 @@ import math
 
 import numpy as np
 
+from auv_envs.core.ops import FLOATS
+
 
 @dataclasses.dataclass(frozen=True)
 class WashOver:
@@ -162,22 +164,41 @@ class GaussMarkovCurrent:
         the means, drawing nothing, when the process is not :attr:`active`."""
         if not self.active:
             return min(max(mean_speed, 0.0), self.max_speed), mean_direction
-        speed = mean_speed + self.speed_std * rng.standard_normal()
-        direction = mean_direction + math.radians(self.direction_std_deg) * rng.standard_normal()
-        return min(max(speed, 0.0), self.max_speed), direction
+        return self.start_from(mean_speed, mean_direction, rng.standard_normal(),
+                               rng.standard_normal())
+
+    def start_from(self, mean_speed, mean_direction, noise_speed, noise_direction,
+                   ops=FLOATS) -> tuple:
+        """:meth:`start` given its two standard normal draws (any backend of
+        :mod:`auv_envs.core.ops`)."""
+        speed = mean_speed + self.speed_std * noise_speed
+        direction = mean_direction + math.radians(self.direction_std_deg) * noise_direction
+        return ops.clip(speed, 0.0, self.max_speed), direction
 
     def advance(self, speed: float, direction: float, mean_speed: float, mean_direction: float,
                 dt: float, rng: np.random.Generator) -> tuple[float, float]:
         """The ``(speed, direction)`` one period ``dt`` later (exact discretisation)."""
+        noise_speed, noise_direction = rng.standard_normal(2)
+        return self.relax(speed, direction, mean_speed, mean_direction, dt, noise_speed,
+                          noise_direction)
+
+    def relax(self, speed, direction, mean_speed, mean_direction, dt: float, noise_speed,
+              noise_direction, ops=FLOATS) -> tuple:
+        """:meth:`advance` given its two standard normal draws (any backend of
+        :mod:`auv_envs.core.ops`)."""
         a = math.exp(-dt / self.time_constant)
         gain = math.sqrt(1.0 - a * a)
-        noise_speed, noise_direction = rng.standard_normal(2)
         speed = mean_speed + a * (speed - mean_speed) + self.speed_std * gain * noise_speed
         direction = (mean_direction + a * (direction - mean_direction)
                      + math.radians(self.direction_std_deg) * gain * noise_direction)
-        return min(max(speed, 0.0), self.max_speed), direction
+        return ops.clip(speed, 0.0, self.max_speed), direction
 
 
 def current_vector(speed: float, direction: float) -> np.ndarray:
     """World-frame velocity (3) of a horizontal current flowing towards ``direction`` (rad)."""
-    return np.array([speed * math.cos(direction), speed * math.sin(direction), 0.0])
+    return np.array(current_components(speed, direction))
+
+
+def current_components(speed, direction, ops=FLOATS) -> tuple:
+    """:func:`current_vector`'s three components (any backend of :mod:`auv_envs.core.ops`)."""
+    return speed * ops.cos(direction), speed * ops.sin(direction), 0.0

@@ -178,21 +178,28 @@ class PlantPerturbation:
         mass_scale = float(rng.uniform(1.0 - self.mass, 1.0 + self.mass))
         damping_scale = rng.uniform(1.0 - self.damping, 1.0 + self.damping, size=12).tolist()
         buoyancy_offset = float(rng.uniform(-self.net_buoyancy, self.net_buoyancy))
-        perturbed = dataclasses.replace(
-            params,
-            name=f"{params.name}-perturbed",
-            mass=params.mass * mass_scale,
-            inertia=tuple(i * mass_scale for i in params.inertia),
-            linear_damping=tuple(d * f for d, f in zip(params.linear_damping,
-                                                        damping_scale[:6], strict=True)),
-            quadratic_damping=tuple(d * f for d, f in zip(params.quadratic_damping,
-                                                           damping_scale[6:], strict=True)),
-            net_buoyancy=params.net_buoyancy + buoyancy_offset,
-        )
+        perturbed = self.apply(params, mass_scale, damping_scale, buoyancy_offset)
         draws = {"mass_scale": mass_scale, "linear_damping_scale": damping_scale[:6],
                  "quadratic_damping_scale": damping_scale[6:],
                  "net_buoyancy_offset": buoyancy_offset}
         return perturbed, draws
+
+    @staticmethod
+    def apply(params: VehicleParams, mass_scale, damping_scale, buoyancy_offset) -> VehicleParams:
+        """``params`` perturbed by given draws (:meth:`draw`'s): the mass factor, the 12
+        damping factors (linear, then quadratic) and the net-buoyancy offset, N. Scalars
+        of any kind: floats, or JAX arrays in a batched plant."""
+        return dataclasses.replace(
+            params,
+            name=f"{params.name}-perturbed",
+            mass=params.mass * mass_scale,
+            inertia=tuple(i * mass_scale for i in params.inertia),
+            linear_damping=tuple(d * damping_scale[k]
+                                 for k, d in enumerate(params.linear_damping)),
+            quadratic_damping=tuple(d * damping_scale[6 + k]
+                                    for k, d in enumerate(params.quadratic_damping)),
+            net_buoyancy=params.net_buoyancy + buoyancy_offset,
+        )
 
 
 def thruster_lag_gain(time_constant: float, dt: float) -> float:
@@ -208,6 +215,12 @@ def thruster_lag_gain(time_constant: float, dt: float) -> float:
     if not (math.isfinite(time_constant) and time_constant >= 0):
         raise ValueError(f"thruster time constant must be >= 0 s, got {time_constant!r}")
     return 1.0 if time_constant == 0 else 1.0 - math.exp(-dt / time_constant)
+
+
+def lagged_thrust(previous, command, gain):
+    """The force one period later under :func:`thruster_lag_gain`'s ``gain``:
+    ``f[k-1] + g (u[k] - f[k-1])`` (floats, or arrays elementwise)."""
+    return previous + gain * (command - previous)
 
 
 def _spheroid_vehicle(

@@ -41,6 +41,7 @@ from auv_envs.core.vehicle import (
     PlantPerturbation,
     VehicleParams,
     hovering_auv,
+    lagged_thrust,
     thruster_lag_gain,
     with_damping_mismatch,
 )
@@ -656,9 +657,8 @@ class DockingEnv(TaskEnv):
         x, y, z, n = ax * tx, ay * ty, az * tz, an * tn
         gain = self._thruster_gain
         if gain != 1.0:  # first-order thrusters: the force moves towards the command
-            fx, fy, fz, fn = ep.thrust
-            x, y, z, n = fx + gain * (x - fx), fy + gain * (y - fy), fz + gain * (z - fz), \
-                fn + gain * (n - fn)
+            x, y, z, n = (lagged_thrust(previous, command, gain) for previous, command
+                          in zip(ep.thrust, (x, y, z, n), strict=True))
             ep.thrust = (x, y, z, n)
         if self._current_varies:
             varying = self._disturbances.current
