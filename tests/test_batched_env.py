@@ -23,117 +23,29 @@ import auv_envs  # noqa: E402,F401
 from auv_envs.batched.docking_env import DockingMJX, failure_reason  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
 from auv_envs.tasks.docking import DockingDisturbances  # noqa: E402
-
-LAYOUTS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
-
-
-def line_of_sight_policy(obs: np.ndarray) -> np.ndarray:
-    """A fixed proportional-derivative controller on the ``state`` observation (a batch).
-
-    Steers along a line of sight towards the docking axis, holds depth and
-    slows near the entrance: it docks in most calm episodes and fails in
-    many with a 0.3 m/s current, which makes its outcomes a sharp test.
-    """
-    obs = np.atleast_2d(obs)
-    x, y, z = obs[:, 0], obs[:, 1], obs[:, 2]
-    yaw = np.arctan2(obs[:, 6], obs[:, 5])
-    u, v, w, r = obs[:, 7], obs[:, 8], obs[:, 9], obs[:, 12]
-    ahead = -1.0 - x  # CG target about 1 m before the entrance plane
-    heading = np.arctan2(-y, np.maximum(ahead, 0.0) + 6.0) * np.clip(ahead / 3.0, 0.0, 1.0)
-    heading_error = (heading - yaw + np.pi) % (2 * np.pi) - np.pi
-    surge = np.clip(0.1 * np.hypot(ahead, y), 0.15, 0.5)
-    action = np.stack([0.8 * (surge - u), -0.6 * np.cos(yaw) * y - 1.0 * v,
-                       -1.5 * z - 1.5 * w, 1.5 * heading_error - 1.0 * r], axis=1)
-    return np.clip(action, -1.0, 1.0).astype(np.float32)
-
-
-def _start(cpu, seed):
-    """Reset the CPU env; return its first ``state`` observation, plant state and current."""
-    obs, info = cpu.reset(seed=seed)
-    data = cpu.physics.data
-    current = info["current"]
-    polar = np.array([np.hypot(current[0], current[1]), np.arctan2(current[1], current[0])])
-    return obs, data.qpos.copy(), data.qvel.copy(), polar
+from scripts.batched_equivalence import (  # noqa: E402
+    LAYOUTS,
+    line_of_sight_policy,
+    outcome_agreement,
+    trajectory_errors,
+)
 
 
 @pytest.mark.parametrize("env_id", LAYOUTS)
 def test_same_start_and_actions_stay_within_1cm_and_1px_over_20s(env_id):
-    steps = 200  # 20 s
-    state_env = gym.make(env_id, obs_mode="state").unwrapped
-    features_env = gym.make(env_id, obs_mode="features").unwrapped
-    batched = DockingMJX(env_id, obs_mode="features", auto_reset=False)
-    step = jax.jit(jax.vmap(batched.step))
-    seeds = (3, 11, 29)
-    starts = [_start(state_env, seed) for seed in seeds]
-    states = jax.jit(jax.vmap(batched.reset_to))(
-        np.stack([s[1] for s in starts]), np.stack([s[2] for s in starts]),
-        jax.random.split(jax.random.PRNGKey(0), len(seeds)), np.stack([s[3] for s in starts]))
-    worst_position = worst_pixel = 0.0
-    compared_pixels = 0
-    # The CPU runs the seeds one after the other, the batch all at once.
-    logs = []
-    for seed in seeds:
-        obs, *_ = _start(state_env, seed)
-        features_env.reset(seed=seed)
-        log = {"action": [], "position": [], "pixels": [], "visible": []}
-        for _ in range(steps):
-            action = line_of_sight_policy(obs)[0]
-            obs, _, terminated, truncated, info = state_env.step(action)
-            _, _, _, _, features_info = features_env.step(action)
-            assert not (terminated or truncated), "the check needs 20 s of approach"
-            log["action"].append(action)
-            log["position"].append(info["true_position"])
-            log["pixels"].append(features_info["true_pixels"])
-            log["visible"].append(features_info["true_visible"])
-        logs.append(log)
-    for k in range(steps):
-        actions = np.stack([log["action"][k] for log in logs])
-        states = step(states, jnp.asarray(actions))
-        positions = np.asarray(states.data["qpos"][:, :3])
-        pixels = np.asarray(states.obs["pixels"])
-        visible = np.asarray(states.obs["visible"]).astype(bool)
-        for i, log in enumerate(logs):
-            worst_position = max(worst_position,
-                                 float(np.abs(positions[i] - log["position"][k]).max()))
-            np.testing.assert_array_equal(visible[i], log["visible"][k])
-            if visible[i].any():
-                worst_pixel = max(worst_pixel, float(np.abs(
-                    pixels[i][visible[i]] - log["pixels"][k][visible[i]]).max()))
-                compared_pixels += int(visible[i].sum())
-    assert worst_position < 0.01
-    assert worst_pixel < 1.0
-    assert compared_pixels > steps  # the lights were in view for most of the approach
+    errors = trajectory_errors(env_id, (3, 11, 29), steps=200)
+    assert errors["steps"] == 200 and errors["ended_early"] == 0  # 20 s of approach
+    assert errors["worst_position_m"] < 0.01
+    assert errors["worst_pixel_px"] < 1.0
+    assert errors["visibility_mismatch_steps"] == 0
+    assert errors["pixels_compared"] > 200  # the lights were in view for most of it
 
 
 def test_a_fixed_policy_docks_or_fails_alike_on_95_of_100_seeds():
-    env_id = "auv_envs/DockingStation-v1"
-    cpu = gym.make(env_id, obs_mode="state", scenario="current").unwrapped
-    seeds = range(700, 800)
-    starts, cpu_outcomes = [], []
-    for seed in seeds:
-        obs, qpos, qvel, current = _start(cpu, seed)
-        starts.append((qpos, qvel, current))
-        while True:
-            obs, _, terminated, truncated, info = cpu.step(line_of_sight_policy(obs)[0])
-            if terminated or truncated:
-                break
-        cpu_outcomes.append(info["episode_metrics"]["success"])
-    batched = DockingMJX(env_id, obs_mode="state", scenario="current", auto_reset=False)
-    states = jax.jit(jax.vmap(batched.reset_to))(
-        np.stack([s[0] for s in starts]), np.stack([s[1] for s in starts]),
-        jax.random.split(jax.random.PRNGKey(1), len(starts)), np.stack([s[2] for s in starts]))
-    step = jax.jit(jax.vmap(batched.step))
-    done = np.zeros(len(starts), dtype=bool)
-    outcomes = np.zeros(len(starts), dtype=bool)
-    while not done.all():
-        states = step(states, jnp.asarray(line_of_sight_policy(np.asarray(states.obs))))
-        ended = np.asarray(states.done) & ~done
-        outcomes[ended] = np.asarray(states.info["success"])[ended]
-        done |= ended
-    cpu_outcomes = np.array(cpu_outcomes)
+    outcomes = outcome_agreement("auv_envs/DockingStation-v1", range(700, 800))
     # A sharp test: the policy neither always docks nor always fails.
-    assert 10 <= cpu_outcomes.sum() <= 90
-    assert (outcomes == cpu_outcomes).sum() >= 95
+    assert 10 <= outcomes["cpu_successes"] <= 90
+    assert outcomes["success_agreement"] >= 95
 
 
 def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():

@@ -253,8 +253,11 @@ class Trainer:
 
 
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
-          settings: Settings = DEFAULT_SETTINGS, evals: int = 10) -> dict:
-    """Train and write ``out`` as an SB3 policy directory; returns its manifest."""
+          settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None) -> dict:
+    """Train and write ``out`` as an SB3 policy directory; returns its manifest.
+
+    ``group``: the leaderboard pools policies of one group (training seeds) into one row.
+    """
     env = DockingMJX(env_id, obs_mode="features", difficulty=difficulty)
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
@@ -278,7 +281,8 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
     wall = time.perf_counter() - start
     return export(env, params, normalizer, Path(out), {
         "seed": seed, "n_timesteps": iterations * per_iteration, "wall_time_s": round(wall, 1),
-        "difficulty": difficulty, "settings": settings._asdict(), "curve": curve})
+        "difficulty": difficulty, "settings": settings._asdict(), "curve": curve,
+        "group": group})
 
 
 def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
@@ -332,6 +336,8 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
                        f"{run['difficulty']}",
         "files": {name: sha256_file(out / name) for name in (MODEL_FILE, NORMALIZER_FILE)},
     }
+    if run.get("group"):
+        manifest["group"] = run["group"]
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
 
@@ -346,6 +352,8 @@ def main(argv=None) -> None:
     parser.add_argument("--num-envs", type=int, default=DEFAULT_SETTINGS.num_envs)
     parser.add_argument("--evals", type=int, default=10)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--group", default=None,
+                        help="pool this policy with others of the group on the leaderboard")
     args = parser.parse_args(argv)
     if args.timesteps <= 0 or args.num_envs <= 0:
         parser.error("--timesteps and --num-envs must be positive")
@@ -354,7 +362,7 @@ def main(argv=None) -> None:
         parser.error(f"--num-envs x {settings.n_steps} steps must split into "
                      f"{settings.n_minibatches} minibatches")
     manifest = train(f"auv_envs/{args.env}", args.difficulty, args.timesteps, args.seed,
-                     args.out, settings, args.evals)
+                     args.out, settings, args.evals, args.group)
     print(f"wrote {args.out} ({manifest['wall_time_s']} s, {manifest['n_timesteps']} steps)")
 
 
