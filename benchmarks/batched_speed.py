@@ -42,35 +42,31 @@ ENV_ID = "auv_envs/DockingStation-v1"
 ACTION = (0.3, 0.0, 0.0, 0.0)
 
 
-def sync_vector_rate(num_envs: int, steps: int, repeats: int) -> float:
-    """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
-    envs = gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="sync",
-                        obs_mode="features")
-    actions = np.tile(np.array(ACTION, np.float32), (num_envs, 1))
+def vector_rate(envs, steps: int, repeats: int) -> float:
+    """Env-steps per second of a ``VectorEnv`` under the held action (best of ``repeats``)."""
+    actions = np.tile(np.array(ACTION, np.float32), (envs.num_envs, 1))
     envs.reset(seed=0)
+    envs.step(actions)  # compiles a JAX env
     best = 0.0
     for _ in range(repeats):
         start = time.perf_counter()
         for _ in range(steps):
             envs.step(actions)
-        best = max(best, num_envs * steps / (time.perf_counter() - start))
+        best = max(best, envs.num_envs * steps / (time.perf_counter() - start))
     envs.close()
     return best
 
 
+def sync_vector_rate(num_envs: int, steps: int, repeats: int) -> float:
+    """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
+    return vector_rate(gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="sync",
+                                    obs_mode="features"), steps, repeats)
+
+
 def make_vec_rate(batch: int, steps: int, repeats: int) -> float:
     """``features`` env-steps per second through ``gym.make_vec`` (NumPy every step)."""
-    envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=batch, obs_mode="features")
-    actions = np.tile(np.array(ACTION, np.float32), (batch, 1))
-    envs.reset(seed=0)
-    envs.step(actions)  # compile
-    best = 0.0
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(steps):
-            envs.step(actions)
-        best = max(best, batch * steps / (time.perf_counter() - start))
-    return best
+    return vector_rate(gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=batch,
+                                    obs_mode="features"), steps, repeats)
 
 
 def fused_rate(env: DockingMJX, batch: int, steps: int, repeats: int) -> float:
