@@ -130,7 +130,7 @@ class DockingMJX:
         self.disturbances, self.optics = cal.disturbances, cal.optics
         self._thruster_gain = thruster_lag_gain(self.disturbances.thruster_time_constant,
                                                 cal.control_period)
-        lights = np.asarray(cal.light_positions, dtype=np.float32)
+        lights = np.asarray(self.rules.lights, dtype=np.float32)
         self._lights = tuple(jnp.asarray(lights[:, k]) for k in range(3))
         self._n_lights = len(lights)
         if obs_mode == "features":

@@ -529,14 +529,13 @@ class DockingEnv(TaskEnv):
         self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
         # Per-step constants as Python floats (the step path works in floats).
         self._thrust = tuple(float(t) for t in self._params.thrust_limits)
-        self._lights = [tuple(p) for p in light_positions.tolist()]
         #: The task's geometry and rules (:mod:`auv_envs.tasks.docking_rules`), which the
         #: batched environment evaluates too.
         self.rules = DockingRules(
             intrinsics=self.calibration.intrinsics,
             camera_position=self.calibration.extrinsics.position,
             camera_rotation=self.calibration.extrinsics.rotation,
-            lights=tuple(self._lights), nose_offset=nose,
+            lights=tuple(tuple(p) for p in light_positions.tolist()), nose_offset=nose,
             hull_axes=(nose, self._params.diameter / 2, self._params.diameter / 2),
             seabed_z=self.physics.seabed_z, tolerances=self.calibration.tolerances,
             min_visible=self._min_visible, lights_lost_timeout=self._lost_timeout,
@@ -714,9 +713,9 @@ class DockingEnv(TaskEnv):
         truth = self.rules.kinematics(*phys.kinematics())
         cam_pos = truth["camera_position"]
         pixels, in_image = project_few(
-            self.calibration.intrinsics, self._lights, cam_pos, truth.pop("camera_rows")
+            self.calibration.intrinsics, self.rules.lights, cam_pos, truth.pop("camera_rows")
         )
-        visible = phys.unoccluded(cam_pos, self._lights, in_image)
+        visible = phys.unoccluded(cam_pos, self.rules.lights, in_image)
         pixel_array = np.array(pixels)
         visible_array = np.array(visible)
         # The observation/info convention: zero (not NaN) where not visible.
