@@ -11,6 +11,7 @@ Python floats every step; the batched environment
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 from auv_envs.core import frames
@@ -68,9 +69,9 @@ class DockingRules:
     lights_lost_timeout: float
     control_period: float
 
-    @property
+    @functools.cached_property
     def heading_tolerance(self) -> float:
-        """The heading tolerance, rad."""
+        """The heading tolerance, rad (computed once: :meth:`docked` runs every step)."""
         return math.radians(self.tolerances.heading_deg)
 
     def kinematics(self, position, rotation, qvel, ops=FLOATS) -> dict:
