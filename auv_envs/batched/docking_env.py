@@ -53,7 +53,11 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.optics import LampOutages, lamp_detections
 from auv_envs.core.sea import current_components
 from auv_envs.core.vehicle import PlantPerturbation, lagged_thrust, thruster_lag_gain
-from auv_envs.tasks.docking import SCENARIO_CURRENT_SPEED
+from auv_envs.tasks.docking import (
+    SCENARIO_CURRENT_SPEED,
+    START_HEADING_SPREAD_DEG,
+    START_SURGE,
+)
 from auv_envs.tasks.docking_rules import FAILURE_REASONS
 
 #: The observation modes the batched environment builds.
@@ -176,8 +180,8 @@ class DockingMJX:
         y = jax.random.uniform(keys[1], (), minval=lay.start_y[0], maxval=lay.start_y[1])
         z = jax.random.uniform(keys[2], (), minval=lay.start_z[0], maxval=lay.start_z[1])
         yaw = jnp.arctan2(-y, -x) + jax.random.uniform(keys[3], (), minval=-1.0, maxval=1.0) \
-            * math.radians(10.0)
-        surge = jax.random.uniform(keys[4], (), minval=0.0, maxval=0.3)
+            * math.radians(START_HEADING_SPREAD_DEG)
+        surge = jax.random.uniform(keys[4], (), minval=START_SURGE[0], maxval=START_SURGE[1])
         qpos, qvel = self.start_state(x, y, z, yaw, surge)
         varying = self.disturbances.current
         if self.scenario == "current" or varying.active:

@@ -11,7 +11,7 @@ modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``,
 ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
-``logical_not`` and ``any_of(items)``. Comparisons combine with ``&`` and
+and ``logical_not``. Comparisons combine with ``&`` and
 ``|``, which serve Python bools and boolean arrays alike.
 """
 
@@ -34,7 +34,7 @@ FLOATS = types.SimpleNamespace(
     name="floats",
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
     asin=math.asin, clip=_clip, where=_where, minimum=min, maximum=max,
-    logical_not=lambda x: not x, any_of=any,
+    logical_not=lambda x: not x,
 )
 
 
@@ -42,15 +42,9 @@ def jax_ops() -> types.SimpleNamespace:
     """``jax.numpy`` under the names of :data:`FLOATS` (imports JAX on first use)."""
     import jax.numpy as jnp
 
-    def any_of(items):
-        out = False
-        for item in items:
-            out = out | item
-        return out
-
     return types.SimpleNamespace(
         name="jax",
         sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan2=jnp.arctan2,
         asin=jnp.arcsin, clip=jnp.clip, where=jnp.where, minimum=jnp.minimum,
-        maximum=jnp.maximum, logical_not=jnp.logical_not, any_of=any_of,
+        maximum=jnp.maximum, logical_not=jnp.logical_not,
     )

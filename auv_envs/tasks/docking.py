@@ -73,6 +73,10 @@ SCENARIO_VELOCITY_NOISE = 0.02
 SCENARIO_YAW_RATE_NOISE = 0.005
 SCENARIO_ATTITUDE_NOISE = math.radians(0.2)
 
+#: Start state: heading spread about the line of sight to the entrance (deg) and the
+#: surge speed range (m/s), drawn uniformly (the batched env draws the same).
+START_HEADING_SPREAD_DEG = 10.0
+START_SURGE = (0.0, 0.3)
 #: Seconds per env step. The plant takes ``physics_substeps`` (default 1)
 #: classical RK4 steps per control period, the hull wrench re-evaluated at every
 #: stage; ``docs/physics.md`` gives its error against an independent reference.
@@ -589,8 +593,8 @@ class DockingEnv(TaskEnv):
         x = rng.uniform(*lay.start_x)
         y = rng.uniform(*lay.start_y)
         z = rng.uniform(*lay.start_z)
-        yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(10.0)
-        surge = rng.uniform(0.0, 0.3)
+        yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(START_HEADING_SPREAD_DEG)
+        surge = rng.uniform(*START_SURGE)
         varying = self._disturbances.current
         if self.scenario == "current" or self._current_varies:
             speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
