@@ -206,3 +206,67 @@ def test_human_mode_shows_the_rgb_frames_in_a_window(env_id, monkeypatch):
         assert shown.std() > 10
     finally:
         env.close()
+
+
+def test_round_geoms_are_drawn_with_fewer_sides_in_small_images():
+    from auv_envs.core.rendering import outline_slices
+
+    # n >= pi sqrt(H / 3): a circle of radius H/3 px within half a pixel of its outline.
+    assert outline_slices(84, 28) == 17
+    assert outline_slices(221, 28) == 27
+    assert [outline_slices(h, 28) for h in (222, 240, 480, 960)] == [28] * 4  # as before
+    assert outline_slices(12, 28) == 8  # floor
+    assert outline_slices(84, 12) == 12  # never more than the model asks
+    for height in (24, 84, 120, 221):
+        n = outline_slices(height, 1000)
+        radius = height / 3.0
+        assert radius * (1.0 - np.cos(np.pi / n)) <= 0.5
+        assert radius * (1.0 - np.cos(np.pi / (n - 1))) > 0.5 or n == 8
+
+
+def test_renderer_leaves_the_models_visual_settings_as_they_were():
+    from auv_envs.core.rendering import CameraRenderer
+
+    env = make_env(DOCKING_IDS[0], "state")
+    model = env.unwrapped.physics.model
+    quality = model.vis.quality
+    before = (quality.numslices, quality.numstacks)
+    renderer = CameraRenderer(model, (env.unwrapped.physics.camera_name,), 84, 84,
+                              hidden_groups=(1,))
+    renderer.close()
+    assert (quality.numslices, quality.numstacks) == before
+    with pytest.raises(ValueError, match="geom group"):
+        CameraRenderer(model, (env.unwrapped.physics.camera_name,), 84, 84, hidden_groups=(6,))
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", DOCKING_IDS)
+def test_the_nose_camera_never_sees_its_own_hull(env_id):
+    # The image observation leaves the hull out (a quarter of a small frame's
+    # time) on the geometric argument of camera_sees_hull; a renderer that draws
+    # it must find no hull pixel, and the images must be the same.
+    from auv_envs.core.rendering import CameraRenderer
+
+    env = make_env(env_id, "image", image_size=(96, 72))
+    physics = env.unwrapped.physics
+    assert not physics.camera_sees_hull(96, 72)
+    assert env.unwrapped.camera_renderer._option.geomgroup[1] == 0
+    drawing_hull = CameraRenderer(physics.model, (physics.camera_name,), 96, 72)
+    hull = physics.hull_geoms[0]
+    try:
+        env.reset(seed=5)
+        env.action_space.seed(5)
+        for _ in range(40):
+            obs, *_ = env.step(env.action_space.sample())
+            assert not np.any(drawing_hull.render_geom_ids(physics.data) == hull)
+            np.testing.assert_array_equal(drawing_hull.render(physics.data), obs["image"])
+        # The argument can fail: a camera looking back over the hull sees it.
+        saved = physics.camera_mat_body.copy()
+        physics.camera_mat_body[:] = -saved
+        try:
+            assert physics.camera_sees_hull(96, 72)
+        finally:
+            physics.camera_mat_body[:] = saved
+    finally:
+        drawing_hull.close()
+        env.close()

@@ -21,6 +21,7 @@ Two pitfalls shape this module:
 from __future__ import annotations
 
 import atexit
+import math
 import weakref
 
 import mujoco
@@ -42,7 +43,7 @@ class CameraRenderer:
 
     def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int,
                  headlight: tuple[float, float] | None = None, fog: bool = False,
-                 skybox: bool = False):
+                 skybox: bool = False, hidden_groups: tuple[int, ...] = ()):
         """Args:
             model: the compiled model (its ``vis`` offscreen size grows if needed;
                 this renderer's own buffer is exactly its images' size).
@@ -58,6 +59,14 @@ class CameraRenderer:
             skybox: draw the model's skybox texture (where no geom is).
                 Fog and skybox belong to views for people; the cameras of
                 observations draw neither.
+            hidden_groups: geom groups this renderer does not draw (e.g. a
+                vehicle's own hull, which its camera cannot see: drawing it
+                costs a small frame a quarter of its time under software GL
+                and changes no pixel).
+
+        Round geoms (spheres, capsules, cylinders, ellipsoids) are drawn as
+        polygons of :func:`outline_slices` sides, fewer for small images
+        than the model's ``visual/quality`` asks (see that function).
         """
         global _HOOKED
         if not cameras:
@@ -76,9 +85,14 @@ class CameraRenderer:
         # buffer to clear, draw and read (at the model's 1280x960 an 84x84 frame cost
         # nearly what a 320x240 one did). The model keeps the larger of the two sizes,
         # for renderers made from it elsewhere (mujoco.Renderer checks it).
-        offscreen = model.vis.global_
+        # The round geoms' polygons are built into the context too, at the
+        # model's quality; both are restored once the context exists.
+        offscreen, quality = model.vis.global_, model.vis.quality
         model_size = (offscreen.offwidth, offscreen.offheight)
+        model_quality = (quality.numslices, quality.numstacks)
         offscreen.offwidth, offscreen.offheight = total_width, self._height
+        quality.numslices = outline_slices(self._height, model_quality[0])
+        quality.numstacks = max(2, round(model_quality[1] * quality.numslices / model_quality[0]))
         try:
             self._gl = mujoco.GLContext(total_width, self._height)
             self._gl.make_current()
@@ -86,10 +100,15 @@ class CameraRenderer:
         finally:
             offscreen.offwidth = max(model_size[0], total_width)
             offscreen.offheight = max(model_size[1], self._height)
+            quality.numslices, quality.numstacks = model_quality
         self._scene = mujoco.MjvScene(model, maxgeom=1000)
         self._scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = fog
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
         self._option = mujoco.MjvOption()
+        for group in hidden_groups:
+            if not 0 <= group < len(self._option.geomgroup):
+                raise ValueError(f"hidden_groups: {group} is not a geom group (0-5)")
+            self._option.geomgroup[group] = 0
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)
         # Made on the first render_with_range: the depth buffer and each pixel's ray length.
@@ -226,6 +245,22 @@ class CameraRenderer:
             self.close()
         except Exception:  # interpreter shutdown: GL may already be gone
             pass
+
+
+def outline_slices(height: int, model_slices: int) -> int:
+    """Sides of the polygon a round geom is drawn with in an image ``height`` rows high.
+
+    A circle of radius ``R`` pixels drawn as a regular ``n``-gon strays at
+    most ``R (1 - cos(pi / n)) ~ R pi^2 / (2 n^2)`` pixels from its outline.
+    For a round geom spanning up to two thirds of the image height
+    (``R = height / 3``) to stay within half a pixel of its outline,
+    ``n >= pi sqrt(height / 3)``: 17 sides at 84 rows, 28 (MuJoCo's default,
+    which the model's ``numslices`` caps this at) from 222 rows on, so images
+    of 240 rows and more are drawn as before. Under software GL a small
+    frame's time is mostly these polygons' vertices (at 84x84, 28 sides cost
+    about twice the time of 17; ``docs/speed.md``).
+    """
+    return int(min(model_slices, max(8, math.ceil(math.pi * math.sqrt(height / 3.0)))))
 
 
 def _close_all() -> None:

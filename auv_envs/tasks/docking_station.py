@@ -35,6 +35,10 @@ CHASE_FOVY_DEG = 60.0
 #: (fog colour and visibility), but the view is lit as by a survey lamp. The
 #: onboard camera keeps the model's dim headlight.
 CHASE_HEADLIGHT = (0.45, 0.6)
+#: Geom group of the vehicle's own hull (``assets/vehicles/hovering_auv.xml``):
+#: drawn in views for people, left out of the nose camera's images where
+#: :meth:`DockingPhysics.camera_sees_hull` shows it cannot be seen.
+OWN_HULL_GROUP = 1
 #: Colour of a failed lamp (``optics``): unlit grey glass, no emission.
 FAILED_LAMP_RGBA = (0.25, 0.25, 0.25, 1.0)
 
@@ -179,6 +183,9 @@ class DockingPhysics:
             raise ValueError("the hull body must sit at its free joint's frame, CG at its origin")
         self.qpos_adr = joint.qposadr[0]
         self.qvel_adr = joint.dofadr[0]
+        self.hull_geoms = np.flatnonzero(model.geom_bodyid == hull)
+        if np.any(model.geom_group[self.hull_geoms] != OWN_HULL_GROUP):
+            raise ValueError(f"the hull's geoms must be in geom group {OWN_HULL_GROUP}")
         cam = model.camera("hovering_auv/nose_camera")
         self.camera_name = cam.name
         self.camera_id = cam.id
@@ -283,6 +290,29 @@ class DockingPhysics:
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
         with passive.MUJOCO_LOCK:
             mujoco.mj_forward(self.model, self.data)
+
+    def camera_sees_hull(self, width: int, height: int) -> bool:
+        """Whether any of the hull can show in the nose camera's ``width`` x ``height`` image.
+
+        No, when the hull lies behind the plane through the camera centre
+        across the body's x axis (every hull geom axis-aligned, ending at or
+        behind the camera's x) and every ray of the camera's frustum points
+        forward (positive body x at its four corners, which span it): a point
+        seen is then ahead of that plane. True where that cannot be shown.
+        """
+        model = self.model
+        for g in self.hull_geoms:
+            aligned = np.allclose(model.geom_quat[g], (1.0, 0.0, 0.0, 0.0))
+            if not aligned or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+                return True
+            if model.geom_pos[g][0] + model.geom_size[g][0] > self.camera_pos_body[0]:
+                return True
+        half_y = math.tan(math.radians(model.cam_fovy[self.camera_id]) / 2.0)
+        half_x = half_y * width / height
+        corners = np.array([(sx * half_x, sy * half_y, -1.0)
+                            for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)])
+        forward = (corners @ self.camera_mat_body.T)[:, 0]
+        return bool(np.any(forward <= 0.0))
 
     def unoccluded(self, origin, targets, candidates) -> list[bool]:
         """Which candidate targets static scenery does not hide from ``origin``.
