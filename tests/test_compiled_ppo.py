@@ -106,3 +106,26 @@ def test_a_tiny_run_trains_writes_and_ranks(tmp_path):
     obs, info = env.reset(seed=1)
     action = agent.act(obs, info)
     assert env.action_space.contains(action)
+
+
+def test_compilation_cache_keeps_compiled_programs(tmp_path):
+    # A fresh process, as a training run: JAX's cache can be set once per process.
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, jax, jax.numpy as jnp\n"
+        "from pathlib import Path\n"
+        "from baselines.rl.compiled import use_compilation_cache\n"
+        "use_compilation_cache(Path(sys.argv[1]))\n"
+        "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)\n"
+        "print(float(jax.jit(lambda x: jnp.sin(x) * 3.0)(jnp.float32(0.5))))\n"
+    )
+    cache = tmp_path / "made" / "here"
+    out = subprocess.run([sys.executable, "-c", code, str(cache)], capture_output=True,
+                         text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert float(out.stdout.split()[-1]) == pytest.approx(3.0 * np.sin(0.5), rel=1e-6)
+    assert any(cache.iterdir())  # the program was written
+    default = compiled.default_compilation_cache()
+    assert default.parts[-2:] == ("auv_envs", "jax")
