@@ -91,13 +91,24 @@ def test_export_is_an_sb3_policy_acting_as_the_jax_one(tmp_path):
 
 def test_a_tiny_run_trains_writes_and_ranks(tmp_path):
     settings = compiled.Settings(num_envs=8, n_steps=8, n_minibatches=2, n_epochs=1)
-    manifest = compiled.train(ENV_ID, "paper", 128, 0, tmp_path / "run", settings, evals=1)
+    manifest = compiled.train(ENV_ID, "paper", 128, 0, tmp_path / "run", settings, evals=2,
+                              checkpoints=True)
     assert manifest["n_timesteps"] == 128
+    # The policy after the first of two iterations, with the wall time it had then.
+    first = json.loads((tmp_path / "run" / "checkpoints" / "step_64" / "policy.json").read_text())
+    assert first["n_timesteps"] == 64 and 0 < first["wall_time_s"] <= manifest["wall_time_s"]
+    assert first["files"] != manifest["files"]
+    assert not (tmp_path / "run" / "checkpoints" / "step_128").exists()  # that is the run
+    # scripts/time_to_success.py reads them in training order, the run last.
+    from scripts.time_to_success import checkpoint_loaders
+
+    loaded = [load()[:2] for load in checkpoint_loaders(tmp_path / "run", "paper")]
+    assert loaded == [(64, first["wall_time_s"]), (128, manifest["wall_time_s"])]
     assert manifest["env_kwargs"] == {"difficulty": "paper"}
     written = json.loads((tmp_path / "run" / "policy.json").read_text())
     assert written["files"] == manifest["files"]
     curve = (tmp_path / "run" / "eval_curve.csv").read_text().splitlines()
-    assert curve[0].startswith("step,") and len(curve) == 2
+    assert curve[0].startswith("step,") and len(curve) == 3
     name = register_external_policy(tmp_path / "run")
     from baselines.registry import make_agent
 

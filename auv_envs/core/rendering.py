@@ -71,6 +71,10 @@ class CameraRenderer:
         global _HOOKED
         if not cameras:
             raise ValueError("need at least one camera")
+        for group in hidden_groups:
+            if not 0 <= group < mujoco.mjNGROUP:
+                raise ValueError(f"hidden_groups: {group} is not a geom group "
+                                 f"(0-{mujoco.mjNGROUP - 1})")
         self._model = model
         self._width, self._height = int(width), int(height)
         self._cams = []
@@ -106,8 +110,6 @@ class CameraRenderer:
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
         self._option = mujoco.MjvOption()
         for group in hidden_groups:
-            if not 0 <= group < len(self._option.geomgroup):
-                raise ValueError(f"hidden_groups: {group} is not a geom group (0-5)")
             self._option.geomgroup[group] = 0
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)

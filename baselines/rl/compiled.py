@@ -19,7 +19,7 @@ environment through :class:`baselines.rl.policy.PolicyAgent`, and
 ``evaluate.py --policy DIR`` ranks it beside every other agent::
 
     python -m baselines.rl.compiled --env DockingStation-v1 --difficulty paper \\
-        --timesteps 4000000 --seed 0 --out runs/compiled-docking-s0
+        --timesteps 1500000 --seed 0 --out runs/compiled-docking-s0
     python evaluate.py --policy runs/compiled-docking-s0 --envs DockingStation-v1 \\
         --difficulty paper --seeds 300000-300019
 """
@@ -255,15 +255,21 @@ class Trainer:
 
 
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
-          settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None) -> dict:
+          settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
+          checkpoints: bool = False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
+    ``checkpoints``: also write the policy at each of the ``evals`` evaluations, as
+    ``out/checkpoints/step_<N>`` (each a policy directory whose manifest holds the
+    training wall time so far), to find when a run first reached a success rate
+    on the CPU environment (``evaluate.py --policy``).
     """
     env = DockingMJX(env_id, obs_mode="features", difficulty=difficulty)
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
     trainer = Trainer(env, settings, iterations)
+    run = {"seed": seed, "difficulty": difficulty, "settings": settings._asdict()}
     start = time.perf_counter()
     params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(seed))
     curve = []
@@ -280,11 +286,14 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
             curve.append(row)
             print(f"[eval] step {row['step']}: success {100 * success:.0f} % over 64 batched "
                   f"episodes ({row['wall_s']} s)", flush=True)
+            if checkpoints and i < iterations:
+                export(env, params, normalizer, Path(out) / "checkpoints" / f"step_{row['step']}",
+                       {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
+                        "curve": list(curve), "group": None})
     wall = time.perf_counter() - start
     return export(env, params, normalizer, Path(out), {
-        "seed": seed, "n_timesteps": iterations * per_iteration, "wall_time_s": round(wall, 1),
-        "difficulty": difficulty, "settings": settings._asdict(), "curve": curve,
-        "group": group})
+        **run, "n_timesteps": iterations * per_iteration, "wall_time_s": round(wall, 1),
+        "curve": curve, "group": group})
 
 
 def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
@@ -371,13 +380,16 @@ def main(argv=None) -> None:
     parser.add_argument("--env", default="DockingStation-v1",
                         choices=["DockingStation-v1", "LampArrayDocking-v1"])
     parser.add_argument("--difficulty", default="paper", choices=["easy", "paper", "hard"])
-    parser.add_argument("--timesteps", type=int, default=4_000_000)
+    parser.add_argument("--timesteps", type=int, default=1_500_000,
+                        help="env steps (default: the shipped policies' budget)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--num-envs", type=int, default=DEFAULT_SETTINGS.num_envs)
     parser.add_argument("--evals", type=int, default=10)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--group", default=None,
                         help="pool this policy with others of the group on the leaderboard")
+    parser.add_argument("--checkpoints", action="store_true",
+                        help="also write the policy at every evaluation, under OUT/checkpoints")
     parser.add_argument("--compilation-cache", type=Path, default=default_compilation_cache(),
                         metavar="DIR", help="JAX's persistent compilation cache (default: "
                         "%(default)s); a later run of the same shapes loads its programs "
@@ -394,7 +406,7 @@ def main(argv=None) -> None:
         parser.error(f"--num-envs x {settings.n_steps} steps must split into "
                      f"{settings.n_minibatches} minibatches")
     manifest = train(f"auv_envs/{args.env}", args.difficulty, args.timesteps, args.seed,
-                     args.out, settings, args.evals, args.group)
+                     args.out, settings, args.evals, args.group, args.checkpoints)
     print(f"wrote {args.out} ({manifest['wall_time_s']} s, {manifest['n_timesteps']} steps)")
 
 
