@@ -109,6 +109,9 @@ def test_a_tiny_run_trains_writes_and_ranks(tmp_path):
     assert written["files"] == manifest["files"]
     curve = (tmp_path / "run" / "eval_curve.csv").read_text().splitlines()
     assert curve[0].startswith("step,") and len(curve) == 3
+    from scripts import plot_seeds  # the multi-seed plot reads it as a train.py curve
+
+    assert sorted(plot_seeds.read_curve(tmp_path / "run")) == [64, 128]
     name = register_external_policy(tmp_path / "run")
     from baselines.registry import make_agent
 

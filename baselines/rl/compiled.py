@@ -238,20 +238,24 @@ class Trainer:
         return params, opt_state, normalizer, states, key, stats
 
     def _evaluate(self, params, normalizer, episodes: int, steps: int, key=None):
-        """Deterministic (mean) actions on ``episodes`` fresh batched episodes: success rate."""
+        """Deterministic (mean) actions on ``episodes`` fresh batched episodes:
+        ``(success rate, mean return)``."""
         key = jax.random.PRNGKey(12345) if key is None else key
         states = self._reset(jax.random.split(key, episodes))
 
         def act(carry, _):
-            states, done, success = carry
+            states, done, success, total = carry
             mean = _mlp(params["pi"], normalizer(self._flat(states.obs)))
             nxt = self._step(states, jnp.clip(mean, -1.0, 1.0))
             ended = nxt.done & ~done
-            return (nxt, done | nxt.done, success | (ended & nxt.metrics["is_success"])), None
+            total = total + jnp.where(done, 0.0, nxt.reward)
+            return (nxt, done | nxt.done, success | (ended & nxt.metrics["is_success"]),
+                    total), None
 
         false = jnp.zeros(episodes, bool)
-        (_, _, success), _ = jax.lax.scan(act, (states, false, false), None, length=steps)
-        return success.mean()
+        (_, _, success, total), _ = jax.lax.scan(
+            act, (states, false, false, jnp.zeros(episodes)), None, length=steps)
+        return success.mean(), total.mean()
 
 
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
@@ -278,11 +282,13 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
         params, opt_state, normalizer, states, key, stats = trainer.iteration(
             params, opt_state, normalizer, states, key)
         if i % every == 0 or i == iterations:
-            success = float(trainer.evaluate(params, normalizer, 64, env.max_episode_steps))
+            success, mean_return = (float(v) for v in trainer.evaluate(
+                params, normalizer, 64, env.max_episode_steps))
+            # train.py's curve columns (scripts/plot_seeds.py reads both kinds of run).
             row = {"step": i * per_iteration, "wall_s": round(time.perf_counter() - start, 1),
+                   "success_rate": success, "mean_return": mean_return,
                    "train_success_rate": float(stats["successes"]) / max(
-                       1.0, float(stats["episodes"])),
-                   "eval_success_rate": success}
+                       1.0, float(stats["episodes"]))}
             curve.append(row)
             print(f"[eval] step {row['step']}: success {100 * success:.0f} % over 64 batched "
                   f"episodes ({row['wall_s']} s)", flush=True)
@@ -362,12 +368,13 @@ def default_compilation_cache() -> Path:
 def use_compilation_cache(directory: Path) -> None:
     """Keep compiled programs in ``directory`` (JAX's persistent compilation cache).
 
-    A run compiles its iteration, reset and evaluation (about 75 s on 2 CPU
-    cores); a later run with the same environment, level and settings (another
-    seed, say) loads them from here instead (about 15 s, the rest being
-    tracing). The cache is keyed on the compiled program, the JAX version
-    and the device, so a stale entry is never used; deleting the directory is
-    always safe.
+    A run compiles its iteration, reset and evaluation: on 2 CPU cores about
+    90 s pass before learning starts. A later run with the same environment,
+    level and settings (another seed, say) loads them from here instead and
+    starts in about 33 s, most of it tracing
+    (``benchmarks/compiled_startup.py``). The cache is keyed on the compiled
+    program, the JAX version and the device, so a stale entry is never used;
+    deleting the directory is always safe.
     """
     directory.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(directory))
