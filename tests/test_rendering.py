@@ -232,7 +232,7 @@ def test_renderer_leaves_the_models_visual_settings_as_they_were():
     quality = model.vis.quality
     before = (quality.numslices, quality.numstacks)
     renderer = CameraRenderer(model, (env.unwrapped.physics.camera_name,), 84, 84,
-                              hidden_groups=(1,))
+                              hidden_groups=(1,), fit_outlines=True)
     renderer.close()
     assert (quality.numslices, quality.numstacks) == before
     with pytest.raises(ValueError, match="geom group"):
@@ -251,7 +251,8 @@ def test_the_nose_camera_never_sees_its_own_hull(env_id):
     physics = env.unwrapped.physics
     assert not physics.camera_sees_hull(96, 72)
     assert env.unwrapped.camera_renderer._option.geomgroup[1] == 0
-    drawing_hull = CameraRenderer(physics.model, (physics.camera_name,), 96, 72)
+    drawing_hull = CameraRenderer(physics.model, (physics.camera_name,), 96, 72,
+                                  fit_outlines=True)
     hull = physics.hull_geoms[0]
     try:
         env.reset(seed=5)

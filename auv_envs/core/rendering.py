@@ -43,7 +43,8 @@ class CameraRenderer:
 
     def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int,
                  headlight: tuple[float, float] | None = None, fog: bool = False,
-                 skybox: bool = False, hidden_groups: tuple[int, ...] = ()):
+                 skybox: bool = False, hidden_groups: tuple[int, ...] = (),
+                 fit_outlines: bool = False):
         """Args:
             model: the compiled model (its ``vis`` offscreen size grows if needed;
                 this renderer's own buffer is exactly its images' size).
@@ -63,10 +64,13 @@ class CameraRenderer:
                 vehicle's own hull, which its camera cannot see: drawing it
                 costs a small frame a quarter of its time under software GL
                 and changes no pixel).
-
-        Round geoms (spheres, capsules, cylinders, ellipsoids) are drawn as
-        polygons of :func:`outline_slices` sides, fewer for small images
-        than the model's ``visual/quality`` asks (see that function).
+            fit_outlines: draw round geoms (spheres, capsules, cylinders,
+                ellipsoids) as polygons of :func:`outline_slices` sides, fewer
+                for small images than the model's ``visual/quality`` asks:
+                their outlines stay within half a pixel, but the shading of a
+                large curved surface changes (at 160x120 a LARS stereo pair
+                differed on up to a fifth of its pixels), so a task turns it on
+                where it measured the images (the docking camera).
         """
         global _HOOKED
         if not cameras:
@@ -95,8 +99,10 @@ class CameraRenderer:
         model_size = (offscreen.offwidth, offscreen.offheight)
         model_quality = (quality.numslices, quality.numstacks)
         offscreen.offwidth, offscreen.offheight = total_width, self._height
-        quality.numslices = outline_slices(self._height, model_quality[0])
-        quality.numstacks = max(2, round(model_quality[1] * quality.numslices / model_quality[0]))
+        if fit_outlines:
+            quality.numslices = outline_slices(self._height, model_quality[0])
+            quality.numstacks = max(2, round(model_quality[1] * quality.numslices
+                                             / model_quality[0]))
         try:
             self._gl = mujoco.GLContext(total_width, self._height)
             self._gl.make_current()

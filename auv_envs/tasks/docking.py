@@ -568,14 +568,14 @@ class DockingEnv(TaskEnv):
         if obs_mode == "image":
             hidden = () if self.physics.camera_sees_hull(width, height) else (OWN_HULL_GROUP,)
             self.camera_renderer = CameraRenderer(model, (self.physics.camera_name,), width, height,
-                                                  hidden_groups=hidden)
+                                                  hidden_groups=hidden, fit_outlines=True)
         self._view: CameraRenderer | None = None
         if render_mode == "rgb_array":
             chase = render_camera == "chase"
             self._view = CameraRenderer(
                 model, ("hovering_auv/chase" if chase else self.physics.camera_name,),
                 render_width, render_height, headlight=CHASE_HEADLIGHT if chase else None,
-                fog=chase, skybox=chase,
+                fog=chase, skybox=chase, fit_outlines=not chase,  # onboard: as the observation
             )
         self._episode = _EpisodeState()
 
