@@ -61,9 +61,9 @@ class CameraRenderer:
                 Fog and skybox belong to views for people; the cameras of
                 observations draw neither.
             hidden_groups: geom groups this renderer does not draw (e.g. a
-                vehicle's own hull, which its camera cannot see: drawing it
-                costs a small frame a quarter of its time under software GL
-                and changes no pixel).
+                vehicle's own hull, which its camera cannot see: under
+                software GL drawing it cost 0.25 ms of a 0.89 ms 84x84 frame,
+                and it changes no pixel).
             fit_outlines: draw round geoms (spheres, capsules, cylinders,
                 ellipsoids) as polygons of :func:`outline_slices` sides, fewer
                 for small images than the model's ``visual/quality`` asks:
