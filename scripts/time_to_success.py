@@ -11,9 +11,9 @@ Stable-Baselines3's. Two kinds of run:
 * a ``train.py`` run (``--set checkpoint_freq=N --set keep_checkpoints=K``
   keeps its checkpoints): each is the model and its frozen ``VecNormalize``
   statistics;
-* a compiled-PPO run (``python -m baselines.rl.compiled ... --checkpoints``):
-  each of ``OUT/checkpoints/step_<N>`` is a policy directory, and the run's
-  own directory is the last.
+* a compiled-PPO run (``python train.py --algo cppo ... --set checkpoints=true``):
+  each of ``RUN_DIR/checkpoints/step_<N>`` is a policy directory, and
+  ``RUN_DIR/final`` is the last.
 
     python scripts/time_to_success.py RUN_DIR [--difficulty paper] [--episodes 20]
 """
@@ -72,7 +72,7 @@ def checkpoint_loaders(run: Path, difficulty: str) -> list:
     train_py = sorted((run / "checkpoints").glob("step-*"))
     if train_py:
         return [lambda c=c: train_py_checkpoint(run, c, difficulty) for c in train_py]
-    compiled = [*(run / "checkpoints").glob("step_*"), run]
+    compiled = [*(run / "checkpoints").glob("step_*"), run / "final", run]
     compiled = [c for c in compiled if (c / "policy.json").is_file()]
     compiled.sort(key=lambda c: read_manifest(c)["n_timesteps"])
     return [lambda c=c: policy_checkpoint(c, difficulty) for c in compiled]

@@ -8,6 +8,7 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+import yaml
 
 pytest.importorskip("jax")
 pytest.importorskip("optax")
@@ -89,37 +90,131 @@ def test_export_is_an_sb3_policy_acting_as_the_jax_one(tmp_path):
         load_policy_agent(tmp_path / "policy", cpu)
 
 
-def test_a_tiny_run_trains_writes_and_ranks(tmp_path):
-    settings = compiled.Settings(num_envs=8, n_steps=8, n_minibatches=2, n_epochs=1)
-    manifest = compiled.train(ENV_ID, "paper", 128, 0, tmp_path / "run", settings, evals=2,
-                              checkpoints=True)
-    assert manifest["n_timesteps"] == 128
+#: A run small enough for a test: two iterations of 8 envs x 8 steps.
+TINY = ["--set", "num_envs=8", "--set", "n_steps=8", "--set", "n_minibatches=2",
+        "--set", "n_epochs=1", "--n-timesteps", "128", "--no-compilation-cache"]
+
+
+def test_train_py_trains_writes_exports_and_ranks_a_cppo_run(tmp_path, capsys):
+    import train as train_cli
+
+    run_dir = tmp_path / "run"
+    argv = ["--algo", "cppo", "--env", "DockingStation-v1", "--seed", "3", "--run-dir",
+            str(run_dir), *TINY, "--set", "evals=2", "--set", "checkpoints=true"]
+    assert train_cli.main(argv) == 0
+    info = json.loads((run_dir / "run.json").read_text())
+    assert (info["status"], info["steps"], info["seed"], info["algo"]) == (
+        "finished", 128, 3, "cppo")
+    assert info["command"].startswith("python train.py --algo cppo")
+    config = yaml.safe_load((run_dir / "config.yml").read_text())
+    assert config["hyperparams"]["num_envs"] == 8 and config["run"]["n_timesteps"] == 128
+    assert config["run"]["env_kwargs"] == {"difficulty": "paper"}  # cppo.yml's default
+    manifest = json.loads((run_dir / "final" / "policy.json").read_text())
+    assert manifest["n_timesteps"] == 128 and manifest["command"] == info["command"]
     # The policy after the first of two iterations, with the wall time it had then.
-    first = json.loads((tmp_path / "run" / "checkpoints" / "step_64" / "policy.json").read_text())
+    first = json.loads((run_dir / "checkpoints" / "step_64" / "policy.json").read_text())
     assert first["n_timesteps"] == 64 and 0 < first["wall_time_s"] <= manifest["wall_time_s"]
     assert first["files"] != manifest["files"]
-    assert not (tmp_path / "run" / "checkpoints" / "step_128").exists()  # that is the run
-    # scripts/time_to_success.py reads them in training order, the run last.
+    assert not (run_dir / "checkpoints" / "step_128").exists()  # that is final/
+    # scripts/time_to_success.py reads them in training order, final/ last.
     from scripts.time_to_success import checkpoint_loaders
 
-    loaded = [load()[:2] for load in checkpoint_loaders(tmp_path / "run", "paper")]
+    loaded = [load()[:2] for load in checkpoint_loaders(run_dir, "paper")]
     assert loaded == [(64, first["wall_time_s"]), (128, manifest["wall_time_s"])]
-    assert manifest["env_kwargs"] == {"difficulty": "paper"}
-    written = json.loads((tmp_path / "run" / "policy.json").read_text())
-    assert written["files"] == manifest["files"]
-    curve = (tmp_path / "run" / "eval_curve.csv").read_text().splitlines()
+    curve = (run_dir / "eval_curve.csv").read_text().splitlines()
     assert curve[0].startswith("step,") and len(curve) == 3
+    assert (run_dir / "curve.png").stat().st_size > 0
     from scripts import plot_seeds  # the multi-seed plot reads it as a train.py curve
 
-    assert sorted(plot_seeds.read_curve(tmp_path / "run")) == [64, 128]
-    name = register_external_policy(tmp_path / "run")
+    assert sorted(plot_seeds.read_curve(run_dir)) == [64, 128]
+    # The run directory ranks as it is; exported, the policy keeps its group.
+    name = register_external_policy(run_dir)
     from baselines.registry import make_agent
 
     env = gym.make(ENV_ID, obs_mode="features", difficulty="paper")
     agent = make_agent(name, env)
     obs, info = env.reset(seed=1)
-    action = agent.act(obs, info)
-    assert env.action_space.contains(action)
+    assert env.action_space.contains(agent.act(obs, info))
+    assert train_cli.main(["--export", str(run_dir), "--export-policy", "tiny-s3",
+                           "--export-group", "tiny", "--policies-dir", str(tmp_path)]) == 0
+    shipped = json.loads((tmp_path / "tiny-s3" / "policy.json").read_text())
+    assert shipped["group"] == "tiny" and shipped["files"] == manifest["files"]
+    assert shipped["versions"]["jax"] == jax.__version__
+    assert "compiled in JAX" in shipped["description"]
+    # A compiled run cannot be resumed, and a used run directory is refused.
+    capsys.readouterr()
+    assert train_cli.main(["--resume", str(run_dir)]) == 2
+    assert "cannot be resumed" in capsys.readouterr().err
+    assert train_cli.main(argv) == 2
+    assert "already holds a run" in capsys.readouterr().err
+
+
+def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
+    import signal
+
+    import train as train_cli
+
+    real_train = compiled.train
+
+    def signalled(*args, stop, **kwargs):
+        def ask():  # SIGTERM arrives during the first iteration, as `kill` would send it
+            signal.raise_signal(signal.SIGTERM)
+            return stop()
+
+        return real_train(*args, stop=ask, **kwargs)
+
+    monkeypatch.setattr(compiled, "train", signalled)
+    run_dir = tmp_path / "run"
+    code = train_cli.main(["--algo", "cppo", "--env", "LampArrayDocking-v1", "--run-dir",
+                           str(run_dir), *TINY, "--set", "evals=1"])
+    assert code == 128 + signal.SIGTERM
+    info = json.loads((run_dir / "run.json").read_text())
+    assert (info["status"], info["steps"]) == ("interrupted", 64)
+    manifest = json.loads((run_dir / "final" / "policy.json").read_text())
+    assert manifest["n_timesteps"] == 64
+    env = gym.make("auv_envs/LampArrayDocking-v1", obs_mode="features")
+    agent = load_policy_agent(run_dir / "final", env)  # the policy so far acts
+    obs, info = env.reset(seed=2)
+    assert env.action_space.contains(agent.act(obs, info))
+    with pytest.raises(ValueError, match="has not finished"):
+        from baselines.rl.export import export_policy
+
+        export_policy(run_dir, "half", tmp_path / "policies")
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    ({"learning_rate": "3e-4"}, "write 3.0e-4"),
+    ({"num_envs": 0}, "num_envs must be positive"),
+    ({"gamma": -0.1}, "gamma must be >= 0"),
+    ({"n_epochs": 2.5}, "n_epochs must be int"),
+    ({"obs_mode": "state"}, "'features' only"),
+    ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
+    ({"env_kwargs": {"time_limit": 5.0}}, "may set 'difficulty' only"),
+    ({"num_envs": 10, "n_minibatches": 48}, "must split into"),
+    ({"evals": 0}, "evals must be a positive integer"),
+    ({"checkpoints": "yes"}, "checkpoints must be true or false"),
+    ({"policy_kwargs": {}}, "unknown setting 'policy_kwargs'"),
+])
+def test_cppo_configs_are_checked(overrides, message):
+    from baselines.rl.config import ConfigError, resolve_config
+
+    with pytest.raises(ConfigError, match=message):
+        resolve_config("cppo", ENV_ID, 0, overrides)
+
+
+def test_cppo_yml_holds_the_trainers_defaults_and_only_batched_envs():
+    from baselines.rl.config import ConfigError, resolve_config
+
+    budgets = {"auv_envs/DockingStation-v1": 1_500_000, "auv_envs/LampArrayDocking-v1": 3_000_000}
+    for env_id, budget in budgets.items():  # the shipped policies' recipes
+        config = resolve_config("cppo", env_id, 7)
+        assert compiled.Settings(**config.hyperparams) == compiled.DEFAULT_SETTINGS
+        assert config.run["n_timesteps"] == budget
+        assert config.run["env_kwargs"] == {"difficulty": "paper"}
+    with pytest.raises(ConfigError, match="batched JAX envs only"):
+        resolve_config("cppo", "auv_envs/LARSCapture-v0", 0)
+    with pytest.raises(ConfigError, match="seed must be"):
+        resolve_config("cppo", ENV_ID, -1)
 
 
 def test_compilation_cache_keeps_compiled_programs(tmp_path):
@@ -143,3 +238,16 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
     assert any(cache.iterdir())  # the program was written
     default = compiled.default_compilation_cache()
     assert default.parts[-2:] == ("auv_envs", "jax")
+
+
+@pytest.mark.parametrize("name", [f"cppo-{family}-features-s{seed}"
+                                  for family in ("docking", "lamp-array") for seed in range(3)])
+def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
+    from baselines.rl.config import resolve_config
+    from baselines.rl.policy import policies_root
+
+    shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())
+    assert shipped == resolve_config("cppo", shipped["env_id"], shipped["seed"]).to_dict()
+    manifest = json.loads((policies_root() / name / "policy.json").read_text())
+    assert manifest["command"].startswith("python train.py --algo cppo")
+    assert manifest["group"] == name.rsplit("-s", 1)[0]

@@ -13,6 +13,12 @@ writes a checkpoint at the next safe point and exits with 128 + the signal
 number; ``--resume`` continues exactly where it stopped. ``--export-policy``
 copies the finished run to ``assets/policies/NAME`` as a registered agent.
 See :mod:`baselines.rl.training` for the run directory layout.
+
+``--algo cppo`` is PPO compiled in JAX on the batched docking envs
+(:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``), from
+``cppo.yml``: the same run directory, minutes instead of tens of minutes.
+Ctrl-C writes its policy so far; it cannot be resumed (the same seed trains
+the same policy again). ``--n-envs`` sets its batch (``num_envs``).
 """
 
 from __future__ import annotations
@@ -24,8 +30,9 @@ from pathlib import Path
 
 from baselines.rl.checkpoint import CheckpointError
 from baselines.rl.config import (
-    ALGORITHMS,
+    COMPILED,
     TRAIN_EVAL_SEED_BASE,
+    TRAINERS,
     ConfigError,
     parse_overrides,
     resolve_config,
@@ -47,7 +54,7 @@ def _default_run_dir(algo: str, env_id: str, obs_mode: str, seed: int) -> Path:
 
 def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
-    parser.add_argument("--algo", choices=sorted(ALGORITHMS))
+    parser.add_argument("--algo", choices=sorted(TRAINERS))
     parser.add_argument("--env", help="environment id (the auv_envs/ prefix is optional)")
     parser.add_argument("--obs-mode", help="observation mode (default: from the YAML file)")
     parser.add_argument("--seed", type=int, default=0,
@@ -69,6 +76,12 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
                              "(the leaderboard pools a group's seeds into one row)")
     parser.add_argument("--policies-dir", type=Path, help="default: assets/policies")
     parser.add_argument("--no-progress-bar", action="store_true")
+    parser.add_argument("--compilation-cache", type=Path, metavar="DIR",
+                        help="cppo: JAX's persistent compilation cache (default: "
+                             "~/.cache/auv_envs/jax); a later run of the same shapes loads "
+                             "its programs instead of compiling them")
+    parser.add_argument("--no-compilation-cache", action="store_true",
+                        help="cppo: compile everything afresh, write no cache")
     args = parser.parse_args(argv)
     if args.export is None and args.resume is None and (args.algo is None or args.env is None):
         parser.error("--algo and --env are required (unless --resume or --export)")
@@ -93,7 +106,8 @@ def main(argv=None, prog: str = "python train.py") -> int:
         expected = None
         if args.algo is not None and args.env is not None:
             overrides = parse_overrides(args.overrides)
-            for key, value in (("obs_mode", args.obs_mode), ("n_envs", args.n_envs),
+            batch = "num_envs" if args.algo == COMPILED else "n_envs"
+            for key, value in (("obs_mode", args.obs_mode), (batch, args.n_envs),
                                ("n_timesteps", args.n_timesteps)):
                 if value is not None:
                     overrides[key] = value
@@ -109,15 +123,22 @@ def main(argv=None, prog: str = "python train.py") -> int:
             run_dir = args.run_dir or _default_run_dir(
                 expected.algo, expected.env_id, expected.run["obs_mode"], expected.seed)
             print(f"run directory: {run_dir}", flush=True)
-            result = training.train(expected, run_dir, command, progress_bar=progress)
+            if expected.algo == COMPILED:
+                result = _train_compiled(expected, run_dir, command, args)
+            else:
+                result = training.train(expected, run_dir, command, progress_bar=progress)
     except (ConfigError, CheckpointError, ValueError, FileNotFoundError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     curve = write_curve(result.run_dir)
     print(f"learning curve: {curve} (data: eval_curve.csv, train_episodes.csv)")
     if not result.finished:
-        print(f"stopped by {result.stopped_by} at step {result.steps}; checkpoint "
-              f"{result.checkpoint}; continue with: {prog} --resume {result.run_dir}")
+        if result.checkpoint is None:  # a compiled run
+            print(f"stopped by {result.stopped_by} at step {result.steps}; the policy so far "
+                  f"is in {result.run_dir / 'final'}")
+        else:
+            print(f"stopped by {result.stopped_by} at step {result.steps}; checkpoint "
+                  f"{result.checkpoint}; continue with: {prog} --resume {result.run_dir}")
         import signal
 
         return 128 + int(signal.Signals[result.stopped_by])
@@ -127,6 +148,18 @@ def main(argv=None, prog: str = "python train.py") -> int:
                                     args.export_group)
         print(f"exported -> {path}")
     return 0
+
+
+def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespace):
+    """``--algo cppo``: :func:`baselines.rl.compiled.train_run`, with JAX's compilation
+    cache unless ``--no-compilation-cache``."""
+    try:
+        from baselines.rl import compiled
+    except ImportError as exc:
+        raise ConfigError(f"--algo cppo needs JAX: pip install -e \".[jax]\" ({exc})") from exc
+    cache = None if args.no_compilation_cache else (
+        args.compilation_cache or compiled.default_compilation_cache())
+    return compiled.train_run(config, run_dir, command, cache)
 
 
 def write_curve(run_dir: Path) -> Path:

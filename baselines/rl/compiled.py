@@ -16,24 +16,26 @@ normalised as ``VecNormalize`` (running mean and variance, clipped at 10).
 So a finished run is written *as* an SB3 policy (``model.zip``,
 ``vecnormalize.pkl``, ``policy.json``): it acts in the ordinary MuJoCo CPU
 environment through :class:`baselines.rl.policy.PolicyAgent`, and
-``evaluate.py --policy DIR`` ranks it beside every other agent::
+``evaluate.py --policy DIR`` ranks it beside every other agent. ``train.py``
+runs it from ``baselines/rl/hyperparams/cppo.yml`` (:func:`train_run`)::
 
-    python -m baselines.rl.compiled --env DockingStation-v1 --difficulty paper \\
-        --timesteps 1500000 --seed 0 --out runs/compiled-docking-s0
-    python evaluate.py --policy runs/compiled-docking-s0 --envs DockingStation-v1 \\
+    python train.py --algo cppo --env DockingStation-v1 --seed 0 --run-dir runs/cppo-s0
+    python evaluate.py --policy runs/cppo-s0 --envs DockingStation-v1 \\
         --difficulty paper --seeds 300000-300019
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import math
 import os
-import sys
+import shutil
+import signal
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import gymnasium as gym
@@ -43,6 +45,21 @@ import numpy as np
 import optax
 
 from auv_envs.batched.docking_env import DockingMJX
+from baselines.rl.config import (
+    COMPILED,
+    CompiledSettings,
+    ConfigError,
+    TrainConfig,
+    save_config,
+    validate,
+)
+from baselines.rl.training import (
+    RunDirectory,
+    TrainResult,
+    package_versions,
+    stop_on_signals,
+    write_run_info,
+)
 
 #: Hidden layers of the mean and value networks (SB3 ``net_arch``), tanh as in SB3.
 HIDDEN_LAYERS = (64, 64)
@@ -50,22 +67,8 @@ HIDDEN_LAYERS = (64, 64)
 CLIP_OBS, NORM_EPSILON = 10.0, 1e-8
 
 
-class Settings(NamedTuple):
-    """PPO's settings (SB3's names where they exist)."""
-
-    num_envs: int = 256
-    n_steps: int = 32
-    n_minibatches: int = 32
-    n_epochs: int = 5
-    learning_rate: float = 3e-4  # decays linearly to 0, as train.py's lin_3.0e-4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    clip_range: float = 0.2
-    ent_coef: float = 0.0
-    vf_coef: float = 0.5
-    max_grad_norm: float = 0.5
-
-
+#: PPO's settings (SB3's names where they exist); ``cppo.yml`` sets them.
+Settings = CompiledSettings
 DEFAULT_SETTINGS = Settings()
 
 
@@ -237,9 +240,20 @@ class Trainer:
                  "reward": rewards.mean()}
         return params, opt_state, normalizer, states, key, stats
 
+    def compile_evaluation(self, episodes: int, steps: int):
+        """:meth:`evaluate` compiled ahead of time for ``episodes`` x ``steps``, from the
+        shapes of the parameters alone: ``f(params, normalizer) -> (success rate, mean
+        return, standard deviation of the returns)``. Needing no trained parameters, it
+        compiles in a thread while the first reset and iteration compile (most of XLA's
+        compiling runs on one core)."""
+        params = jax.eval_shape(lambda: init_params(jax.random.PRNGKey(0), self.obs_size,
+                                                    self.action_size))
+        normalizer = jax.eval_shape(lambda: Normalizer.create(self.obs_size))
+        return self.evaluate.lower(params, normalizer, episodes, steps).compile()
+
     def _evaluate(self, params, normalizer, episodes: int, steps: int, key=None):
         """Deterministic (mean) actions on ``episodes`` fresh batched episodes:
-        ``(success rate, mean return)``."""
+        ``(success rate, mean return, standard deviation of the returns)``."""
         key = jax.random.PRNGKey(12345) if key is None else key
         states = self._reset(jax.random.split(key, episodes))
 
@@ -255,51 +269,71 @@ class Trainer:
         false = jnp.zeros(episodes, bool)
         (_, _, success, total), _ = jax.lax.scan(
             act, (states, false, false, jnp.zeros(episodes)), None, length=steps)
-        return success.mean(), total.mean()
+        return success.mean(), total.mean(), total.std()
+
+
+#: Episodes of each batched evaluation during training.
+EVAL_EPISODES = 64
 
 
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
-          checkpoints: bool = False) -> dict:
+          checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
+          stop=lambda: False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
     ``checkpoints``: also write the policy at each of the ``evals`` evaluations, as
-    ``out/checkpoints/step_<N>`` (each a policy directory whose manifest holds the
-    training wall time so far), to find when a run first reached a success rate
-    on the CPU environment (``evaluate.py --policy``).
+    ``<checkpoint_dir or out/checkpoints>/step_<N>`` (each a policy directory whose
+    manifest holds the training wall time so far), to find when a run first reached a
+    success rate on the CPU environment (``scripts/time_to_success.py``).
+    ``command``: the command line to record. ``stop()`` is asked after every
+    iteration; when it says True the policy so far is written and the manifest's
+    ``finished`` is False.
     """
     env = DockingMJX(env_id, obs_mode="features", difficulty=difficulty)
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
     trainer = Trainer(env, settings, iterations)
-    run = {"seed": seed, "difficulty": difficulty, "settings": settings._asdict()}
+    run = {"seed": seed, "difficulty": difficulty, "settings": settings._asdict(),
+           "command": command}
+    checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
-    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(seed))
-    curve = []
-    every = max(1, iterations // evals)
-    for i in range(1, iterations + 1):
-        params, opt_state, normalizer, states, key, stats = trainer.iteration(
-            params, opt_state, normalizer, states, key)
-        if i % every == 0 or i == iterations:
-            success, mean_return = (float(v) for v in trainer.evaluate(
-                params, normalizer, 64, env.max_episode_steps))
-            # train.py's curve columns (scripts/plot_seeds.py reads both kinds of run).
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        compiling = pool.submit(trainer.compile_evaluation, EVAL_EPISODES, env.max_episode_steps)
+        params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(seed))
+        evaluate = None
+        curve = []
+        every = max(1, iterations // evals)
+        i = 0
+        while i < iterations and not (i and stop()):
+            i += 1
+            params, opt_state, normalizer, states, key, stats = trainer.iteration(
+                params, opt_state, normalizer, states, key)
+            if i % every and i != iterations:
+                continue
+            evaluate = evaluate or compiling.result()
+            success, mean_return, std_return = (float(v) for v in evaluate(params, normalizer))
+            # train.py's curve columns (its plot and scripts/plot_seeds.py read both runs).
             row = {"step": i * per_iteration, "wall_s": round(time.perf_counter() - start, 1),
-                   "success_rate": success, "mean_return": mean_return,
+                   "mean_return": mean_return, "std_return": std_return,
+                   "success_rate": success, "episodes": EVAL_EPISODES,
                    "train_success_rate": float(stats["successes"]) / max(
                        1.0, float(stats["episodes"]))}
             curve.append(row)
-            print(f"[eval] step {row['step']}: success {100 * success:.0f} % over 64 batched "
-                  f"episodes ({row['wall_s']} s)", flush=True)
+            print(f"[eval] step {row['step']}: success {100 * success:.0f} % over "
+                  f"{EVAL_EPISODES} batched episodes ({row['wall_s']} s)", flush=True)
             if checkpoints and i < iterations:
-                export(env, params, normalizer, Path(out) / "checkpoints" / f"step_{row['step']}",
+                export(env, params, normalizer, checkpoint_dir / f"step_{row['step']}",
                        {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
                         "curve": list(curve), "group": None})
+        if evaluate is None:
+            compiling.cancel()  # stopped before the first evaluation
     wall = time.perf_counter() - start
-    return export(env, params, normalizer, Path(out), {
-        **run, "n_timesteps": iterations * per_iteration, "wall_time_s": round(wall, 1),
+    manifest = export(env, params, normalizer, Path(out), {
+        **run, "n_timesteps": i * per_iteration, "wall_time_s": round(wall, 1),
         "curve": curve, "group": group})
+    return {**manifest, "finished": i == iterations}
 
 
 def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
@@ -347,10 +381,10 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
         "trainer": "baselines.rl.compiled (PPO fused in JAX on the batched MJX env)",
         "seed": run["seed"], "n_timesteps": run["n_timesteps"],
         "wall_time_s": run["wall_time_s"], "settings": run["settings"],
-        "command": " ".join(["python -m baselines.rl.compiled", *sys.argv[1:]]),
+        "command": run.get("command", ""),
         "versions": {"jax": jax.__version__, "optax": optax.__version__},
-        "description": f"PPO compiled in JAX on the batched env, features, trained at "
-                       f"{run['difficulty']}",
+        "description": f"PPO compiled in JAX (batched env, trained at "
+                       f"{run['difficulty']})",
         "files": {name: sha256_file(out / name) for name in (MODEL_FILE, NORMALIZER_FILE)},
     }
     if run.get("group"):
@@ -382,40 +416,48 @@ def use_compilation_cache(directory: Path) -> None:
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 
-def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="DockingStation-v1",
-                        choices=["DockingStation-v1", "LampArrayDocking-v1"])
-    parser.add_argument("--difficulty", default="paper", choices=["easy", "paper", "hard"])
-    parser.add_argument("--timesteps", type=int, default=1_500_000,
-                        help="env steps (default: the shipped policies' budget)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--num-envs", type=int, default=DEFAULT_SETTINGS.num_envs)
-    parser.add_argument("--evals", type=int, default=10)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--group", default=None,
-                        help="pool this policy with others of the group on the leaderboard")
-    parser.add_argument("--checkpoints", action="store_true",
-                        help="also write the policy at every evaluation, under OUT/checkpoints")
-    parser.add_argument("--compilation-cache", type=Path, default=default_compilation_cache(),
-                        metavar="DIR", help="JAX's persistent compilation cache (default: "
-                        "%(default)s); a later run of the same shapes loads its programs "
-                        "instead of compiling them")
-    parser.add_argument("--no-compilation-cache", action="store_true",
-                        help="compile everything afresh, write no cache")
-    args = parser.parse_args(argv)
-    if args.timesteps <= 0 or args.num_envs <= 0:
-        parser.error("--timesteps and --num-envs must be positive")
-    if not args.no_compilation_cache:
-        use_compilation_cache(args.compilation_cache)
-    settings = Settings(num_envs=args.num_envs)
-    if (args.num_envs * settings.n_steps) % settings.n_minibatches:
-        parser.error(f"--num-envs x {settings.n_steps} steps must split into "
-                     f"{settings.n_minibatches} minibatches")
-    manifest = train(f"auv_envs/{args.env}", args.difficulty, args.timesteps, args.seed,
-                     args.out, settings, args.evals, args.group, args.checkpoints)
-    print(f"wrote {args.out} ({manifest['wall_time_s']} s, {manifest['n_timesteps']} steps)")
+def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
+              compilation_cache: Path | None = None) -> TrainResult:
+    """``train.py --algo cppo``: train ``config`` (``baselines/rl/hyperparams/cppo.yml``
+    resolved) into a new run directory laid out as a ``train.py`` run.
 
-
-if __name__ == "__main__":
-    main()
+    ``RUN_DIR/config.yml`` (the resolved config), ``run.json`` (command, versions,
+    status, steps, wall time), ``eval_curve.csv``, ``final/`` (the policy:
+    ``evaluate.py --policy RUN_DIR``, ``train.py --export``) and, with
+    ``checkpoints: true``, ``checkpoints/step_<N>/``. ``compilation_cache``: keep
+    compiled programs there (:func:`use_compilation_cache`). SIGINT or SIGTERM
+    writes the policy so far to ``final/`` and stops (status ``interrupted``); a
+    compiled run cannot be resumed, but the same config and seed train the same
+    policy again.
+    """
+    validate(config)
+    if config.algo != COMPILED:
+        raise ConfigError(f"train_run trains {COMPILED!r} configs, got {config.algo!r}")
+    run = RunDirectory(run_dir)
+    if run.config.exists():
+        raise ConfigError(f"{run.path} already holds a run; pick another --run-dir")
+    if compilation_cache is not None:
+        use_compilation_cache(compilation_cache)
+    run.path.mkdir(parents=True, exist_ok=True)
+    save_config(config, run.config)
+    info = {**package_versions(), "jax": jax.__version__, "optax": optax.__version__,
+            "algo": config.algo, "env_id": config.env_id, "seed": config.seed,
+            "command": command, "n_timesteps": config.run["n_timesteps"], "status": "running",
+            "segments": [{"command": command, "start_step": 0, "status": "running"}]}
+    write_run_info(run, info)
+    flag = SimpleNamespace(stop_signal=None)
+    with stop_on_signals(flag, "writing the policy so far after this iteration"):
+        manifest = train(config.env_id, config.run["env_kwargs"].get("difficulty", "paper"),
+                         config.run["n_timesteps"], config.seed, run.final,
+                         Settings(**config.hyperparams), config.run["evals"],
+                         checkpoints=config.run["checkpoints"],
+                         checkpoint_dir=run.checkpoints, command=command,
+                         stop=lambda: flag.stop_signal is not None)
+    shutil.copy2(run.final / "eval_curve.csv", run.eval_curve)
+    status = "finished" if manifest["finished"] else "interrupted"
+    steps, wall = manifest["n_timesteps"], manifest["wall_time_s"]
+    info["segments"][0].update(end_step=steps, status=status, wall_time_s=wall)
+    info.update(status=status, steps=steps, wall_time_s=wall)
+    write_run_info(run, info)
+    stopped_by = None if manifest["finished"] else signal.Signals(flag.stop_signal).name
+    return TrainResult(run.path, steps, manifest["finished"], stopped_by, None, wall)

@@ -12,6 +12,10 @@ two kinds of keys:
 * keyword arguments of the Stable-Baselines3 algorithm (``learning_rate``,
   ``n_steps``, ``policy_kwargs`` ...), checked against its constructor.
 
+``cppo`` (:data:`COMPILED`) is the PPO compiled in JAX on the batched docking
+environments (:mod:`baselines.rl.compiled`): its file ``cppo.yml`` has the
+run keys :data:`COMPILED_RUN_KEYS` and the fields of :class:`CompiledSettings`.
+
 Command-line overrides are ``key=value`` strings; dotted keys reach into
 mappings (``policy_kwargs.net_arch=[64, 64]``). Values are parsed as Python
 literals (:func:`ast.literal_eval`) or else as YAML scalars
@@ -29,6 +33,7 @@ import hashlib
 import inspect
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
@@ -40,6 +45,12 @@ from baselines.seeds import EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
 ALGORITHMS = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
 OFF_POLICY = ("sac", "td3", "ddpg")
+#: The compiled PPO (:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``).
+COMPILED = "cppo"
+#: Every ``--algo`` train.py accepts.
+TRAINERS = (*ALGORITHMS, COMPILED)
+#: The environments the compiled PPO has a batched JAX version of.
+COMPILED_ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
@@ -84,6 +95,33 @@ _MANAGED = {
 }
 #: Arguments that also accept a schedule string ``"lin_<initial value>"``.
 _SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
+
+
+#: Keys of ``cppo.yml`` that train.py reads itself, with their defaults: ``evals``
+#: batched evaluations during the run; ``checkpoints`` writes the policy at each.
+COMPILED_RUN_KEYS = {
+    "obs_mode": "features",
+    "n_timesteps": 1_500_000,
+    "env_kwargs": {},
+    "evals": 10,
+    "checkpoints": False,
+}
+
+
+class CompiledSettings(NamedTuple):
+    """The compiled PPO's hyperparameters (SB3's names where they exist)."""
+
+    num_envs: int = 256
+    n_steps: int = 32
+    n_minibatches: int = 32
+    n_epochs: int = 5
+    learning_rate: float = 3e-4  # decays linearly to 0, as train.py's lin_3.0e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
 
 
 class ConfigError(ValueError):
@@ -144,8 +182,8 @@ class TrainConfig:
 
 def load_hyperparams(algo: str, hyperparams_dir: Path | None = None) -> dict:
     """The parsed YAML file of ``algo`` (a mapping of env id -> settings)."""
-    if algo not in ALGORITHMS:
-        raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(ALGORITHMS)}")
+    if algo not in TRAINERS:
+        raise ConfigError(f"unknown algorithm {algo!r}; valid: {', '.join(TRAINERS)}")
     path = Path(hyperparams_dir or HYPERPARAMS_DIR) / f"{algo}.yml"
     data = _read_yaml(path, "hyperparameter file")
     if not isinstance(data, dict) or not isinstance(data.get("default"), dict):
@@ -183,9 +221,16 @@ def _deep_merge(base: dict, update: dict) -> dict:
 
 
 def algo_arguments(algo: str) -> dict[str, inspect.Parameter]:
-    """The constructor arguments of ``algo`` a config may set."""
-    params = inspect.signature(ALGORITHMS[algo].__init__).parameters
+    """The constructor arguments of ``algo`` a config may set (for ``cppo``, the fields
+    of :class:`CompiledSettings`)."""
+    params = inspect.signature(CompiledSettings if algo == COMPILED
+                               else ALGORITHMS[algo].__init__).parameters
     return {k: p for k, p in params.items() if k not in _MANAGED}
+
+
+def run_keys(algo: str) -> dict:
+    """The run keys of ``algo``'s YAML entries, with their defaults."""
+    return COMPILED_RUN_KEYS if algo == COMPILED else RUN_KEYS
 
 
 def _set_dotted(settings: dict, key: str, value, valid: set[str], algo: str) -> None:
@@ -216,7 +261,7 @@ def resolve_config(
     """``default`` entry, then the env's entry, then ``overrides`` -> a checked config.
 
     Args:
-        algo: ``ppo``, ``sac``, ``td3``, ``a2c`` or ``ddpg``.
+        algo: ``ppo``, ``sac``, ``td3``, ``a2c``, ``ddpg`` or ``cppo``.
         env_id: a registered id (``auv_envs/...``).
         seed: training seed.
         overrides: ``{dotted key: value}`` (see :func:`parse_overrides`).
@@ -224,7 +269,8 @@ def resolve_config(
     """
     table = load_hyperparams(algo, hyperparams_dir)
     settings = _deep_merge(table["default"], table.get(env_id) or {})
-    valid = set(RUN_KEYS) | set(algo_arguments(algo))
+    defaults = run_keys(algo)
+    valid = set(defaults) | set(algo_arguments(algo))
     for key in settings:
         if key not in valid:
             raise ConfigError(
@@ -232,7 +278,7 @@ def resolve_config(
             )
     for key, value in (overrides or {}).items():
         _set_dotted(settings, key, value, valid, algo)
-    run = {k: copy.deepcopy(settings.pop(k, default)) for k, default in RUN_KEYS.items()}
+    run = {k: copy.deepcopy(settings.pop(k, default)) for k, default in defaults.items()}
     config = TrainConfig(algo=algo, env_id=env_id, seed=seed, run=run, hyperparams=settings)
     validate(config)
     return config
@@ -247,12 +293,15 @@ def validate(config: TrainConfig) -> None:
     """Raise :class:`ConfigError` for anything train.py could not run."""
     import auv_envs
 
-    if config.algo not in ALGORITHMS:
-        raise ConfigError(f"unknown algorithm {config.algo!r}; valid: {', '.join(ALGORITHMS)}")
+    if config.algo not in TRAINERS:
+        raise ConfigError(f"unknown algorithm {config.algo!r}; valid: {', '.join(TRAINERS)}")
     if config.env_id not in auv_envs.ENVIRONMENTS:
         raise ConfigError(
             f"unknown env id {config.env_id!r}; registered: {', '.join(auv_envs.ENVIRONMENTS)}"
         )
+    if config.algo == COMPILED:
+        _validate_compiled(config)
+        return
     missing = set(RUN_KEYS) - set(config.run)
     unknown = set(config.run) - set(RUN_KEYS)
     if missing or unknown:
@@ -289,6 +338,51 @@ def validate(config: TrainConfig) -> None:
                 f"valid: {', '.join(sorted(set(arguments) | set(RUN_KEYS)))}"
             )
         _check_argument(key, value, arguments[key].default)
+
+
+def _validate_compiled(config: TrainConfig) -> None:
+    """:func:`validate` for ``cppo``: what the batched env and the compiled PPO can run."""
+    from auv_envs.core.difficulty import LEVELS
+
+    if config.env_id not in COMPILED_ENV_IDS:
+        raise ConfigError(f"cppo trains the batched JAX envs only: {', '.join(COMPILED_ENV_IDS)}"
+                          f" (got {config.env_id!r}); use ppo for the others")
+    if set(config.run) != set(COMPILED_RUN_KEYS):
+        raise ConfigError(f"cppo run keys must be {sorted(COMPILED_RUN_KEYS)}, "
+                          f"got {sorted(config.run)}")
+    run = config.run
+    if run["obs_mode"] != "features":
+        raise ConfigError(f"cppo trains on obs_mode 'features' only, got {run['obs_mode']!r}")
+    kwargs = run["env_kwargs"]
+    if not isinstance(kwargs, dict) or set(kwargs) - {"difficulty"}:
+        raise ConfigError(f"cppo env_kwargs may set 'difficulty' only, got {kwargs!r}")
+    if kwargs.get("difficulty", "paper") not in LEVELS:
+        raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
+    for key in ("n_timesteps", "evals"):
+        if not isinstance(run[key], int) or isinstance(run[key], bool) or run[key] <= 0:
+            raise ConfigError(f"{key} must be a positive integer, got {run[key]!r}")
+    if not isinstance(run["checkpoints"], bool):
+        raise ConfigError(f"checkpoints must be true or false, got {run['checkpoints']!r}")
+    if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
+            or not 0 <= config.seed < TRAIN_EVAL_SEED_BASE:
+        raise ConfigError(f"seed must be an integer in [0, {TRAIN_EVAL_SEED_BASE}), "
+                          f"got {config.seed!r}")
+    fields = CompiledSettings._field_defaults
+    for key, value in config.hyperparams.items():
+        if key not in fields:
+            raise ConfigError(f"unknown setting {key!r} for cppo; valid: "
+                              f"{', '.join(sorted({*fields, *COMPILED_RUN_KEYS}))}")
+        if isinstance(value, str):  # no schedule strings: the rate always decays to 0
+            raise ConfigError(f"{key} must be a number, got {value!r} (YAML reads 3e-4 as a "
+                              "string: write 3.0e-4)")
+        _check_argument(key, value, fields[key])
+        if value < 0 or (isinstance(fields[key], int) and value == 0):
+            sign = "positive" if isinstance(fields[key], int) else ">= 0"
+            raise ConfigError(f"{key} must be {sign}, got {value!r}")
+    settings = CompiledSettings(**config.hyperparams)
+    if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
+        raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
+                          f"split into n_minibatches ({settings.n_minibatches}) equal parts")
 
 
 def _check_argument(key: str, value, default) -> None:

@@ -59,7 +59,8 @@ def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
         top.fill_between(step, mean - std, mean + std, color="tab:blue", alpha=0.2)
         bottom.plot(step, [float(r["success_rate"]) for r in evals], "o-", color="tab:green")
     top.set_ylabel("episode return")
-    top.legend(loc="best", fontsize=8)
+    if evals or episodes:
+        top.legend(loc="best", fontsize=8)
     top.set_title(title)
     bottom.set_ylabel("held-out success rate")
     bottom.set_ylim(-0.05, 1.05)
@@ -113,15 +114,16 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
         "wall_time_s": info["wall_time_s"],
         "segments": len(info["segments"]),
         "package_version": info["package_version"],
-        "versions": {k: info[k] for k in ("stable_baselines3", "torch", "gymnasium", "python")},
+        "versions": {k: info[k] for k in ("stable_baselines3", "torch", "gymnasium", "python",
+                                          "jax", "optax") if k in info},
         "final_heldout_eval": (
             {k: float(v) if k != "step" and k != "episodes" else int(v)
              for k, v in evals[-1].items()} if evals else None
         ),
         **({"group": group} if group else {}),
         "description": (
-            f"{manifest['algo'].upper()} on {manifest['obs_mode']} observations, "
-            f"{info['steps']} steps"
+            f"{manifest.get('description') or manifest['algo'].upper()} on "
+            f"{manifest['obs_mode']} observations, {info['steps']} steps"
         ),
     }
     (tmp / MANIFEST_FILE).write_text(json.dumps(policy, indent=2))

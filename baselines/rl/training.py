@@ -53,6 +53,7 @@ from baselines.evaluation import atomic_write, run_episode
 from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
     ALGORITHMS,
+    COMPILED,
     TRAIN_EVAL_SEED_BASE,
     ConfigError,
     TrainConfig,
@@ -212,7 +213,7 @@ def _truncate_rows(path: Path, last_step: int) -> None:
     atomic_write(path, buffer.getvalue())
 
 
-def _versions() -> dict:
+def package_versions() -> dict:
     return {
         "package": "auv_envs",
         "package_version": auv_envs.__version__,
@@ -223,7 +224,7 @@ def _versions() -> dict:
     }
 
 
-def _write_run_info(run: RunDirectory, info: dict) -> None:
+def write_run_info(run: RunDirectory, info: dict) -> None:
     atomic_write(run.info, json.dumps(info, indent=2))
 
 
@@ -365,8 +366,9 @@ class TrainingCallback(BaseCallback):
 
 
 @contextlib.contextmanager
-def _stop_on_signals(callback: TrainingCallback):
-    """SIGINT/SIGTERM: checkpoint at the next safe point and stop; a second one aborts."""
+def stop_on_signals(callback, doing: str = "checkpointing at the next safe point"):
+    """SIGINT/SIGTERM set ``callback.stop_signal``: the trainer does what ``doing`` says
+    and stops; a second signal aborts at once (:class:`KeyboardInterrupt`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -375,8 +377,8 @@ def _stop_on_signals(callback: TrainingCallback):
         if callback.stop_signal is not None:
             raise KeyboardInterrupt(f"second {signal.Signals(signum).name}: aborted")
         callback.stop_signal = signum
-        print(f"\n{signal.Signals(signum).name}: checkpointing at the next safe point, "
-              "then stopping (send it again to abort without a checkpoint)", flush=True)
+        print(f"\n{signal.Signals(signum).name}: {doing}, then stopping (send it again "
+              "to abort without saving)", flush=True)
 
     previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -395,17 +397,17 @@ def _learn(model, config: TrainConfig, run: RunDirectory, callback: TrainingCall
     model.set_logger(configure(str(run.logs / f"segment-{start_step:010d}"),
                                ["csv", "tensorboard"]))
     info = json.loads(run.info.read_text()) if run.info.is_file() else {
-        **_versions(), "algo": config.algo, "env_id": config.env_id, "seed": config.seed,
+        **package_versions(), "algo": config.algo, "env_id": config.env_id, "seed": config.seed,
         "command": command, "segments": [],
     }
     info["n_timesteps"] = config.run["n_timesteps"]
     segment = {"command": command, "start_step": start_step, "status": "running",
-               **_versions()}
+               **package_versions()}
     info["segments"].append(segment)
     info["status"] = "running"
-    _write_run_info(run, info)
+    write_run_info(run, info)
     try:
-        with _stop_on_signals(callback):
+        with stop_on_signals(callback):
             model.learn(
                 config.run["n_timesteps"] - start_step,
                 callback=[callback, *callbacks],
@@ -421,7 +423,7 @@ def _learn(model, config: TrainConfig, run: RunDirectory, callback: TrainingCall
     except KeyboardInterrupt:
         segment.update(status="aborted")
         info.update(status="aborted")
-        _write_run_info(run, info)
+        write_run_info(run, info)
         raise
     finally:
         callback.close()
@@ -431,7 +433,7 @@ def _learn(model, config: TrainConfig, run: RunDirectory, callback: TrainingCall
     segment.update(end_step=steps, status="finished" if finished else "interrupted",
                    wall_time_s=round(callback.wall_time() - callback.wall_time_before, 3))
     info.update(status=segment["status"], steps=steps, wall_time_s=round(wall, 3))
-    _write_run_info(run, info)
+    write_run_info(run, info)
     stopped_by = None if finished else signal.Signals(callback.stop_signal).name
     return TrainResult(run.path, steps, finished, stopped_by, callback.latest, wall)
 
@@ -482,6 +484,9 @@ def resume(run_dir: str | Path, command: str = "", n_timesteps: int | None = Non
     """
     run = RunDirectory(run_dir)
     config = read_config(run.config)
+    if config.algo == COMPILED:
+        raise ConfigError(f"{run.path} is a compiled PPO (cppo) run, which cannot be resumed; "
+                          "train it again (the same config and seed give the same policy)")
     if expected is not None and (
         (expected.algo, expected.env_id, expected.seed) != (config.algo, config.env_id,
                                                             config.seed)
