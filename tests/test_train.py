@@ -419,7 +419,7 @@ def test_every_environment_has_a_shipped_policy():
 @pytest.mark.parametrize("name", agents.SHIPPED)
 def test_shipped_policies_load_and_act_in_bounds(name):
     spec = agent_spec(name)
-    env = make_env(spec.env_ids[0], spec.obs_mode)
+    env = make_env(spec.env_ids[0], spec.obs_mode, **spec.env_kwargs)  # e.g. its image size
     agent = make_agent(name, env)
     obs, info = env.reset(seed=EVAL_SEED_BASE)
     agent.reset(EVAL_SEED_BASE)
