@@ -70,6 +70,8 @@ def test_a_short_distillation_fits_the_teacher_and_ranks_from_pixels(tmp_path):
 def test_only_a_features_teacher_of_the_same_env_is_taken(tmp_path):
     with pytest.raises(ValueError, match="must act on 'features'"):
         distill.distill("ppo-docking-state", ENV_ID, (84, 63), "paper", 0, tmp_path / "x")
+    with pytest.raises(SystemExit):  # no such policy: the command line says so
+        distill.main(["--teacher", "no-such-policy", "--out", str(tmp_path / "x")])
     with pytest.raises(ValueError, match="was trained on"):
         distill.distill("cppo-lamp-array-features-s0", ENV_ID, (84, 63), "paper", 0,
                         tmp_path / "x")

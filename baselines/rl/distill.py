@@ -52,7 +52,13 @@ import auv_envs  # noqa: F401  (registers the environments)
 from auv_envs.core.assets import sha256_file
 from baselines.rl.agents import load_policy_agent, policy_directory
 from baselines.rl.envs import wrap_env
-from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, policies_root, read_manifest
+from baselines.rl.policy import (
+    MANIFEST_FILE,
+    MODEL_FILE,
+    PolicyFileError,
+    policies_root,
+    read_manifest,
+)
 from baselines.seeds import TRAIN_EVAL_SEED_BASE
 
 #: Distillation episodes start at this seed (+ 1000 per training seed).
@@ -293,7 +299,7 @@ def main(argv=None) -> None:
     try:
         manifest = distill(args.teacher, f"auv_envs/{args.env}", tuple(args.image_size),
                            args.difficulty, args.seed, args.out, settings, args.group, command)
-    except (ValueError, FileNotFoundError) as exc:
+    except (ValueError, FileNotFoundError, PolicyFileError) as exc:
         parser.error(str(exc))
     print(f"wrote {args.out} ({manifest['wall_time_s']} s, {manifest['n_timesteps']} frames)")
 
