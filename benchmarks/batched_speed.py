@@ -17,6 +17,7 @@ compare them on this machine:
   the passive-force callback, one vehicle at a time.
 
     python benchmarks/batched_speed.py [--batches 1 64 256 1024 4096] [--steps 50]
+        [--difficulty easy|paper|hard]
 
 Runs unchanged on a GPU (JAX picks it): ``pip install -e ".[jax]"`` with a
 CUDA build of jaxlib.
@@ -57,16 +58,16 @@ def vector_rate(envs, steps: int, repeats: int) -> float:
     return best
 
 
-def sync_vector_rate(num_envs: int, steps: int, repeats: int) -> float:
+def sync_vector_rate(num_envs: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
     return vector_rate(gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="sync",
-                                    obs_mode="features"), steps, repeats)
+                                    obs_mode="features", difficulty=difficulty), steps, repeats)
 
 
-def make_vec_rate(batch: int, steps: int, repeats: int) -> float:
+def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """``features`` env-steps per second through ``gym.make_vec`` (NumPy every step)."""
     return vector_rate(gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=batch,
-                                    obs_mode="features"), steps, repeats)
+                                    obs_mode="features", difficulty=difficulty), steps, repeats)
 
 
 def fused_rate(env: DockingMJX, batch: int, steps: int, repeats: int) -> float:
@@ -127,16 +128,19 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-plant", action="store_true", help="skip the plant table")
+    parser.add_argument("--difficulty", default="easy", choices=["easy", "paper", "hard"],
+                        help="the level of the environment table (the plant has none)")
     args = parser.parse_args(argv)
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")
-    batched = DockingMJX(ENV_ID, obs_mode="features")
+    print(f"level: {args.difficulty}")
+    batched = DockingMJX(ENV_ID, obs_mode="features", difficulty=args.difficulty)
     print("\n| batch | make_vec env-steps/s | fused scan env-steps/s | SyncVectorEnv env-steps/s "
           "(same run) | ratio make_vec | ratio fused |")
     print("|---|---|---|---|---|---|")
     for batch in args.batches:
-        via_numpy = make_vec_rate(batch, args.steps, args.repeats)
+        via_numpy = make_vec_rate(batch, args.steps, args.repeats, args.difficulty)
         fused = fused_rate(batched, batch, args.steps, args.repeats)
-        reference = sync_vector_rate(8, max(50, args.steps * 2), args.repeats)
+        reference = sync_vector_rate(8, max(50, args.steps * 2), args.repeats, args.difficulty)
         print(f"| {batch} | {via_numpy:,.0f} | {fused:,.0f} | {reference:,.0f} | "
               f"{via_numpy / reference:.2f} | {fused / reference:.2f} |", flush=True)
     if args.no_plant:
