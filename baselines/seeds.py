@@ -7,6 +7,9 @@
   (:mod:`baselines.datasets`), inside :data:`TRAIN_SEED_RANGE`, clear of the Siamese
   sequences and of ``train.py``'s first seeds; a dataset that reaches
   :data:`TRAIN_EVAL_SEED_BASE` is warned about.
+* ``20000 ...`` (:data:`DISTILL_SEED_BASE`): the episodes a pixel policy is distilled on
+  (:mod:`baselines.rl.distill`), :data:`DISTILL_SEEDS_PER_RUN` per training seed, below
+  :data:`TRAIN_EVAL_SEED_BASE`.
 * ``90000 ...`` (:data:`TRAIN_EVAL_SEED_BASE`): the held-out episodes ``train.py``
   evaluates on while it trains.
 * ``100000 ...`` (:data:`EVAL_SEED_BASE`): the leaderboard's frozen evaluation seeds
@@ -29,6 +32,12 @@ TRAIN_SEED_RANGE = (1000, 99999)
 #: Expert datasets (imitation, offline RL) record from this seed by default: training
 #: data, below :data:`TRAIN_EVAL_SEED_BASE` with room for 80000 episodes.
 DATASET_SEED_BASE = 10_000
+#: Distillation (teacher-student DAgger) episodes start here: a training seed ``s`` draws
+#: from ``DISTILL_SEED_BASE + DISTILL_SEEDS_PER_RUN * s``, below :data:`TRAIN_EVAL_SEED_BASE`.
+DISTILL_SEED_BASE = 20_000
+DISTILL_SEEDS_PER_RUN = 1000
+#: Training seeds a distillation may use, its episodes staying below the held-out seeds.
+DISTILL_TRAINING_SEEDS = range((TRAIN_EVAL_SEED_BASE - DISTILL_SEED_BASE) // DISTILL_SEEDS_PER_RUN)
 
 
 def default_seeds(episodes: int) -> list[int]:

@@ -37,6 +37,7 @@ import auv_envs  # noqa: F401
 from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.batched.docking_env import DockingMJX
 from auv_envs.core import passive
+from auv_envs.core.difficulty import LEVELS
 
 ENV_ID = "auv_envs/DockingStation-v1"
 #: The held action: surge at 30 % of the thrust limit.
@@ -128,7 +129,7 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-plant", action="store_true", help="skip the plant table")
-    parser.add_argument("--difficulty", default="easy", choices=["easy", "paper", "hard"],
+    parser.add_argument("--difficulty", default="easy", choices=LEVELS,
                         help="the level of the environment table (the plant has none)")
     args = parser.parse_args(argv)
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")

@@ -21,6 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 import auv_envs  # noqa: E402,F401  (registers the ids)
+from auv_envs.core.difficulty import LEVELS  # noqa: E402
 from baselines.registry import agent_spec, make_agent  # noqa: E402
 
 
@@ -49,7 +50,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--agent", default="distill-docking-image-s0")
     parser.add_argument("--seed", type=int, default=100_000)
-    parser.add_argument("--levels", nargs="+", default=["paper", "hard"])
+    parser.add_argument("--levels", nargs="+", default=["paper", "hard"], choices=LEVELS)
     parser.add_argument("--frames", type=int, default=6)
     parser.add_argument("--out", type=Path, default=Path("docs/images/pixel_policy_view.png"))
     args = parser.parse_args(argv)

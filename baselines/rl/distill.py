@@ -28,7 +28,7 @@ ordinary policy directory: ``evaluate.py --policy DIR`` ranks it, and
     python evaluate.py --policy runs/pixels-s0 --envs DockingStation-v1 --difficulty paper \\
         --seeds 300000-300019
 
-Episode seeds come from ``DISTILL_SEED_BASE + 1000 * seed`` (training
+Episode seeds come from :data:`baselines.seeds.DISTILL_SEED_BASE` (training
 seeds, below :data:`baselines.seeds.TRAIN_EVAL_SEED_BASE`); the student is
 evaluated after each round on the held-out training-evaluation seeds.
 """
@@ -50,19 +50,24 @@ import torch
 
 import auv_envs  # noqa: F401  (registers the environments)
 from auv_envs.core.assets import sha256_file
+from auv_envs.core.difficulty import LEVELS
 from baselines.rl.agents import load_policy_agent, policy_directory
-from baselines.rl.envs import wrap_env
+from baselines.rl.envs import needs_rescale, wrap_env
 from baselines.rl.policy import (
     MANIFEST_FILE,
     MODEL_FILE,
+    PolicyAgent,
     PolicyFileError,
     policies_root,
     read_manifest,
 )
-from baselines.seeds import TRAIN_EVAL_SEED_BASE
+from baselines.seeds import (
+    DISTILL_SEED_BASE,
+    DISTILL_SEEDS_PER_RUN,
+    DISTILL_TRAINING_SEEDS,
+    TRAIN_EVAL_SEED_BASE,
+)
 
-#: Distillation episodes start at this seed (+ 1000 per training seed).
-DISTILL_SEED_BASE = 20_000
 #: The sensors the student sees besides the image (both observation modes have them).
 SENSORS = ("velocity", "attitude")
 
@@ -109,8 +114,13 @@ class Student:
     def __init__(self, env: gym.Env, seed: int, settings: DistillSettings):
         from stable_baselines3 import PPO
 
+        if needs_rescale(env.action_space):
+            raise ValueError(f"the student regresses the teacher's actions in the environment's "
+                             f"units; {env.spec.id}'s actions are rescaled for learners")
         self.model = PPO("MultiInputPolicy", wrap_env(env.unwrapped), seed=seed, device="cpu")
         self.policy = self.model.policy
+        # The mapping the shipped policy will act through (PolicyAgent), used here too.
+        self.agent = PolicyAgent(env, self.model)
         self.settings = settings
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=settings.learning_rate)
 
@@ -120,9 +130,11 @@ class Student:
         return self.policy.action_net(self.policy.mlp_extractor.forward_actor(features))
 
     def act(self, observation: dict) -> np.ndarray:
+        """The deterministic action, mapped to the environment as a shipped policy's is."""
+        observation = self.agent.learner_observation(observation)
         with torch.no_grad():
             batch = {k: v[None] for k, v in observation.items()}
-            return np.clip(self._mean(batch)[0].numpy(), -1.0, 1.0)
+            return self.agent.env_action(self._mean(batch)[0].numpy())
 
     def loss(self, frames: dict, labels: np.ndarray) -> float:
         """Mean squared error of the deterministic action against ``labels``."""
@@ -190,8 +202,9 @@ def distill(teacher: str | Path, env_id: str, image_size: tuple[int, int], diffi
                          f"{teacher_manifest['obs_mode']!r}")
     if teacher_manifest["env_id"] != env_id:
         raise ValueError(f"the teacher was trained on {teacher_manifest['env_id']}, not {env_id}")
-    if settings.rounds * settings.episodes > 1000:
-        raise ValueError("rounds x episodes must stay within the seed's 1000 episodes")
+    if settings.rounds * settings.episodes > DISTILL_SEEDS_PER_RUN:
+        raise ValueError(f"rounds x episodes must stay within the seed's "
+                         f"{DISTILL_SEEDS_PER_RUN} episodes")
     torch.manual_seed(seed)
     torch.set_num_threads(2)  # the shipped students were fitted so (the machine's 2 cores)
     teacher_env = gym.make(env_id, obs_mode="features")
@@ -210,7 +223,7 @@ def _distill(teacher_env, env, teacher_dir: Path, image_size, difficulty: str, s
     teacher_agent = load_policy_agent(teacher_dir, teacher_env)
     student = Student(env, seed, settings)
     rng = np.random.default_rng(seed)
-    next_seed = DISTILL_SEED_BASE + 1000 * seed
+    next_seed = DISTILL_SEED_BASE + DISTILL_SEEDS_PER_RUN * seed
     eval_seeds = range(TRAIN_EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE + settings.eval_episodes)
     frames: dict[str, list] = {key: [] for key in env.observation_space.spaces}
     labels: list = []
@@ -279,7 +292,7 @@ def main(argv=None) -> None:
     parser.add_argument("--teacher", required=True,
                         help="a features policy: a name under assets/policies or a directory")
     parser.add_argument("--env", default="DockingStation-v1")
-    parser.add_argument("--difficulty", default="paper", choices=["easy", "paper", "hard"])
+    parser.add_argument("--difficulty", default="paper", choices=LEVELS)
     parser.add_argument("--image-size", type=int, nargs=2, default=(84, 63), metavar=("W", "H"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, required=True)
@@ -293,8 +306,9 @@ def main(argv=None) -> None:
            settings.eval_episodes) <= 0 or not 0.0 <= settings.beta <= 1.0:
         parser.error("rounds, episodes, epochs, batch size and eval episodes must be positive, "
                      "beta in [0, 1]")
-    if not 0 <= args.seed < 70:
-        parser.error("--seed must be in [0, 70) (its episodes stay below the held-out seeds)")
+    if args.seed not in DISTILL_TRAINING_SEEDS:
+        parser.error(f"--seed must be in [0, {DISTILL_TRAINING_SEEDS.stop}) (its episodes stay "
+                     f"below the held-out seeds)")
     command = " ".join(["python -m baselines.rl.distill", shlex.join(argv)])
     try:
         manifest = distill(args.teacher, f"auv_envs/{args.env}", tuple(args.image_size),
