@@ -487,7 +487,9 @@ class DockingEnv(TaskEnv):
         if not 1 <= self._min_visible <= n_lights:
             raise ValueError(f"min_visible_lights must be in [1, {n_lights}]")
 
-        model = build_docking_model(self.layout, self._params)
+        # The station's drawn meshes are tessellated for the image observation's size.
+        model = build_docking_model(self.layout, self._params,
+                                    image_height=height if obs_mode == "image" else None)
         model.opt.timestep = CONTROL_PERIOD / physics_substeps
         model.opt.integrator = INTEGRATORS[integrator]
         self._physics_substeps = physics_substeps

@@ -17,8 +17,9 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from auv_envs.core import frames, passive
+from auv_envs.core import frames, passive, tessellation
 from auv_envs.core.assets import asset_path
+from auv_envs.core.rendering import outline_slices
 from auv_envs.core.vehicle import VehicleParams
 
 #: ``render_camera`` values: ``"chase"`` follows the vehicle from behind and
@@ -39,6 +40,13 @@ CHASE_HEADLIGHT = (0.45, 0.6)
 #: drawn in views for people, left out of the nose camera's images where
 #: :meth:`DockingPhysics.camera_sees_hull` shows it cannot be seen.
 OWN_HULL_GROUP = 1
+#: Geom group of visual-only geoms (no contacts, ignored by lines of sight):
+#: the lamps and the station's drawn meshes.
+VISUAL_GROUP = 2
+#: Geom group of the station's primitives: they collide and block lines of sight,
+#: and are drawn as meshes tessellated from them (:func:`build_docking_model`);
+#: MuJoCo's views leave groups 3-5 out unless asked.
+STATION_COLLISION_GROUP = 3
 #: Colour of a failed lamp (``optics``): unlit grey glass, no emission.
 FAILED_LAMP_RGBA = (0.25, 0.25, 0.25, 1.0)
 
@@ -78,8 +86,17 @@ LAMP_ARRAY = StationLayout(
 
 
 
-def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.MjModel:
-    """Compose arena + station + vehicle from ``assets/`` with dm_control's mjcf."""
+def build_docking_model(layout: StationLayout, params: VehicleParams,
+                        image_height: int | None = None) -> mujoco.MjModel:
+    """Compose arena + station + vehicle from ``assets/`` with dm_control's mjcf.
+
+    The station's primitives (its geom group 0) are drawn as one mesh per
+    material (:mod:`auv_envs.core.tessellation`, in :data:`VISUAL_GROUP`), its round parts with
+    :func:`~auv_envs.core.rendering.outline_slices` sides for images
+    ``image_height`` rows high (the model's ``numslices`` when None, or for
+    images of 222 rows and more). The primitives move to :data:`STATION_COLLISION_GROUP`:
+    they still collide and block lines of sight, and no view draws them.
+    """
     arena = mjcf.from_path(str(asset_path("docking/arena.xml")))
     station = mjcf.from_path(str(asset_path(layout.asset)))
     vehicle = mjcf.from_path(str(asset_path("vehicles/hovering_auv.xml")))
@@ -107,8 +124,40 @@ def build_docking_model(layout: StationLayout, params: VehicleParams) -> mujoco.
 
     arena.worldbody.attach(station)
     arena.worldbody.attach(vehicle).add("freejoint")
+    _draw_station_as_meshes(arena, station, image_height)
     xml = arena.to_xml_string()
     return passive.compile_model(xml, assets=arena.get_assets())
+
+
+def _draw_station_as_meshes(arena, station, image_height: int | None) -> None:
+    """Add the station's visual meshes to ``station`` and hide its primitives (see above)."""
+    # The primitives' poses and the model's quality, from the model as composed so far.
+    model = passive.compile_model(arena.to_xml_string(), assets=arena.get_assets())
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    body = station.worldbody.body[0]
+    body_id = model.body(f"station/{body.name}").id
+    frame = (data.xpos[body_id], data.xmat[body_id].reshape(3, 3))
+    slices = int(model.vis.quality.numslices)
+    if image_height is not None:
+        slices = outline_slices(image_height, slices)
+    primitives: dict[str, list] = {}
+    for element in body.find_all("geom", immediate_children_only=True):
+        if (element.group or 0) != 0:
+            continue
+        if element.material is None:
+            raise ValueError(f"station geom {element.name!r} needs a material "
+                             "to be drawn as a mesh")
+        primitives.setdefault(element.material.name, []).append(element)
+    for material, elements in primitives.items():
+        geoms = [model.geom(f"station/{element.name}").id for element in elements]
+        vertices, normals, faces = tessellation.static_mesh(model, data, geoms, slices, frame)
+        station.asset.add("mesh", name=f"drawn_{material}", vertex=vertices.ravel(),
+                          normal=normals.ravel(), face=faces.ravel())
+        body.add("geom", name=f"drawn_{material}", type="mesh", mesh=f"drawn_{material}",
+                 material=material, group=VISUAL_GROUP, contype=0, conaffinity=0, density=0)
+        for element in elements:
+            element.group = STATION_COLLISION_GROUP
 
 
 #: Margins of :meth:`DockingPhysics.skip_contacts_if_clear`: a speed the hull cannot
@@ -199,18 +248,23 @@ class DockingPhysics:
             [self.data.site(f"station/light_{i}").xpos for i in range(n_lights)]
         )
         self.seabed_z = float(self.data.geom("seabed").xpos[2])
-        # The lamp geom drawn at each light (visual group 2, at the light's site).
-        visual = np.flatnonzero(model.geom_group == 2)
+        # The lamp geom drawn at each light (a visual-only sphere at the light's site).
+        visual = np.flatnonzero((model.geom_group == VISUAL_GROUP)
+                                & (model.geom_type == mujoco.mjtGeom.mjGEOM_SPHERE))
         self.lamp_geoms = np.array([
             visual[np.argmin(np.linalg.norm(self.data.geom_xpos[visual] - p, axis=1))]
             for p in self.light_positions
         ])
         if not np.allclose(self.data.geom_xpos[self.lamp_geoms], self.light_positions):
-            raise ValueError("every light site needs a lamp geom (group 2) at its position")
+            raise ValueError("every light site needs a lamp geom (a sphere in group "
+                             f"{VISUAL_GROUP}) at its position")
         self._lamp_look = (model.geom_matid[self.lamp_geoms].copy(),
                            model.geom_rgba[self.lamp_geoms].copy())
-        # Rays see the scenery (geom groups 0-1); lamp geoms are group 2.
+        # Rays see the scenery: the seabed and hull (geom groups 0-1) and the station's
+        # primitives (STATION_COLLISION_GROUP); not group 2, the visual-only geoms
+        # (the lamps and the station's drawn meshes).
         self.ray_groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
+        self.ray_groups[STATION_COLLISION_GROUP] = 1
         # Views into MjData made once (its array properties build a new view on
         # every access) and buffers reused every step; mj_resetData and
         # mj_setState write in place, so the views stay valid.
