@@ -91,6 +91,11 @@ def test_bad_shapes_and_unknown_geoms_are_refused():
         tessellation.sphere(0.0, 12)
     with pytest.raises(ValueError, match="half-sizes"):
         tessellation.box([0.1, -0.2, 0.3])
+    v, n, f = tessellation.box([0.1, 0.2, 0.3])
+    with pytest.raises(ValueError, match="normals"):
+        tessellation.msh_bytes(v, n[:-1], f)
+    with pytest.raises(ValueError, match="indices"):
+        tessellation.msh_bytes(v, n, f + 1)
     model = mujoco.MjModel.from_xml_string(
         '<mujoco><worldbody><geom name="egg" type="ellipsoid" size="0.1 0.2 0.3"/>'
         "</worldbody></mujoco>")
@@ -99,6 +104,22 @@ def test_bad_shapes_and_unknown_geoms_are_refused():
         tessellation.static_mesh(model, data, [0], 12)
     with pytest.raises(ValueError, match="no geoms"):
         tessellation.static_mesh(model, data, [], 12)
+
+
+def test_the_binary_mesh_is_what_mujoco_reads():
+    import mujoco
+
+    from auv_envs.core import tessellation
+
+    v, n, f = tessellation.capsule(0.05, 0.3, 9)
+    model = mujoco.MjModel.from_xml_string(
+        '<mujoco><asset><mesh name="m" file="m.msh"/></asset>'
+        '<worldbody><geom type="mesh" mesh="m"/></worldbody></mujoco>',
+        {"m.msh": tessellation.msh_bytes(v, n, f)})
+    assert model.mesh_facenum[0] == len(f)
+    # MuJoCo recentres a mesh on its centroid; the capsule is symmetric about its own.
+    np.testing.assert_allclose(model.mesh_vert.min(axis=0), v.min(axis=0), atol=1e-6)
+    np.testing.assert_allclose(model.mesh_vert.max(axis=0), v.max(axis=0), atol=1e-6)
 
 
 def test_a_posed_geom_is_placed_where_mujoco_puts_it():

@@ -163,6 +163,23 @@ def merge(parts):
     return np.concatenate(vertices), np.concatenate(normals), np.concatenate(faces)
 
 
+def msh_bytes(vertices, normals, faces) -> bytes:
+    """The mesh in MuJoCo's binary ``.msh`` format (a mesh asset's file contents).
+
+    Four int32 counts (vertices, normals, texture coordinates, faces), then
+    the float32 vertices and normals and the int32 faces.
+    """
+    vertices = np.asarray(vertices, np.float32)
+    normals = np.asarray(normals, np.float32)
+    faces = np.asarray(faces, np.int32)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or normals.shape != vertices.shape:
+        raise ValueError("need (n, 3) vertices and as many (n, 3) normals")
+    if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= len(vertices):
+        raise ValueError("faces must be (m, 3) indices of the vertices")
+    header = np.array([len(vertices), len(normals), 0, len(faces)], np.int32)
+    return header.tobytes() + vertices.tobytes() + normals.tobytes() + faces.tobytes()
+
+
 def geom_mesh(model: mujoco.MjModel, geom: int, slices: int):
     """Geom ``geom`` of ``model`` in its own frame, tessellated (see the module doc)."""
     kind = SUPPORTED.get(int(model.geom_type[geom]))

@@ -124,23 +124,14 @@ def build_docking_model(layout: StationLayout, params: VehicleParams,
 
     arena.worldbody.attach(station)
     arena.worldbody.attach(vehicle).add("freejoint")
-    _draw_station_as_meshes(arena, station, image_height)
+    _draw_station_as_meshes(arena, station, layout.asset, image_height)
     xml = arena.to_xml_string()
     return passive.compile_model(xml, assets=arena.get_assets())
 
 
-def _draw_station_as_meshes(arena, station, image_height: int | None) -> None:
+def _draw_station_as_meshes(arena, station, asset: str, image_height: int | None) -> None:
     """Add the station's visual meshes to ``station`` and hide its primitives (see above)."""
-    # The primitives' poses and the model's quality, from the model as composed so far.
-    model = passive.compile_model(arena.to_xml_string(), assets=arena.get_assets())
-    data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)
     body = station.worldbody.body[0]
-    body_id = model.body(f"station/{body.name}").id
-    frame = (data.xpos[body_id], data.xmat[body_id].reshape(3, 3))
-    slices = int(model.vis.quality.numslices)
-    if image_height is not None:
-        slices = outline_slices(image_height, slices)
     primitives: dict[str, list] = {}
     for element in body.find_all("geom", immediate_children_only=True):
         if (element.group or 0) != 0:
@@ -149,15 +140,43 @@ def _draw_station_as_meshes(arena, station, image_height: int | None) -> None:
             raise ValueError(f"station geom {element.name!r} needs a material "
                              "to be drawn as a mesh")
         primitives.setdefault(element.material.name, []).append(element)
+    key = (asset, image_height)
+    meshes = _STATION_MESHES.get(key)
+    if meshes is None:
+        meshes = _tessellate_station(arena, body, primitives, image_height)
+        _STATION_MESHES[key] = meshes
     for material, elements in primitives.items():
-        geoms = [model.geom(f"station/{element.name}").id for element in elements]
-        vertices, normals, faces = tessellation.static_mesh(model, data, geoms, slices, frame)
-        station.asset.add("mesh", name=f"drawn_{material}", vertex=vertices.ravel(),
-                          normal=normals.ravel(), face=faces.ravel())
+        station.asset.add("mesh", name=f"drawn_{material}",
+                          file=mjcf.Asset(meshes[material], ".msh"))
         body.add("geom", name=f"drawn_{material}", type="mesh", mesh=f"drawn_{material}",
                  material=material, group=VISUAL_GROUP, contype=0, conaffinity=0, density=0)
         for element in elements:
             element.group = STATION_COLLISION_GROUP
+
+
+#: The station's meshes by (station asset, image height): each ``.msh`` file's bytes
+#: by material. Tessellating compiles the composed model once more; the meshes
+#: depend only on the station and the slices.
+_STATION_MESHES: dict[tuple[str, int | None], dict[str, bytes]] = {}
+
+
+def _tessellate_station(arena, body, primitives: dict, image_height: int | None):
+    # The primitives' poses and the model's quality, from the model as composed so far.
+    model = passive.compile_model(arena.to_xml_string(), assets=arena.get_assets())
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    body_id = model.body(f"station/{body.name}").id
+    frame = (data.xpos[body_id], data.xmat[body_id].reshape(3, 3))
+    slices = int(model.vis.quality.numslices)
+    if image_height is not None:
+        slices = outline_slices(image_height, slices)
+    meshes = {}
+    for material, elements in primitives.items():
+        geoms = [model.geom(f"station/{element.name}").id for element in elements]
+        # As a binary asset: written inline, the arrays cost mjcf 0.13 s of text.
+        meshes[material] = tessellation.msh_bytes(
+            *tessellation.static_mesh(model, data, geoms, slices, frame))
+    return meshes
 
 
 #: Margins of :meth:`DockingPhysics.skip_contacts_if_clear`: a speed the hull cannot
