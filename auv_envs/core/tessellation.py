@@ -8,7 +8,7 @@ outline, and under directional lights no shading either, yet under software GL
 (Mesa llvmpipe) a small frame's time is mostly these vertices, and each geom
 is a draw of its own. A static body's primitives are therefore drawn as one
 mesh tessellated here from the same shapes: a box as its 12 triangles, a
-cylinder body as one ring of quads, round parts (caps, spheres) with enough
+straight part as one band of quads, round parts (caps, spheres) with enough
 rings that their outlines are as close to a circle as the slices make them.
 
 ``slices`` comes from :func:`auv_envs.core.rendering.outline_slices`: the
@@ -68,9 +68,8 @@ def _rings(radius: float, rings: list[tuple[float, float]], slices: int,
            close_bottom: bool, close_top: bool):
     """A surface of revolution about z from rings ``(z, elevation)`` of ``slices`` vertices.
 
-    A vertex at azimuth ``a`` on ring ``(z, e)`` sits at
-    ``radius (cos e cos a, cos e sin a, 0) + (0, 0, z)`` with normal
-    ``(cos e cos a, cos e sin a, sin e)``; consecutive rings are joined by
+    A vertex at azimuth ``a`` on ring ``(z, e)`` sits at ``radius n + (0, 0, z)``
+    with normal ``n = (cos e cos a, cos e sin a, sin e)``; consecutive rings are joined by
     quads, and a closed end by a fan to the pole ``radius`` beyond its ring's ``z``.
     """
     vertices, normals = [], []

@@ -91,11 +91,12 @@ def build_docking_model(layout: StationLayout, params: VehicleParams,
     """Compose arena + station + vehicle from ``assets/`` with dm_control's mjcf.
 
     The station's primitives (its geom group 0) are drawn as one mesh per
-    material (:mod:`auv_envs.core.tessellation`, in :data:`VISUAL_GROUP`), its round parts with
-    :func:`~auv_envs.core.rendering.outline_slices` sides for images
-    ``image_height`` rows high (the model's ``numslices`` when None, or for
-    images of 222 rows and more). The primitives move to :data:`STATION_COLLISION_GROUP`:
-    they still collide and block lines of sight, and no view draws them.
+    material (:mod:`auv_envs.core.tessellation`, in :data:`VISUAL_GROUP`),
+    its round parts with :func:`~auv_envs.core.rendering.outline_slices`
+    sides for images ``image_height`` rows high (the model's ``numslices``
+    when None, or for images of 222 rows and more). The primitives move to
+    :data:`STATION_COLLISION_GROUP`: they still collide and block lines of
+    sight, and no view draws them.
     """
     arena = mjcf.from_path(str(asset_path("docking/arena.xml")))
     station = mjcf.from_path(str(asset_path(layout.asset)))
@@ -161,6 +162,7 @@ _STATION_MESHES: dict[tuple[str, int | None], dict[str, bytes]] = {}
 
 
 def _tessellate_station(arena, body, primitives: dict, image_height: int | None):
+    """Each material's ``.msh`` bytes, in the station body's frame."""
     # The primitives' poses and the model's quality, from the model as composed so far.
     model = passive.compile_model(arena.to_xml_string(), assets=arena.get_assets())
     data = mujoco.MjData(model)
