@@ -254,18 +254,21 @@ def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_the_hard_level_policies_are_cppo_yml_at_hard(seed):
-    # cppo-docking-features-hard: the shipped recipe with two overrides, as
+@pytest.mark.parametrize("family, env_id, steps", [
+    ("docking", "auv_envs/DockingStation-v1", 4_000_000),
+    ("lamp-array", "auv_envs/LampArrayDocking-v1", 6_000_000),
+])
+def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, seed):
+    # cppo-*-features-hard: the shipped recipe with two overrides, as
     # docs/training.md gives the command.
     from baselines.rl.config import resolve_config
     from baselines.rl.policy import policies_root
 
-    name = f"cppo-docking-features-hard-s{seed}"
+    name = f"cppo-{family}-features-hard-s{seed}"
     shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())
-    overrides = {"env_kwargs": {"difficulty": "hard"}, "n_timesteps": 4_000_000}
-    expected = resolve_config("cppo", "auv_envs/DockingStation-v1", seed, overrides)
-    assert shipped == expected.to_dict()
+    overrides = {"env_kwargs": {"difficulty": "hard"}, "n_timesteps": steps}
+    assert shipped == resolve_config("cppo", env_id, seed, overrides).to_dict()
     manifest = json.loads((policies_root() / name / "policy.json").read_text())
     assert manifest["env_kwargs"] == {"difficulty": "hard"}
-    assert manifest["group"] == "cppo-docking-features-hard"
-    assert "--set 'env_kwargs={difficulty: hard}' --n-timesteps 4000000" in manifest["command"]
+    assert manifest["group"] == f"cppo-{family}-features-hard"
+    assert f"--set 'env_kwargs={{difficulty: hard}}' --n-timesteps {steps}" in manifest["command"]
