@@ -34,11 +34,7 @@ def compare(env_id: str, size: tuple[int, int], poses: int, seed: int = 11,
     import mujoco
 
     from auv_envs.core.rendering import CameraRenderer
-    from auv_envs.tasks.docking_station import (
-        OWN_HULL_GROUP,
-        STATION_COLLISION_GROUP,
-        VISUAL_GROUP,
-    )
+    from auv_envs.tasks.docking_station import STATION_COLLISION_GROUP, VISUAL_GROUP
 
     env = gym.make(env_id, obs_mode="image", image_size=size)
     physics = env.unwrapped.physics
@@ -49,10 +45,9 @@ def compare(env_id: str, size: tuple[int, int], poses: int, seed: int = 11,
     as_primitives.geom_group[meshes] = STATION_COLLISION_GROUP
     as_primitives.geom_group[primitives] = VISUAL_GROUP
     ours = env.unwrapped.camera_renderer
-    # The hull as the observation leaves it out (DockingEnv: where the camera cannot see it).
-    hidden = () if physics.camera_sees_hull(*size) else (OWN_HULL_GROUP,)
+    # The same groups left out as the observation's renderer (the hull, where unseen).
     reference = CameraRenderer(as_primitives, (physics.camera_name,), *size,
-                               hidden_groups=hidden, fit_outlines=True)
+                               hidden_groups=ours.hidden_groups, fit_outlines=True)
     rng = np.random.default_rng(seed)
     out = []
     try:

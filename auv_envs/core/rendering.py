@@ -115,7 +115,9 @@ class CameraRenderer:
         self._scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = fog
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SKYBOX] = skybox
         self._option = mujoco.MjvOption()
-        for group in hidden_groups:
+        #: The geom groups this renderer leaves out (``hidden_groups``).
+        self.hidden_groups = tuple(sorted(set(hidden_groups)))
+        for group in self.hidden_groups:
             self._option.geomgroup[group] = 0
         self._perturb = mujoco.MjvPerturb()
         self._buffer = np.empty((self._height, total_width, 3), dtype=np.uint8)
