@@ -8,7 +8,8 @@ two kinds of keys:
 * run keys that ``train.py`` itself reads (:data:`RUN_KEYS`): ``obs_mode``,
   ``n_timesteps``, ``n_envs``, ``policy``, ``normalize``, ``flatten_obs``,
   ``env_kwargs``, ``eval_freq``, ``n_eval_episodes``, ``checkpoint_freq``,
-  ``keep_checkpoints``, ``torch_threads``;
+  ``keep_checkpoints``, ``torch_threads``, ``detection_fixes`` (the acoustic
+  set encoder's per-detection fixes, :mod:`baselines.rl.detections`);
 * keyword arguments of the Stable-Baselines3 algorithm (``learning_rate``,
   ``n_steps``, ``policy_kwargs`` ...), checked against its constructor.
 
@@ -68,6 +69,7 @@ RUN_KEYS = {
     "checkpoint_freq": 10_000,
     "keep_checkpoints": 2,
     "torch_threads": 1,
+    "detection_fixes": False,
 }
 _RUN_KEY_TYPES = {
     "obs_mode": str,
@@ -82,10 +84,15 @@ _RUN_KEY_TYPES = {
     "checkpoint_freq": int,
     "keep_checkpoints": int,
     "torch_threads": int,
+    "detection_fixes": bool,
 }
+#: Run keys added after configs were first written, read with their defaults when absent.
+_LATER_RUN_KEYS = {"detection_fixes": False}
 _POSITIVE = ("n_timesteps", "n_envs", "eval_freq", "checkpoint_freq", "keep_checkpoints",
              "torch_threads")
-POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy")
+POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy")
+#: Policy names of this package's own policy classes (``module:class``), PPO only.
+CUSTOM_POLICIES = {"DetectionSetPolicy": "baselines.rl.detections:DetectionSetPolicy"}
 
 #: Constructor arguments train.py sets itself (or that name Python classes,
 #: which a YAML file cannot hold safely).
@@ -162,7 +169,11 @@ class TrainConfig:
             raise ConfigError(
                 "a resolved config needs exactly the keys algo, env_id, seed, run, hyperparams"
             )
-        config = cls(**copy.deepcopy(data))
+        data = copy.deepcopy(data)
+        if data["algo"] != COMPILED and isinstance(data["run"], dict):  # keys added since
+            for key, default in _LATER_RUN_KEYS.items():
+                data["run"].setdefault(key, default)
+        config = cls(**data)
         validate(config)
         return config
 
@@ -320,6 +331,11 @@ def validate(config: TrainConfig) -> None:
         raise ConfigError("n_eval_episodes must be >= 0")
     if config.run["policy"] not in POLICIES:
         raise ConfigError(f"unknown policy {config.run['policy']!r}; valid: {', '.join(POLICIES)}")
+    if config.run["policy"] in CUSTOM_POLICIES and config.algo != "ppo":
+        raise ConfigError(f"policy {config.run['policy']} is a PPO policy, not {config.algo}")
+    if config.run["policy"] == "DetectionSetPolicy" and not config.run["detection_fixes"]:
+        raise ConfigError("DetectionSetPolicy reads the per-detection fixes: set "
+                          "detection_fixes: true")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool):
         raise ConfigError(f"seed must be an integer, got {config.seed!r}")
     top = TRAIN_EVAL_SEED_BASE - config.run["n_envs"]

@@ -6,6 +6,8 @@ environment's action exactly as it did in training:
 
 * ``RescaleAction(-1, 1)`` when the action space is a Box with other bounds
   (``AcousticTracking-v0`` acts with a position in the tank);
+* :class:`~baselines.rl.detections.DetectionFixes` when the config asks for it
+  (``detection_fixes``: one least-squares fix per acoustic detection);
 * :class:`FlattenObservation` when the config asks for it (a ``Dict``
   observation becomes one vector for an ``MlpPolicy``).
 
@@ -76,10 +78,14 @@ class FlattenObservation(gym.wrappers.FlattenObservation):
                               dtype=self.observation_space.dtype)
 
 
-def wrap_env(env: gym.Env, flatten_obs: bool = False) -> gym.Env:
+def wrap_env(env: gym.Env, flatten_obs: bool = False, detection_fixes: bool = False) -> gym.Env:
     """The wrappers every learner and policy agent sees around ``env``."""
     if needs_rescale(env.action_space):
         env = RescaleAction(env, np.float32(-1.0), np.float32(1.0))
+    if detection_fixes:
+        from baselines.rl.detections import DetectionFixes
+
+        env = DetectionFixes(env)
     if flatten_obs:
         if has_image(env.observation_space):
             raise ConfigError("flatten_obs cannot flatten image observations; use policy=auto")
@@ -124,7 +130,8 @@ def make_env(config: TrainConfig) -> gym.Env:
             f"cannot make {config.env_id} with obs_mode={config.run['obs_mode']!r} and "
             f"env_kwargs {config.run['env_kwargs']}: {exc}"
         ) from exc
-    return Monitor(LearnerInfo(wrap_env(env, config.run["flatten_obs"])))
+    return Monitor(LearnerInfo(wrap_env(env, config.run["flatten_obs"],
+                                        config.run["detection_fixes"])))
 
 
 def normalize_arguments(config: TrainConfig, observation_space: spaces.Space) -> dict | None:

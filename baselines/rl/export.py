@@ -103,7 +103,7 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
         if source.is_file():
             shutil.copy2(source, tmp / source.name)
     evals = _read_csv(run.eval_curve)
-    plot_curve(run, tmp / "curve.png", f"{name} ({manifest['env_id']}, {manifest['obs_mode']})")
+    plot_curve(run, tmp / "curve.png", f"{name}\n{manifest['env_id']}, {manifest['obs_mode']}")
     policy = {
         **manifest,
         "name": name,

@@ -106,12 +106,14 @@ class PolicyAgent:
         model: a Stable-Baselines3 model.
         normalizer: training ``VecNormalize`` statistics, or None.
         flatten_obs: whether training flattened the observation.
+        detection_fixes: whether training fixed each acoustic detection
+            (:class:`~baselines.rl.detections.DetectionFixes`).
     """
 
     def __init__(self, env: gym.Env, model, normalizer: VecNormalize | None = None,
-                 flatten_obs: bool = False):
+                 flatten_obs: bool = False, detection_fixes: bool = False):
         self._base = env.unwrapped
-        self._wrapped = wrap_env(self._base, flatten_obs)
+        self._wrapped = wrap_env(self._base, flatten_obs, detection_fixes)
         self._observation_wrappers, self._action_wrappers = self._wrapper_chain()
         try:
             check_for_correct_spaces(self._wrapped, _as_learner_sees(model.observation_space),
@@ -139,7 +141,8 @@ class PolicyAgent:
         normalizer = None
         if NORMALIZER_FILE in manifest["files"]:
             normalizer = load_normalizer(directory / NORMALIZER_FILE)
-        return cls(env, model, normalizer, bool(manifest["flatten_obs"]))
+        return cls(env, model, normalizer, bool(manifest["flatten_obs"]),
+                   bool(manifest.get("detection_fixes", False)))
 
     def _wrapper_chain(self):
         outer_to_inner = []
@@ -153,7 +156,12 @@ class PolicyAgent:
         return observation, action
 
     def reset(self, seed: int | None = None) -> None:
-        """Nothing to reset: the policy is feed-forward and acts deterministically."""
+        """Clears what observation wrappers hold from the last episode (``clear()``, e.g.
+        :class:`~baselines.rl.detections.DetectionFixes`); the policy itself is
+        feed-forward and acts deterministically."""
+        for wrapper in self._observation_wrappers:
+            if hasattr(wrapper, "clear"):
+                wrapper.clear()
 
     def learner_observation(self, observation):
         """The observation as the learner saw it in training."""

@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import importlib
 import io
 import json
 import platform
@@ -54,6 +55,7 @@ from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
     ALGORITHMS,
     COMPILED,
+    CUSTOM_POLICIES,
     TRAIN_EVAL_SEED_BASE,
     ConfigError,
     TrainConfig,
@@ -176,6 +178,9 @@ def build_model(config: TrainConfig):
     """A new SB3 model on a new, seeded training vector env."""
     vec_env = make_vec_env(config)
     policy = choose_policy(vec_env.observation_space, config.run["policy"])
+    if policy in CUSTOM_POLICIES:
+        module, name = CUSTOM_POLICIES[policy].split(":")
+        policy = getattr(importlib.import_module(module), name)
     return ALGORITHMS[config.algo](
         policy, vec_env, seed=config.seed, device="cpu", verbose=0,
         **algorithm_kwargs(config, vec_env.action_space),
@@ -244,6 +249,7 @@ def write_final(run: RunDirectory, model, config: TrainConfig) -> Path:
         "obs_mode": config.run["obs_mode"],
         "env_kwargs": config.run["env_kwargs"],
         "flatten_obs": config.run["flatten_obs"],
+        "detection_fixes": config.run["detection_fixes"],
         "steps": int(model.num_timesteps),
         "files": {name: sha256_file(run.final / name) for name in files},
     }
@@ -337,7 +343,7 @@ class TrainingCallback(BaseCallback):
             self._eval_env = gym.make(config.env_id, obs_mode=config.run["obs_mode"],
                                       **config.run["env_kwargs"])
         agent = PolicyAgent(self._eval_env, self.model, self.model.get_vec_normalize_env(),
-                            config.run["flatten_obs"])
+                            config.run["flatten_obs"], config.run["detection_fixes"])
         rows = [run_episode(self._eval_env, agent, seed, config.env_id, "training")
                 for seed in eval_seeds(config)]
         returns = np.array([r.episode_return for r in rows])
