@@ -87,11 +87,12 @@ _RUN_KEY_TYPES = {
     "detection_fixes": bool,
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
-_LATER_RUN_KEYS = {"detection_fixes": False}
+_LATER_RUN_KEYS = ("detection_fixes",)
 _POSITIVE = ("n_timesteps", "n_envs", "eval_freq", "checkpoint_freq", "keep_checkpoints",
              "torch_threads")
 POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy")
-#: Policy names of this package's own policy classes (``module:class``), PPO only.
+#: Policy names of this package's own policy classes (``module:class``, imported by
+#: :class:`baselines.registry.LazyFactory`), PPO only.
 CUSTOM_POLICIES = {"DetectionSetPolicy": "baselines.rl.detections:DetectionSetPolicy"}
 
 #: Constructor arguments train.py sets itself (or that name Python classes,
@@ -171,8 +172,8 @@ class TrainConfig:
             )
         data = copy.deepcopy(data)
         if data["algo"] != COMPILED and isinstance(data["run"], dict):  # keys added since
-            for key, default in _LATER_RUN_KEYS.items():
-                data["run"].setdefault(key, default)
+            for key in _LATER_RUN_KEYS:
+                data["run"].setdefault(key, RUN_KEYS[key])
         config = cls(**data)
         validate(config)
         return config

@@ -176,9 +176,9 @@ class DetectionSetExtractor(BaseFeaturesExtractor):
         fix = observations[f"{prefix}fix"].flatten(1, 2)  # (B, Q*K, 3)
         batch, tokens = fix.shape[:2]
         valid = observations[f"{prefix}fix_valid"].reshape(batch, tokens) > 0.5
-        flags = torch.stack(torch.broadcast_tensors(
-            torch.full((batch, tokens), held, dtype=fix.dtype, device=fix.device),
-            age.reshape(batch, 1).expand(batch, tokens)), dim=-1)
+        flags = torch.stack([torch.full((batch, tokens), held, dtype=fix.dtype,
+                                        device=fix.device),
+                             age.reshape(batch, 1).expand(batch, tokens)], dim=-1)
         features = torch.cat([
             fix, observations[f"{prefix}fix_log_std"].flatten(1, 2),
             observations[f"{prefix}fix_log_fit"].reshape(batch, tokens, 1),

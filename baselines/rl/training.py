@@ -27,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
-import importlib
 import io
 import json
 import platform
@@ -51,6 +50,7 @@ from stable_baselines3.common.utils import LinearSchedule
 import auv_envs
 from auv_envs.core.assets import sha256_file
 from baselines.evaluation import atomic_write, run_episode
+from baselines.registry import LazyFactory
 from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
     ALGORITHMS,
@@ -179,8 +179,7 @@ def build_model(config: TrainConfig):
     vec_env = make_vec_env(config)
     policy = choose_policy(vec_env.observation_space, config.run["policy"])
     if policy in CUSTOM_POLICIES:
-        module, name = CUSTOM_POLICIES[policy].split(":")
-        policy = getattr(importlib.import_module(module), name)
+        policy = LazyFactory(CUSTOM_POLICIES[policy]).resolve()
     return ALGORITHMS[config.algo](
         policy, vec_env, seed=config.seed, device="cpu", verbose=0,
         **algorithm_kwargs(config, vec_env.action_space),
