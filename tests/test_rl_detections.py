@@ -93,7 +93,7 @@ def test_fixes_refuse_other_environments():
         DetectionFixes(make_env(ACOUSTIC, "state"))
     with pytest.raises(ConfigError, match="AcousticTracking"):
         wrap_env(make_env("auv_envs/DockingStation-v1", "features").unwrapped,
-                 detection_fixes=True)
+                 front_ends=("detection_fixes",))
 
 
 def _batch(observations):

@@ -70,6 +70,24 @@ COUNT_KEYS = ("fixes", "partial_fixes", "bridged", "gated", "reinitialised",
               "mismatched_corners", "ik_failures", "heave_fits")
 
 
+def heave_refit(calibration, window: float = 15.0, min_span: float = 3.0,
+                omega_bounds=(0.5, 1.6)) -> HeaveRefit:
+    """Eq. 8's heave refit from the documented scene: a 7 s swell prior about the level
+    the AUV floats at (``ckf-pd``'s ``heave_*`` arguments)."""
+    level = calibration.auv_freeboard - calibration.auv_diameter / 2.0
+    return HeaveRefit(prior_heave_model(float(calibration.control_period), level),
+                      window, min_span, omega_bounds)
+
+
+def marker_estimator(calibration) -> MarkerAUVEstimator:
+    """``ckf-pd``'s state estimator at its default settings, from the documented
+    calibration: marker fixes (adapting the assumed pixel noise), heave refit,
+    pitch/yaw mean and the gated CKF. It reads only ``features`` observations
+    (:meth:`~baselines.lars.estimation.auv_state.MarkerAUVEstimator.update`)."""
+    return MarkerAUVEstimator(MarkerLocaliser(calibration, None, adapt=True),
+                              heave_refit(calibration), PitchYawMean())
+
+
 def _check_env(env):
     cal = getattr(env, "calibration", None)
     if cal is None or not hasattr(cal, "stereo") or not hasattr(cal, "arm"):
@@ -153,8 +171,7 @@ class CKFPDAgent:
             default_kd if kd is None else kd)
         strategy = CaptureStrategy(hover_height, strike_duration, follow_timeout)
         radius = cal.auv_diameter / 2.0
-        heave = HeaveRefit(prior_heave_model(self.dt, cal.auv_freeboard - radius),
-                           heave_window, heave_min_span, heave_omega_bounds)
+        heave = heave_refit(cal, heave_window, heave_min_span, heave_omega_bounds)
         self.estimator = self._make_estimator(
             heave, PitchYawMean(attitude_memory), accel_std=accel_std, gate=gate,
             refit_period=heave_refit_period, relock_after=relock_after, settle_time=settle_time)

@@ -8,8 +8,10 @@ two kinds of keys:
 * run keys that ``train.py`` itself reads (:data:`RUN_KEYS`): ``obs_mode``,
   ``n_timesteps``, ``n_envs``, ``policy``, ``normalize``, ``flatten_obs``,
   ``env_kwargs``, ``eval_freq``, ``n_eval_episodes``, ``checkpoint_freq``,
-  ``keep_checkpoints``, ``torch_threads``, ``detection_fixes`` (the acoustic
-  set encoder's per-detection fixes, :mod:`baselines.rl.detections`);
+  ``keep_checkpoints``, ``torch_threads``, and the classical front ends
+  (:data:`FRONT_ENDS`): ``detection_fixes`` (the acoustic set encoder's
+  per-detection fixes, :mod:`baselines.rl.detections`), ``marker_estimate``
+  (``ckf-pd``'s LARS state estimate, :mod:`baselines.rl.marker_estimate`);
 * keyword arguments of the Stable-Baselines3 algorithm (``learning_rate``,
   ``n_steps``, ``policy_kwargs`` ...), checked against its constructor.
 
@@ -70,6 +72,7 @@ RUN_KEYS = {
     "keep_checkpoints": 2,
     "torch_threads": 1,
     "detection_fixes": False,
+    "marker_estimate": False,
 }
 _RUN_KEY_TYPES = {
     "obs_mode": str,
@@ -85,15 +88,24 @@ _RUN_KEY_TYPES = {
     "keep_checkpoints": int,
     "torch_threads": int,
     "detection_fixes": bool,
+    "marker_estimate": bool,
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
-_LATER_RUN_KEYS = ("detection_fixes",)
+_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate")
+#: Classical front ends a run key switches on (an observation wrapper each,
+#: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
+FRONT_ENDS = {
+    "detection_fixes": "baselines.rl.detections:DetectionFixes",
+    "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
+}
 _POSITIVE = ("n_timesteps", "n_envs", "eval_freq", "checkpoint_freq", "keep_checkpoints",
              "torch_threads")
-POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy")
+POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy",
+            "JointResidualPolicy")
 #: Policy names of this package's own policy classes (``module:class``, imported by
 #: :class:`baselines.registry.LazyFactory`), PPO only.
-CUSTOM_POLICIES = {"DetectionSetPolicy": "baselines.rl.detections:DetectionSetPolicy"}
+CUSTOM_POLICIES = {"DetectionSetPolicy": "baselines.rl.detections:DetectionSetPolicy",
+                   "JointResidualPolicy": "baselines.rl.marker_estimate:JointResidualPolicy"}
 
 #: Constructor arguments train.py sets itself (or that name Python classes,
 #: which a YAML file cannot hold safely).
@@ -337,6 +349,13 @@ def validate(config: TrainConfig) -> None:
     if config.run["policy"] == "DetectionSetPolicy" and not config.run["detection_fixes"]:
         raise ConfigError("DetectionSetPolicy reads the per-detection fixes: set "
                           "detection_fixes: true")
+    if config.run["policy"] == "JointResidualPolicy":
+        if not config.run["marker_estimate"] or config.run["normalize"] is not False:
+            raise ConfigError("JointResidualPolicy reads MarkerEstimate's hold target as is: "
+                              "set marker_estimate: true and normalize: false")
+        if config.run["env_kwargs"].get("control") != "position":
+            raise ConfigError("JointResidualPolicy outputs joint targets: set "
+                              "env_kwargs: {control: position}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool):
         raise ConfigError(f"seed must be an integer, got {config.seed!r}")
     top = TRAIN_EVAL_SEED_BASE - config.run["n_envs"]

@@ -6,8 +6,11 @@ environment's action exactly as it did in training:
 
 * ``RescaleAction(-1, 1)`` when the action space is a Box with other bounds
   (``AcousticTracking-v0`` acts with a position in the tank);
-* :class:`~baselines.rl.detections.DetectionFixes` when the config asks for it
-  (``detection_fixes``: one least-squares fix per acoustic detection);
+* the classical front ends the config asks for (:data:`FRONT_ENDS`):
+  :class:`~baselines.rl.detections.DetectionFixes` (``detection_fixes``: one
+  least-squares fix per acoustic detection) and
+  :class:`~baselines.rl.marker_estimate.MarkerEstimate` (``marker_estimate``:
+  ``ckf-pd``'s LARS state estimate relative to the capture tip);
 * :class:`FlattenObservation` when the config asks for it (a ``Dict``
   observation becomes one vector for an ``MlpPolicy``).
 
@@ -27,7 +30,8 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 import auv_envs  # noqa: F401  (registers the ids)
-from baselines.rl.config import ConfigError, TrainConfig
+from baselines.registry import LazyFactory
+from baselines.rl.config import FRONT_ENDS, ConfigError, TrainConfig
 
 
 def has_image(space: spaces.Space) -> bool:
@@ -78,14 +82,23 @@ class FlattenObservation(gym.wrappers.FlattenObservation):
                               dtype=self.observation_space.dtype)
 
 
-def wrap_env(env: gym.Env, flatten_obs: bool = False, detection_fixes: bool = False) -> gym.Env:
-    """The wrappers every learner and policy agent sees around ``env``."""
+def front_ends_of(settings) -> tuple[str, ...]:
+    """The front ends (:data:`FRONT_ENDS` keys) a config's run keys or a policy
+    manifest switch on; a key that is absent (an older file) is off."""
+    return tuple(name for name in FRONT_ENDS if settings.get(name, False))
+
+
+def wrap_env(env: gym.Env, flatten_obs: bool = False, front_ends=()) -> gym.Env:
+    """The wrappers every learner and policy agent sees around ``env``; ``front_ends``
+    names :data:`FRONT_ENDS` (applied in that table's order)."""
+    unknown = set(front_ends) - set(FRONT_ENDS)
+    if unknown:
+        raise ConfigError(f"unknown front end(s) {sorted(unknown)}; valid: {', '.join(FRONT_ENDS)}")
     if needs_rescale(env.action_space):
         env = RescaleAction(env, np.float32(-1.0), np.float32(1.0))
-    if detection_fixes:
-        from baselines.rl.detections import DetectionFixes
-
-        env = DetectionFixes(env)
+    for name, target in FRONT_ENDS.items():
+        if name in front_ends:  # imported here: each pipeline loads only where it is used
+            env = LazyFactory(target)(env)
     if flatten_obs:
         if has_image(env.observation_space):
             raise ConfigError("flatten_obs cannot flatten image observations; use policy=auto")
@@ -131,7 +144,7 @@ def make_env(config: TrainConfig) -> gym.Env:
             f"env_kwargs {config.run['env_kwargs']}: {exc}"
         ) from exc
     return Monitor(LearnerInfo(wrap_env(env, config.run["flatten_obs"],
-                                        config.run["detection_fixes"])))
+                                        front_ends_of(config.run))))
 
 
 def normalize_arguments(config: TrainConfig, observation_space: spaces.Space) -> dict | None:

@@ -25,7 +25,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from auv_envs.core.assets import asset_root, verify_sha256
 from baselines.rl.config import ALGORITHMS
-from baselines.rl.envs import wrap_env
+from baselines.rl.envs import front_ends_of, wrap_env
 
 MODEL_FILE = "model.zip"
 NORMALIZER_FILE = "vecnormalize.pkl"
@@ -106,14 +106,14 @@ class PolicyAgent:
         model: a Stable-Baselines3 model.
         normalizer: training ``VecNormalize`` statistics, or None.
         flatten_obs: whether training flattened the observation.
-        detection_fixes: whether training fixed each acoustic detection
-            (:class:`~baselines.rl.detections.DetectionFixes`).
+        front_ends: the classical front ends training applied
+            (:data:`baselines.rl.config.FRONT_ENDS` keys, e.g. ``detection_fixes``).
     """
 
     def __init__(self, env: gym.Env, model, normalizer: VecNormalize | None = None,
-                 flatten_obs: bool = False, detection_fixes: bool = False):
+                 flatten_obs: bool = False, front_ends=()):
         self._base = env.unwrapped
-        self._wrapped = wrap_env(self._base, flatten_obs, detection_fixes)
+        self._wrapped = wrap_env(self._base, flatten_obs, front_ends)
         self._observation_wrappers, self._action_wrappers = self._wrapper_chain()
         try:
             check_for_correct_spaces(self._wrapped, _as_learner_sees(model.observation_space),
@@ -142,7 +142,7 @@ class PolicyAgent:
         if NORMALIZER_FILE in manifest["files"]:
             normalizer = load_normalizer(directory / NORMALIZER_FILE)
         return cls(env, model, normalizer, bool(manifest["flatten_obs"]),
-                   bool(manifest.get("detection_fixes", False)))
+                   front_ends_of(manifest))
 
     def _wrapper_chain(self):
         outer_to_inner = []

@@ -56,6 +56,7 @@ from baselines.rl.config import (
     ALGORITHMS,
     COMPILED,
     CUSTOM_POLICIES,
+    FRONT_ENDS,
     TRAIN_EVAL_SEED_BASE,
     ConfigError,
     TrainConfig,
@@ -64,7 +65,7 @@ from baselines.rl.config import (
     schedule_initial_value,
     validate,
 )
-from baselines.rl.envs import make_vec_env
+from baselines.rl.envs import front_ends_of, make_vec_env
 from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, PolicyAgent
 
 #: ``policy_kwargs.activation_fn`` names (a YAML file cannot name a class safely).
@@ -248,7 +249,7 @@ def write_final(run: RunDirectory, model, config: TrainConfig) -> Path:
         "obs_mode": config.run["obs_mode"],
         "env_kwargs": config.run["env_kwargs"],
         "flatten_obs": config.run["flatten_obs"],
-        "detection_fixes": config.run["detection_fixes"],
+        **{name: config.run[name] for name in FRONT_ENDS},
         "steps": int(model.num_timesteps),
         "files": {name: sha256_file(run.final / name) for name in files},
     }
@@ -342,7 +343,7 @@ class TrainingCallback(BaseCallback):
             self._eval_env = gym.make(config.env_id, obs_mode=config.run["obs_mode"],
                                       **config.run["env_kwargs"])
         agent = PolicyAgent(self._eval_env, self.model, self.model.get_vec_normalize_env(),
-                            config.run["flatten_obs"], config.run["detection_fixes"])
+                            config.run["flatten_obs"], front_ends_of(config.run))
         rows = [run_episode(self._eval_env, agent, seed, config.env_id, "training")
                 for seed in eval_seeds(config)]
         returns = np.array([r.episode_return for r in rows])
