@@ -28,8 +28,9 @@ import gymnasium as gym
 import yaml
 
 import auv_envs  # noqa: F401
-from baselines.rl.agents import load_policy_agent
+from baselines.rl.agents import evaluation_env_kwargs, load_policy_agent
 from baselines.rl.checkpoint import MODEL, STATE
+from baselines.rl.envs import front_ends_of
 from baselines.rl.policy import PolicyAgent, load_model, read_manifest
 
 
@@ -39,9 +40,11 @@ def train_py_checkpoint(run: Path, checkpoint: Path, difficulty: str) -> tuple:
     with open(checkpoint / STATE, "rb") as handle:
         state = pickle.load(handle)  # our own checkpoint (train.py wrote it)
     env_id, obs_mode = resolved["env_id"], resolved["run"]["obs_mode"]
-    env = gym.make(env_id, obs_mode=obs_mode, difficulty=difficulty)
+    env = gym.make(env_id, obs_mode=obs_mode, difficulty=difficulty,
+                   **evaluation_env_kwargs(resolved["run"]["env_kwargs"]))
     agent = PolicyAgent(env, load_model(resolved["algo"], checkpoint / MODEL),
-                        state["normalizer"], bool(resolved["run"]["flatten_obs"]))
+                        state["normalizer"], bool(resolved["run"]["flatten_obs"]),
+                        front_ends_of(resolved["run"]))
     extra = state["extra"]
     return int(extra["step"]), float(extra["wall_time_s"]), env, agent
 
@@ -49,7 +52,8 @@ def train_py_checkpoint(run: Path, checkpoint: Path, difficulty: str) -> tuple:
 def policy_checkpoint(directory: Path, difficulty: str) -> tuple:
     """``(steps, wall time s, env, agent)`` of one policy directory (its manifest's)."""
     manifest = read_manifest(directory)
-    env = gym.make(manifest["env_id"], obs_mode=manifest["obs_mode"], difficulty=difficulty)
+    env = gym.make(manifest["env_id"], obs_mode=manifest["obs_mode"], difficulty=difficulty,
+                   **evaluation_env_kwargs(manifest.get("env_kwargs")))
     agent = load_policy_agent(directory, env)
     return int(manifest["n_timesteps"]), float(manifest["wall_time_s"]), env, agent
 

@@ -47,6 +47,12 @@ def load_policy_agent(directory: str | Path, env) -> PolicyAgent:
 _TRAINING_ONLY_KWARGS = ("time_limit", "difficulty")
 
 
+def evaluation_env_kwargs(env_kwargs) -> dict:
+    """A training's environment arguments that bind its policy's evaluation (all but
+    :data:`_TRAINING_ONLY_KWARGS`, e.g. LARS ``control="position"``)."""
+    return {k: v for k, v in (env_kwargs or {}).items() if k not in _TRAINING_ONLY_KWARGS}
+
+
 def policy_spec(directory: Path, name: str | None = None) -> AgentSpec:
     """The registry entry of one policy directory (reads its manifest only).
 
@@ -55,8 +61,7 @@ def policy_spec(directory: Path, name: str | None = None) -> AgentSpec:
     ``control="position"``) except the episode length.
     """
     manifest = read_manifest(directory)
-    env_kwargs = {k: v for k, v in (manifest.get("env_kwargs") or {}).items()
-                  if k not in _TRAINING_ONLY_KWARGS}
+    env_kwargs = evaluation_env_kwargs(manifest.get("env_kwargs"))
     return AgentSpec(
         name=name or directory.name,
         factory=functools.partial(load_policy_agent, directory),
