@@ -79,7 +79,8 @@ def test_front_end_needs_lars_features():
 
 def test_untrained_policy_is_the_servo():
     """Untrained, the mean is the hold target plus the servo's gain times the joint offset
-    (the MLP's correction starts near zero); with no gain the arm holds still."""
+    (the MLP's correction starts at zero), whatever the seed; with no gain the arm holds
+    still."""
     env = _wrapped()
     obs, _ = env.reset(seed=2)
     for _ in range(15):  # until the estimate has settled and the offset is non-zero
@@ -87,10 +88,10 @@ def test_untrained_policy_is_the_servo():
     assert np.abs(obs[SLICES["joint_offset"]]).max() > 0.05
     hold = obs[SLICES["hold_target"]]
     for gain in (0.0, 0.3):
-        model = PPO(JointResidualPolicy, env, seed=0, device="cpu",
+        model = PPO(JointResidualPolicy, env, seed=int(gain * 10), device="cpu",
                     policy_kwargs={"net_arch": [16, 16], "servo_gain": gain})
         action, _ = model.predict(obs, deterministic=True)
-        np.testing.assert_allclose(action, hold + gain * obs[SLICES["joint_offset"]], atol=0.02)
+        np.testing.assert_allclose(action, hold + gain * obs[SLICES["joint_offset"]], atol=1e-6)
     with pytest.raises(ConfigError, match="JointResidualPolicy reads"):
         PPO(JointResidualPolicy, make_env(LARS, "state"), device="cpu")
 

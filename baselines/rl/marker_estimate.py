@@ -178,13 +178,14 @@ class _HoldAndLatent(torch.nn.Module):
 
 class _ResidualHead(torch.nn.Module):
     """Mean action = hold target + servo gain x joint offset + a linear map of the actor's
-    latent (about zero at the start); the gains (one per joint) are learned too."""
+    latent, zero at the start (every training seed starts from the same servo); the gains
+    (one per joint) are learned too."""
 
     def __init__(self, latent_dim: int, servo_gain: float):
         super().__init__()
         self.servo_gain = torch.nn.Parameter(torch.full((3,), float(servo_gain)))
         self.linear = torch.nn.Linear(latent_dim, 3)
-        torch.nn.init.orthogonal_(self.linear.weight, gain=0.01)
+        torch.nn.init.zeros_(self.linear.weight)
         torch.nn.init.zeros_(self.linear.bias)
 
     def forward(self, latent):
@@ -203,8 +204,11 @@ class JointResidualPolicy(ActorCriticPolicy):
     the target that holds the arm where it is (passed through untouched), a servo
     that moves the tip towards the estimated capture point with learned per-joint
     gains ``g`` (initialised at ``servo_gain``), and a learned correction from an
-    MLP over the whole observation (about zero at the start). With ``servo_gain=0``
-    an untrained policy holds still. The critic is an ordinary MLP. The observation
+    MLP over the whole observation, whose output layer starts at zero: an untrained
+    policy is the servo exactly, whatever the seed (with ``servo_gain=0`` it holds
+    still). (With SB3's usual small random output layer instead, the three seeds
+    started at 88 %, 75 % and 25 % held-out success, and the last one learned to keep
+    the arm away.) The critic is an ordinary MLP. The observation
     must reach the policy unnormalised (``normalize: false``): the hold target and
     the joint offset are used as they are.
 
