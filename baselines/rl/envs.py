@@ -98,7 +98,7 @@ def wrap_env(env: gym.Env, flatten_obs: bool = False, front_ends=()) -> gym.Env:
         env = RescaleAction(env, np.float32(-1.0), np.float32(1.0))
     for name, target in FRONT_ENDS.items():
         if name in front_ends:  # imported here: each pipeline loads only where it is used
-            env = LazyFactory(target)(env)
+            env = LazyFactory(target).resolve()(env)
     if flatten_obs:
         if has_image(env.observation_space):
             raise ConfigError("flatten_obs cannot flatten image observations; use policy=auto")
