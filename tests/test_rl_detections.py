@@ -14,7 +14,7 @@ import train as train_cli
 from baselines.acoustic.perception.positioning import LeastSquaresPositioner
 from baselines.evaluation import run_episode
 from baselines.rl import agents
-from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, TrainConfig, resolve_config
+from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, resolve_config
 from baselines.rl.detections import DetectionFixes, DetectionSetExtractor
 from baselines.rl.envs import wrap_env
 from baselines.rl.export import export_policy
@@ -187,12 +187,3 @@ def test_trains_exports_and_acts_as_in_training(tmp_path):
     again = run_episode(env, agent, TRAIN_EVAL_SEED_BASE, ACOUSTIC, spec.name)
     assert again.episode_return == row.episode_return
     env.close()
-
-
-def test_configs_written_before_the_flag_read_with_it_off():
-    config = resolve_config("ppo", ACOUSTIC)
-    old = config.to_dict()
-    del old["run"]["detection_fixes"]
-    again = TrainConfig.from_dict(old)
-    assert again.run["detection_fixes"] is False and again.digest() == config.digest()
-    assert not isinstance(wrap_env(make_env(ACOUSTIC, "measurements").unwrapped), DetectionFixes)

@@ -4,9 +4,14 @@ from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+import pytest
 from gymnasium import spaces
 
+from baselines.rl.config import TrainConfig, resolve_config
+from baselines.rl.detections import DetectionFixes
 from baselines.rl.envs import FlattenObservation, wrap_env
+from baselines.rl.marker_estimate import MarkerEstimate
+from tests.conftest import make_env
 
 
 class _FixedObservations(gym.Env):
@@ -94,3 +99,17 @@ def test_wrap_env_uses_the_flatten_wrapper():
         assert env.observation_space.contains(obs)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode", "front_end", "wrapper"), [
+    ("auv_envs/AcousticTracking-v0", "measurements", "detection_fixes", DetectionFixes),
+    ("auv_envs/LARSCapture-v0", "features", "marker_estimate", MarkerEstimate),
+])
+def test_configs_written_before_a_front_end_read_with_it_off(env_id, obs_mode, front_end,
+                                                             wrapper):
+    config = resolve_config("ppo", env_id)
+    old = config.to_dict()
+    del old["run"][front_end]
+    again = TrainConfig.from_dict(old)
+    assert again.run[front_end] is False and again.digest() == config.digest()
+    assert not isinstance(wrap_env(make_env(env_id, obs_mode).unwrapped), wrapper)

@@ -12,7 +12,7 @@ from stable_baselines3 import PPO
 import train as train_cli
 from baselines.evaluation import run_episode
 from baselines.rl import agents
-from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, TrainConfig, resolve_config
+from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, resolve_config
 from baselines.rl.envs import wrap_env
 from baselines.rl.export import export_policy
 from baselines.rl.marker_estimate import SIZE, SLICES, JointResidualPolicy, MarkerEstimate
@@ -135,12 +135,3 @@ def test_trains_exports_and_acts_as_in_training(tmp_path):
     again = run_episode(env, agent, TRAIN_EVAL_SEED_BASE, LARS, spec.name)
     assert again.episode_return == row.episode_return
     env.close()
-
-
-def test_configs_written_before_the_flag_read_with_it_off():
-    config = resolve_config("ppo", LARS)
-    old = config.to_dict()
-    del old["run"]["marker_estimate"]
-    again = TrainConfig.from_dict(old)
-    assert again.run["marker_estimate"] is False and again.digest() == config.digest()
-    assert not isinstance(wrap_env(make_env(LARS, "features").unwrapped), MarkerEstimate)

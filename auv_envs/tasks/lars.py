@@ -687,6 +687,11 @@ class LARSCaptureEnv(TaskEnv):
         capture = frames.rotate_rows(rows, self._capture_point.tolist())
         return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
 
+    def position_action(self, q) -> np.ndarray:
+        """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
+        the inverse of the action's linear map onto the joint limits (not clipped)."""
+        return (np.asarray(q, dtype=float) - self._q_mid) / self._q_half
+
     def _track_position(self, q_target: np.ndarray) -> None:
         """Computed-torque PD (eqs. 29-30) at the physics rate, torque-limited."""
         model, data = self.physics.model, self.physics.data

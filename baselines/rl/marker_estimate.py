@@ -99,9 +99,7 @@ class MarkerEstimate(gym.ObservationWrapper):
 
         self.calibration = cal
         self.estimator = marker_estimator(cal)
-        limits = np.asarray(cal.arm.joint_limits, dtype=float)
-        self._q_mid = limits.mean(axis=1)
-        self._q_half = 0.5 * (limits[:, 1] - limits[:, 0])
+        self._position_action = base.position_action  # the env's own joint-target map
         self._tip_in_end = np.asarray(cal.capture_tip_in_end, dtype=float)
         self._dt = float(cal.control_period)
         self.observation_space = spaces.Box(-np.inf, np.inf, (SIZE,), np.float32)
@@ -126,19 +124,22 @@ class MarkerEstimate(gym.ObservationWrapper):
         self._since_fix = 0 if est.last_measurement is not None else self._since_fix + 1
         arm = self.calibration.arm
         out = np.zeros(SIZE, dtype=np.float32)
-        out[SLICES["hold_target"]] = (q - self._q_mid) / self._q_half
+        hold = self._position_action(q)
+        out[SLICES["hold_target"]] = hold
         out[SLICES["joint_velocity"]] = qd
         if est.initialised and est.rotation is not None:
+            jacobian = arm.jacobian(q)
             tip = arm.forward_kinematics(q) + self._tip_in_end
-            tip_velocity = arm.jacobian(q) @ qd
+            tip_velocity = jacobian @ qd
             geometry, rotation = est.localiser, est.rotation
             out[SLICES["offset"]] = geometry.capture_point(est.mean[:3], rotation) - tip
             out[SLICES["relative_velocity"]] = est.mean[3:] - tip_velocity
             ahead = est.kinematics(HORIZON)[0]
             out[SLICES["offset_ahead"]] = geometry.capture_point(ahead, rotation) - tip
             cartesian = out[SLICES["offset"].start:SLICES["estimate"].start].reshape(3, 3)
-            joint = _solve(arm.jacobian(q), cartesian.T.astype(float)).T / self._q_half
-            out[SLICES["joint_offset"].start:] = joint.ravel()
+            # the position-action change that moves the joints by J^-1 v (the map is linear)
+            joint = self._position_action(q + _solve(jacobian, cartesian.T.astype(float)).T)
+            out[SLICES["joint_offset"].start:] = (joint - hold).ravel()
         out[SLICES["estimate"]] = (float(est.settled), float(est.fit is not None),
                                    math.log1p(self._since_fix))
         return out
