@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,15 +9,14 @@ import pytest
 import torch
 from gymnasium.wrappers import RescaleAction
 
-import train as train_cli
 from baselines.acoustic.perception.positioning import LeastSquaresPositioner
 from baselines.evaluation import run_episode
 from baselines.rl import agents
 from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, resolve_config
 from baselines.rl.detections import DetectionFixes, DetectionSetExtractor
 from baselines.rl.envs import wrap_env
-from baselines.rl.export import export_policy
 from tests.conftest import make_env
+from tests.rl_helpers import train_and_export
 
 ROOT = Path(__file__).resolve().parents[1]
 ACOUSTIC = "auv_envs/AcousticTracking-v0"
@@ -162,17 +160,8 @@ def test_config_checks_policy_and_fixes_together():
 def test_trains_exports_and_acts_as_in_training(tmp_path):
     """A tiny run from the shipped YAML: the untrained policy starts from the pooled fix, and
     the exported agent reproduces training's final held-out evaluation."""
-    run_dir = tmp_path / "run"
-    rc = train_cli.main([
-        "--algo", "ppo", "--env", "AcousticTracking-v0", "--hyperparams-dir", str(CONFIG_DIR),
-        "--seed", "1", "--n-timesteps", "256", "--run-dir", str(run_dir),
-        "--set", "n_envs=1", "--set", "n_steps=128", "--set", "batch_size=64",
-        "--set", "env_kwargs={difficulty: paper, time_limit: 1.0}",
-        "--set", "n_eval_episodes=1", "--set", "eval_freq=128", "--no-progress-bar",
-    ])
-    assert rc == 0
-    path = export_policy(run_dir, "ppo-acoustic-test", tmp_path)
-    manifest = json.loads((path / "policy.json").read_text())
+    path, manifest = train_and_export(tmp_path, "AcousticTracking-v0", CONFIG_DIR, 256,
+                                      "{difficulty: paper, time_limit: 1.0}", "ppo-acoustic-test")
     assert manifest["detection_fixes"] is True and manifest["obs_mode"] == "measurements"
     spec = agents.policy_spec(path)
     env = make_env(ACOUSTIC, "measurements", difficulty="paper", time_limit=1.0)

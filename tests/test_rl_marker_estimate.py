@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 from stable_baselines3 import PPO
 
-import train as train_cli
 from baselines.evaluation import run_episode
 from baselines.rl import agents
 from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, resolve_config
 from baselines.rl.envs import wrap_env
-from baselines.rl.export import export_policy
 from baselines.rl.marker_estimate import SIZE, SLICES, JointResidualPolicy, MarkerEstimate
 from tests.conftest import make_env
+from tests.rl_helpers import train_and_export
 
 ROOT = Path(__file__).resolve().parents[1]
 LARS = "auv_envs/LARSCapture-v0"
@@ -114,17 +112,9 @@ def test_config_checks_policy_front_end_and_control_together():
 def test_trains_exports_and_acts_as_in_training(tmp_path):
     """A tiny run from the shipped YAML; the exported agent reproduces training's final
     held-out evaluation, and the same episode twice in a row (the estimator is cleared)."""
-    run_dir = tmp_path / "run"
-    rc = train_cli.main([
-        "--algo", "ppo", "--env", "LARSCapture-v0", "--hyperparams-dir", str(CONFIG_DIR),
-        "--seed", "1", "--n-timesteps", "128", "--run-dir", str(run_dir),
-        "--set", "n_envs=1", "--set", "n_steps=64", "--set", "batch_size=32",
-        "--set", "env_kwargs={difficulty: paper, control: position, time_limit: 1.0}",
-        "--set", "n_eval_episodes=1", "--set", "eval_freq=64", "--no-progress-bar",
-    ])
-    assert rc == 0
-    path = export_policy(run_dir, "ppo-lars-test", tmp_path)
-    manifest = json.loads((path / "policy.json").read_text())
+    path, manifest = train_and_export(tmp_path, "LARSCapture-v0", CONFIG_DIR, 128,
+                                      "{difficulty: paper, control: position, time_limit: 1.0}",
+                                      "ppo-lars-test")
     assert manifest["marker_estimate"] is True and manifest["detection_fixes"] is False
     spec = agents.policy_spec(path)
     env = make_env(LARS, "features", difficulty="paper", control="position", time_limit=1.0)
