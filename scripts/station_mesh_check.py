@@ -1,8 +1,9 @@
 """The docking stations' meshes against MuJoCo's own primitives, pixel by pixel.
 
 The image observation draws each station as meshes tessellated from its
-primitives (``auv_envs.core.tessellation``). Here a second renderer draws the
-primitives themselves instead (a copy of the model with the two geom groups
+primitives (``auv_envs.core.tessellation``), and far parts and lamps with the
+coarser meshes of ``auv_envs.core.rendering.DetailLevels``. Here a second
+renderer draws the primitives themselves instead (a copy of the model with the two geom groups
 swapped, the same round-geom slices), from the vehicle's camera at poses
 placed along the approach (``x`` from -6 to 2 m, random lateral offsets and
 yaw), and the two images are compared::

@@ -252,7 +252,7 @@ def test_the_nose_camera_never_sees_its_own_hull(env_id):
     assert not physics.camera_sees_hull(96, 72)
     assert env.unwrapped.camera_renderer._option.geomgroup[1] == 0
     drawing_hull = CameraRenderer(physics.model, (physics.camera_name,), 96, 72,
-                                  fit_outlines=True)
+                                  fit_outlines=True, detail=physics.detail_levels())
     hull = physics.hull_geoms[0]
     try:
         env.reset(seed=5)

@@ -21,6 +21,7 @@ Two pitfalls shape this module:
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import math
 import weakref
 
@@ -44,7 +45,7 @@ class CameraRenderer:
     def __init__(self, model: mujoco.MjModel, cameras: tuple[str, ...], width: int, height: int,
                  headlight: tuple[float, float] | None = None, fog: bool = False,
                  skybox: bool = False, hidden_groups: tuple[int, ...] = (),
-                 fit_outlines: bool = False):
+                 fit_outlines: bool = False, detail: tuple[DetailLevels, ...] = ()):
         """Args:
             model: the compiled model (its ``vis`` offscreen size grows if needed;
                 this renderer's own buffer is exactly its images' size).
@@ -71,6 +72,11 @@ class CameraRenderer:
                 large curved surface changes (at 160x120 a LARS stereo pair
                 differed on up to a fifth of its pixels), so a task turns it on
                 where it measured the images (the docking camera).
+            detail: geoms drawn, frame by frame, with the coarsest of their
+                :class:`DetailLevels` that keeps every outline within
+                :data:`DETAIL_TOLERANCE_PX` at its distance from the camera (a
+                geom close enough to need more sides is drawn as the model and
+                ``fit_outlines`` draw it).
         """
         global _HOOKED
         if not cameras:
@@ -87,6 +93,9 @@ class CameraRenderer:
             cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
             cam.fixedcamid = model.camera(name).id
             self._cams.append(cam)
+        # Checked before any GL object exists.
+        self._detail = _DetailChooser(model, detail, [cam.fixedcamid for cam in self._cams],
+                                      self._width, self._height) if detail else None
         total_width = self._width * len(cameras)
         # The offscreen framebuffer is made at the model's offwidth x offheight when the
         # context is: sized to this renderer's images, a small image costs a small
@@ -235,6 +244,8 @@ class CameraRenderer:
                 light = self._scene.lights[0]
                 light.ambient[:] = self._headlight[0]
                 light.diffuse[:] = self._headlight[1]
+            if self._detail is not None:
+                self._detail.apply(data, cam.fixedcamid, self._scene)
             mujoco.mjr_render(viewport, self._scene, self._ctx)
         mujoco.mjr_readPixels(self._buffer, depth, self._full, self._ctx)
 
@@ -271,6 +282,213 @@ def outline_slices(height: int, model_slices: int) -> int:
     about twice the time of 17; ``docs/speed.md``).
     """
     return int(min(model_slices, max(8, math.ceil(math.pi * math.sqrt(height / 3.0)))))
+
+
+#: Sides of the coarser meshes a task may add for :class:`DetailLevels` (those
+#: below the sides an image's finest drawing uses, :func:`detail_slices`).
+DETAIL_SLICES = (6, 8, 12, 17)
+
+
+#: How far (pixels) a :class:`DetailLevels` mesh's outline may stray from a circle.
+#: Pixels whose centres lie that close to an outline can turn: along the docking
+#: approach (``scripts/station_mesh_check.py``, 75 poses) 0.5 px turned up to 35 of
+#: 7,056 pixels at 84x84 (mean 10.5 a frame), 0.1 px up to 9 (mean 1.2), where the
+#: finest drawings alone turned up to 2.
+DETAIL_TOLERANCE_PX = 0.1
+
+
+def detail_slices(finest: int) -> tuple[int, ...]:
+    """The :data:`DETAIL_SLICES` below ``finest``: the coarser levels worth building."""
+    return tuple(n for n in DETAIL_SLICES if n < finest)
+
+
+#: Round primitives whose outline radius :class:`DetailLevels` reads from ``geom_size[0]``.
+_ROUND = {int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
+          int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
+          int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder"}
+
+
+@dataclasses.dataclass(frozen=True)
+class DetailLevels:
+    """Coarser stand-ins for one drawn geom, chosen frame by frame by apparent size.
+
+    Under software GL a small image's frame time is mostly vertices
+    (``docs/speed.md``): a round part a few pixels across drawn with the
+    sides an image-filling one needs costs many times what its outline needs.
+
+    Attributes:
+        geom: the drawn geom (a sphere, drawn at the context's slices, or a mesh).
+        meshes: ids of meshes of the model drawing the same shape, in the same
+            geom frame as ``geom`` would place them, with fewer sides; coarsest first.
+        slices: the polygon sides of each of those meshes' round parts, increasing.
+        parts: the round primitives (sphere, capsule and cylinder geoms) whose
+            outlines ``geom`` draws; their radius and axis decide the level.
+    """
+
+    geom: int
+    meshes: tuple[int, ...]
+    slices: tuple[int, ...]
+    parts: tuple[int, ...]
+
+    def __post_init__(self):
+        if not self.meshes or len(self.meshes) != len(self.slices):
+            raise ValueError("DetailLevels: need one slices count per mesh, at least one mesh")
+        if any(b <= a for a, b in zip(self.slices, self.slices[1:], strict=False)) \
+                or self.slices[0] < 3:
+            raise ValueError(f"DetailLevels: slices must increase from >= 3, got {self.slices}")
+        if not self.parts:
+            raise ValueError("DetailLevels: need the round parts the geom draws")
+
+
+class _DetailChooser:
+    """Per frame, swaps each :class:`DetailLevels` geom in the scene for its coarsest
+    mesh that keeps the outlines of its parts within :data:`DETAIL_TOLERANCE_PX`.
+
+    A part of radius ``r`` whose axis passes ``d`` from the camera spans at
+    most ``R = s r / sqrt(d^2 - r^2)`` pixels, where ``s`` is the focal length
+    in pixels times ``1 + tan^2`` of the angle to the image's corner (where the
+    perspective stretches a small circle most). A polygon of ``n`` sides keeps
+    that outline within ``t`` pixels while ``R (1 - cos(pi / n)) <= t``, so each
+    level holds from a squared distance ``r^2 + (s r / R_n)^2`` on; the
+    thresholds are computed once, and a frame costs one distance per part.
+    """
+
+    def __init__(self, model: mujoco.MjModel, levels, camera_ids, width: int, height: int):
+        self._levels = tuple(levels)
+        parts, starts = [], []
+        for level in self._levels:
+            if not 0 <= level.geom < model.ngeom:
+                raise ValueError(f"DetailLevels: geom {level.geom} is not in the model")
+            for mesh in level.meshes:
+                if not 0 <= mesh < model.nmesh:
+                    raise ValueError(f"DetailLevels: mesh {mesh} is not in the model")
+            starts.append(len(parts))
+            for part in level.parts:
+                if int(model.geom_type[part]) not in _ROUND:
+                    raise ValueError(f"DetailLevels: part {model.geom(part).name!r} is not "
+                                     f"round (one of {sorted(_ROUND.values())})")
+                parts.append(part)
+        self._parts = np.array(parts)
+        self._starts = np.array(starts)
+        radius = model.geom_size[self._parts, 0].copy()
+        # Half the length of each part's straight axis (0 for a sphere).
+        self._half = np.where(model.geom_type[self._parts] == mujoco.mjtGeom.mjGEOM_SPHERE,
+                              0.0, model.geom_size[self._parts, 1])
+        # The largest outline radius (pixels) each level draws within the tolerance;
+        # levels padded with 0 (never enough) to the longest ladder.
+        width_levels = max(len(level.slices) for level in self._levels)
+        allowed = np.zeros((len(self._levels), width_levels))
+        for i, level in enumerate(self._levels):
+            allowed[i, :len(level.slices)] = [DETAIL_TOLERANCE_PX / (1.0 - math.cos(math.pi / n))
+                                              for n in level.slices]
+        owner = np.repeat(np.arange(len(self._levels)), np.diff(np.append(starts, len(parts))))
+        # Per camera, each part's squared distance from which each level holds.
+        self._from = {}
+        for cam in camera_ids:
+            focal = 0.5 * height / math.tan(math.radians(model.cam_fovy[cam]) / 2.0)
+            corner = math.hypot(width / 2.0, height / 2.0) / focal
+            scale = focal * (1.0 + corner * corner)
+            with np.errstate(divide="ignore"):
+                span = scale * radius[:, None] / allowed[owner]
+            self._from[cam] = radius[:, None] ** 2 + span ** 2
+        # Each mesh's placement relative to the geom's own frame: MuJoCo centres a
+        # mesh on its inertial frame and moves the geom by the same offset; None
+        # where the two frames agree.
+        self._offsets = [[self._offset(model, level.geom, mesh) for mesh in level.meshes]
+                         for level in self._levels]
+        self._mesh_type = int(mujoco.mjtGeom.mjGEOM_MESH)
+        self._geom_obj = int(mujoco.mjtObj.mjOBJ_GEOM)
+        self._slots: tuple[int, list] | None = None  # (scene size, each level's scene geom)
+        self._rows = np.arange(len(self._levels))
+        # Parts on bodies welded to the world stay put: a choice is kept until
+        # the camera has moved as far as the nearest threshold (levels_for).
+        self._static = bool(np.all(model.body_weldid[model.geom_bodyid[self._parts]] == 0))
+        self._from_distance = {cam: np.sqrt(limit) for cam, limit in self._from.items()}
+        self._kept: dict[int, tuple[np.ndarray, float, np.ndarray]] = {}
+        #: The level index drawn for each geom in the last frame (-1: the geom's own).
+        self.chosen = np.full(len(self._levels), -1)
+
+    @staticmethod
+    def _offset(model, geom: int, mesh: int) -> tuple[np.ndarray, np.ndarray] | None:
+        def pose(mesh_id):
+            rotation = np.zeros(9)
+            mujoco.mju_quat2Mat(rotation, model.mesh_quat[mesh_id])
+            return model.mesh_pos[mesh_id].copy(), rotation.reshape(3, 3)
+
+        if int(model.geom_type[geom]) == int(mujoco.mjtGeom.mjGEOM_MESH):
+            own_pos, own_rot = pose(model.geom_dataid[geom])
+        else:
+            own_pos, own_rot = np.zeros(3), np.eye(3)
+        pos, rot = pose(mesh)
+        shift, turn = own_rot.T @ (pos - own_pos), own_rot.T @ rot
+        if np.abs(shift).max() < 1e-12 and np.abs(turn - np.eye(3)).max() < 1e-12:
+            return None
+        return shift, turn
+
+    def levels_for(self, data: mujoco.MjData, camera: int) -> np.ndarray:
+        """The level index each geom needs from ``camera`` now (-1: its own drawing).
+
+        Each part's distance changes no faster than the camera moves, so while
+        the parts are fixed in the world, the answer stands until the camera
+        has moved as far as the nearest threshold was: it is kept till then.
+        """
+        eye = data.cam_xpos[camera]
+        kept = self._kept.get(camera)
+        if kept is not None:
+            x, y, z = (eye - kept[0]).tolist()
+            if x * x + y * y + z * z < kept[1]:
+                return kept[2]
+        offset = eye - data.geom_xpos[self._parts]
+        # Each geom's z axis in the world: the last column of its row-major rotation.
+        axis = data.geom_xmat[self._parts][:, 2::3]
+        # The nearest point of each part's axis segment (NumPy's small-array calls
+        # cost more than their arithmetic here, hence the in-place clip).
+        along = (offset * axis).sum(axis=1)
+        np.minimum(np.maximum(along, -self._half, out=along), self._half, out=along)
+        offset -= along[:, None] * axis
+        distance2 = (offset * offset).sum(axis=1)
+        holds = np.logical_and.reduceat(distance2[:, None] >= self._from[camera],
+                                        self._starts, axis=0)
+        first = holds.argmax(axis=1)
+        levels = np.where(holds[self._rows, first], first, -1)
+        if self._static:
+            margin = np.abs(np.sqrt(distance2)[:, None] - self._from_distance[camera]).min()
+            self._kept[camera] = (eye.copy(), margin * margin, levels)
+        return levels
+
+    def apply(self, data: mujoco.MjData, camera: int, scene: mujoco.MjvScene) -> None:
+        """Swap the geoms of ``scene`` (just updated from ``data``) for their levels."""
+        chosen = self.levels_for(data, camera)
+        self.chosen = chosen
+        if (chosen < 0).all():
+            return
+        if self._slots is None or self._slots[0] != scene.ngeom:
+            # Each level's geom in the scene (None: not drawn), fixed while the scene's
+            # geoms are (the same model, options and camera give the same order).
+            self._slots = (scene.ngeom, [None if j < 0 else scene.geoms[j]
+                                         for j in self._scene_slots(scene)])
+        slots = self._slots[1]
+        for i, k in enumerate(chosen.tolist()):
+            if k < 0 or (geom := slots[i]) is None:
+                continue
+            level = self._levels[i]
+            offset = self._offsets[i][k]
+            if offset is not None:
+                rotation = geom.mat  # (3, 3), the geom's frame in the world
+                geom.pos[:] = geom.pos + rotation @ offset[0]
+                geom.mat[:] = rotation @ offset[1]
+            geom.type = self._mesh_type
+            # A mesh's drawing is 2 * id (its convex hull's 2 * id + 1).
+            geom.dataid = 2 * level.meshes[k]
+
+    def _scene_slots(self, scene: mujoco.MjvScene) -> list[int]:
+        """Where each level's geom sits in ``scene`` (-1: not drawn)."""
+        where = {}
+        for j in range(scene.ngeom):
+            geom = scene.geoms[j]
+            if geom.objtype == self._geom_obj:
+                where[geom.objid] = j
+        return [where.get(level.geom, -1) for level in self._levels]
 
 
 def _close_all() -> None:

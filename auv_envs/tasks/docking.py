@@ -570,7 +570,8 @@ class DockingEnv(TaskEnv):
         if obs_mode == "image":
             hidden = () if self.physics.camera_sees_hull(width, height) else (OWN_HULL_GROUP,)
             self.camera_renderer = CameraRenderer(model, (self.physics.camera_name,), width, height,
-                                                  hidden_groups=hidden, fit_outlines=True)
+                                                  hidden_groups=hidden, fit_outlines=True,
+                                                  detail=self.physics.detail_levels())
         self._view: CameraRenderer | None = None
         if render_mode == "rgb_array":
             chase = render_camera == "chase"
@@ -578,6 +579,7 @@ class DockingEnv(TaskEnv):
                 model, ("hovering_auv/chase" if chase else self.physics.camera_name,),
                 render_width, render_height, headlight=CHASE_HEADLIGHT if chase else None,
                 fog=chase, skybox=chase, fit_outlines=not chase,  # onboard: as the observation
+                detail=() if chase else self.physics.detail_levels(),
             )
         self._episode = _EpisodeState()
 

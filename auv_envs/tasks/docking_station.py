@@ -19,7 +19,12 @@ from dm_control import mjcf
 
 from auv_envs.core import frames, passive, tessellation
 from auv_envs.core.assets import asset_path
-from auv_envs.core.rendering import outline_slices
+from auv_envs.core.rendering import (
+    DETAIL_SLICES,
+    DetailLevels,
+    detail_slices,
+    outline_slices,
+)
 from auv_envs.core.vehicle import VehicleParams
 
 #: ``render_camera`` values: ``"chase"`` follows the vehicle from behind and
@@ -96,7 +101,11 @@ def build_docking_model(layout: StationLayout, params: VehicleParams,
     sides for images ``image_height`` rows high (the model's ``numslices``
     when None, or for images of 222 rows and more). The primitives move to
     :data:`STATION_COLLISION_GROUP`: they still collide and block lines of
-    sight, and no view draws them.
+    sight, and no view draws them. For images (``image_height`` given) the
+    model also holds coarser meshes of the station and of the lamp spheres,
+    with :func:`~auv_envs.core.rendering.detail_slices` sides, attached to
+    no geom: renderers draw them in place of the finest where they show no
+    difference (:meth:`DockingPhysics.detail_levels`).
     """
     arena = mjcf.from_path(str(asset_path("docking/arena.xml")))
     station = mjcf.from_path(str(asset_path(layout.asset)))
@@ -153,12 +162,25 @@ def _draw_station_as_meshes(arena, station, asset: str, image_height: int | None
                  material=material, group=VISUAL_GROUP, contype=0, conaffinity=0, density=0)
         for element in elements:
             element.group = STATION_COLLISION_GROUP
+    # The coarser levels, as assets only (see build_docking_model).
+    for name, contents in meshes.items():
+        if name not in primitives:
+            station.asset.add("mesh", name=name, file=mjcf.Asset(contents, ".msh"))
 
 
 #: The station's meshes by (station asset, image height): each ``.msh`` file's bytes
-#: by material. Tessellating compiles the composed model once more; the meshes
-#: depend only on the station and the slices.
+#: by mesh name (a material's name for its finest drawing, :func:`detail_mesh_name`
+#: for the coarser levels). Tessellating compiles the composed model once more; the
+#: meshes depend only on the station and the slices.
 _STATION_MESHES: dict[tuple[str, int | None], dict[str, bytes]] = {}
+
+#: Name of the coarser meshes of the lamp spheres (under the station's ``station/`` prefix).
+LAMP_DETAIL = "lamp"
+
+
+def detail_mesh_name(drawing: str, slices: int) -> str:
+    """Name of the coarser mesh of ``drawing`` (a material, or :data:`LAMP_DETAIL`)."""
+    return f"detail_{drawing}_{slices}"
 
 
 def _tessellate_station(arena, body, primitives: dict, image_height: int | None):
@@ -172,13 +194,32 @@ def _tessellate_station(arena, body, primitives: dict, image_height: int | None)
     slices = int(model.vis.quality.numslices)
     if image_height is not None:
         slices = outline_slices(image_height, slices)
+    coarser = detail_slices(slices) if image_height is not None else ()
     meshes = {}
     for material, elements in primitives.items():
         geoms = [model.geom(f"station/{element.name}").id for element in elements]
         # As a binary asset: written inline, the arrays cost mjcf 0.13 s of text.
         meshes[material] = tessellation.msh_bytes(
             *tessellation.static_mesh(model, data, geoms, slices, frame))
+        for n in coarser:
+            meshes[detail_mesh_name(material, n)] = tessellation.msh_bytes(
+                *tessellation.static_mesh(model, data, geoms, n, frame))
+    lamps = lamp_spheres(model)
+    if coarser and len(lamps):
+        radii = np.unique(model.geom_size[lamps, 0])
+        if len(radii) != 1:
+            raise ValueError(f"the station's lamp spheres differ in radius ({radii.tolist()}); "
+                             "their coarser meshes assume one")
+        for n in coarser:
+            meshes[detail_mesh_name(LAMP_DETAIL, n)] = tessellation.msh_bytes(
+                *tessellation.sphere(float(radii[0]), n))
     return meshes
+
+
+def lamp_spheres(model: mujoco.MjModel) -> np.ndarray:
+    """Ids of the lamp spheres: the sphere geoms in :data:`VISUAL_GROUP`."""
+    return np.flatnonzero((model.geom_group == VISUAL_GROUP)
+                          & (model.geom_type == mujoco.mjtGeom.mjGEOM_SPHERE))
 
 
 #: Margins of :meth:`DockingPhysics.skip_contacts_if_clear`: a speed the hull cannot
@@ -270,8 +311,7 @@ class DockingPhysics:
         )
         self.seabed_z = float(self.data.geom("seabed").xpos[2])
         # The lamp geom drawn at each light (a visual-only sphere at the light's site).
-        visual = np.flatnonzero((model.geom_group == VISUAL_GROUP)
-                                & (model.geom_type == mujoco.mjtGeom.mjGEOM_SPHERE))
+        visual = lamp_spheres(model)
         self.lamp_geoms = np.array([
             visual[np.argmin(np.linalg.norm(self.data.geom_xpos[visual] - p, axis=1))]
             for p in self.light_positions
@@ -331,6 +371,38 @@ class DockingPhysics:
         if failed is not None and failed.any():
             self.model.geom_matid[geoms[failed]] = -1
             self.model.geom_rgba[geoms[failed]] = FAILED_LAMP_RGBA
+
+    def detail_levels(self) -> tuple[DetailLevels, ...]:
+        """The coarser drawings image renderers may use (:class:`DetailLevels`): each of
+        the station's drawn meshes, standing for its round primitives, and each lamp
+        sphere. Empty where the model holds no coarser meshes (built without an image
+        height, :func:`build_docking_model`)."""
+        model = self.model
+        meshes = {model.mesh(m).name: m for m in range(model.nmesh)}
+
+        def coarser(drawing: str) -> tuple[tuple[int, ...], tuple[int, ...]]:
+            found = [(n, meshes[name]) for n in DETAIL_SLICES
+                     if (name := "station/" + detail_mesh_name(drawing, n)) in meshes]
+            return tuple(m for _, m in found), tuple(n for n, _ in found)
+
+        round_types = [int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE,
+                                        mujoco.mjtGeom.mjGEOM_CAPSULE,
+                                        mujoco.mjtGeom.mjGEOM_CYLINDER)]
+        round_primitives = np.flatnonzero((model.geom_group == STATION_COLLISION_GROUP)
+                                          & np.isin(model.geom_type, round_types))
+        levels = []
+        drawn = np.flatnonzero((model.geom_group == VISUAL_GROUP)
+                               & (model.geom_type == mujoco.mjtGeom.mjGEOM_MESH))
+        for geom in drawn.tolist():
+            name = model.mesh(model.geom_dataid[geom]).name
+            ids, slices = coarser(name.removeprefix("station/drawn_"))
+            parts = round_primitives[model.geom_matid[round_primitives] == model.geom_matid[geom]]
+            if ids and len(parts):
+                levels.append(DetailLevels(geom, ids, slices, tuple(parts.tolist())))
+        ids, slices = coarser(LAMP_DETAIL)
+        if ids:
+            levels.extend(DetailLevels(int(g), ids, slices, (int(g),)) for g in self.lamp_geoms)
+        return tuple(levels)
 
     def position(self) -> np.ndarray:
         return self._pos.copy()
