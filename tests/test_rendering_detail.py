@@ -189,6 +189,7 @@ def test_bad_detail_levels_are_refused():
     try:
         for levels, message in (
                 ((DetailLevels(lamp, (1,), (6,), (box,)),), "is not round"),
+                ((DetailLevels(lamp, (1,), (6,), (model.ngeom,)),), "is not a geom"),
                 ((DetailLevels(lamp, (model.nmesh,), (6,), (lamp,)),), "mesh .* is not in"),
                 ((DetailLevels(model.ngeom, (0,), (6,), (lamp,)),), "geom .* is not in")):
             with pytest.raises(ValueError, match=message):

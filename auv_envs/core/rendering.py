@@ -364,6 +364,8 @@ class _DetailChooser:
                     raise ValueError(f"DetailLevels: mesh {mesh} is not in the model")
             starts.append(len(parts))
             for part in level.parts:
+                if not 0 <= part < model.ngeom:
+                    raise ValueError(f"DetailLevels: part {part} is not a geom of the model")
                 if int(model.geom_type[part]) not in _ROUND:
                     raise ValueError(f"DetailLevels: part {model.geom(part).name!r} is not "
                                      f"round (one of {sorted(_ROUND.values())})")
