@@ -6,9 +6,11 @@ growing ``n``, and times ``mjr_render`` plus ``mjr_readPixels`` (the read-back
 waits for the rasteriser), best of ``--repeats`` passes of ``--frames``
 frames. Under a software rasteriser (Mesa llvmpipe) the difference between
 rows is what those geoms' triangles cost; the first row is the frame's fixed
-cost. Issue 21 item 5 (84x84 >= 4x as fast as 320x240) depends on it.
+cost. Issue 21 item 5 (84x84 >= 4x as fast as 320x240) depends on it. The
+scene is drawn as the observation draws it, far parts with their coarser
+meshes (``DetailLevels``), unless ``--finest``.
 
-    python benchmarks/frame_cost.py [--env auv_envs/DockingStation-v1] [--frames 200]
+    python benchmarks/frame_cost.py [--env auv_envs/DockingStation-v1] [--frames 200] [--finest]
 """
 
 from __future__ import annotations
@@ -27,7 +29,8 @@ def geom_type_names(mujoco) -> dict[int, str]:
             for name in dir(mujoco.mjtGeom) if name.startswith("mjGEOM_")}
 
 
-def frame_costs(env_id: str, size: tuple[int, int], frames: int, repeats: int):
+def frame_costs(env_id: str, size: tuple[int, int], frames: int, repeats: int,
+                finest: bool = False):
     """``[(n, type of geom n, ms per frame with the first n geoms)]`` for ``n = 0..ngeom``."""
     import mujoco  # after auv_envs, which picks the GL backend
 
@@ -42,6 +45,8 @@ def frame_costs(env_id: str, size: tuple[int, int], frames: int, repeats: int):
         scene, viewport = renderer._scene, renderer._viewports[0]
         mujoco.mjv_updateScene(model, data, renderer._option, renderer._perturb,
                                renderer._cams[0], mujoco.mjtCatBit.mjCAT_ALL, scene)
+        if renderer._detail is not None and not finest:
+            renderer._detail.apply(data, renderer._cams[0].fixedcamid, scene)
         total = scene.ngeom
         names = geom_type_names(mujoco)
         types = [names.get(int(scene.geoms[k].type), "?") for k in range(total)]
@@ -67,12 +72,15 @@ def main(argv=None) -> None:
     parser.add_argument("--env", default="auv_envs/DockingStation-v1")
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--finest", action="store_true",
+                        help="draw every geom at its finest (no coarser levels)")
     args = parser.parse_args(argv)
     if args.frames < 1 or args.repeats < 1:
         parser.error("--frames and --repeats must be positive")
-    small = frame_costs(args.env, (84, 84), args.frames, args.repeats)
-    large = frame_costs(args.env, (320, 240), args.frames, args.repeats)
-    print(f"{args.env}: ms per frame with the first n scene geoms drawn")
+    small = frame_costs(args.env, (84, 84), args.frames, args.repeats, args.finest)
+    large = frame_costs(args.env, (320, 240), args.frames, args.repeats, args.finest)
+    drawing = "finest drawing" if args.finest else "as the observation draws them"
+    print(f"{args.env}: ms per frame with the first n scene geoms drawn ({drawing})")
     print("| n | geom n | 84x84 ms | 320x240 ms | ratio |")
     print("|---|---|---|---|---|")
     for (n, kind, a), (_, _, b) in zip(small, large, strict=True):
