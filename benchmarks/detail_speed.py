@@ -1,0 +1,84 @@
+"""Docking ``image`` steps per second with and without the coarser drawings of far parts.
+
+One env per layout and size steps through the same seeded random actions,
+passes alternating between the camera renderer's ``DetailLevels`` on (as
+shipped) and off (every geom at its finest drawing), so both halves of each
+pair see the machine in the same minute. Prints each pass and the ratio of
+the medians::
+
+    python benchmarks/detail_speed.py [--steps 400] [--pairs 6] [--sizes 84x84 320x240]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import gymnasium as gym
+
+import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
+
+ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+
+
+def paired_rates(env_id: str, size: tuple[int, int], steps: int, pairs: int):
+    """``(rates with the levels, rates without)``, steps/s, one per pass."""
+    env = gym.make(env_id, obs_mode="image", image_size=size)
+    try:
+        renderer = env.unwrapped.camera_renderer
+        levels = renderer._detail
+        if levels is None:
+            raise RuntimeError(f"{env_id}: its image renderer draws no coarser levels")
+        env.action_space.seed(0)
+        actions = [env.action_space.sample() for _ in range(steps)]
+        env.reset(seed=0)
+
+        def rate() -> float:
+            start = time.perf_counter()
+            for action in actions:
+                _, _, terminated, truncated, _ = env.step(action)
+                if terminated or truncated:
+                    env.reset()
+            return steps / (time.perf_counter() - start)
+
+        with_levels, without = [], []
+        for _ in range(pairs):
+            renderer._detail = levels
+            with_levels.append(rate())
+            renderer._detail = None
+            without.append(rate())
+        renderer._detail = levels
+        return with_levels, without
+    finally:
+        env.close()
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--pairs", type=int, default=6)
+    parser.add_argument("--sizes", nargs="+", default=["84x84", "320x240"])
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.pairs < 1:
+        parser.error("--steps and --pairs must be positive")
+    sizes = []
+    for text in args.sizes:
+        try:
+            width, height = (int(v) for v in text.lower().split("x"))
+        except ValueError:
+            parser.error(f"--sizes: {text!r} is not WxH")
+        sizes.append((width, height))
+    print(f"image steps/s, {args.pairs} alternating pairs of {args.steps} steps")
+    print("| env | size | with the levels | finest only | ratio of medians |")
+    print("|---|---|---|---|---|")
+    for env_id in ENV_IDS:
+        for size in sizes:
+            on, off = paired_rates(env_id, size, args.steps, args.pairs)
+            print(f"| {env_id} | {size[0]}x{size[1]} | {', '.join(f'{r:,.0f}' for r in on)} | "
+                  f"{', '.join(f'{r:,.0f}' for r in off)} | "
+                  f"{statistics.median(on) / statistics.median(off):.2f} |")
+
+
+if __name__ == "__main__":
+    main()
