@@ -56,12 +56,20 @@ def check_speed(speed: float) -> float:
     return float(speed)
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """``"WIDTHxHEIGHT"`` -> ``(width, height)``; both even and at least 16 (H.264)."""
+def parse_image_size(text: str) -> tuple[int, int]:
+    """``"WIDTHxHEIGHT"`` -> ``(width, height)``, both positive (an argparse type)."""
     try:
         width, height = (int(v) for v in text.lower().split("x"))
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from exc
+    if width < 1 or height < 1:
+        raise argparse.ArgumentTypeError(f"sizes must be positive, got {text!r}")
+    return width, height
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"WIDTHxHEIGHT"`` -> ``(width, height)``; both even and at least 16 (H.264)."""
+    width, height = parse_image_size(text)
     if width < 16 or height < 16 or width % 2 or height % 2:
         raise argparse.ArgumentTypeError(f"sizes must be even and at least 16, got {text!r}")
     return width, height

@@ -18,6 +18,7 @@ import time
 import gymnasium as gym
 
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
+from auv_envs.record import parse_image_size
 
 ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
 
@@ -58,17 +59,12 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--pairs", type=int, default=6)
-    parser.add_argument("--sizes", nargs="+", default=["84x84", "320x240"])
+    parser.add_argument("--sizes", nargs="+", type=parse_image_size,
+                        default=[(84, 84), (320, 240)], metavar="WxH")
     args = parser.parse_args(argv)
     if args.steps < 1 or args.pairs < 1:
         parser.error("--steps and --pairs must be positive")
-    sizes = []
-    for text in args.sizes:
-        try:
-            width, height = (int(v) for v in text.lower().split("x"))
-        except ValueError:
-            parser.error(f"--sizes: {text!r} is not WxH")
-        sizes.append((width, height))
+    sizes = args.sizes
     print(f"image steps/s, {args.pairs} alternating pairs of {args.steps} steps")
     print("| env | size | with the levels | finest only | ratio of medians |")
     print("|---|---|---|---|---|")

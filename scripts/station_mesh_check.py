@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
+from auv_envs.record import parse_image_size
 
 ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
 
@@ -72,18 +73,13 @@ def compare(env_id: str, size: tuple[int, int], poses: int, seed: int = 11,
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--poses", type=int, default=75)
-    parser.add_argument("--sizes", nargs="+", default=["84x84", "320x240"])
+    parser.add_argument("--sizes", nargs="+", type=parse_image_size,
+                        default=[(84, 84), (320, 240)], metavar="WxH")
     parser.add_argument("--levels", type=int, default=8)
     args = parser.parse_args(argv)
     if args.poses < 1:
         parser.error("--poses must be positive")
-    sizes = []
-    for text in args.sizes:
-        try:
-            width, height = (int(v) for v in text.lower().split("x"))
-        except ValueError:
-            parser.error(f"--sizes: {text!r} is not WxH")
-        sizes.append((width, height))
+    sizes = args.sizes
     print(f"| env | size | poses | pixels > {args.levels} levels: max | mean | "
           "frames bit-identical |")
     print("|---|---|---|---|---|---|")

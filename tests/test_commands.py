@@ -139,3 +139,19 @@ def test_reproduction_scripts_write_their_figures_as_json(tmp_path, capsys):
     assert json.loads(path.read_text()) == {"rate": 0.75, "ci95": [0.5, 0.8999999761581421],
                                             "n": 20}
     assert f"figures written to {path}" in capsys.readouterr().out
+
+
+def test_image_sizes_parse_and_bad_ones_are_refused():
+    import argparse
+
+    from auv_envs.record import parse_image_size, parse_size
+
+    assert parse_image_size("84x63") == (84, 63)
+    assert parse_image_size("320X240") == (320, 240)
+    assert parse_size("320x240") == (320, 240)
+    for text in ("84", "84x", "axb", "0x10", "-4x4"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_image_size(text)
+    for text in ("84x63", "8x8"):  # odd or under 16: no H.264 clip at that size
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse_size(text)

@@ -28,6 +28,8 @@ import weakref
 import mujoco
 import numpy as np
 
+from auv_envs.core.tessellation import ROUND
+
 _LIVE: weakref.WeakSet = weakref.WeakSet()
 _HOOKED = False
 
@@ -302,12 +304,6 @@ def detail_slices(finest: int) -> tuple[int, ...]:
     return tuple(n for n in DETAIL_SLICES if n < finest)
 
 
-#: Round primitives whose outline radius :class:`DetailLevels` reads from ``geom_size[0]``.
-_ROUND = {int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
-          int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
-          int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder"}
-
-
 @dataclasses.dataclass(frozen=True)
 class DetailLevels:
     """Coarser stand-ins for one drawn geom, chosen frame by frame by apparent size.
@@ -366,9 +362,9 @@ class _DetailChooser:
             for part in level.parts:
                 if not 0 <= part < model.ngeom:
                     raise ValueError(f"DetailLevels: part {part} is not a geom of the model")
-                if int(model.geom_type[part]) not in _ROUND:
+                if int(model.geom_type[part]) not in ROUND:
                     raise ValueError(f"DetailLevels: part {model.geom(part).name!r} is not "
-                                     f"round (one of {sorted(_ROUND.values())})")
+                                     f"round (one of {sorted(ROUND.values())})")
                 parts.append(part)
         self._parts = np.array(parts)
         self._starts = np.array(starts)
@@ -406,6 +402,11 @@ class _DetailChooser:
         # the camera has moved as far as the nearest threshold (levels_for).
         self._static = bool(np.all(model.body_weldid[model.geom_bodyid[self._parts]] == 0))
         self._from_distance = {cam: np.sqrt(limit) for cam, limit in self._from.items()}
+        # A geom on such a body is always drawn at the same pose: each level's placement
+        # is worked out on its first frame and kept, by (geom index, level).
+        self._fixed = [bool(model.body_weldid[model.geom_bodyid[level.geom]] == 0)
+                       for level in self._levels]
+        self._placed: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._kept: dict[int, tuple[np.ndarray, float, np.ndarray]] = {}
         #: The level index drawn for each geom in the last frame (-1: the geom's own).
         self.chosen = np.full(len(self._levels), -1)
@@ -476,9 +477,14 @@ class _DetailChooser:
             level = self._levels[i]
             offset = self._offsets[i][k]
             if offset is not None:
-                rotation = geom.mat  # (3, 3), the geom's frame in the world
-                geom.pos[:] = geom.pos + rotation @ offset[0]
-                geom.mat[:] = rotation @ offset[1]
+                placed = self._placed.get((i, k))
+                if placed is None:
+                    rotation = geom.mat  # (3, 3), the geom's frame in the world
+                    placed = (geom.pos + rotation @ offset[0], rotation @ offset[1])
+                    if self._fixed[i]:
+                        self._placed[i, k] = placed
+                geom.pos[:] = placed[0]
+                geom.mat[:] = placed[1]
             geom.type = self._mesh_type
             # A mesh's drawing is 2 * id (its convex hull's 2 * id + 1).
             geom.dataid = 2 * level.meshes[k]

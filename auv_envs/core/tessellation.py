@@ -27,13 +27,14 @@ import math
 import mujoco
 import numpy as np
 
-#: Geom types this module tessellates.
-SUPPORTED = {
-    int(mujoco.mjtGeom.mjGEOM_BOX): "box",
+#: Round geom types: drawn as polygons of ``slices`` sides about an axis, radius ``size[0]``.
+ROUND = {
     int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
     int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
     int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
 }
+#: Geom types this module tessellates.
+SUPPORTED = {int(mujoco.mjtGeom.mjGEOM_BOX): "box", **ROUND}
 
 
 def cap_stacks(slices: int) -> int:

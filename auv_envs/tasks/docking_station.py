@@ -156,9 +156,9 @@ def _draw_station_as_meshes(arena, station, asset: str, image_height: int | None
         meshes = _tessellate_station(arena, body, primitives, image_height)
         _STATION_MESHES[key] = meshes
     for material, elements in primitives.items():
-        station.asset.add("mesh", name=f"drawn_{material}",
-                          file=mjcf.Asset(meshes[material], ".msh"))
-        body.add("geom", name=f"drawn_{material}", type="mesh", mesh=f"drawn_{material}",
+        drawn = drawn_mesh_name(material)
+        station.asset.add("mesh", name=drawn, file=mjcf.Asset(meshes[material], ".msh"))
+        body.add("geom", name=drawn, type="mesh", mesh=drawn,
                  material=material, group=VISUAL_GROUP, contype=0, conaffinity=0, density=0)
         for element in elements:
             element.group = STATION_COLLISION_GROUP
@@ -176,6 +176,11 @@ _STATION_MESHES: dict[tuple[str, int | None], dict[str, bytes]] = {}
 
 #: Name of the coarser meshes of the lamp spheres (under the station's ``station/`` prefix).
 LAMP_DETAIL = "lamp"
+
+
+def drawn_mesh_name(material: str) -> str:
+    """Name of the mesh (and geom) drawing the station's primitives of ``material``."""
+    return f"drawn_{material}"
 
 
 def detail_mesh_name(drawing: str, slices: int) -> str:
@@ -385,17 +390,16 @@ class DockingPhysics:
                      if (name := "station/" + detail_mesh_name(drawing, n)) in meshes]
             return tuple(m for _, m in found), tuple(n for n, _ in found)
 
-        round_types = [int(t) for t in (mujoco.mjtGeom.mjGEOM_SPHERE,
-                                        mujoco.mjtGeom.mjGEOM_CAPSULE,
-                                        mujoco.mjtGeom.mjGEOM_CYLINDER)]
         round_primitives = np.flatnonzero((model.geom_group == STATION_COLLISION_GROUP)
-                                          & np.isin(model.geom_type, round_types))
+                                          & np.isin(model.geom_type, list(tessellation.ROUND)))
         levels = []
         drawn = np.flatnonzero((model.geom_group == VISUAL_GROUP)
                                & (model.geom_type == mujoco.mjtGeom.mjGEOM_MESH))
         for geom in drawn.tolist():
-            name = model.mesh(model.geom_dataid[geom]).name
-            ids, slices = coarser(name.removeprefix("station/drawn_"))
+            material = model.material(model.geom_matid[geom]).name.removeprefix("station/")
+            if model.mesh(model.geom_dataid[geom]).name != "station/" + drawn_mesh_name(material):
+                continue  # not a drawing of the station's primitives
+            ids, slices = coarser(material)
             parts = round_primitives[model.geom_matid[round_primitives] == model.geom_matid[geom]]
             if ids and len(parts):
                 levels.append(DetailLevels(geom, ids, slices, tuple(parts.tolist())))
