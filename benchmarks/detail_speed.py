@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 import gymnasium as gym
+from throughput import Stepper  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
 from auv_envs.record import parse_image_size
@@ -31,24 +31,13 @@ def paired_rates(env_id: str, size: tuple[int, int], steps: int, pairs: int):
         levels = renderer._detail
         if levels is None:
             raise RuntimeError(f"{env_id}: its image renderer draws no coarser levels")
-        env.action_space.seed(0)
-        actions = [env.action_space.sample() for _ in range(steps)]
-        env.reset(seed=0)
-
-        def rate() -> float:
-            start = time.perf_counter()
-            for action in actions:
-                _, _, terminated, truncated, _ = env.step(action)
-                if terminated or truncated:
-                    env.reset()
-            return steps / (time.perf_counter() - start)
-
+        stepper = Stepper(env, steps)
         with_levels, without = [], []
         for _ in range(pairs):
             renderer._detail = levels
-            with_levels.append(rate())
+            with_levels.append(stepper.rate())
             renderer._detail = None
-            without.append(rate())
+            without.append(stepper.rate())
         renderer._detail = levels
         return with_levels, without
     finally:

@@ -32,6 +32,7 @@ import time
 from collections import defaultdict
 
 import gymnasium as gym
+from throughput import Stepper  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
 from auv_envs.core.rendering import CameraRenderer
@@ -71,25 +72,17 @@ def timed_calls(seconds: defaultdict):
 
 def step_costs(env_id: str, sizes, steps: int, passes: int) -> dict:
     """``{size: {part: [us a step, one per pass]}}``, the sizes' passes alternating."""
-    envs, actions = {}, {}
+    envs, steppers = {}, {}
     try:
         for size in sizes:
-            env = gym.make(env_id, obs_mode="image", image_size=size)
-            envs[size] = env
-            env.action_space.seed(0)
-            actions[size] = [env.action_space.sample() for _ in range(steps)]
-            env.reset(seed=0)
+            envs[size] = gym.make(env_id, obs_mode="image", image_size=size)
+            steppers[size] = Stepper(envs[size], steps)
         costs = {size: defaultdict(list) for size in sizes}
         for pass_index in range(passes + 1):  # the first pass warms up and is not kept
-            for size, env in envs.items():
+            for size, stepper in steppers.items():
                 seconds = defaultdict(float)
                 with timed_calls(seconds):
-                    start = time.perf_counter()
-                    for action in actions[size]:
-                        _, _, terminated, truncated, _ = env.step(action)
-                        if terminated or truncated:
-                            env.reset()
-                    total = time.perf_counter() - start
+                    total = steps / stepper.rate()
                 if pass_index == 0:
                     continue
                 parts = {
