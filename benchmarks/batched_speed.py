@@ -14,7 +14,7 @@ compare them on this machine:
 * **plant**: the MJX plant (:class:`auv_envs.batched.docking.DockingPlantMJX`)
   one control period (0.1 s, RK4 with the hull wrench at every stage) per
   compiled call against the CPU environment's plant, MuJoCo's ``mj_step`` with
-  the passive-force callback, one vehicle at a time.
+  the hull wrench at every RK4 stage (``env.integrator``), one vehicle at a time.
 
     python benchmarks/batched_speed.py [--batches 1 64 256 1024 4096] [--steps 50]
         [--difficulty easy|paper|hard]
@@ -36,7 +36,6 @@ import numpy as np
 import auv_envs  # noqa: F401
 from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.batched.docking_env import DockingMJX
-from auv_envs.core import passive
 from auv_envs.core.difficulty import LEVELS
 
 ENV_ID = "auv_envs/DockingStation-v1"
@@ -92,14 +91,14 @@ def fused_rate(env: DockingMJX, batch: int, steps: int, repeats: int) -> float:
 
 def cpu_plant_rate(env, steps: int, repeats: int) -> float:
     """Control periods per second of the CPU plant (one vehicle, thrust held)."""
-    physics, hull = env.physics, env.hull
+    hull = env.hull
     hull.command((20.0, 5.0, -3.0, 0.0, 0.0, 2.0), (0.1, 0.0, 0.0))
     best = 0.0
     for _ in range(repeats):
         env.reset(seed=0)
         start = time.perf_counter()
         for _ in range(steps):
-            passive.step(physics.model, physics.data, hull.passive_force, 1)
+            env.integrator.step(1)
         best = max(best, steps / (time.perf_counter() - start))
     return best
 

@@ -3,7 +3,8 @@
 The plant is MuJoCo's rigid body (classical RK4, one 0.1 s step per control
 period) plus the Fossen wrench of
 :class:`auv_envs.core.hydrodynamics.HullForceModel`, re-evaluated at every
-stage through the passive-force callback exactly as ``DockingEnv.step`` does.
+stage (``env.integrator``, :class:`auv_envs.core.plant.StagedIntegrator`) exactly as
+``DockingEnv.step`` does.
 Most tests drive the physics directly so that episode termination cannot
 interfere; instantaneous accelerations are read from ``qacc`` after a forward
 pass with the hull force. ``test_plant_convergence.py`` compares the plant with
@@ -21,7 +22,7 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401  (registers the environments)
-from auv_envs.core import frames, passive
+from auv_envs.core import frames
 from auv_envs.core.vehicle import (
     hovering_auv,
     prolate_spheroid_added_mass,
@@ -50,16 +51,15 @@ def plant():
 
 def _substeps(env, tau6, n=1, current=(0.0, 0.0, 0.0)):
     """``n`` physics steps exactly as ``DockingEnv.step`` does them."""
-    phys = env.physics
     env.hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
-    passive.step(phys.model, phys.data, env.hull.passive_force, n)
+    env.integrator.step(n)
 
 
 def _acceleration(env, tau6, current=(0.0, 0.0, 0.0)):
     """The state's acceleration (world linear, body angular) with the hull force."""
     phys = env.physics
     env.hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
-    passive.forward(phys.model, phys.data, env.hull.passive_force)
+    env.integrator.forward()
     return phys.data.qacc[phys.qvel_adr : phys.qvel_adr + 6].copy()
 
 

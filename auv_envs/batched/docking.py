@@ -10,7 +10,7 @@ elementwise. MJX computes the rigid body's acceleration under that wrench
 (``mjx.forward``), and the step integrates it with MuJoCo's classical RK4
 (its Butcher tableau, the free joint's position update of
 :func:`auv_envs.core.frames.quat_integrate`), the wrench re-evaluated at
-every stage as the CPU plant's passive-force callback does.
+every stage as the CPU plant does (:class:`auv_envs.core.plant.StagedIntegrator`).
 """
 
 from __future__ import annotations
@@ -24,10 +24,7 @@ from mujoco import mjx
 
 from auv_envs.core import frames
 from auv_envs.core.hydrodynamics import HullForceModel
-
-#: MuJoCo's classical RK4: stage weights (a_{i, i-1}) and final weights b.
-RK4_STAGES = (0.5, 0.5, 1.0)
-RK4_WEIGHTS = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+from auv_envs.core.plant import RK4_STAGES, RK4_WEIGHTS
 
 
 class DockingPlantMJX:

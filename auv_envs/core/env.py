@@ -22,7 +22,6 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core import passive
 
 #: Everything mj_step reads that is not derived: time, qpos, qvel, act,
 #: qacc_warmstart, ctrl, applied forces, mocap poses, equality flags, userdata.
@@ -117,8 +116,7 @@ def get_physics_state(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
 def set_physics_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndarray) -> None:
     """Restore a :func:`get_physics_state` copy and recompute the derived quantities."""
     mujoco.mj_setState(model, data, state, _INTEGRATION_STATE)
-    with passive.MUJOCO_LOCK:
-        mujoco.mj_forward(model, data)  # leaves the integration state (warm start too) unchanged
+    mujoco.mj_forward(model, data)  # leaves the integration state (warm start too) unchanged
 
 
 class ReconstructingPickleMixin:

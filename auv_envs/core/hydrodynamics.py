@@ -15,9 +15,9 @@ applied (:meth:`HullForceModel.wrench`), so the acceleration term is exact
 rather than lagged.
 
 Integration: the plant steps with MuJoCo's classical RK4 and the wrench is
-re-evaluated at every stage through MuJoCo's passive-force callback
-(:meth:`HullForceModel.passive_force`, dispatched per ``MjData`` by
-:mod:`auv_envs.core.passive`). ``docs/physics.md`` gives the step, the order
+re-evaluated at every stage (:meth:`HullForceModel.passive_force`, added by
+:class:`auv_envs.core.plant.StagedIntegrator`, which runs MuJoCo's stages
+itself; no process-global callback). ``docs/physics.md`` gives the step, the order
 of convergence and the measured error against an independent reference.
 
 :func:`hydrodynamic_force` and :func:`rigid_body_coriolis` are written with
@@ -194,9 +194,10 @@ class HullForceModel:
     def passive_force(self, model, data) -> None:
         """Add the wrench at the state in ``data`` to ``data.qfrc_passive``.
 
-        The ``mjcb_passive`` hook (:mod:`auv_envs.core.passive`): MuJoCo calls
-        it at every evaluation of the dynamics, so with ``integrator="RK4"``
-        the hull wrench is re-evaluated at each of the four stages. For the
+        The stage force of :class:`auv_envs.core.plant.StagedIntegrator`: called
+        after ``mj_fwdVelocity`` at every evaluation of the dynamics, so with
+        ``integrator="RK4"`` the hull wrench is re-evaluated at each of the four
+        stages. For the
         free joint the generalized force is the world-frame force at the CG
         (translational dofs) and the body-frame torque (rotational dofs).
         """

@@ -16,6 +16,12 @@ Two pitfalls shape this module:
   the other's framebuffers (it then drew garbage or black). Closing here makes
   the renderer's own context current first, and each render makes its context
   current and re-binds the offscreen framebuffer before drawing.
+
+And one rule makes renderers usable from any thread: a GL context is current
+in one thread at a time (EGL refuses it in another, ``EGL_BAD_ACCESS``), so a
+renderer releases its context after every frame (:func:`_release`). An env
+renders from whichever thread steps it, and still renders after a thread that
+used it has ended.
 """
 
 from __future__ import annotations
@@ -117,7 +123,10 @@ class CameraRenderer:
         try:
             self._gl = mujoco.GLContext(total_width, self._height)
             self._gl.make_current()
-            self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+            try:
+                self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
+            finally:
+                _release(self._gl)
         finally:
             offscreen.offwidth = max(model_size[0], total_width)
             offscreen.offheight = max(model_size[1], self._height)
@@ -235,6 +244,12 @@ class CameraRenderer:
 
     def _draw(self, data: mujoco.MjData, depth: np.ndarray | None = None) -> None:
         self._gl.make_current()
+        try:
+            self._draw_current(data, depth)
+        finally:
+            _release(self._gl)
+
+    def _draw_current(self, data: mujoco.MjData, depth: np.ndarray | None) -> None:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
         for cam, viewport in zip(self._cams, self._viewports, strict=True):
             mujoco.mjv_updateScene(
@@ -257,7 +272,7 @@ class CameraRenderer:
             # first, or freeing would delete another renderer's buffers.
             self._gl.make_current()
             self._ctx.free()
-            self._gl.free()
+            self._gl.free()  # releases the context too
             self._gl = None
             self._ctx = None
 
@@ -497,6 +512,27 @@ class _DetailChooser:
             if geom.objtype == self._geom_obj:
                 where[geom.objid] = j
         return [where.get(level.geom, -1) for level in self._levels]
+
+
+def _release(gl) -> None:
+    """Make no context current in this thread (``gl``'s backend), so that any thread
+    may make ``gl`` current next."""
+    backend = type(gl).__module__
+    if backend == "mujoco.egl":
+        from mujoco import egl
+
+        egl.EGL.eglMakeCurrent(egl.EGL_DISPLAY, egl.EGL.EGL_NO_SURFACE,
+                               egl.EGL.EGL_NO_SURFACE, egl.EGL.EGL_NO_CONTEXT)
+    elif backend == "mujoco.osmesa":
+        from mujoco import osmesa
+
+        osmesa.osmesa.OSMesaMakeCurrent(None, None, osmesa.GL.GL_FLOAT, 0, 0)
+    elif backend == "mujoco.glfw":
+        from mujoco import glfw
+
+        glfw.glfw.make_context_current(None)
+    else:
+        raise RuntimeError(f"unknown MuJoCo GL backend {backend!r}")
 
 
 def _close_all() -> None:

@@ -25,7 +25,6 @@ from gymnasium import spaces
 
 from auv_envs import metrics
 from auv_envs.core import difficulty as levels
-from auv_envs.core import passive
 from auv_envs.core.acoustics import (
     GMPHD_FLOW_NOISE_LEVEL,
     AcousticConfig,
@@ -137,7 +136,7 @@ def build_tank_model() -> mujoco.MjModel:
     rig = mjcf.from_path(str(asset_path("acoustic/carrier_arm.xml")))
     rig.model = "rig"
     tank.worldbody.attach(rig)
-    return passive.compile_model(tank.to_xml_string(), assets=tank.get_assets())
+    return mujoco.MjModel.from_xml_string(tank.to_xml_string(), assets=tank.get_assets())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -586,8 +585,7 @@ class AcousticTrackingEnv(TaskEnv):
         mujoco.mj_resetData(model, data)
         data.qpos[physics.carrier_qpos] = ep.carrier_ref[0]
         data.qpos[physics.arm_qpos] = ep.arm_ref[0]
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(model, data)
+        mujoco.mj_forward(model, data)
         self._episode = ep
         self._simulate_block(0)
         extras = {}
@@ -683,17 +681,16 @@ class AcousticTrackingEnv(TaskEnv):
         velocities = np.empty((count, 3))
         wind = model.opt.wind
         ctrl = data.ctrl
-        with passive.MUJOCO_LOCK:
-            for j in range(count):
-                k = start + j
-                if k > 0:
-                    ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
-                    ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
-                    ctrl[physics.arm_act] = ep.arm_ref[k]
-                    wind[:] = ep.current[k - 1]
-                    mujoco.mj_step(model, data, self._physics_substeps)
-                    mujoco.mj_kinematics(model, data)
-                positions[j], velocities[j] = physics.source_state()
+        for j in range(count):
+            k = start + j
+            if k > 0:
+                ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
+                ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
+                ctrl[physics.arm_act] = ep.arm_ref[k]
+                wind[:] = ep.current[k - 1]
+                mujoco.mj_step(model, data, self._physics_substeps)
+                mujoco.mj_kinematics(model, data)
+            positions[j], velocities[j] = physics.source_state()
         array = self.calibration.array
         heard = positions
         if array.config.propagation_delay:

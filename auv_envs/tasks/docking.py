@@ -18,7 +18,6 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core import passive
 from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
@@ -35,6 +34,7 @@ from auv_envs.core.env import (
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.optics import LampOutages, WaterOptics, degrade_image, detect_lamps
+from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import GaussMarkovCurrent, current_vector
 from auv_envs.core.vehicle import (
@@ -500,7 +500,8 @@ class DockingEnv(TaskEnv):
         self._physics_substeps = physics_substeps
         self.physics = DockingPhysics(model, n_lights)
         self.hull = HullForceModel(self._params, self.physics.hull_body, self.physics.qvel_adr)
-        self._hull_force = self.hull.passive_force
+        #: The plant's integrator: MuJoCo's, with the hull wrench at every stage.
+        self.integrator = StagedIntegrator(model, self.physics.data, self.hull.passive_force)
         self._dt = CONTROL_PERIOD
         #: The simulated vehicle's parameters (what the plant integrates), read-only.
         self.vehicle = self._params
@@ -668,10 +669,9 @@ class DockingEnv(TaskEnv):
         model, data, body = self.physics.model, self.physics.data, self.physics.hull_body
         model.body_mass[body] = vehicle.mass
         model.body_inertia[body] = vehicle.inertia
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_setConst(model, data)  # the constants derived from masses
+        mujoco.mj_setConst(model, data)  # the constants derived from masses
         self.hull = HullForceModel(vehicle, body, self.physics.qvel_adr)
-        self._hull_force = self.hull.passive_force
+        self.integrator.force = self.hull.passive_force
         self.vehicle = vehicle
 
     def _simulate(self, action: np.ndarray) -> dict:
@@ -691,9 +691,7 @@ class DockingEnv(TaskEnv):
             ep.current = current_vector(*ep.current_polar)
         self.hull.command((x, y, z, 0.0, 0.0, n), ep.current.tolist())
         self.physics.skip_contacts_if_clear(self._dt)
-        passive.step(
-            self.physics.model, self.physics.data, self._hull_force, self._physics_substeps
-        )
+        self.integrator.step(self._physics_substeps)
         ep.steps += 1
         ep.control_effort += (x * x + y * y + z * z + n * n) * self._dt
         return self._truth()
@@ -828,8 +826,7 @@ class DockingEnv(TaskEnv):
         """
         if self.obs_mode != "image":
             raise RuntimeError("lamps_in_image() needs obs_mode='image' (the camera renderer)")
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self.physics.model, self.physics.data)
+        mujoco.mj_forward(self.physics.model, self.physics.data)
         ids = self.camera_renderer.render_geom_ids(self.physics.data)
         pixels = np.full((len(self.physics.lamp_geoms), 2), np.nan)
         outages = self._episode.outages
@@ -842,15 +839,13 @@ class DockingEnv(TaskEnv):
 
     def _render_through_water(self) -> np.ndarray:
         """The forward camera's image through the water of ``optics``."""
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self.physics.model, self.physics.data)
+        mujoco.mj_forward(self.physics.model, self.physics.data)
         image, distance = self.camera_renderer.render_with_range(self.physics.data)
         return degrade_image(image, distance, self._optics, self.calibration.intrinsics.fy,
                              self.np_random)
 
     def _render_camera(self, renderer: CameraRenderer) -> np.ndarray:
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self.physics.model, self.physics.data)
+        mujoco.mj_forward(self.physics.model, self.physics.data)
         return renderer.render(self.physics.data)
 
     def _info(self, truth: dict) -> dict:

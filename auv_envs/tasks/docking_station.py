@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from auv_envs.core import frames, passive, tessellation
+from auv_envs.core import frames, tessellation
 from auv_envs.core.assets import asset_path
 from auv_envs.core.rendering import (
     DETAIL_SLICES,
@@ -136,7 +136,7 @@ def build_docking_model(layout: StationLayout, params: VehicleParams,
     arena.worldbody.attach(vehicle).add("freejoint")
     _draw_station_as_meshes(arena, station, layout.asset, image_height)
     xml = arena.to_xml_string()
-    return passive.compile_model(xml, assets=arena.get_assets())
+    return mujoco.MjModel.from_xml_string(xml, assets=arena.get_assets())
 
 
 def _draw_station_as_meshes(arena, station, asset: str, image_height: int | None) -> None:
@@ -191,7 +191,7 @@ def detail_mesh_name(drawing: str, slices: int) -> str:
 def _tessellate_station(arena, body, primitives: dict, image_height: int | None):
     """Each material's ``.msh`` bytes, in the station body's frame."""
     # The primitives' poses and the model's quality, from the model as composed so far.
-    model = passive.compile_model(arena.to_xml_string(), assets=arena.get_assets())
+    model = mujoco.MjModel.from_xml_string(arena.to_xml_string(), assets=arena.get_assets())
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     body_id = model.body(f"station/{body.name}").id
@@ -309,8 +309,7 @@ class DockingPhysics:
         cam_mat = np.zeros(9)
         mujoco.mju_quat2Mat(cam_mat, model.cam_quat[cam.id])
         self.camera_mat_body = cam_mat.reshape(3, 3)
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(model, self.data)
+        mujoco.mj_forward(model, self.data)
         self.light_positions = np.array(
             [self.data.site(f"station/light_{i}").xpos for i in range(n_lights)]
         )
@@ -439,8 +438,7 @@ class DockingPhysics:
         rot = frames.rotation_from_euler(*euler)
         self.data.qvel[self.qvel_adr : self.qvel_adr + 3] = rot @ np.asarray(body_velocity[0:3])
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
-        with passive.MUJOCO_LOCK:
-            mujoco.mj_forward(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
 
     def camera_sees_hull(self, width: int, height: int) -> bool:
         """Whether any of the hull can show in the nose camera's ``width`` x ``height`` image.

@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core import frames, passive
+from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
 from auv_envs.core.env import (
     ActionValidator,
@@ -573,8 +573,7 @@ class LARSCaptureEnv(TaskEnv):
             a0, a1, a2 = action.tolist()
             data = self.physics.data
             data.ctrl[:] = action
-            with passive.MUJOCO_LOCK:
-                mujoco.mj_step(self.physics.model, data, FRAME_SKIP)
+            mujoco.mj_step(self.physics.model, data, FRAME_SKIP)
             # |a|^2 in floats: a @ a costs more than the sum
             ep.control_effort += (a0 * a0 + a1 * a1 + a2 * a2) * self._dt
         else:
@@ -697,15 +696,14 @@ class LARSCaptureEnv(TaskEnv):
         model, data = self.physics.model, self.physics.data
         limits = self.calibration.torque_limits
         tau = self._tau
-        with passive.MUJOCO_LOCK:
-            for _ in range(FRAME_SKIP):
-                mujoco.mj_step1(model, data)
-                accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
-                mujoco.mj_mulM(model, data, tau, accel)
-                tau += data.qfrc_bias
-                np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
-                self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
-                mujoco.mj_step2(model, data)
+        for _ in range(FRAME_SKIP):
+            mujoco.mj_step1(model, data)
+            accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
+            mujoco.mj_mulM(model, data, tau, accel)
+            tau += data.qfrc_bias
+            np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
+            self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
+            mujoco.mj_step2(model, data)
 
     def _truth(self) -> dict:
         """Ground truth after a step, computed once and shared by obs, reward and info.

@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from auv_envs.core import frames, passive
+from auv_envs.core import frames
 from auv_envs.core.assets import asset_path
 
 #: Explore-100-like AUV ([LTAT], Table 1).
@@ -213,4 +213,4 @@ def build_lars_model(
     half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
     hull.fromto = [-half, 0, 0, half, 0, 0]
     hull.size = [AUV_DIAMETER / 2.0]
-    return passive.compile_model(scene.to_xml_string(), assets=scene.get_assets())
+    return mujoco.MjModel.from_xml_string(scene.to_xml_string(), assets=scene.get_assets())
