@@ -58,7 +58,9 @@ class StagedIntegrator:
         self.model, self.data, self.force = model, data, force
         self._qpos, self._qvel, self._qacc = data.qpos, data.qvel, data.qacc
         self._warmstart = data.qacc_warmstart
-        self._zeros = np.zeros(model.nv)
+        #: Rows: the RK4 stages' (qvel, qacc); the stage weights as a column.
+        self._stages = np.empty((4, 2 * model.nv))
+        self._weights = np.array(RK4_WEIGHTS)[:, None]
         self._sensors = model.nsensor > 0
 
     def forward(self, sensors: bool = True) -> None:
@@ -102,30 +104,34 @@ class StagedIntegrator:
         """MuJoCo's ``mj_RungeKutta(m, d, 4)`` from the forward-computed state, with the
         force at every stage: the same floating-point operations, so the same bits.
 
-        (A stage's ``(a * x) * h`` is written ``x * (a * h)``: ``a`` is a power of
-        two, so both round once, alike.)
+        Each stage's ``F_i = (qvel, qacc)`` is a row of one array, so that the
+        weighted sums take few NumPy calls (a stage's ``a`` is a power of two, so
+        scaling by it is exact in any order).
         """
-        model, data = self.model, self.data
-        qpos, qvel, qacc = self._qpos, self._qvel, self._qacc
+        model, data, nv = self.model, self.data, self.model.nv
+        qpos, qvel, stages = self._qpos, self._qvel, self._stages
         h, time = model.opt.timestep, data.time
-        qpos0, velocity, acceleration = qpos.copy(), qvel.copy(), qacc.copy()
-        qvel0 = velocity
-        # dX = sum_j b_j F_j, summed from zero in stage order as mj_RungeKutta does.
-        velocity_sum = self._zeros + velocity * RK4_WEIGHTS[0]
-        acceleration_sum = self._zeros + acceleration * RK4_WEIGHTS[0]
-        for a, b in zip(RK4_STAGES, RK4_WEIGHTS[1:], strict=True):
+        qpos0 = qpos.copy()
+        qvel0 = stages[0, :nv]
+        stages[0, :nv] = qvel
+        stages[0, nv:] = self._qacc
+        for i, a in enumerate(RK4_STAGES, start=1):
+            dx = stages[i - 1] * a
             qpos[:] = qpos0
-            mujoco.mj_integratePos(model, qpos, velocity * a, h)
-            np.add(qvel0, acceleration * (a * h), out=qvel)
+            mujoco.mj_integratePos(model, qpos, dx[:nv], h)
+            np.add(qvel0, dx[nv:] * h, out=qvel)
             data.time = time + a * h
             self.forward(sensors=False)
-            velocity, acceleration = qvel.copy(), qacc.copy()
-            velocity_sum += velocity * b
-            acceleration_sum += acceleration * b
+            stages[i, :nv] = qvel
+            stages[i, nv:] = self._qacc
+        # dX = sum_j b_j F_j, summed from zero in stage order as mj_RungeKutta does
+        # (0.0 + x is x, but for -0.0, which it makes +0.0).
+        weighted = stages * self._weights
+        dx = (((weighted[0] + 0.0) + weighted[1]) + weighted[2]) + weighted[3]
         # mj_advance: velocities with the weighted acceleration, positions with the
         # weighted velocity, then time, then the constraint solver's warm start.
-        np.add(qvel0, acceleration_sum * h, out=qvel)
+        np.add(qvel0, dx[nv:] * h, out=qvel)
         qpos[:] = qpos0
-        mujoco.mj_integratePos(model, qpos, velocity_sum, h)
+        mujoco.mj_integratePos(model, qpos, dx[:nv], h)
         data.time = time + h
-        self._warmstart[:] = qacc
+        self._warmstart[:] = self._qacc
