@@ -56,6 +56,7 @@ class StagedIntegrator:
         if model.na:
             raise ValueError("StagedIntegrator does not integrate activations (model.na > 0)")
         self.model, self.data, self.force = model, data, force
+        self._opt = model.opt  # a view of the model's options: changes show through
         self._qpos, self._qvel, self._qacc = data.qpos, data.qvel, data.qacc
         self._warmstart = data.qacc_warmstart
         #: Rows: the RK4 stages' (qvel, qacc); the stage weights as a column.
@@ -68,7 +69,7 @@ class StagedIntegrator:
         acceleration (``sensors=False``: as at RK4's later stages, no sensors or energy)."""
         model, data = self.model, self.data
         sensors = sensors and self._sensors
-        energy = sensors and model.opt.enableflags & _ENERGY
+        energy = sensors and self._opt.enableflags & _ENERGY
         mujoco.mj_fwdPosition(model, data)
         if sensors:
             mujoco.mj_sensorPos(model, data)
@@ -86,9 +87,10 @@ class StagedIntegrator:
     def step(self, nstep: int = 1) -> None:
         """``mj_step`` ``nstep`` times with the force at every stage of the integrator."""
         model, data = self.model, self.data
-        integrator = model.opt.integrator
+        integrator = self._opt.integrator
         if integrator not in _INTEGRATORS:
-            raise ValueError(f"StagedIntegrator steps with Euler or RK4, not {integrator!r}")
+            name = mujoco.mjtIntegrator(integrator).name
+            raise ValueError(f"StagedIntegrator steps with Euler or RK4, not {name}")
         rk4 = integrator == _RK4
         for _ in range(nstep):
             mujoco.mj_checkPos(model, data)
@@ -110,7 +112,7 @@ class StagedIntegrator:
         """
         model, data, nv = self.model, self.data, self.model.nv
         qpos, qvel, stages = self._qpos, self._qvel, self._stages
-        h, time = model.opt.timestep, data.time
+        h, time = self._opt.timestep, data.time
         qpos0 = qpos.copy()
         qvel0 = stages[0, :nv]
         stages[0, :nv] = qvel
