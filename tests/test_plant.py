@@ -24,10 +24,12 @@ from tests.conftest import DOCKING_IDS
 STEPS = 40
 
 #: A chain of hinged links over a floor, a free ball that lands on it: contacts,
-#: several bodies, joint damping, and sensors (which mj_step computes).
+#: several bodies, joint damping, sensors and energy (which mj_step computes).
 CHAIN_XML = """
 <mujoco>
-  <option timestep="0.004" integrator="{integrator}"/>
+  <option timestep="0.004" integrator="{integrator}">
+    <flag energy="enable"/>
+  </option>
   <worldbody>
     <geom type="plane" size="2 2 0.1"/>
     <body pos="0 0 0.6">
@@ -59,7 +61,7 @@ def _trajectory(model, data, stepper, steps: int) -> np.ndarray:
     for _ in range(steps):
         stepper()
         rows.append(np.concatenate([data.qpos, data.qvel, data.qacc_warmstart,
-                                    data.sensordata, [data.time]]))
+                                    data.sensordata, data.energy, [data.time]]))
     return np.array(rows)
 
 

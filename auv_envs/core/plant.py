@@ -68,8 +68,8 @@ class StagedIntegrator:
         """``mj_forward`` with the force: ``data.qacc`` is then the state's full
         acceleration (``sensors=False``: as at RK4's later stages, no sensors or energy)."""
         model, data = self.model, self.data
-        sensors = sensors and self._sensors
         energy = sensors and self._opt.enableflags & _ENERGY
+        sensors = sensors and self._sensors
         mujoco.mj_fwdPosition(model, data)
         if sensors:
             mujoco.mj_sensorPos(model, data)
