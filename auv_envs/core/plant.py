@@ -15,8 +15,7 @@ bit, and nothing outside the ``MjModel``/``MjData`` passed in is touched, so
 any number of models step in any threads beside any other MuJoCo code.
 
 Sensors and energy are computed as ``mj_forward``/``mj_step`` compute them
-(positions, velocities and accelerations at the start of a step; no sensors
-at the RK4 stages).
+(sensors at the start of a step only, energy at every stage).
 """
 
 from __future__ import annotations
@@ -66,9 +65,9 @@ class StagedIntegrator:
 
     def forward(self, sensors: bool = True) -> None:
         """``mj_forward`` with the force: ``data.qacc`` is then the state's full
-        acceleration (``sensors=False``: as at RK4's later stages, no sensors or energy)."""
+        acceleration (``sensors=False``: as at RK4's later stages, no sensors)."""
         model, data = self.model, self.data
-        energy = sensors and self._opt.enableflags & _ENERGY
+        energy = self._opt.enableflags & _ENERGY  # at every stage, as mj_forwardSkip
         sensors = sensors and self._sensors
         mujoco.mj_fwdPosition(model, data)
         if sensors:
