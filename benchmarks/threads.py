@@ -18,9 +18,9 @@ import threading
 import time
 
 import gymnasium as gym
+from throughput import Stepper  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the environments)
-from benchmarks.throughput import Stepper
 
 DEFAULT_ENVS = (
     "auv_envs/DockingStation-v1:features",

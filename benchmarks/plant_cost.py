@@ -1,0 +1,85 @@
+"""What the staged integrator costs against MuJoCo's step with a global callback.
+
+The docking plant steps with :class:`auv_envs.core.plant.StagedIntegrator`
+(MuJoCo's RK4 written out, the hull wrench added at every stage, no
+process-global state). The reference is what ``-v1`` shipped with until
+issue 39: MuJoCo's own ``mj_step`` with the same wrench in the global
+``mjcb_passive`` callback, installed here only for the timing and removed
+after. Both step one docking env's model from the same state with the same
+held command, alternately in one process (best of ``--repeats`` each), and
+give the same bits; also timed: the wrench alone and ``mj_forward`` alone.
+
+    python benchmarks/plant_cost.py [--steps N] [--repeats R] [--env ID]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+import mujoco
+
+import auv_envs  # noqa: F401  (registers the environments)
+
+
+def _best_us(function, steps: int, repeats: int, reset) -> float:
+    best = float("inf")
+    for _ in range(repeats):
+        reset()
+        start = time.perf_counter()
+        for _ in range(steps):
+            function()
+        best = min(best, (time.perf_counter() - start) / steps * 1e6)
+    return best
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--env", default="auv_envs/DockingStation-v1")
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.repeats < 1:
+        parser.error("--steps and --repeats must be >= 1")
+    env = gym.make(args.env, obs_mode="state")
+    try:
+        unwrapped = env.unwrapped
+        env.reset(seed=0)
+        physics, hull = unwrapped.physics, unwrapped.hull
+        model, data = physics.model, physics.data
+        start = (data.qpos.copy(), data.qvel.copy())
+        hull.command((20.0, 5.0, -3.0, 0.0, 0.0, 2.0), (0.1, 0.0, 0.0))
+
+        def reset():
+            data.qpos[:], data.qvel[:] = start
+            mujoco.mj_forward(model, data)
+
+        def callback_step():
+            mujoco.mj_step(model, data)
+
+        staged, callback = float("inf"), float("inf")
+        for _ in range(args.repeats):  # alternately
+            staged = min(staged, _best_us(unwrapped.integrator.step, args.steps, 1, reset))
+            mujoco.set_mjcb_passive(hull.passive_force)
+            try:
+                callback = min(callback, _best_us(callback_step, args.steps, 1, reset))
+            finally:
+                mujoco.set_mjcb_passive(None)
+        wrench = _best_us(lambda: hull.passive_force(model, data), args.steps, args.repeats,
+                          reset)
+        forward = _best_us(lambda: mujoco.mj_forward(model, data), args.steps, args.repeats,
+                           reset)
+    finally:
+        env.close()
+    print(f"| {args.env}, one 0.1 s RK4 step | us |")
+    print("|---|---|")
+    print(f"| StagedIntegrator.step (no global state) | {staged:.1f} |")
+    print(f"| mj_step + global mjcb_passive (reference) | {callback:.1f} |")
+    print(f"| ratio staged / reference | {staged / callback:.2f} |")
+    print(f"| hull wrench alone (x4 a step) | {wrench:.1f} |")
+    print(f"| mj_forward alone (x4 a step) | {forward:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
