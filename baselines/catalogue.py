@@ -8,6 +8,10 @@ imports neither torch nor CasADi. The RL policies shipped in
 (:mod:`baselines.rl.agents`); the catalogue names them through
 :func:`baselines.rl.agents.shipped_policy_specs`.
 
+Importing this module fills the registry (:mod:`baselines.registry`, which
+knows nothing of the catalogue); ``import baselines`` imports it, so every
+caller of the registry sees these agents.
+
 Paper keys ([OFNMPC], [LAMP], [LTAT], [GMPHD]) are in the README's
 References table.
 """
@@ -15,7 +19,7 @@ References table.
 from __future__ import annotations
 
 from baselines.frontend import front_end_spec
-from baselines.registry import AgentSpec, env_ids_of, lazy
+from baselines.registry import AgentSpec, env_ids_of, lazy, register_source
 
 #: Every registered id of each environment family (the module of its entry point).
 DOCKING = env_ids_of("auv_envs.tasks.docking")
@@ -93,3 +97,7 @@ def builtin_specs() -> tuple[AgentSpec, ...]:
     from baselines.rl.agents import shipped_policy_specs  # reads assets/policies/
 
     return (*AGENTS, *shipped_policy_specs())
+
+
+# Registered at the first lookup, not now: the manifests are read only when asked for.
+register_source(builtin_specs)

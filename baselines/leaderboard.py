@@ -30,7 +30,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from baselines.evaluation import atomic_write, jsonable, row_to_dict
+from baselines.evaluation import jsonable, row_to_dict
+from baselines.fileio import atomic_write
 from baselines.stats import tied_ranks
 
 #: Metrics shown in the tables and plots when an environment reports them:

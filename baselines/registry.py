@@ -10,6 +10,10 @@ then any others in ``obs_modes``). :meth:`AgentSpec.skip_reason` tells the
 leaderboard why a pair is skipped; it reads the environment's declared
 ``obs_modes`` class attribute (the contract of every ``auv_envs`` task).
 
+The registry declares no agent itself: :mod:`baselines.catalogue` registers
+the built-in ones (through :func:`register_source`), and importing the
+``baselines`` package imports the catalogue, so every lookup sees them.
+
 Optional agent methods that the evaluation reads (see
 ``baselines.evaluation.run_episode``): ``position_estimate()`` -> a (3,)
 world-frame estimate of the target or ``None``, and ``stats()`` -> a dict of
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -124,18 +128,42 @@ def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
 
 
 _REGISTRY: dict[str, AgentSpec] = {}
+#: Sources of agents not registered yet (:func:`register_source`), oldest first.
+_SOURCES: list[Callable[[], Iterable[AgentSpec]]] = []
 
 
 def register_agent(spec: AgentSpec) -> None:
-    """Add an agent beside the catalogue's (a policy file, a test's agent); names are unique."""
-    _load_builtin()
+    """Add an agent (a catalogue entry, a policy file, a test's agent); names are unique."""
+    _register_sources()
+    _add(spec)
+
+
+def register_source(source: Callable[[], Iterable[AgentSpec]]) -> None:
+    """Register the agents ``source()`` returns before the registry is next read or added to.
+
+    For declarations that cost something to make (:mod:`baselines.catalogue`
+    reads the shipped policies' manifests): they are paid for only by a process
+    that asks for an agent, and still come before any agent added later.
+    """
+    _SOURCES.append(source)
+
+
+def _add(spec: AgentSpec) -> None:
     if spec.name in _REGISTRY:
         raise ValueError(f"agent {spec.name!r} is already registered")
     _REGISTRY[spec.name] = spec
 
 
+def _register_sources() -> None:
+    while _SOURCES:
+        # Taken off first: a source that fails is not retried on every lookup.
+        source = _SOURCES.pop(0)
+        for spec in source():
+            _add(spec)
+
+
 def agent_spec(name: str) -> AgentSpec:
-    _load_builtin()
+    _register_sources()
     if name not in _REGISTRY:
         raise KeyError(f"unknown agent {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
     return _REGISTRY[name]
@@ -143,12 +171,12 @@ def agent_spec(name: str) -> AgentSpec:
 
 def agent_groups() -> dict[str, str]:
     """Agent name -> its group, for the agents that belong to one (``AgentSpec.group``)."""
-    _load_builtin()
+    _register_sources()
     return {name: spec.group for name, spec in _REGISTRY.items() if spec.group}
 
 
 def agent_names() -> list[str]:
-    _load_builtin()
+    _register_sources()
     return sorted(_REGISTRY)
 
 
@@ -209,18 +237,3 @@ def env_ids_of(module: str) -> tuple[str, ...]:
     if not ids:
         raise ValueError(f"no environment is registered from module {module!r}")
     return ids
-
-
-_BUILTIN_LOADED = False
-
-
-def _load_builtin() -> None:
-    """Register the catalogue's agents (:mod:`baselines.catalogue`) once."""
-    global _BUILTIN_LOADED
-    if _BUILTIN_LOADED:
-        return
-    _BUILTIN_LOADED = True
-    from baselines.catalogue import builtin_specs  # the catalogue imports this module
-
-    for spec in builtin_specs():
-        register_agent(spec)

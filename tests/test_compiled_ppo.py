@@ -244,7 +244,7 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
                                   for family in ("docking", "lamp-array") for seed in range(3)])
 def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
     from baselines.rl.config import resolve_config
-    from baselines.rl.policy import policies_root
+    from baselines.rl.manifest import policies_root
 
     shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())
     assert shipped == resolve_config("cppo", shipped["env_id"], shipped["seed"]).to_dict()
@@ -262,7 +262,7 @@ def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, see
     # cppo-*-features-hard: the shipped recipe with two overrides, as
     # docs/training.md gives the command.
     from baselines.rl.config import resolve_config
-    from baselines.rl.policy import policies_root
+    from baselines.rl.manifest import policies_root
 
     name = f"cppo-{family}-features-hard-s{seed}"
     shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())

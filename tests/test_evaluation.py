@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from baselines import evaluation
+from baselines import evaluation, fileio
 from baselines.agents.random_agent import RandomAgent
 from baselines.commands.evaluate import parse_seeds
 from baselines.evaluation import (
@@ -398,7 +398,7 @@ def test_atomic_write_keeps_the_old_file_when_the_write_fails(tmp_path, monkeypa
     def failing_replace(src, dst):
         raise OSError("disk full")
 
-    monkeypatch.setattr(evaluation.cache.os, "replace", failing_replace)
+    monkeypatch.setattr(fileio.os, "replace", failing_replace)
     with pytest.raises(OSError, match="disk full"):
         evaluation.atomic_write(target, "newer")
     assert target.read_text() == "new"

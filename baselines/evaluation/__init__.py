@@ -25,6 +25,8 @@ module has one job:
 
 ``evaluate.py`` (:mod:`baselines.commands.evaluate`) is a thin command line over
 :func:`evaluate_all` and :mod:`baselines.leaderboard`; tests import these directly.
+:func:`atomic_write` and :func:`write_figures` are re-exported from the leaf
+:mod:`baselines.fileio`.
 """
 
 from __future__ import annotations
@@ -36,13 +38,7 @@ from typing import Any
 
 import auv_envs
 from baselines.evaluation.backends import BACKENDS, RunStats, run_tasks
-from baselines.evaluation.cache import (
-    EpisodeCache,
-    atomic_write,
-    row_from_dict,
-    row_to_dict,
-    write_figures,
-)
+from baselines.evaluation.cache import EpisodeCache, row_from_dict, row_to_dict
 from baselines.evaluation.episodes import (
     POLICY_PREFIX,
     EpisodeRow,
@@ -64,6 +60,7 @@ from baselines.evaluation.planning import (
     resolve_env_kwargs,
 )
 from baselines.evaluation.summary import BOUND_AGENT, SIGNED_METRICS, bound_rows, summarise
+from baselines.fileio import atomic_write, write_figures
 from baselines.registry import agent_names
 from baselines.seeds import EVAL_SEED_BASE, default_seeds
 

@@ -3,9 +3,10 @@
 Every directory ``assets/policies/<name>/`` with a ``policy.json`` (written by
 ``train.py --export-policy <name>``) becomes the agent ``<name>`` for the
 environment and observation mode it was trained on. Registration reads only
-the manifest; the model files are checked (SHA-256) and loaded when the agent
-is built, and a missing or corrupt file raises
-:class:`baselines.rl.policy.PolicyFileError` naming it.
+the manifest (:mod:`baselines.rl.manifest`: no Stable-Baselines3, no torch);
+the model files are checked (SHA-256) and loaded when the agent is built, and
+a missing or corrupt file raises :class:`~baselines.rl.manifest.PolicyFileError`
+naming it.
 
 Policies outside the package (``evaluate.py --policy PATH``: an exported
 policy or a ``train.py`` run directory) register under
@@ -18,15 +19,13 @@ import functools
 import hashlib
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from baselines.registry import AgentSpec, agent_names, register_agent
-from baselines.rl.policy import (
-    MANIFEST_FILE,
-    PolicyAgent,
-    PolicyFileError,
-    policies_root,
-    read_manifest,
-)
+from baselines.rl.manifest import MANIFEST_FILE, PolicyFileError, policies_root, read_manifest
+
+if TYPE_CHECKING:
+    from baselines.rl.policy import PolicyAgent
 
 
 def policy_directories(root: Path | None = None) -> list[Path]:
@@ -39,6 +38,8 @@ def policy_directories(root: Path | None = None) -> list[Path]:
 
 def load_policy_agent(directory: str | Path, env) -> PolicyAgent:
     """The agent of policy ``directory`` acting in ``env``."""
+    from baselines.rl.policy import PolicyAgent  # Stable-Baselines3 and torch: when built
+
     return PolicyAgent.from_directory(env, directory)
 
 

@@ -43,7 +43,7 @@ import torch
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from auv_envs.core.assets import sha256_file, verify_sha256
-from baselines.evaluation import atomic_write
+from baselines.fileio import atomic_write
 from baselines.rl.config import ALGORITHMS, OFF_POLICY, TrainConfig
 from baselines.rl.envs import make_vec_env
 

@@ -345,7 +345,7 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
 
     from auv_envs.core.assets import sha256_file
     from baselines.rl.envs import wrap_env
-    from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
+    from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
     out.mkdir(parents=True, exist_ok=True)
     cpu = gym.make(env.env_id, obs_mode="features").unwrapped

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import yaml
 from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
-from baselines.evaluation import atomic_write
+from baselines.fileio import atomic_write
 from baselines.parsing import parse_value
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE
 

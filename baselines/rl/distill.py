@@ -53,14 +53,14 @@ from auv_envs.core.assets import sha256_file
 from auv_envs.core.difficulty import LEVELS
 from baselines.rl.agents import load_policy_agent, policy_directory
 from baselines.rl.envs import needs_rescale, wrap_env
-from baselines.rl.policy import (
+from baselines.rl.manifest import (
     MANIFEST_FILE,
     MODEL_FILE,
-    PolicyAgent,
     PolicyFileError,
     policies_root,
     read_manifest,
 )
+from baselines.rl.policy import PolicyAgent
 from baselines.seeds import (
     DISTILL_SEED_BASE,
     DISTILL_SEEDS_PER_RUN,

@@ -16,7 +16,7 @@ import re
 import shutil
 from pathlib import Path
 
-from baselines.rl.policy import MANIFEST_FILE, policies_root, read_manifest, verify_files
+from baselines.rl.manifest import MANIFEST_FILE, policies_root, read_manifest, verify_files
 from baselines.rl.training import RunDirectory
 
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*$")

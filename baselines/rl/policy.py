@@ -7,12 +7,11 @@ the frozen training statistics), takes the deterministic action and maps it
 back through the same wrappers (e.g. ``RescaleAction`` onto the acoustic
 tank). Files are checked against SHA-256 digests recorded when they were
 written, so a truncated or edited file fails with a clear error instead of
-acting wrongly.
+acting wrongly (:mod:`baselines.rl.manifest`).
 """
 
 from __future__ import annotations
 
-import json
 import pickle
 from pathlib import Path
 
@@ -23,49 +22,19 @@ from stable_baselines3.common.preprocessing import is_image_space, is_image_spac
 from stable_baselines3.common.utils import check_for_correct_spaces
 from stable_baselines3.common.vec_env import VecNormalize
 
-from auv_envs.core.assets import asset_root, verify_sha256
 from baselines.rl.config import ALGORITHMS
 from baselines.rl.envs import front_ends_of, wrap_env
-
-MODEL_FILE = "model.zip"
-NORMALIZER_FILE = "vecnormalize.pkl"
-MANIFEST_FILE = "policy.json"
+from baselines.rl.manifest import (
+    MODEL_FILE,
+    NORMALIZER_FILE,
+    PolicyFileError,
+    read_manifest,
+    verify_files,
+)
 
 #: Objects an acting policy never needs; replacing them avoids unpickling the
 #: training schedules (and so works across Python versions, as rl-zoo does).
 _ACTING_ONLY = {"learning_rate": 0.0, "lr_schedule": lambda _: 0.0, "clip_range": lambda _: 0.0}
-
-
-def policies_root() -> Path:
-    """``assets/policies``: the shipped policies (``auv_envs/_assets/policies`` in a wheel)."""
-    return asset_root() / "policies"
-
-
-class PolicyFileError(RuntimeError):
-    """A policy directory whose files are missing, corrupt or inconsistent."""
-
-
-
-def read_manifest(directory: Path) -> dict:
-    """``policy.json`` of a policy directory, checked for the keys an agent needs."""
-    path = Path(directory) / MANIFEST_FILE
-    if not path.is_file():
-        raise PolicyFileError(f"policy manifest missing: {path}")
-    try:
-        manifest = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise PolicyFileError(f"policy manifest {path} is corrupt: {exc}") from exc
-    needed = {"name", "algo", "env_id", "obs_mode", "flatten_obs", "files"}
-    if not isinstance(manifest, dict) or not needed <= set(manifest):
-        raise PolicyFileError(f"policy manifest {path} lacks {sorted(needed)}")
-    if manifest["algo"] not in ALGORITHMS:
-        raise PolicyFileError(f"policy manifest {path}: unknown algorithm {manifest['algo']!r}")
-    return manifest
-
-
-def verify_files(directory: Path, files: dict[str, str]) -> None:
-    """Every file in ``files`` (name -> SHA-256) exists under ``directory`` with that digest."""
-    verify_sha256(directory, files, PolicyFileError)
 
 
 def load_normalizer(path: Path) -> VecNormalize:

@@ -49,7 +49,8 @@ from stable_baselines3.common.utils import LinearSchedule
 
 import auv_envs
 from auv_envs.core.assets import sha256_file
-from baselines.evaluation import atomic_write, run_episode
+from baselines.evaluation import run_episode
+from baselines.fileio import atomic_write
 from baselines.registry import LazyFactory
 from baselines.rl import checkpoint as ckpt
 from baselines.rl.config import (
@@ -66,7 +67,8 @@ from baselines.rl.config import (
     validate,
 )
 from baselines.rl.envs import front_ends_of, make_vec_env
-from baselines.rl.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, PolicyAgent
+from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
+from baselines.rl.policy import PolicyAgent
 
 #: ``policy_kwargs.activation_fn`` names (a YAML file cannot name a class safely).
 ACTIVATIONS = {
