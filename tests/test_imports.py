@@ -126,10 +126,3 @@ def test_baselines_has_no_import_cycle():
     graph = {name: _imported(name, path, modules) for name, path in modules.items()}
     assert _cycles(graph) == []
 
-
-def test_manifest_knows_the_configured_algorithms():
-    # The manifest names the algorithms without importing Stable-Baselines3.
-    from baselines.rl.config import ALGORITHMS
-    from baselines.rl.manifest import ALGORITHM_NAMES
-
-    assert set(ALGORITHM_NAMES) == set(ALGORITHMS)

@@ -38,15 +38,17 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
+import stable_baselines3
 import yaml
-from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
 
 from baselines.fileio import atomic_write
 from baselines.parsing import parse_value
+from baselines.rl.manifest import ALGORITHM_NAMES
 from baselines.seeds import EVAL_SEED_BASE, TRAIN_EVAL_SEED_BASE
 
 #: Algorithm name (command line, YAML file name) -> Stable-Baselines3 class.
-ALGORITHMS = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C, "ddpg": DDPG}
+#: ``--algo`` name -> its Stable-Baselines3 class; the names are the manifests' (one list).
+ALGORITHMS = {name: getattr(stable_baselines3, name.upper()) for name in ALGORITHM_NAMES}
 OFF_POLICY = ("sac", "td3", "ddpg")
 #: The compiled PPO (:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``).
 COMPILED = "cppo"

@@ -16,8 +16,8 @@ MODEL_FILE = "model.zip"
 NORMALIZER_FILE = "vecnormalize.pkl"
 MANIFEST_FILE = "policy.json"
 
-#: The keys of :data:`baselines.rl.config.ALGORITHMS`, named without importing
-#: Stable-Baselines3.
+#: The Stable-Baselines3 algorithms a policy may name; :data:`baselines.rl.config.ALGORITHMS`
+#: maps each to its class (here without importing Stable-Baselines3).
 ALGORITHM_NAMES = ("ppo", "sac", "td3", "a2c", "ddpg")
 
 
