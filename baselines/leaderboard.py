@@ -102,7 +102,8 @@ def cell_text(row: Mapping, key: str) -> str:
     """``mean [95 % interval]`` of ``row``'s metric ``key`` (``–`` when not reported).
 
     Success: ``rate (k/n) [Wilson interval]``; a metric of one episode has no
-    interval.
+    interval; ``(n=9; 1 NaN)`` follows a mean that leaves out episodes whose value
+    was NaN (``NaN (k of k)`` when no episode has a number).
     """
     stat = row["metrics"].get(key)
     if stat is None:
@@ -111,10 +112,14 @@ def cell_text(row: Mapping, key: str) -> str:
     if key == "success":
         text = f"{stat['mean']:.0%} ({round(stat['mean'] * stat['n'])}/{stat['n']})"
         return text if interval is None else f"{text} [{interval[0]:.0%}, {interval[1]:.0%}]"
+    nan = stat.get("nan", 0)
+    if not stat["n"]:
+        return f"NaN ({nan} of {nan})"
+    note = f" (n={stat['n']}; {nan} NaN)" if nan else ""
     if interval is None:
-        return _format(key, stat["mean"])
+        return _format(key, stat["mean"]) + note
     low, high = (_format(key, end) for end in interval)
-    return f"{_format(key, stat['mean'])} [{low}, {high}]"
+    return f"{_format(key, stat['mean'])} [{low}, {high}]{note}"
 
 
 #: What ranks an environment's agents: the first of these its rows report, with
@@ -131,7 +136,7 @@ def rank_metric(rows: Sequence[Mapping]) -> tuple[str, str]:
 
 def _rank_interval(row: Mapping, key: str) -> tuple[float, float]:
     stat = row["metrics"].get(key)
-    if stat is None:  # not reported: ranks after every row that reports it
+    if stat is None or not stat["n"]:  # not reported: ranks after every row that reports it
         return math.inf, math.inf
     return metric_interval(stat) or (stat["mean"], stat["mean"])
 

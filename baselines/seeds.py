@@ -40,6 +40,23 @@ DISTILL_SEEDS_PER_RUN = 1000
 DISTILL_TRAINING_SEEDS = range((TRAIN_EVAL_SEED_BASE - DISTILL_SEED_BASE) // DISTILL_SEEDS_PER_RUN)
 
 
+def check_seeds(seeds) -> list[int]:
+    """``seeds`` as a list, refused (``ValueError`` naming them) when one is not a
+    non-negative whole number or appears twice: a seed run twice would be counted twice
+    and narrow every interval."""
+    seeds = list(seeds)
+    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0]
+    if bad:
+        raise ValueError(f"seeds must be non-negative integers, got {', '.join(map(repr, bad))}")
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        raise ValueError(f"seeds must differ (each episode is counted once), got "
+                         f"{', '.join(map(str, repeated))} more than once")
+    if not seeds:
+        raise ValueError("no seeds given")
+    return seeds
+
+
 def default_seeds(episodes: int) -> list[int]:
     """The frozen evaluation seeds: ``episodes`` seeds from :data:`EVAL_SEED_BASE`."""
     if episodes <= 0:

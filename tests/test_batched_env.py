@@ -165,10 +165,22 @@ def test_make_vec_speaks_numpy_and_resets_finished_episodes():
             ended += int(done.sum())
     assert ended == 4  # every episode truncated at 30 steps (drifting, far from failing)
     assert obs["visible"].dtype == np.int8
+    # The CPU envs' action rule (tests/test_trust_numbers.py): the same refusals ...
     with pytest.raises(ValueError, match="finite"):
         envs.step(np.full((4, 4), np.nan, np.float32))
     with pytest.raises(ValueError, match="shape"):
         envs.step(np.zeros((3, 4), np.float32))
+    for bad, message in ((None, "None"), (np.full((4, 4), 1j), "complex"),
+                         (np.ones((4, 4), bool), "booleans"), (np.full((4, 4), np.inf), "finite")):
+        with pytest.raises(ValueError, match=message):
+            envs.step(bad)
+    # ... and a huge finite action clipped as a small one (float32 would make it inf).
+    stepped = []
+    for value in (1e300, 2.0):
+        envs.reset(seed=5)
+        stepped.append(envs.step(np.full((4, 4), value))[0])
+    for key in stepped[0]:
+        np.testing.assert_array_equal(stepped[0][key], stepped[1][key])
 
 
 def test_refuses_what_it_does_not_build():

@@ -45,9 +45,18 @@ def test_parse_seeds():
     assert parse_seeds("3-6") == [3, 4, 5, 6]
     assert parse_seeds("1,5,9") == [1, 5, 9]
     assert parse_seeds("7") == [7]
-    for bad in ("6-3", "a-b", "1,,2"):
+    for bad in ("a-b", "1,,2"):
         with pytest.raises(ValueError, match="seeds"):
             parse_seeds(bad)
+    with pytest.raises(ValueError, match="reversed; did you mean 3-6"):
+        parse_seeds("6-3")
+    for bad, message in (("-5", "non-negative"), ("8611,8611", "8611 more than once"),
+                         ("3,-1", "non-negative")):
+        with pytest.raises(ValueError, match=message):
+            parse_seeds(bad)
+    for seeds in ([1, 1], [-2], [1.5], [True]):
+        with pytest.raises(ValueError, match="seeds"):
+            evaluate_all(env_ids=[DOCK], agents=["random"], seeds=seeds)
 
 
 def test_default_seeds_are_disjoint_from_training_range():
@@ -343,7 +352,7 @@ def test_corrupt_or_foreign_cache_files_are_rerun_with_a_warning(tmp_path):
     one, two = (EpisodeTask(DOCK, "state", "random", s) for s in (1, 2))
     cache.path(one).write_text('{"task": {"agent": "random"')  # truncated file
     cache.path(two).write_text(cache.path(two).read_text().replace('"seed": 2', '"seed": 9'))
-    with pytest.warns(RuntimeWarning, match="unreadable cached episode"):
+    with pytest.warns(RuntimeWarning, match="rejected cached episode"):
         second = evaluate_all(**args)
     assert second.stats.ran == 2
     assert [_comparable(r) for r in second.rows] == [_comparable(r) for r in first.rows]

@@ -26,6 +26,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX, failure_reason
+from auv_envs.core.env import action_array, clip_actions
 
 
 class DockingVectorEnv(VectorEnv):
@@ -77,12 +78,9 @@ class DockingVectorEnv(VectorEnv):
     def step(self, actions):
         if self.state is None:
             raise RuntimeError("step() called before reset()")
-        actions = np.asarray(actions, dtype=np.float32)
-        if actions.shape != self.action_space.shape:
-            raise ValueError(f"actions must have shape {self.action_space.shape}, got "
-                             f"{actions.shape}")
-        if not np.isfinite(actions).all():
-            raise ValueError("actions must be finite (NaN or inf given)")
+        # The CPU envs' rule (auv_envs.core.env): real numbers, finite, clipped to the bounds.
+        actions = clip_actions(action_array(actions, self.action_space.shape),
+                               self.action_space).astype(np.float32)
         self.state = self._step(self.state, jnp.asarray(actions))
         state = self.state
         info = state.info

@@ -68,12 +68,48 @@ def check_image_size(image_size, name: str = "image_size") -> tuple[int, int]:
     return width, height
 
 
+#: What a NumPy dtype kind is, for the message refusing an action of that kind.
+_KINDS = {"b": "booleans", "c": "complex numbers", "O": "Python objects", "U": "text",
+          "S": "bytes", "M": "dates", "m": "time spans", "V": "raw bytes"}
+
+
+def action_array(action, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a new float64 array of ``shape``; ``ValueError`` saying what was
+    given when it is ``None``, not real numbers (complex, booleans, text, objects) or
+    of another shape. The first half of the one action rule (:func:`clip_actions`)."""
+    if action is None:
+        raise ValueError(f"action is None; expected real numbers of shape {shape}")
+    try:
+        raw = np.asarray(action)
+    except ValueError as exc:  # ragged nesting
+        raise ValueError(f"action {action!r:.80} is not an array of shape {shape}: "
+                         f"{exc}") from exc
+    if raw.dtype.kind not in "iuf":
+        raise ValueError(f"action must be real numbers, got "
+                         f"{_KINDS.get(raw.dtype.kind, raw.dtype)} ({raw.dtype}): {action!r:.80}")
+    if raw.shape != shape:
+        raise ValueError(f"action has shape {raw.shape}, expected {shape}")
+    return np.array(raw, dtype=np.float64)  # always a copy: never alias the caller's array
+
+
+def clip_actions(a: np.ndarray, space: spaces.Box) -> np.ndarray:
+    """The one action rule's second half, for the CPU and the batched envs alike: NaN or
+    inf anywhere raises ``ValueError``; finite values outside the bounds are clipped to
+    them (in place, in float64, before any cast, so 1e300 clips as 2.0 does)."""
+    # min/max propagate NaN, and are finite only if every entry is.
+    if not (math.isfinite(a.min()) and math.isfinite(a.max())):
+        raise ValueError(f"action must be finite, got {a.tolist()!r:.200}")
+    np.clip(a, space.low, space.high, out=a)
+    return a
+
+
 class ActionValidator:
     """Checks and clips actions for one fixed Box space (an env builds it once).
 
-    Non-finite entries raise ``ValueError``; finite out-of-range entries are
-    clipped to the bounds (documented behaviour of every ``auv_envs`` env). The
-    bounds are read into Python floats here, not on every step.
+    The rule of every ``auv_envs`` env, CPU and batched (:func:`action_array`,
+    :func:`clip_actions`): real numbers of the space's shape; non-finite
+    entries raise ``ValueError``; finite out-of-range entries are clipped to
+    the bounds. The bounds are read into Python floats here, not on every step.
     """
 
     def __init__(self, space: spaces.Box):
@@ -82,10 +118,7 @@ class ActionValidator:
                                  strict=True))
 
     def __call__(self, action) -> np.ndarray:
-        space = self.space
-        a = np.array(action, dtype=np.float64)  # always a copy: never alias the caller's array
-        if a.shape != space.shape:
-            raise ValueError(f"action has shape {a.shape}, expected {space.shape}")
+        a = action_array(action, self.space.shape)
         # Fast path, in Python floats (a handful of NumPy reductions cost more than
         # the env's physics): every entry finite and inside its bounds. NaN fails
         # every comparison and +-inf fails the finite range, so both take the slow path.
@@ -94,11 +127,7 @@ class ActionValidator:
                 break
         else:
             return a
-        # min/max propagate NaN, and are finite only if every entry is.
-        if not (math.isfinite(a.min()) and math.isfinite(a.max())):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
-        np.clip(a, space.low, space.high, out=a)
-        return a
+        return clip_actions(a, self.space)
 
 
 def validate_action(action, space: spaces.Box) -> np.ndarray:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shlex
 import signal
 import sys
@@ -51,7 +52,7 @@ from baselines.evaluation import (
     summarise,
 )
 from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_modes
-from baselines.seeds import EVAL_SEED_BASE, default_seeds
+from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 
 #: Environment arguments of the default run; ``--env-kwargs`` overrides them
 #: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
@@ -67,22 +68,60 @@ def default_workers() -> int:
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``--seeds``: ``"A-B"`` (inclusive) or ``"A,B,C"`` -> list of seeds."""
+    """``--seeds``: ``"A-B"`` (inclusive) or ``"A,B,C"`` -> list of seeds, each a
+    non-negative integer given once (:func:`baselines.seeds.check_seeds`)."""
+    text = text.strip()
+    form = f"seeds look like 'A-B' or 'A,B,C' (non-negative integers), got {text!r}"
+    if re.fullmatch(r"\d+\s*-\s*\d+", text):
+        first, last = (int(x) for x in text.split("-"))
+        if last < first:
+            raise ValueError(f"--seeds {text}: the range is reversed; did you mean "
+                             f"{last}-{first}?")
+        return list(range(first, last + 1))
     try:
-        if "-" in text.strip("-"):
-            first, last = (int(x) for x in text.split("-", 1))
-            if last < first:
-                raise ValueError
-            return list(range(first, last + 1))
-        return [int(x) for x in text.split(",")]
+        seeds = [int(x) for x in text.split(",")]
     except ValueError as exc:
-        raise ValueError(f"seeds must look like 'A-B' or 'A,B,C', got {text!r}") from exc
+        raise ValueError(form) from exc
+    return check_seeds(seeds)
 
 
 def resolve_env_ids(names) -> list[str]:
     """Full ids for names given as ids or as the part after ``auv_envs/``."""
     short = {env_id.split("/", 1)[-1]: env_id for env_id in auv_envs.ENVIRONMENTS}
     return [short.get(name, name) for name in names]
+
+
+def _keys(group) -> set[str]:
+    """The keywords a ``--env-kwargs`` group sets (``[ENV:]KEY=VALUE`` texts)."""
+    return {text.partition("=")[0].rpartition(":")[2].strip() for text in group}
+
+
+def scenario_groups(groups, scenario: str | None, difficulty) -> list[list[str]]:
+    """The ``--env-kwargs`` groups with ``--scenario`` and ``--difficulty`` added.
+
+    A keyword is set in one place only: a group that sets ``scenario=`` or
+    ``difficulty=`` beside the dedicated option is refused (``ValueError`` naming
+    both). Without ``--difficulty``, a group that sets no ``difficulty=`` runs at
+    each of :data:`DEFAULT_LEVELS` and one that sets it runs at its own level.
+    """
+    out = []
+    for group in groups:
+        keys = _keys(group)
+        for option, value, key in (("--scenario", scenario, "scenario"),
+                                   ("--difficulty", difficulty, "difficulty")):
+            if value and key in keys:
+                raise ValueError(f"--env-kwargs {' '.join(group)} and {option} both set "
+                                 f"{key}; give it once")
+        if scenario:
+            group = [*group, f"scenario={scenario}"]
+        if "difficulty" in keys:
+            out.append(list(group))
+            continue
+        levels = DEFAULT_LEVELS if difficulty is None else difficulty
+        out.extend([*group, f"difficulty={level}"] for level in dict.fromkeys(levels))
+        if not levels:
+            out.append(list(group))
+    return out
 
 
 def default_agents(env_ids) -> tuple[list[str], list[str]]:
@@ -130,11 +169,13 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                                          for k, v in kw.items()))
     parser.add_argument("--scenario", type=str, default=None,
                         help="shorthand for adding scenario=NAME to the environment arguments")
-    parser.add_argument("--difficulty", nargs="+", default=list(DEFAULT_LEVELS),
+    parser.add_argument("--difficulty", nargs="+", default=None,
                         choices=LEVELS, metavar="LEVEL",
                         help=f"difficulty levels to evaluate ({', '.join(LEVELS)}), each a "
                              "scenario of its own (default: "
-                             f"{' '.join(DEFAULT_LEVELS) or 'none, the environments defaults'})")
+                             f"{' '.join(DEFAULT_LEVELS) or 'none, the environments defaults'}, "
+                             "for each --env-kwargs group that sets no difficulty=; giving "
+                             "both is an error)")
     parser.add_argument("--out", type=str, default="results/leaderboard",
                         help="output directory (default results/leaderboard)")
     parser.add_argument("--cache-dir", type=str, default=None,
@@ -258,12 +299,7 @@ def _main(argv, prog: str) -> int:
         if any(s < EVAL_SEED_BASE for s in seeds):
             print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
                   file=sys.stderr)
-        groups = args.env_kwargs or [[]]
-        if args.scenario:
-            groups = [[*group, f"scenario={args.scenario}"] for group in groups]
-        if args.difficulty:
-            groups = [[*group, f"difficulty={level}"]
-                      for group in groups for level in dict.fromkeys(args.difficulty)]
+        groups = scenario_groups(args.env_kwargs or [[]], args.scenario, args.difficulty)
         defaults = {e: kw for e, kw in DEFAULT_ENV_KWARGS.items() if e in env_ids}
         variants = [resolve_env_kwargs(env_ids, group, defaults) for group in groups]
         # The page's clips are MP4s; GIFs (slow to write) when DIR is asked for.
@@ -303,7 +339,9 @@ def _main(argv, prog: str) -> int:
     print(leaderboard.markdown(summary, run.skipped if args.verbose else (),
                                compact=not args.verbose))
     stats = run.stats
-    print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache, "
+    rejected = (f" ({stats.rejected} cached episodes rejected and run again: see the "
+                f"warnings above)" if stats.rejected else "")
+    print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache{rejected}, "
           f"{stats.failed} failed; wrote {paths['leaderboard.html']} and "
           f"{len(paths) - 1} more files under {args.out}", file=sys.stderr)
     if video is not None:

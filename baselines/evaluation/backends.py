@@ -149,6 +149,8 @@ class RunStats:
     ran: int = 0
     cached: int = 0
     failed: int = 0
+    #: Cached episodes found and rejected (named in warnings; run again).
+    rejected: int = 0
 
 
 def run_tasks(
@@ -174,7 +176,8 @@ def run_tasks(
         agent_modules: modules to import in every worker (agents registered
             outside :mod:`baselines.catalogue`).
         progress: show a tqdm progress bar on stderr.
-        stats: filled with the counts of ran/cached/failed episodes.
+        stats: filled with the counts of ran/cached/failed episodes and of cached
+            episodes rejected (:class:`~baselines.evaluation.cache.EpisodeCache`).
         refresh: run every task again (and overwrite its cached episode).
         videos: tasks to record while they run; one whose clip is missing runs
             again even when its episode is cached.
@@ -187,6 +190,7 @@ def run_tasks(
     rows: dict[EpisodeTask, EpisodeRow] = {}
     todo = []
     videos = dict(videos or {})
+    rejected_before = len(cache.rejected) if cache is not None else 0
     for task in tasks:
         row = cache.load(task) if cache is not None and not refresh else None
         if task in videos and not videos[task].path(task).exists():
@@ -196,6 +200,8 @@ def run_tasks(
         else:
             rows[task] = row
     stats.cached += len(rows)
+    if cache is not None:
+        stats.rejected += len(cache.rejected) - rejected_before
     from tqdm.auto import tqdm
 
     with tqdm(total=len(tasks), initial=len(rows), unit="episode", desc="evaluate",

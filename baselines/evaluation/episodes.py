@@ -55,6 +55,9 @@ class EpisodeRow:
     status: str = "ok"
     error: str = ""
     env_kwargs: dict = dataclasses.field(default_factory=dict)
+    #: The metrics whose value was a float NaN or inf (stored as JSON ``null``): counted
+    #: as such by the summary, not mistaken for a metric that does not apply.
+    nan_metrics: tuple[str, ...] = ()
 
 
 def jsonable(value):
@@ -130,7 +133,8 @@ def run_episode(env: gym.Env, agent, seed: int, env_id: str, agent_name: str,
             if key.startswith("violation_"):
                 violations[key] += int(bool(np.any(value)))
         done = terminated or truncated
-    metrics = jsonable(info.get("episode_metrics", {}))
+    raw = dict(info.get("episode_metrics", {}))
+    metrics = jsonable(raw)
     metrics.update({f"{key}_steps": count for key, count in violations.items()})
     if callable(estimate):
         metrics["estimate_steps"] = len(errors)
@@ -140,7 +144,10 @@ def run_episode(env: gym.Env, agent, seed: int, env_id: str, agent_name: str,
     if callable(getattr(agent, "stats", None)):
         for key, value in agent.stats().items():
             if is_number(value):
+                raw[f"agent_{key}"] = value
                 metrics[f"agent_{key}"] = jsonable(float(value))
+    nan_metrics = tuple(sorted(key for key, value in raw.items()
+                               if is_number(value) and not math.isfinite(float(value))))
     unwrapped = env.unwrapped
     return EpisodeRow(
         env_id=env_id,
@@ -154,6 +161,7 @@ def run_episode(env: gym.Env, agent, seed: int, env_id: str, agent_name: str,
         failure_reason=str(metrics.get("failure_reason", "")),
         metrics=metrics,
         wall_time_s=time.perf_counter() - start,
+        nan_metrics=nan_metrics,
     )
 
 

@@ -18,8 +18,8 @@ from auv_envs.core.assets import asset_root, sha256_file
 
 #: Version of the cached episode format and of the episode protocol in
 #: :func:`~baselines.evaluation.episodes.run_episode`; bumping it invalidates
-#: every cached episode.
-CACHE_FORMAT = 1
+#: every cached episode (2: rows carry a checksum and ``nan_metrics``).
+CACHE_FORMAT = 2
 
 #: Files that cannot change an episode's result, left out of :func:`code_fingerprint`
 #: (the leaderboard's tables and plots, ``baselines/leaderboard.py``), relative to the

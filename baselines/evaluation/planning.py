@@ -43,11 +43,13 @@ def resolve_env_kwargs(env_ids: Sequence[str], assignments: Sequence[str],
     literal, else a YAML scalar, else the bare string).
 
     Raises:
-        ValueError: malformed text, an environment that is not selected, or a
-            key that no (or not that) environment accepts.
+        ValueError: malformed text, an environment that is not selected, a
+            key that no (or not that) environment accepts, or a key given twice
+            for one environment.
     """
     params = {env_id: env_parameters(env_id) for env_id in env_ids}
     out = {env_id: dict((defaults or {}).get(env_id, {})) for env_id in env_ids}
+    given: dict[tuple[str, str], str] = {}
     for text in assignments:
         target, sep, value = text.partition("=")
         env_part, colon, key = target.rpartition(":")
@@ -66,6 +68,10 @@ def resolve_env_kwargs(env_ids: Sequence[str], assignments: Sequence[str],
             listing = "; ".join(f"{e}: {', '.join(params[e])}" for e in (chosen or env_ids))
             raise ValueError(f"{text!r}: no selected environment takes {key!r} ({listing})")
         for env_id in accepting:
+            if (env_id, key) in given:
+                raise ValueError(f"{text!r}: {key} is already set for {env_id} "
+                                 f"({given[env_id, key]!r}); give it once")
+            given[env_id, key] = text
             out[env_id][key] = parse_value(value.strip())
     return out
 

@@ -39,8 +39,11 @@ def summarise(rows: Sequence[EpisodeRow], groups: Mapping[str, str] | None = Non
     """One leaderboard row per (env, obs mode, scenario, agent), in first-seen order.
 
     ``metrics`` maps a name to ``{"mean", "std", "n", "ci"}`` (population std
-    over the ``n`` episodes that report it; ``ci`` the 95 % interval of the
-    mean, :func:`_stat`): ``success`` over every episode (a
+    over the ``n`` episodes that report it as a finite number, the number
+    averaged; ``ci`` the 95 % interval of the mean, :func:`_stat`), plus
+    ``"nan"``, the episodes whose value was NaN or inf
+    (:attr:`EpisodeRow.nan_metrics`), where there are any (with none finite,
+    the mean is NaN and ``n`` 0): ``success`` over every episode (a
     failed episode counts as no success), ``return`` and ``length`` and each
     numeric episode metric over the completed episodes (``docking_time`` only
     exists on success, so its ``n`` is the successful episodes). Booleans
@@ -114,12 +117,21 @@ def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
     if done:
         values["return"] = [r.episode_return for r in done]
         values["length"] = [float(r.length) for r in done]
+    not_numbers: collections.Counter = collections.Counter()
     for r in done:
         for name, value in r.metrics.items():
             if is_number(value) and math.isfinite(float(value)) and name != "success":
                 values.setdefault(name, []).append(float(value))
                 if name in SIGNED_METRICS:
                     values.setdefault(f"{name}_abs", []).append(abs(float(value)))
+        for name in r.nan_metrics:
+            not_numbers[name] += 1
+            if name in SIGNED_METRICS:
+                not_numbers[f"{name}_abs"] += 1
+    metrics = {k: _stat(v, success=k == "success") for k, v in values.items()}
+    for name, count in not_numbers.items():  # shown, never dropped silently
+        metrics.setdefault(name, {"mean": math.nan, "std": math.nan, "n": 0,
+                                  "ci": [None, None]})["nan"] = count
     failed = len(items) - len(done)
     reasons = collections.Counter(r.failure_reason for r in done if r.failure_reason)
     return {
@@ -134,5 +146,5 @@ def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
         "errors": list(dict.fromkeys(r.error for r in items if r.error)),
         "failure_reasons": dict(sorted(reasons.items())),
         "env_kwargs": items[0].env_kwargs,
-        "metrics": {k: _stat(v, success=k == "success") for k, v in values.items()},
+        "metrics": metrics,
     }
