@@ -9,6 +9,7 @@ Importing the package registers every environment::
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 
@@ -84,6 +85,22 @@ for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():
     if _env_id not in registry:
         register(id=_env_id, vector_entry_point=_vector_entry_point,
                  max_episode_steps=max_episode_steps(_env_id.replace("MJX", "")))
+
+
+def _prefix_hint(env_id: str, **kwargs):
+    """What ``gym.make`` of an id without its ``auv_envs/`` namespace runs: an error that
+    names the id to use (Gymnasium's own would say only that the name does not exist)."""
+    import gymnasium as gym
+
+    raise gym.error.NameNotFound(f"{env_id.split('/')[-1]!r} is registered as {env_id!r}: "
+                                 f"gym.make({env_id!r}) (after `import auv_envs`)")
+
+
+# Bare names, only where nothing else registered them: a hint, never an environment.
+for _env_id in (*ENVIRONMENTS, *PREVIOUS_VERSIONS):
+    if _env_id.split("/")[-1] not in registry:
+        register(id=_env_id.split("/")[-1], entry_point=functools.partial(_prefix_hint, _env_id),
+                 disable_env_checker=True)
 
 
 def env_class(env_id: str):

@@ -346,8 +346,11 @@ def record_dataset(
     if difficulty not in LEVELS:
         raise ValueError(f"difficulty must be one of {', '.join(LEVELS)}, got {difficulty!r}")
     env_id = resolve_env_ids([env_id])[0]
-    check_names([env_id], [agent])
-    spec = agent_spec(agent)
+    check_names([env_id], [])
+    try:
+        spec = agent_spec(agent)  # a group's name: its first training seed
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from exc
     reason = spec.skip_reason(env_id, obs_mode)
     if reason is not None:
         where = env_id if obs_mode is None else f"{env_id} in obs mode {obs_mode!r}"

@@ -23,8 +23,9 @@ numbers for the episode.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -163,10 +164,53 @@ def _register_sources() -> None:
 
 
 def agent_spec(name: str) -> AgentSpec:
+    """The spec of agent ``name``; a group's name (training seeds pooled) gives its first
+    member's, the one a single episode (a clip, a dataset) is played by.
+
+    Raises:
+        KeyError: no agent or group is called ``name`` (the closest names suggested).
+    """
     _register_sources()
-    if name not in _REGISTRY:
-        raise KeyError(f"unknown agent {name!r}; registered: {', '.join(sorted(_REGISTRY))}")
-    return _REGISTRY[name]
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    members = group_members(name)
+    if members:
+        return _REGISTRY[members[0]]
+    raise KeyError(unknown_agent_message([name]))
+
+
+def group_members(name: str) -> list[str]:
+    """The agents pooled under group ``name`` (its training seeds), sorted; [] if none."""
+    return sorted(agent for agent, group in agent_groups().items() if group == name)
+
+
+def unknown_agent_message(unknown: Sequence[str]) -> str:
+    """``unknown agent(s) ...`` with the closest registered agent or group names to each."""
+    names = sorted({*agent_names(), *agent_groups().values()})
+    hints = []
+    for name in unknown:
+        close = difflib.get_close_matches(name, names, n=3, cutoff=0.6)
+        hints.append(f"{name!r}" + (f" (did you mean {', '.join(close)}?)" if close else ""))
+    return (f"unknown agent(s) {', '.join(hints)}; `python evaluate.py --list` lists every "
+            f"agent and group")
+
+
+def resolve_agent_names(names: Sequence[str]) -> list[str]:
+    """Agent names with each group's name replaced by its members (in order, once each).
+
+    Raises:
+        ValueError: a name that is neither an agent nor a group (closest matches named).
+    """
+    known = set(agent_names())
+    out, unknown = [], []
+    for name in names:
+        members = [name] if name in known else group_members(name)
+        if not members:
+            unknown.append(name)
+        out.extend(members)
+    if unknown:
+        raise ValueError(unknown_agent_message(unknown))
+    return list(dict.fromkeys(out))
 
 
 def agent_groups() -> dict[str, str]:

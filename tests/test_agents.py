@@ -22,8 +22,10 @@ def test_registry_lists_builtin_agents():
     assert {"random", "pd-state"} <= set(agent_names())
 
 
-def test_unknown_agent_lists_registered_names():
-    with pytest.raises(KeyError, match="pd-state"):
+def test_unknown_agent_names_the_closest_and_where_to_list_all():
+    with pytest.raises(KeyError, match="did you mean pd-state"):
+        agent_spec("pd-stat")
+    with pytest.raises(KeyError, match="--list"):
         agent_spec("no-such-agent")
 
 

@@ -116,12 +116,15 @@ def test_raising_agent_shows_as_failed_in_every_output(tmp_path, capsys):
     assert "1 failed" in capsys.readouterr().err
 
 
-def test_unknown_names_exit_with_the_valid_names(tmp_path, capsys):
+def test_unknown_names_exit_with_the_closest_names(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         evaluate.main(["--agents", "no-such-agent", "--out", str(tmp_path)])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert "no-such-agent" in err and "pd-state" in err and "random" in err
+    assert "no-such-agent" in err and "python evaluate.py --list" in err
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--agents", "pd-stat", "--out", str(tmp_path)])
+    assert "did you mean pd-state" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         evaluate.main(["--envs", "Nope-v0", "--out", str(tmp_path)])
     assert exc.value.code == 2

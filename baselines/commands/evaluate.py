@@ -51,7 +51,14 @@ from baselines.evaluation import (
     resolve_env_kwargs,
     summarise,
 )
-from baselines.registry import agent_groups, agent_names, agent_spec, env_obs_modes
+from baselines.registry import (
+    agent_groups,
+    agent_names,
+    agent_spec,
+    env_obs_modes,
+    group_members,
+    resolve_agent_names,
+)
 from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 
 #: Environment arguments of the default run; ``--env-kwargs`` overrides them
@@ -229,6 +236,10 @@ def listing() -> str:
         needs = "".join(f"; needs {k}={v}" for k, v in spec.env_kwargs.items())
         lines.append(f"  {name}  obs modes: {', '.join(spec.obs_modes)}; on {where}{needs}"
                      f" -- {spec.description}")
+    groups = sorted(set(agent_groups().values()))
+    if groups:
+        lines.append("groups (training seeds pooled into one row; the name runs them all):")
+        lines += [f"  {group} = {', '.join(group_members(group))}" for group in groups]
     return "\n".join(lines)
 
 
@@ -289,6 +300,8 @@ def _main(argv, prog: str) -> int:
             print(listing())
             return 0
         env_ids = resolve_env_ids(args.envs or auv_envs.ENVIRONMENTS)
+        if agents is not None:  # a group's name stands for its training seeds
+            agents = resolve_agent_names(agents)
         check_names(env_ids, agents or ())
         if agents is None and not args.all_agents:
             agents, heavy = default_agents(env_ids)

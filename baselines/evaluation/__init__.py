@@ -61,7 +61,7 @@ from baselines.evaluation.planning import (
 )
 from baselines.evaluation.summary import BOUND_AGENT, SIGNED_METRICS, bound_rows, summarise
 from baselines.fileio import atomic_write, write_figures
-from baselines.registry import agent_names
+from baselines.registry import agent_names, resolve_agent_names
 from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 
 __all__ = [
@@ -137,7 +137,7 @@ def evaluate_all(
     """
     import_agent_modules(agent_modules)
     env_ids = list(dict.fromkeys(env_ids or auv_envs.ENVIRONMENTS))
-    agents = list(dict.fromkeys(agents or agent_names()))
+    agents = resolve_agent_names(agents) if agents else agent_names()  # groups: members
     seeds = check_seeds(seeds) if seeds is not None else default_seeds(3)
     tasks, skipped = plan(env_ids, agents, seeds, obs_modes, env_kwargs)
     check_env_kwargs(tasks)

@@ -17,7 +17,7 @@ import gymnasium as gym
 import auv_envs
 from baselines.evaluation.episodes import EpisodeTask, scenario_label, short_env_id
 from baselines.parsing import parse_value
-from baselines.registry import agent_names, agent_spec
+from baselines.registry import agent_names, agent_spec, unknown_agent_message
 
 
 def env_parameters(env_id: str) -> tuple[str, ...]:
@@ -85,7 +85,7 @@ def check_names(env_ids: Sequence[str], agents: Sequence[str]) -> None:
     known = agent_names()
     unknown = [a for a in agents if a not in known]
     if unknown:
-        raise ValueError(f"unknown agent(s) {', '.join(unknown)}; registered: {', '.join(known)}")
+        raise ValueError(unknown_agent_message(unknown))
 
 
 def plan(
