@@ -682,8 +682,8 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
 
     Files: ``leaderboard.{md,csv,json,html}``, ``skipped.json``,
     ``episodes.json`` (the per-episode rows) and ``plots/<env>.png`` for each
-    environment where a metric varies between the agents (:func:`plot_env`; an
-    earlier run's plot of an environment without one is removed). ``clips``
+    environment where a metric varies between the agents (:func:`plot_env`; any
+    other plot in ``plots/``, an earlier run's, is removed). ``clips``
     (:data:`Clips`, paths relative to ``out_dir``) are shown on the page and
     listed in the Markdown; they are not copied.
     """
@@ -710,4 +710,7 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
     for name, text in texts.items():
         atomic_write(out / name, text)
         paths[name] = out / name
+    for stale in (out / "plots").glob("*.png"):  # another board's: never beside this one
+        if stale.relative_to(out).as_posix() not in paths:
+            stale.unlink()
     return paths

@@ -81,11 +81,11 @@ def test_evaluate_is_deterministic_and_summarises():
     assert summary["random"]["metrics"]["return"]["std"] == pytest.approx(np.std(returns))
 
 
-def test_evaluate_rejects_unknown_names_listing_valid_ones():
+def test_evaluate_rejects_unknown_names_naming_valid_ones():
     with pytest.raises(ValueError, match="registered: .*DockingStation-v1"):
         run_evaluation(["auv_envs/Nope-v0"], ["random"], [1])
-    with pytest.raises(ValueError, match="registered: .*pd-state"):
-        run_evaluation([DOCK], ["no-such-agent"], [1])
+    with pytest.raises(ValueError, match="did you mean pd-state"):
+        run_evaluation([DOCK], ["pd-stat"], [1])
 
 
 # ------------------------------------------------------------ applicability

@@ -10,7 +10,10 @@ Installed, the same command is ``auv-evaluate``. Writes
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
 mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
 and agents whose intervals overlap share a rank.
-Finished episodes are cached under ``--out``/episodes (one file each), so a
+A run merges into the board already in ``--out`` (``board.json``): the rows it
+evaluates are replaced, the others kept, so the page always shows one whole
+board (``--new-board`` starts afresh). Finished episodes are cached under
+``--out``/episodes (one file each), so a
 rerun, or a run after an interruption, only runs what is missing. The cache
 key includes a fingerprint of the package code and assets, so episodes of
 edited agents or environments run again.
@@ -43,6 +46,7 @@ from baselines.evaluation import (
     BACKENDS,
     POLICY_PREFIX,
     VideoSpec,
+    board,
     bound_rows,
     check_names,
     env_parameters,
@@ -185,6 +189,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
                              "both is an error)")
     parser.add_argument("--out", type=str, default="results/leaderboard",
                         help="output directory (default results/leaderboard)")
+    parser.add_argument("--new-board", action="store_true",
+                        help="start a new board in --out instead of merging into the one there "
+                             "(by default a run replaces the rows it evaluates and keeps the "
+                             "others; the earlier episodes stay cached either way)")
     parser.add_argument("--cache-dir", type=str, default=None,
                         help="episode cache (default OUT/episodes)")
     parser.add_argument("--no-cache", action="store_true",
@@ -241,6 +249,33 @@ def listing() -> str:
         lines.append("groups (training seeds pooled into one row; the name runs them all):")
         lines += [f"  {group} = {', '.join(group_members(group))}" for group in groups]
     return "\n".join(lines)
+
+
+def earlier_board(out: str, agent_modules: list[str]) -> tuple[list, list[str]]:
+    """The tasks of the board in ``out`` that can be merged into, and the agent modules
+    with the board's added. Rows whose environment or agent is gone (a policy directory
+    removed, a module not importable) are left out, and said so on stderr.
+
+    Raises:
+        BoardError: the board file is unreadable (a usage error: ``--new-board``).
+    """
+    tasks, modules = board.read(out)
+    usable = list(agent_modules)
+    for module in modules:
+        if module in usable:
+            continue
+        try:
+            import_agent_modules([module])
+            usable.append(module)
+        except Exception as exc:  # noqa: BLE001 - any failure: its rows cannot be kept
+            print(f"note: the board in {out} used {module}, which fails now ({exc}); its "
+                  f"rows are dropped", file=sys.stderr)
+    known = set(agent_names())
+    kept = [t for t in tasks if t.agent in known and t.env_id in auv_envs.ENVIRONMENTS]
+    if len(kept) < len(tasks):
+        print(f"note: {len(tasks) - len(kept)} episodes of the board in {out} name an agent "
+              f"or environment that no longer exists; dropped", file=sys.stderr)
+    return kept, usable
 
 
 def video_available() -> bool:
@@ -320,12 +355,15 @@ def _main(argv, prog: str) -> int:
             args.record_video or os.path.join(args.out, "videos"), args.video_size,
             None if args.video_speed is None else check_speed(args.video_speed),
             gif=args.record_video is not None)
+        earlier = []
+        if not args.new_board:
+            earlier, agent_modules = earlier_board(args.out, agent_modules)
         run = evaluate_all(
             env_ids, agents, seeds, args.obs_modes, variants,
             cache_dir=args.cache_dir or os.path.join(args.out, "episodes"),
             refresh=args.no_cache, backend=args.backend, workers=args.workers,
             ray_address=args.ray_address, agent_modules=agent_modules,
-            progress=not args.no_progress, video=video,
+            progress=not args.no_progress, video=video, earlier=earlier,
         )
     except (ValueError, KeyError, RuntimeError) as exc:  # PolicyFileError is a RuntimeError
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
@@ -348,7 +386,11 @@ def _main(argv, prog: str) -> int:
     }
     clips = {key: Path(os.path.relpath(path, args.out)).as_posix()
              for key, path in run.clips.items()}
+    if run.kept:
+        meta["merged"] = (f"{run.kept} episodes of earlier runs kept in rows this run did not "
+                          f"evaluate (--new-board starts afresh)")
     paths = leaderboard.write(args.out, summary, run.skipped, run.rows, meta, clips=clips)
+    board.write(args.out, run.tasks, agent_modules)
     print(leaderboard.markdown(summary, run.skipped if args.verbose else (),
                                compact=not args.verbose))
     stats = run.stats

@@ -22,6 +22,8 @@ module has one job:
   rows are not cached, so a rerun retries them.
 * :mod:`~baselines.evaluation.fingerprint`: the code version in the cache key.
 * :mod:`~baselines.evaluation.summary`: episodes -> leaderboard rows.
+* :mod:`~baselines.evaluation.board`: the board an output directory holds, which
+  the next run merges into.
 
 ``evaluate.py`` (:mod:`baselines.commands.evaluate`) is a thin command line over
 :func:`evaluate_all` and :mod:`baselines.leaderboard`; tests import these directly.
@@ -37,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 import auv_envs
+from baselines.evaluation import board
 from baselines.evaluation.backends import BACKENDS, RunStats, run_tasks
 from baselines.evaluation.cache import EpisodeCache, row_from_dict, row_to_dict
 from baselines.evaluation.episodes import (
@@ -112,6 +115,10 @@ class EvaluationRun:
     stats: RunStats
     #: ``(env_id, agent, obs_mode, scenario)`` -> the MP4 of its recorded episode.
     clips: dict[tuple[str, str, str, str], Path] = dataclasses.field(default_factory=dict)
+    #: The tasks of ``rows`` (the board: this run's and the earlier rows kept).
+    tasks: list[EpisodeTask] = dataclasses.field(default_factory=list)
+    #: How many of them were kept from the earlier board (:mod:`~baselines.evaluation.board`).
+    kept: int = 0
 
 
 def evaluate_all(
@@ -128,18 +135,24 @@ def evaluate_all(
     agent_modules: Sequence[str] = (),
     progress: bool = False,
     video: VideoSpec | None = None,
+    earlier: Sequence[EpisodeTask] = (),
 ) -> EvaluationRun:
     """Plan, check and run an evaluation (see :func:`plan` and :func:`run_tasks`).
 
     Defaults: every registered environment and agent, 3 frozen seeds, no cache.
     With ``video``, the first seed's episode of every (environment, agent, obs
-    mode, scenario) is recorded (``EvaluationRun.clips``).
+    mode, scenario) is recorded (``EvaluationRun.clips``). ``earlier``: the
+    tasks of a board to merge into (:func:`baselines.evaluation.board.merge`):
+    its rows that this run does not evaluate are kept (read from the cache, or
+    run again).
     """
     import_agent_modules(agent_modules)
     env_ids = list(dict.fromkeys(env_ids or auv_envs.ENVIRONMENTS))
     agents = resolve_agent_names(agents) if agents else agent_names()  # groups: members
     seeds = check_seeds(seeds) if seeds is not None else default_seeds(3)
     tasks, skipped = plan(env_ids, agents, seeds, obs_modes, env_kwargs)
+    planned = len(tasks)
+    tasks = board.merge(earlier, tasks)
     check_env_kwargs(tasks)
     stats = RunStats()
     cache = EpisodeCache(cache_dir) if cache_dir is not None else None
@@ -153,7 +166,7 @@ def evaluate_all(
                      refresh, videos)
     clips = {(t.env_id, t.agent, t.obs_mode, t.scenario): spec.path(t)
              for t, spec in videos.items() if spec.path(t).exists()}
-    return EvaluationRun(rows, skipped, stats, clips)
+    return EvaluationRun(rows, skipped, stats, clips, tasks, len(tasks) - planned)
 
 
 def evaluate(
