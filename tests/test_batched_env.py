@@ -9,6 +9,9 @@ on the step that ends them and refuse bad input.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -143,6 +146,9 @@ def test_make_vec_speaks_numpy_and_resets_finished_episodes():
     envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=4, obs_mode="features",
                         max_episode_steps=30)
     assert isinstance(envs, gym.vector.VectorEnv)
+    # Compiled programs go to a persistent cache (a later process loads them).
+    cache = envs.unwrapped.compilation_cache
+    assert cache.is_dir() and str(cache) == jax.config.jax_compilation_cache_dir
     obs, info = envs.reset(seed=5)
     assert envs.observation_space.contains(obs)
     again, _ = envs.reset(seed=5)
@@ -194,3 +200,11 @@ def test_refuses_what_it_does_not_build():
         DockingMJX("auv_envs/DockingStation-v1", no_such_argument=1)
     assert failure_reason(0, True) == "" and failure_reason(0, False) == "time_limit"
     assert failure_reason(2, False) == "seabed"
+
+
+def test_importing_the_batched_package_prints_nothing():
+    """MJX's "Failed to import warp" notes (an optional backend these envs do not use)
+    are not passed on to the user."""
+    out = subprocess.run([sys.executable, "-c", "import auv_envs.batched.vector"],
+                         capture_output=True, text=True, check=True)
+    assert out.stdout == ""

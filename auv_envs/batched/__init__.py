@@ -7,12 +7,24 @@
   functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
   interface), ``state`` and ``features`` at the ``easy`` level;
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,
-  ``gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=N)``.
+  ``gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=N)``, whose compiled
+  programs are kept on disk (:mod:`auv_envs.batched.compile_cache`).
 """
+
+import contextlib
+import io
+import sys
 
 try:
     import jax  # noqa: F401
-    from mujoco import mjx  # noqa: F401
+
+    # MJX prints "Failed to import warp: ..." when the optional MuJoCo Warp backend
+    # is absent (these envs do not use it); anything else it prints is passed on.
+    with contextlib.redirect_stdout(io.StringIO()) as _printed:
+        from mujoco import mjx  # noqa: F401
+    sys.stdout.write("".join(line for line in _printed.getvalue().splitlines(keepends=True)
+                             if not line.startswith(("Failed to import warp:",
+                                                     "Failed to import mujoco_warp:"))))
 except ImportError as exc:  # pragma: no cover - the message is the point
     raise ImportError(
         "auv_envs.batched needs JAX and MuJoCo MJX: pip install -e \".[jax]\""

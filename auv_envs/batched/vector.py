@@ -25,6 +25,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from auv_envs.batched.compile_cache import use_compilation_cache
 from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX, failure_reason
 from auv_envs.core.env import action_array, clip_actions
 
@@ -60,6 +61,8 @@ class DockingVectorEnv(VectorEnv):
         self.single_action_space = self.env.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
+        #: Where compiled programs are kept (a later process loads them instead).
+        self.compilation_cache = use_compilation_cache()
         self._reset = jax.jit(jax.vmap(self.env.reset))
         self._step = jax.jit(jax.vmap(self.env.step))
         self.state = None
