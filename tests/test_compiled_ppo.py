@@ -184,14 +184,14 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"learning_rate": "3e-4"}, "write 3.0e-4"),
-    ({"num_envs": 0}, "num_envs must be positive"),
-    ({"gamma": -0.1}, "gamma must be >= 0"),
-    ({"n_epochs": 2.5}, "n_epochs must be int"),
+    ({"num_envs": 0}, r"num_envs must be an integer in \[1, inf\)"),
+    ({"gamma": -0.1}, r"gamma must be a finite number in \[0, 1\]"),
+    ({"n_epochs": 2.5}, "n_epochs must be an integer"),
     ({"obs_mode": "state"}, "'features' only"),
     ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
     ({"env_kwargs": {"time_limit": 5.0}}, "may set 'difficulty' only"),
     ({"num_envs": 10, "n_minibatches": 48}, "must split into"),
-    ({"evals": 0}, "evals must be a positive integer"),
+    ({"evals": 0}, r"evals must be an integer in \[1, inf\)"),
     ({"checkpoints": "yes"}, "checkpoints must be true or false"),
     ({"policy_kwargs": {}}, "unknown setting 'policy_kwargs'"),
 ])

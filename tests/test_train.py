@@ -121,9 +121,9 @@ def test_config_layers_default_env_entry_and_overrides(tmp_path):
     ("overrides", "message"),
     [
         ({"bogus": 1}, "unknown setting 'bogus'"),
-        ({"n_steps": "many"}, "n_steps must be int"),
+        ({"n_steps": "many"}, "n_steps must be an integer"),
         ({"learning_rate": "3e-4"}, "learning_rate"),
-        ({"n_envs": 0}, "n_envs must be positive"),
+        ({"n_envs": 0}, r"n_envs must be an integer in \[1, inf\), got 0"),
         ({"policy": "Transformer"}, "unknown policy"),
         ({"normalize": "yes"}, "normalize must be"),
     ],

@@ -3,7 +3,7 @@
     python train.py --algo ppo --env DockingStation-v1 [--obs-mode state] [--seed 0]
                     [--n-envs N] [--n-timesteps N] [--set KEY=VALUE ...]
                     [--run-dir DIR] [--no-progress-bar] [--export-policy NAME]
-    python train.py --resume RUN_DIR [--n-timesteps N]
+    python train.py --resume RUN_DIR [--n-timesteps N] [--set learning_rate=VALUE]
     python train.py --export RUN_DIR --export-policy NAME
 
 Hyperparameters come from ``baselines/rl/hyperparams/<algo>.yml`` (the env's
@@ -13,6 +13,14 @@ writes a checkpoint at the next safe point and exits with 128 + the signal
 number; ``--resume`` continues exactly where it stopped. ``--export-policy``
 copies the finished run to ``assets/policies/NAME`` as a registered agent.
 See :mod:`baselines.rl.training` for the run directory layout.
+
+Every hyperparameter is checked against its range before anything is built
+(:data:`baselines.rl.config.RANGES`): a bad value exits with 2 and a message
+naming the key, the value and the range. A run whose parameters or losses
+become non-finite stops at once, keeps its last good checkpoint and exits with
+3; ``--resume RUN_DIR --set learning_rate=...`` continues from that checkpoint
+with a smaller learning rate (``--resume`` may change only
+:data:`baselines.rl.config.RESUMABLE`).
 
 ``--algo cppo`` is PPO compiled in JAX on the batched docking envs
 (:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``), from
@@ -24,6 +32,7 @@ the same policy again). ``--n-envs`` sets its batch (``num_envs``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shlex
 import sys
 from pathlib import Path
@@ -34,9 +43,16 @@ from baselines.rl.config import (
     TRAIN_EVAL_SEED_BASE,
     TRAINERS,
     ConfigError,
+    TrainConfig,
+    algo_arguments,
     parse_overrides,
+    read_config,
     resolve_config,
+    schedule_initial_value,
 )
+
+#: The exit status of a run that diverged (2: a usage error, 128 + n: stopped by signal n).
+DIVERGED = 3
 
 
 def _env_id(name: str) -> str:
@@ -62,7 +78,8 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
     parser.add_argument("--n-envs", type=int, help="parallel environments (DummyVecEnv)")
     parser.add_argument("--n-timesteps", type=int, help="training budget in env steps")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="override a hyperparameter (repeatable)")
+                        metavar="KEY=VALUE", help="override a hyperparameter (repeatable); "
+                        "with --resume alone: learning_rate, max_grad_norm, clip_range")
     parser.add_argument("--hyperparams-dir", type=Path, help="directory of <algo>.yml files")
     parser.add_argument("--run-dir", type=Path, help="default: runs/<algo>-<env>-<mode>-s<seed>")
     parser.add_argument("--resume", type=Path, metavar="RUN_DIR",
@@ -113,12 +130,13 @@ def main(argv=None, prog: str = "python train.py") -> int:
                     overrides[key] = value
             expected = resolve_config(args.algo, _env_id(args.env), args.seed, overrides,
                                       args.hyperparams_dir)
-        elif args.overrides:
-            raise ConfigError("--set needs --algo and --env (a resumed run keeps its config)")
+        elif args.overrides and args.resume is None:
+            raise ConfigError("--set needs --algo and --env, or --resume")
         progress = not args.no_progress_bar
         if args.resume is not None:
+            overrides = parse_overrides(args.overrides) if expected is None else None
             result = training.resume(args.resume, command, args.n_timesteps, expected,
-                                     progress_bar=progress)
+                                     progress_bar=progress, overrides=overrides)
         else:
             run_dir = args.run_dir or _default_run_dir(
                 expected.algo, expected.env_id, expected.run["obs_mode"], expected.seed)
@@ -130,6 +148,9 @@ def main(argv=None, prog: str = "python train.py") -> int:
     except (ConfigError, CheckpointError, ValueError, FileNotFoundError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    except training.TrainingDiverged as exc:
+        print(f"{prog}: error: {exc}{_after_divergence(exc, expected, prog)}", file=sys.stderr)
+        return DIVERGED
     curve = write_curve(result.run_dir)
     print(f"learning curve: {curve} (data: eval_curve.csv, train_episodes.csv)")
     if not result.finished:
@@ -148,6 +169,29 @@ def main(argv=None, prog: str = "python train.py") -> int:
                                     args.export_group)
         print(f"exported -> {path}")
     return 0
+
+
+def _after_divergence(exc, config: TrainConfig | None, prog: str) -> str:
+    """What to run next: the same run resumed (or, for ``cppo``, trained again) with a
+    learning rate ten times smaller."""
+    from baselines.rl.training import RunDirectory
+
+    if exc.run_dir is not None:
+        with contextlib.suppress(ConfigError):
+            config = read_config(RunDirectory(exc.run_dir).config)  # what the run last used
+    if config is None:
+        return ""
+    rate = config.hyperparams.get("learning_rate",
+                                  algo_arguments(config.algo)["learning_rate"].default)
+    if isinstance(rate, str):
+        smaller = f"lin_{schedule_initial_value('learning_rate', rate) / 10:.1e}"
+    else:
+        smaller = f"{rate / 10:.1e}"
+    if config.algo == COMPILED:
+        return (f". A cppo run cannot be resumed: train again with a smaller learning rate "
+                f"(--set learning_rate={smaller}) into another --run-dir")
+    return (f" with a smaller learning rate, e.g. {prog} --resume {exc.run_dir} "
+            f"--set learning_rate={smaller}")
 
 
 def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespace):

@@ -22,8 +22,10 @@ run bit for bit (``tests/test_train.py`` checks it), except with gSDE
 so a resumed gSDE run continues correctly but not bit-identically.
 
 Each checkpoint directory holds a ``manifest.json`` with the SHA-256 of every
-file and the digest of the config that produced it; a corrupt file or a
+file and the digests of the config that produced it; a corrupt file or a
 checkpoint of another configuration is refused with :class:`CheckpointError`.
+A config that differs only in the settings a resume may change
+(:data:`baselines.rl.config.RESUMABLE`, its ``resumable_digest``) continues it.
 Directories are written under a temporary name and renamed, and the ``latest``
 pointer is replaced atomically, so an interrupted write never leaves a
 half-checkpoint behind as the latest one.
@@ -44,7 +46,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecNormalize
 
 from auv_envs.core.assets import sha256_file, verify_sha256
 from baselines.fileio import atomic_write
-from baselines.rl.config import ALGORITHMS, OFF_POLICY, TrainConfig
+from baselines.rl.config import ALGORITHMS, OFF_POLICY, RESUMABLE, TrainConfig
 from baselines.rl.envs import make_vec_env
 
 FORMAT = 1
@@ -126,6 +128,7 @@ def write_checkpoint(root: Path, model, config: TrainConfig, extra: dict, keep: 
         "env_id": config.env_id,
         "obs_mode": config.run["obs_mode"],
         "config_digest": config.digest(),
+        "resumable_digest": config.resumable_digest(),
         "files": files,
     }
     atomic_write(tmp / MANIFEST, json.dumps(manifest, indent=2))
@@ -177,11 +180,14 @@ def verify_checkpoint(path: Path, config: TrainConfig) -> dict:
     theirs = {k: manifest.get(k) for k in mine}
     if mine != theirs:
         raise CheckpointError(f"checkpoint {path} is from a {theirs} run, this run is {mine}")
-    if manifest.get("config_digest") != config.digest():
+    # Checkpoints written before resumable_digest existed fit their exact config only.
+    fits = (manifest["resumable_digest"] == config.resumable_digest()
+            if "resumable_digest" in manifest else manifest.get("config_digest") == config.digest())
+    if not fits:
         raise CheckpointError(
             f"checkpoint {path} was written with different hyperparameters than this run's "
-            "config (only n_timesteps and the evaluation/checkpoint frequencies may change "
-            "on resume)"
+            f"config (only n_timesteps, the evaluation/checkpoint frequencies and "
+            f"{', '.join(RESUMABLE)} may change on resume)"
         )
     return manifest
 

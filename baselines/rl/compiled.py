@@ -29,7 +29,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import shutil
 import signal
 import time
@@ -44,6 +43,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.py, tests)
+    default_compilation_cache,
+    use_compilation_cache,
+)
 from auv_envs.batched.docking_env import DockingMJX
 from baselines.rl.config import (
     COMPILED,
@@ -55,6 +58,7 @@ from baselines.rl.config import (
 )
 from baselines.rl.training import (
     RunDirectory,
+    TrainingDiverged,
     TrainResult,
     package_versions,
     stop_on_signals,
@@ -133,6 +137,18 @@ class Normalizer(NamedTuple):
                         CLIP_OBS)
 
 
+def _all_finite(tree) -> jax.Array:
+    leaves = jax.tree_util.tree_leaves(tree)
+    return jnp.all(jnp.stack([jnp.isfinite(leaf).all() for leaf in leaves]))
+
+
+def non_finite_leaves(tree) -> list[str]:
+    """The dotted names of the arrays of ``tree`` that hold a NaN or an infinity."""
+    return [jax.tree_util.keystr(path, simple=True, separator=".")
+            for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]
+            if not bool(jnp.isfinite(leaf).all())]
+
+
 def _log_prob(params, mean, action):
     log_std = params["log_std"]
     return jnp.sum(-0.5 * ((action - mean) / jnp.exp(log_std)) ** 2 - log_std
@@ -158,6 +174,7 @@ class Trainer:
         self._reset_batch = jax.jit(self._reset)  # eager, op by op, it took 27 s on 2 cores
         self._step = jax.vmap(env.step)
         self.iteration = jax.jit(self._iteration)
+        self.all_finite = jax.jit(_all_finite)  # one small program, one scalar to the host
         self.evaluate = jax.jit(self._evaluate, static_argnums=(2, 3))
 
     def init(self, key) -> tuple:
@@ -289,7 +306,9 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
     success rate on the CPU environment (``scripts/time_to_success.py``).
     ``command``: the command line to record. ``stop()`` is asked after every
     iteration; when it says True the policy so far is written and the manifest's
-    ``finished`` is False.
+    ``finished`` is False. An iteration that leaves a parameter or a normalisation
+    statistic non-finite raises :class:`~baselines.rl.training.TrainingDiverged` at once,
+    writing nothing more (the checkpoints written before it stay).
     """
     env = DockingMJX(env_id, obs_mode="features", difficulty=difficulty)
     per_iteration = settings.num_envs * settings.n_steps
@@ -306,10 +325,16 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
         curve = []
         every = max(1, iterations // evals)
         i = 0
+        last_checkpoint = None
         while i < iterations and not (i and stop()):
             i += 1
             params, opt_state, normalizer, states, key, stats = trainer.iteration(
                 params, opt_state, normalizer, states, key)
+            if not bool(trainer.all_finite((params, normalizer))):
+                compiling.cancel()
+                raise TrainingDiverged(i * per_iteration, non_finite_leaves(
+                    {"policy": params, "normalizer": normalizer}), last_checkpoint,
+                    resumable=False)
             if i % every and i != iterations:
                 continue
             evaluate = evaluate or compiling.result()
@@ -324,7 +349,8 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
             print(f"[eval] step {row['step']}: success {100 * success:.0f} % over "
                   f"{EVAL_EPISODES} batched episodes ({row['wall_s']} s)", flush=True)
             if checkpoints and i < iterations:
-                export(env, params, normalizer, checkpoint_dir / f"step_{row['step']}",
+                last_checkpoint = checkpoint_dir / f"step_{row['step']}"
+                export(env, params, normalizer, last_checkpoint,
                        {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
                         "curve": list(curve), "group": None})
         if evaluate is None:
@@ -393,29 +419,6 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
     return manifest
 
 
-def default_compilation_cache() -> Path:
-    """``$XDG_CACHE_HOME/auv_envs/jax`` (``~/.cache/auv_envs/jax`` without it)."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "auv_envs" / "jax"
-
-
-def use_compilation_cache(directory: Path) -> None:
-    """Keep compiled programs in ``directory`` (JAX's persistent compilation cache).
-
-    A run compiles its iteration, reset and evaluation: on 2 CPU cores about
-    90 s pass before learning starts. A later run with the same environment,
-    level and settings (another seed, say) loads them from here instead and
-    starts in about 33 s, most of it tracing
-    (``benchmarks/compiled_startup.py``). The cache is keyed on the compiled
-    program, the JAX version and the device, so a stale entry is never used;
-    deleting the directory is always safe.
-    """
-    directory.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(directory))
-    # Cache the env's smaller programs too (JAX's default skips those under 1 s).
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-
-
 def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
               compilation_cache: Path | None = None) -> TrainResult:
     """``train.py --algo cppo``: train ``config`` (``baselines/rl/hyperparams/cppo.yml``
@@ -446,13 +449,20 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
             "segments": [{"command": command, "start_step": 0, "status": "running"}]}
     write_run_info(run, info)
     flag = SimpleNamespace(stop_signal=None)
-    with stop_on_signals(flag, "writing the policy so far after this iteration"):
-        manifest = train(config.env_id, config.run["env_kwargs"].get("difficulty", "paper"),
-                         config.run["n_timesteps"], config.seed, run.final,
-                         Settings(**config.hyperparams), config.run["evals"],
-                         checkpoints=config.run["checkpoints"],
-                         checkpoint_dir=run.checkpoints, command=command,
-                         stop=lambda: flag.stop_signal is not None)
+    try:
+        with stop_on_signals(flag, "writing the policy so far after this iteration"):
+            manifest = train(config.env_id, config.run["env_kwargs"].get("difficulty", "paper"),
+                             config.run["n_timesteps"], config.seed, run.final,
+                             Settings(**config.hyperparams), config.run["evals"],
+                             checkpoints=config.run["checkpoints"],
+                             checkpoint_dir=run.checkpoints, command=command,
+                             stop=lambda: flag.stop_signal is not None)
+    except TrainingDiverged as exc:
+        exc.run_dir = run.path
+        info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))
+        info.update(status="diverged")
+        write_run_info(run, info)
+        raise
     shutil.copy2(run.final / "eval_curve.csv", run.eval_curve)
     status = "finished" if manifest["finished"] else "interrupted"
     steps, wall = manifest["n_timesteps"], manifest["wall_time_s"]

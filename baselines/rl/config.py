@@ -25,6 +25,12 @@ literals (:func:`ast.literal_eval`) or else as YAML scalars
 (:func:`yaml.safe_load`), never evaluated as code
 (:func:`baselines.parsing.parse_value`). Unknown keys and values of
 the wrong type raise :class:`ConfigError` naming the valid choices.
+
+Every numeric setting, run key or algorithm argument, has one row in
+:data:`RANGES` (its type and allowed interval); :func:`validate` checks a
+config against it before any environment is built, so a bad value is a
+:class:`ConfigError` naming the key, the value and the range, never an
+assertion inside Stable-Baselines3 or a run that trains into NaN.
 """
 
 from __future__ import annotations
@@ -32,9 +38,12 @@ from __future__ import annotations
 import contextlib
 import copy
 import dataclasses
+import functools
 import hashlib
 import inspect
 import json
+import math
+import re
 from pathlib import Path
 from typing import NamedTuple
 
@@ -76,19 +85,13 @@ RUN_KEYS = {
     "detection_fixes": False,
     "marker_estimate": False,
 }
+#: Types of the run keys that are not numbers (the numbers are rows of :data:`RANGES`).
 _RUN_KEY_TYPES = {
     "obs_mode": str,
-    "n_timesteps": int,
-    "n_envs": int,
     "policy": str,
     "normalize": (bool, dict),
     "flatten_obs": bool,
     "env_kwargs": dict,
-    "eval_freq": int,
-    "n_eval_episodes": int,
-    "checkpoint_freq": int,
-    "keep_checkpoints": int,
-    "torch_threads": int,
     "detection_fixes": bool,
     "marker_estimate": bool,
 }
@@ -100,8 +103,6 @@ FRONT_ENDS = {
     "detection_fixes": "baselines.rl.detections:DetectionFixes",
     "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
 }
-_POSITIVE = ("n_timesteps", "n_envs", "eval_freq", "checkpoint_freq", "keep_checkpoints",
-             "torch_threads")
 POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy",
             "JointResidualPolicy")
 #: Policy names of this package's own policy classes (``module:class``, imported by
@@ -115,8 +116,10 @@ _MANAGED = {
     "self", "policy", "env", "tensorboard_log", "verbose", "seed", "device",
     "_init_setup_model", "rollout_buffer_class", "replay_buffer_class",
 }
-#: Arguments that also accept a schedule string ``"lin_<initial value>"``.
-_SCHEDULES = ("learning_rate", "clip_range", "clip_range_vf")
+#: Hyperparameters ``train.py --resume RUN --set KEY=VALUE`` may change (after a
+#: divergence, say): they scale the later updates but not the shapes of the model, its
+#: optimiser state, its buffers or its environments, so the checkpoint still fits.
+RESUMABLE = ("learning_rate", "max_grad_norm", "clip_range")
 
 
 #: Keys of ``cppo.yml`` that train.py reads itself, with their defaults: ``evals``
@@ -148,6 +151,176 @@ class CompiledSettings(NamedTuple):
 
 class ConfigError(ValueError):
     """A configuration problem, with a message that names the fix."""
+
+
+_INTERVAL = re.compile(r"^([\[(])\s*([^,\s]+)\s*,\s*([^\])\s]+)\s*([\])])$")
+_YAML_FLOAT_HINT = " (YAML reads 3e-4 as a string: write 3.0e-4)"
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """The values one numeric setting accepts: one row of :data:`RANGES`.
+
+    Attributes:
+        kind: ``int`` or ``float``. An integer is a valid float; ``true``/``false``
+            are never numbers; a float must be finite (NaN and infinity are refused).
+        interval: ``"[low, high]"``; a round bracket leaves that end out, ``inf`` is
+            no bound.
+        also: values accepted besides the interval (``-1`` for "all", ``None`` for "off").
+        forms: strings accepted besides numbers, where the algorithm takes them
+            (:func:`accepted_forms`): ``"lin_<x>"``, a schedule that decays linearly
+            from ``x`` (in the interval) to 0; ``"auto"`` and ``"auto_<x>"``, SAC's
+            learned coefficient (starting from ``x`` > 0, whose logarithm it learns).
+        units: ``[n, unit]`` pairs accepted besides ``n`` alone (``train_freq``).
+        note: why the bound is where it is, added to the error message.
+    """
+
+    kind: type
+    interval: str
+    also: tuple = ()
+    forms: tuple[str, ...] = ()
+    units: tuple[str, ...] = ()
+    note: str = ""
+
+    @functools.cached_property
+    def bounds(self) -> tuple[float, float, bool, bool]:
+        """``(low, high, low included, high included)``."""
+        match = _INTERVAL.match(self.interval)
+        if match is None:
+            raise ValueError(f"not an interval: {self.interval!r}")
+        left, low, high, right = match.groups()
+        return float(low), float(high), left == "[", right == "]"
+
+    def contains(self, x: float) -> bool:
+        low, high, low_in, high_in = self.bounds
+        return (low < x or (low_in and low == x)) and (x < high or (high_in and high == x))
+
+    def _number_ok(self, value) -> bool:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return False
+        if self.kind is int and not isinstance(value, int):
+            return False
+        if isinstance(value, float) and not math.isfinite(value):
+            return False
+        return self.contains(value)
+
+    def _form_ok(self, value: str, forms: tuple[str, ...]) -> bool:
+        for form in forms:
+            if value == form:
+                return True
+            prefix = form.removesuffix("<x>")
+            if prefix != form and value.startswith(prefix):
+                try:
+                    x = float(value[len(prefix):])
+                except ValueError:
+                    return False
+                if prefix == "auto_" and not x > 0:  # SAC learns log(x)
+                    return False
+                return math.isfinite(x) and self.contains(x)
+        return False
+
+    def accepts(self, value, forms: tuple[str, ...] | None = None) -> bool:
+        """Whether ``value`` is allowed (``forms``: those of :attr:`forms` allowed here)."""
+        if any(value is a or (type(value) is type(a) and value == a) for a in self.also):
+            return True
+        if isinstance(value, str):
+            return self._form_ok(value, self.forms if forms is None else forms)
+        if self.units and isinstance(value, list | tuple) and len(value) == 2 \
+                and value[1] in self.units:
+            value = value[0]
+        return self._number_ok(value)
+
+    def describe(self, forms: tuple[str, ...] = ()) -> str:
+        """The accepted values in words, as error messages and docs/training.md give them."""
+        kind = "an integer" if self.kind is int else "a finite number"
+        text = kind if self.bounds[:2] == (-math.inf, math.inf) else f"{kind} in {self.interval}"
+        alternatives = [repr(a) if a is not None else "None" for a in self.also]
+        alternatives += [f"[n, {unit!r}]" for unit in self.units]
+        for form in forms:
+            if form.endswith("<x>"):
+                where = "x > 0" if form.startswith("auto") else f"x in {self.interval}"
+                alternatives.append(f"'{form}' ({where})")
+            else:
+                alternatives.append(repr(form))
+        return " or ".join([text, *alternatives])
+
+    def check(self, key: str, value, forms: tuple[str, ...] | None = None) -> None:
+        """Raise :class:`ConfigError` naming ``key``, ``value`` and the range unless
+        :meth:`accepts` it."""
+        forms = self.forms if forms is None else forms
+        if self.accepts(value, forms):
+            return
+        hint = ""
+        if isinstance(value, str):
+            with contextlib.suppress(ValueError):
+                float(value)
+                hint = _YAML_FLOAT_HINT
+        note = f" ({self.note})" if self.note else ""
+        raise ConfigError(f"{key} must be {self.describe(forms)}, got {value!r}{hint}{note}")
+
+
+_AT_LEAST_1 = "[1, inf)"
+#: Every numeric setting a YAML entry or ``--set`` may give, for every trainer: ``train.py``'s
+#: run keys, the Stable-Baselines3 arguments of PPO, A2C, SAC, TD3 and DDPG, and the
+#: compiled PPO's :class:`CompiledSettings` (a name means the same everywhere it occurs).
+#: Dotted names reach into a mapping. :func:`validate` checks each value against its row;
+#: ``tests/test_train_validation.py`` checks that every numeric argument has one.
+RANGES = {
+    # train.py's run keys
+    "n_timesteps": Range(int, _AT_LEAST_1),
+    "n_envs": Range(int, _AT_LEAST_1),
+    "eval_freq": Range(int, _AT_LEAST_1),
+    "n_eval_episodes": Range(int, f"[0, {EVAL_SEED_BASE - TRAIN_EVAL_SEED_BASE}]",
+                             note="more would reach the leaderboard's evaluation seeds"),
+    "checkpoint_freq": Range(int, _AT_LEAST_1),
+    "keep_checkpoints": Range(int, _AT_LEAST_1),
+    "torch_threads": Range(int, _AT_LEAST_1),
+    "evals": Range(int, _AT_LEAST_1),  # cppo
+    # the update: PPO, A2C, cppo (learning_rate, gamma, batch_size: all)
+    "learning_rate": Range(float, "(0, inf)", forms=("lin_<x>",)),
+    "n_steps": Range(int, _AT_LEAST_1),  # rollout length; SAC/TD3/DDPG: n-step returns
+    "batch_size": Range(int, _AT_LEAST_1),
+    "n_epochs": Range(int, _AT_LEAST_1),
+    "gamma": Range(float, "[0, 1]"),
+    "gae_lambda": Range(float, "[0, 1]"),
+    "clip_range": Range(float, "(0, inf)", forms=("lin_<x>",)),
+    "clip_range_vf": Range(float, "(0, inf)", also=(None,), forms=("lin_<x>",)),
+    "ent_coef": Range(float, "[0, inf)", forms=("auto", "auto_<x>")),
+    "vf_coef": Range(float, "[0, inf)"),
+    "max_grad_norm": Range(float, "(0, inf)"),
+    "target_kl": Range(float, "(0, inf)", also=(None,)),
+    "sde_sample_freq": Range(int, _AT_LEAST_1, also=(-1,)),
+    "stats_window_size": Range(int, _AT_LEAST_1),
+    "rms_prop_eps": Range(float, "(0, inf)"),
+    "num_envs": Range(int, _AT_LEAST_1),  # cppo
+    "n_minibatches": Range(int, _AT_LEAST_1),  # cppo
+    # off-policy: SAC, TD3, DDPG
+    "buffer_size": Range(int, _AT_LEAST_1),
+    "learning_starts": Range(int, "[0, inf)"),
+    "tau": Range(float, "(0, 1]"),
+    "train_freq": Range(int, _AT_LEAST_1, units=("step", "episode")),
+    "gradient_steps": Range(int, _AT_LEAST_1, also=(-1,)),
+    "target_update_interval": Range(int, _AT_LEAST_1),
+    "target_entropy": Range(float, "(-inf, inf)", forms=("auto",)),
+    "policy_delay": Range(int, _AT_LEAST_1),
+    "target_policy_noise": Range(float, "[0, inf)"),
+    "target_noise_clip": Range(float, "[0, inf)"),
+    "action_noise.sigma": Range(float, "[0, inf)"),
+    # inside policy_kwargs
+    "policy_kwargs.log_std_init": Range(float, "(-inf, inf)"),
+}
+#: ``action_noise: {type: <one of these>, sigma: <number>}`` (the classes:
+#: :data:`baselines.rl.training.ACTION_NOISE`).
+ACTION_NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
+
+
+def accepted_forms(algo: str, key: str, default) -> tuple[str, ...]:
+    """The strings of ``RANGES[key].forms`` that ``algo`` takes for ``key``: schedules
+    (``lin_``) in Stable-Baselines3 only (cppo's rate always decays to 0), ``auto`` where the
+    argument's own default is a string (SAC's ``ent_coef`` and ``target_entropy``)."""
+    if algo == COMPILED:
+        return ()
+    return tuple(f for f in RANGES[key].forms if f.startswith("lin_") or isinstance(default, str))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -198,12 +371,33 @@ class TrainConfig:
         ``n_timesteps`` is left out by default so a finished run can be
         continued for longer; bookkeeping keys (evaluation and checkpoint
         frequencies) are left out because they do not change the learner.
+        ``ignore`` names run keys or hyperparameters.
         """
         data = self.to_dict()
         for key in (*ignore, "eval_freq", "n_eval_episodes", "checkpoint_freq",
                     "keep_checkpoints"):
             data["run"].pop(key, None)
+            data["hyperparams"].pop(key, None)
         return hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
+
+    def resumable_digest(self) -> str:
+        """:meth:`digest` without the settings a resumed run may change (:data:`RESUMABLE`):
+        equal for every config that can continue the same checkpoint."""
+        return self.digest(ignore=("n_timesteps", *RESUMABLE))
+
+
+def resumed(config: TrainConfig, overrides: dict) -> TrainConfig:
+    """``config`` with the :data:`RESUMABLE` settings in ``overrides`` changed, checked
+    (``train.py --resume RUN --set learning_rate=1.0e-4``)."""
+    others = sorted(set(overrides) - set(RESUMABLE))
+    if others:
+        raise ConfigError(f"a resumed run may change only {', '.join(RESUMABLE)} (anything "
+                          f"else would not fit its checkpoint), got {', '.join(others)}")
+    if config.algo == COMPILED:
+        raise ConfigError("a compiled PPO (cppo) run cannot be resumed")
+    changed = dataclasses.replace(config, hyperparams={**config.hyperparams, **overrides})
+    validate(changed)
+    return changed
 
 
 def load_hyperparams(algo: str, hyperparams_dir: Path | None = None) -> dict:
@@ -316,7 +510,11 @@ def _type_name(types) -> str:
 
 
 def validate(config: TrainConfig) -> None:
-    """Raise :class:`ConfigError` for anything train.py could not run."""
+    """Raise :class:`ConfigError` for anything train.py could not run.
+
+    Every numeric value is checked against its row of :data:`RANGES`, then the
+    relations between settings that Stable-Baselines3 asserts on (:func:`_check_relations`).
+    """
     import auv_envs
 
     if config.algo not in TRAINERS:
@@ -332,18 +530,16 @@ def validate(config: TrainConfig) -> None:
     unknown = set(config.run) - set(RUN_KEYS)
     if missing or unknown:
         raise ConfigError(f"run keys missing {sorted(missing)} / unknown {sorted(unknown)}")
-    for key, types in _RUN_KEY_TYPES.items():
-        value = config.run[key]
+    for key, value in config.run.items():
+        if key in RANGES:
+            RANGES[key].check(key, value)
+            continue
+        types = _RUN_KEY_TYPES[key]
         if isinstance(value, bool) and bool not in (types if isinstance(types, tuple)
                                                     else (types,)):
             raise ConfigError(f"{key} must be {_type_name(types)}, got {value!r}")
         if not isinstance(value, types):
             raise ConfigError(f"{key} must be {_type_name(types)}, got {value!r}")
-    for key in _POSITIVE:
-        if config.run[key] <= 0:
-            raise ConfigError(f"{key} must be positive, got {config.run[key]}")
-    if config.run["n_eval_episodes"] < 0:
-        raise ConfigError("n_eval_episodes must be >= 0")
     if config.run["policy"] not in POLICIES:
         raise ConfigError(f"unknown policy {config.run['policy']!r}; valid: {', '.join(POLICIES)}")
     if config.run["policy"] in CUSTOM_POLICIES and config.algo != "ppo":
@@ -366,8 +562,6 @@ def validate(config: TrainConfig) -> None:
             f"seed must be in [0, {top}] so training seeds stay below the held-out "
             f"evaluation seeds ({TRAIN_EVAL_SEED_BASE}+), got {config.seed}"
         )
-    if config.run["n_eval_episodes"] > EVAL_SEED_BASE - TRAIN_EVAL_SEED_BASE:
-        raise ConfigError("n_eval_episodes would reach the leaderboard's evaluation seeds")
     arguments = algo_arguments(config.algo)
     for key, value in config.hyperparams.items():
         if key not in arguments:
@@ -375,7 +569,32 @@ def validate(config: TrainConfig) -> None:
                 f"unknown setting {key!r} for {config.algo}; "
                 f"valid: {', '.join(sorted(set(arguments) | set(RUN_KEYS)))}"
             )
-        _check_argument(key, value, arguments[key].default)
+        _check_argument(config.algo, key, value, arguments[key].default)
+    _check_relations(config, arguments)
+
+
+def _check_relations(config: TrainConfig, arguments: dict[str, inspect.Parameter]) -> None:
+    """What Stable-Baselines3 asserts on (or turns into NaN) across settings, once each
+    value is in its range."""
+    def setting(key):
+        return config.hyperparams.get(key, arguments[key].default)
+
+    n_envs = config.run["n_envs"]
+    if config.algo in ("ppo", "a2c") and setting("normalize_advantage"):
+        n_steps = setting("n_steps")
+        if n_steps * n_envs < 2:
+            raise ConfigError(f"n_steps x n_envs must be at least 2 with normalize_advantage "
+                              f"(advantages are normalised over the rollout), got "
+                              f"{n_steps} x {n_envs}")
+        if config.algo == "ppo" and setting("batch_size") < 2:
+            raise ConfigError(f"batch_size must be at least 2 with normalize_advantage "
+                              f"(advantages are normalised over a minibatch), got "
+                              f"{setting('batch_size')}")
+    if config.algo in OFF_POLICY:
+        train_freq = setting("train_freq")
+        if isinstance(train_freq, list | tuple) and train_freq[1] == "episode" and n_envs > 1:
+            raise ConfigError(f"train_freq in episodes needs n_envs 1, got {n_envs} "
+                              "(count steps instead: train_freq: [n, step])")
 
 
 def _validate_compiled(config: TrainConfig) -> None:
@@ -397,8 +616,7 @@ def _validate_compiled(config: TrainConfig) -> None:
     if kwargs.get("difficulty", "paper") not in LEVELS:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
-        if not isinstance(run[key], int) or isinstance(run[key], bool) or run[key] <= 0:
-            raise ConfigError(f"{key} must be a positive integer, got {run[key]!r}")
+        RANGES[key].check(key, run[key])
     if not isinstance(run["checkpoints"], bool):
         raise ConfigError(f"checkpoints must be true or false, got {run['checkpoints']!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
@@ -410,38 +628,32 @@ def _validate_compiled(config: TrainConfig) -> None:
         if key not in fields:
             raise ConfigError(f"unknown setting {key!r} for cppo; valid: "
                               f"{', '.join(sorted({*fields, *COMPILED_RUN_KEYS}))}")
-        if isinstance(value, str):  # no schedule strings: the rate always decays to 0
-            raise ConfigError(f"{key} must be a number, got {value!r} (YAML reads 3e-4 as a "
-                              "string: write 3.0e-4)")
-        _check_argument(key, value, fields[key])
-        if value < 0 or (isinstance(fields[key], int) and value == 0):
-            sign = "positive" if isinstance(fields[key], int) else ">= 0"
-            raise ConfigError(f"{key} must be {sign}, got {value!r}")
+        _check_argument(COMPILED, key, value, fields[key])
     settings = CompiledSettings(**config.hyperparams)
     if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
         raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
                           f"split into n_minibatches ({settings.n_minibatches}) equal parts")
 
 
-def _check_argument(key: str, value, default) -> None:
-    if key in _SCHEDULES and isinstance(value, str):
-        schedule_initial_value(key, value)
-        return
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-    elif isinstance(default, int) and key not in ("train_freq",):
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif isinstance(default, float):
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-    else:
-        return  # None defaults, unions and mappings: checked by the algorithm itself
-    if not ok:
-        hint = ""
-        if isinstance(value, str) and isinstance(default, float):
-            hint = " (YAML reads 3e-4 as a string: write 3.0e-4)"
-        raise ConfigError(
-            f"{key} must be {type(default).__name__}, got {value!r}{hint}"
-        )
+def _check_argument(algo: str, key: str, value, default) -> None:
+    """One algorithm argument: its :data:`RANGES` row, else its type from its default;
+    mappings and ``None`` defaults are checked by the algorithm when it is built, apart
+    from their rows in :data:`RANGES` (``action_noise.sigma``)."""
+    if key in RANGES:
+        RANGES[key].check(key, value, accepted_forms(algo, key, default))
+    elif isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key} must be bool, got {value!r}")
+    elif key == "action_noise":
+        if value is not None and not (isinstance(value, dict) and set(value) == {"type", "sigma"}
+                                      and value["type"] in ACTION_NOISE_TYPES):
+            raise ConfigError(f"action_noise must be {{type: {'|'.join(ACTION_NOISE_TYPES)}, "
+                              f"sigma: <number>}}, got {value!r}")
+    elif key.endswith("_kwargs") and value is not None and not isinstance(value, dict):
+        raise ConfigError(f"{key} must be a mapping, got {value!r}")
+    for sub, item in (value.items() if isinstance(value, dict) else ()):
+        if f"{key}.{sub}" in RANGES:
+            RANGES[f"{key}.{sub}"].check(f"{key}.{sub}", item)
 
 
 def schedule_initial_value(key: str, text: str) -> float:

@@ -19,7 +19,16 @@ and below the leaderboard's ``EVAL_SEED_BASE`` = 100000.
 SIGINT / SIGTERM ask for a checkpoint at the next safe point, after which the
 run stops (a second signal aborts at once); ``resume`` continues from the
 latest checkpoint exactly as the uninterrupted run would have
-(:mod:`baselines.rl.checkpoint`).
+(:mod:`baselines.rl.checkpoint`). A fresh run checkpoints its initial model
+too, so every run has a checkpoint to resume from.
+
+Divergence: before every rollout (the safe point) the parameters, the
+observation-normalisation statistics and the losses of the last update are
+checked, and after every on-policy rollout its rewards, returns and advantages.
+Anything non-finite stops the run with :class:`TrainingDiverged` before it is
+evaluated or checkpointed, so the latest checkpoint is always a finite model;
+``resume`` continues from it, with a smaller learning rate if asked
+(:data:`baselines.rl.config.RESUMABLE`).
 """
 
 from __future__ import annotations
@@ -58,10 +67,12 @@ from baselines.rl.config import (
     COMPILED,
     CUSTOM_POLICIES,
     FRONT_ENDS,
+    RESUMABLE,
     TRAIN_EVAL_SEED_BASE,
     ConfigError,
     TrainConfig,
     read_config,
+    resumed,
     save_config,
     schedule_initial_value,
     validate,
@@ -120,6 +131,30 @@ class TrainResult:
     wall_time_s: float
 
 
+class TrainingDiverged(RuntimeError):
+    """Training produced non-finite values; the run stopped before using or saving them.
+
+    Attributes:
+        step: environment steps trained when it was found.
+        what: what became non-finite (parameter names, losses, statistics).
+        checkpoint: the last good checkpoint, kept (None: the run wrote none).
+        run_dir: the run directory.
+    """
+
+    def __init__(self, step: int, what: Sequence[str], checkpoint: Path | None,
+                 run_dir: Path | None = None, resumable: bool = True):
+        self.step, self.what, self.checkpoint, self.run_dir = step, list(what), checkpoint, run_dir
+        shown = ", ".join(self.what[:6]) + (f" and {len(self.what) - 6} more"
+                                            if len(self.what) > 6 else "")
+        if checkpoint is None:
+            kept = "no checkpoint was written before it"
+        elif resumable:
+            kept = f"the last good checkpoint, {checkpoint}, is kept; resume from it"
+        else:
+            kept = f"the policies written before it are kept ({checkpoint})"
+        super().__init__(f"training diverged at step {step}, not finite: {shown}; {kept}")
+
+
 # --------------------------------------------------------------- model set-up
 def choose_policy(observation_space: spaces.Space, requested: str = "auto") -> str:
     """``auto``: ``MultiInputPolicy`` for ``Dict``, ``CnnPolicy`` for images, else ``MlpPolicy``."""
@@ -154,13 +189,7 @@ def algorithm_kwargs(config: TrainConfig, action_space: spaces.Space) -> dict:
     if isinstance(kwargs.get("train_freq"), list):
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
     noise = kwargs.get("action_noise")
-    if noise is not None:
-        if not (isinstance(noise, dict) and set(noise) == {"type", "sigma"}
-                and noise["type"] in ACTION_NOISE):
-            raise ConfigError(
-                "action_noise must be {type: normal|ornstein-uhlenbeck, sigma: <number>}, "
-                f"got {noise!r}"
-            )
+    if noise is not None:  # its form and sigma are checked by validate()
         n = int(np.prod(action_space.shape))
         kwargs["action_noise"] = ACTION_NOISE[noise["type"]](
             mean=np.zeros(n), sigma=float(noise["sigma"]) * np.ones(n)
@@ -169,24 +198,41 @@ def algorithm_kwargs(config: TrainConfig, action_space: spaces.Space) -> dict:
 
 
 def custom_objects(config: TrainConfig) -> dict:
-    """Schedules rebuilt from the config when a checkpoint is loaded (not unpickled)."""
+    """Settings taken from the config, not the checkpoint, when a checkpoint is loaded:
+    schedules (rebuilt, not unpickled) and what a resume may change (:data:`RESUMABLE`)."""
     out = {}
-    for key in ("learning_rate", "clip_range", "clip_range_vf"):
+    for key in (*RESUMABLE, "clip_range_vf"):
         if key in config.hyperparams:
             out[key] = _schedule(key, config.hyperparams[key])
     return out
 
 
 def build_model(config: TrainConfig):
-    """A new SB3 model on a new, seeded training vector env."""
+    """A new SB3 model on a new, seeded training vector env.
+
+    What Stable-Baselines3 still refuses once :func:`validate` passed (a relation with
+    the environment's spaces, e.g. n-step returns on ``Dict`` observations) is a
+    :class:`ConfigError`, not an assertion.
+    """
     vec_env = make_vec_env(config)
-    policy = choose_policy(vec_env.observation_space, config.run["policy"])
-    if policy in CUSTOM_POLICIES:
-        policy = LazyFactory(CUSTOM_POLICIES[policy]).resolve()
-    return ALGORITHMS[config.algo](
-        policy, vec_env, seed=config.seed, device="cpu", verbose=0,
-        **algorithm_kwargs(config, vec_env.action_space),
-    )
+    try:
+        policy = choose_policy(vec_env.observation_space, config.run["policy"])
+        if policy in CUSTOM_POLICIES:
+            policy = LazyFactory(CUSTOM_POLICIES[policy]).resolve()
+        return ALGORITHMS[config.algo](
+            policy, vec_env, seed=config.seed, device="cpu", verbose=0,
+            **algorithm_kwargs(config, vec_env.action_space),
+        )
+    except ConfigError:
+        vec_env.close()
+        raise
+    except (AssertionError, ValueError) as exc:
+        vec_env.close()
+        raise ConfigError(f"Stable-Baselines3 {config.algo.upper()} refuses these settings on "
+                          f"{config.env_id}: {exc}") from exc
+    except BaseException:
+        vec_env.close()
+        raise
 
 
 # ---------------------------------------------------------------- bookkeeping
@@ -259,13 +305,68 @@ def write_final(run: RunDirectory, model, config: TrainConfig) -> Path:
     return run.final
 
 
+# ---------------------------------------------------------------- divergence
+def _learned_tensors(model) -> dict[str, torch.Tensor]:
+    """Every tensor the model learns: the policy's parameters (actor, critics, their
+    targets) and SAC's entropy coefficient."""
+    tensors = dict(model.policy.named_parameters())
+    if isinstance(getattr(model, "log_ent_coef", None), torch.Tensor):
+        tensors["log_ent_coef"] = model.log_ent_coef
+    return tensors
+
+
+def non_finite(model) -> list[str]:
+    """What of ``model`` is not finite: parameter names, ``exp(log_std)`` (the action
+    noise, which must stay in (0, inf)), the normalisation statistics, the losses of the
+    last update; empty when all are finite.
+
+    One sum per tensor screens them (a sum is finite when every term is, barring overflow
+    of huge but finite values, which the per-tensor test that follows sorts out).
+    """
+    bad = []
+    tensors = _learned_tensors(model)
+    with torch.no_grad():
+        if not torch.isfinite(torch.stack([t.sum() for t in tensors.values()]).sum()):
+            bad += [name for name, t in tensors.items() if not torch.isfinite(t).all()]
+        log_std = getattr(model.policy, "log_std", None)
+        if isinstance(log_std, torch.Tensor) and "log_std" not in bad:
+            std = log_std.exp()  # the action distribution's scale: must stay in (0, inf)
+            if not torch.isfinite(std).all():
+                bad.append("the action std exp(log_std) (overflowed)")
+            elif not (std > 0).all():
+                bad.append("the action std exp(log_std) (underflowed to 0)")
+    normalizer = model.get_vec_normalize_env()
+    if normalizer is not None:
+        stats = normalizer.obs_rms if isinstance(normalizer.obs_rms, dict) \
+            else {"": normalizer.obs_rms}
+        stats = {f"observation {key}".rstrip(): rms for key, rms in stats.items()}
+        stats["return"] = normalizer.ret_rms
+        bad += [f"{name} normalisation statistics" for name, rms in stats.items()
+                if not (np.isfinite(rms.mean).all() and np.isfinite(rms.var).all())]
+    bad += [key for key, value in model.logger.name_to_value.items()
+            if key.startswith("train/") and "loss" in key and not np.isfinite(value)]
+    return bad
+
+
+def non_finite_rollout(model) -> list[str]:
+    """What of the on-policy rollout just collected is not finite (empty when all is, or
+    for an off-policy model): checked before the update learns from it."""
+    buffer = getattr(model, "rollout_buffer", None)
+    if buffer is None:
+        return []
+    return [f"rollout {name}" for name in ("rewards", "returns", "advantages")
+            if not np.isfinite(getattr(buffer, name)).all()]
+
+
 # ------------------------------------------------------------------ callback
 class TrainingCallback(BaseCallback):
-    """Evaluation, checkpoints, episode log and signal-driven stops at safe points.
+    """Evaluation, checkpoints, episode log, divergence checks and signal-driven stops at
+    safe points.
 
     Everything happens in ``_on_rollout_start`` (the safe point of
-    :mod:`baselines.rl.checkpoint`); ``_on_step`` only logs finished episodes
-    and stops the run after a requested checkpoint.
+    :mod:`baselines.rl.checkpoint`), after :meth:`check_finite`; ``_on_rollout_end``
+    checks the rollout before the update; ``_on_step`` only logs finished episodes and
+    stops the run after a requested checkpoint.
     """
 
     def __init__(self, run: RunDirectory, config: TrainConfig, bookkeeping: dict,
@@ -295,7 +396,17 @@ class TrainingCallback(BaseCallback):
             ckpt.restore_random_state(self.model, self.random_state)
             self.random_state = None
 
+    def check_finite(self) -> None:
+        """Raise :class:`TrainingDiverged` unless the model is finite (:func:`non_finite`)."""
+        bad = non_finite(self.model)
+        if bad:
+            raise self.diverged(bad)
+
+    def diverged(self, what: Sequence[str]) -> TrainingDiverged:
+        return TrainingDiverged(int(self.model.num_timesteps), what, self.latest, self.run.path)
+
     def _on_rollout_start(self) -> None:
+        self.check_finite()  # before anything evaluates or saves the model
         step = self.num_timesteps
         eval_freq = self.config.run["eval_freq"]
         if self.config.run["n_eval_episodes"] and step >= self.next_eval:
@@ -307,6 +418,11 @@ class TrainingCallback(BaseCallback):
             self.save_checkpoint()
         if self.stop_signal is not None:
             self.stopping = True
+
+    def _on_rollout_end(self) -> None:
+        bad = non_finite_rollout(self.model)
+        if bad:  # before the update learns from it; say what in the model made it so
+            raise self.diverged([*non_finite(self.model), *bad])
 
     def _on_step(self) -> bool:
         for info, done in zip(self.locals["infos"], self.locals["dones"], strict=True):
@@ -424,6 +540,7 @@ def _learn(model, config: TrainConfig, run: RunDirectory, callback: TrainingCall
             )
         finished = not callback.stopping
         if finished:
+            callback.check_finite()  # the last update came after the last safe point
             if config.run["n_eval_episodes"] and callback.last_eval_step < model.num_timesteps:
                 callback.evaluate()
             callback.save_checkpoint()
@@ -433,6 +550,21 @@ def _learn(model, config: TrainConfig, run: RunDirectory, callback: TrainingCall
         info.update(status="aborted")
         write_run_info(run, info)
         raise
+    except Exception as exc:
+        # A non-finite model also makes torch raise mid-update (a NaN action mean, say).
+        error = exc
+        if not isinstance(exc, TrainingDiverged):
+            bad = non_finite(model)
+            error = TrainingDiverged(int(model.num_timesteps), bad, callback.latest,
+                                     run.path) if bad else None
+        status = "failed" if error is None else "diverged"
+        segment.update(status=status, end_step=callback.latest_step, error=str(error or exc))
+        info.update(status=status, steps=callback.latest_step,
+                    wall_time_s=round(callback.latest_wall_time, 3))
+        write_run_info(run, info)
+        if error is None or error is exc:
+            raise
+        raise error from exc
     finally:
         callback.close()
         model.get_env().close()
@@ -471,15 +603,16 @@ def train(config: TrainConfig, run_dir: str | Path, command: str = "",
     if config.hyperparams.get("use_sde"):
         print("note: with use_sde a resumed run is not bit-identical to an uninterrupted one",
               flush=True)
-    bookkeeping = {"next_eval": 0, "next_checkpoint": config.run["checkpoint_freq"],
-                   "wall_time_s": 0.0}
+    # Checkpoint 0 (the initial model): a run that diverges early still has one to resume.
+    bookkeeping = {"next_eval": 0, "next_checkpoint": 0, "wall_time_s": 0.0}
     callback = TrainingCallback(run, config, bookkeeping, echo=echo)
     return _learn(model, config, run, callback, True, command, progress_bar, callbacks)
 
 
 def resume(run_dir: str | Path, command: str = "", n_timesteps: int | None = None,
            expected: TrainConfig | None = None, progress_bar: bool = True,
-           callbacks: Sequence[BaseCallback] = (), echo: bool = True) -> TrainResult:
+           callbacks: Sequence[BaseCallback] = (), echo: bool = True,
+           overrides: dict | None = None) -> TrainResult:
     """Continue a run from its latest checkpoint.
 
     Args:
@@ -487,23 +620,31 @@ def resume(run_dir: str | Path, command: str = "", n_timesteps: int | None = Non
         command: the command line to record.
         n_timesteps: a new total (to train longer); default: the recorded one.
         expected: a config the caller asked for; it must match the recorded
-            one (apart from ``n_timesteps``), else :class:`ConfigError`.
+            one apart from ``n_timesteps`` and the settings in
+            :data:`baselines.rl.config.RESUMABLE` (which it then sets), else
+            :class:`ConfigError`.
         progress_bar, callbacks, echo: as in :func:`train`.
+        overrides: new values of settings in :data:`~baselines.rl.config.RESUMABLE`
+            (``{"learning_rate": 1.0e-4}`` after a divergence, say).
     """
     run = RunDirectory(run_dir)
     config = read_config(run.config)
     if config.algo == COMPILED:
         raise ConfigError(f"{run.path} is a compiled PPO (cppo) run, which cannot be resumed; "
                           "train it again (the same config and seed give the same policy)")
-    if expected is not None and (
-        (expected.algo, expected.env_id, expected.seed) != (config.algo, config.env_id,
-                                                            config.seed)
-        or expected.digest() != config.digest()
-    ):
-        raise ConfigError(
-            f"the requested config does not match the one recorded in {run.config}; "
-            "resume with the same settings (only --n-timesteps may change)"
-        )
+    if expected is not None:
+        if (expected.algo, expected.env_id, expected.seed) != (
+                config.algo, config.env_id, config.seed) \
+                or expected.resumable_digest() != config.resumable_digest():
+            raise ConfigError(
+                f"the requested config does not match the one recorded in {run.config}; "
+                f"resume with the same settings (only --n-timesteps and "
+                f"{', '.join(RESUMABLE)} may change)"
+            )
+        overrides = {**{k: expected.hyperparams[k] for k in RESUMABLE
+                        if k in expected.hyperparams}, **(overrides or {})}
+    if overrides:
+        config = resumed(config, overrides)
     if n_timesteps is not None:
         config = dataclasses.replace(config, run={**config.run, "n_timesteps": n_timesteps})
         validate(config)
