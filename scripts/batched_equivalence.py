@@ -133,9 +133,9 @@ def outcome_agreement(env_id: str, seeds, **env_kwargs) -> dict:
         states = step(states, jnp.asarray(line_of_sight_policy(np.asarray(states.obs))))
         ended = np.asarray(states.done) & ~done
         for i in np.flatnonzero(ended):
-            success = bool(states.info["success"][i])
+            success = bool(states.info["episode"].success[i])
             reasons[i] = "success" if success else failure_reason(
-                int(states.info["failure"][i]), success)
+                int(states.info["episode"].failure[i]), success)
         done |= ended
     cpu_success = np.array([r == "success" for r in cpu_reasons])
     success = np.array([r == "success" for r in reasons])

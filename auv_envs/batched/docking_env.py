@@ -1,16 +1,14 @@
 """The docking environments in JAX: ``reset(rng) -> state``, ``step(state, action) -> state``.
 
-A functional twin of ``auv_envs/DockingStation-v1`` and
-``auv_envs/LampArrayDocking-v1`` for ``jit`` and ``vmap``: one environment's
+The transition of ``auv_envs/DockingStation-v1`` and ``auv_envs/LampArrayDocking-v1``
+(:mod:`auv_envs.tasks.docking_transition`, the very functions the CPU environment
+calls) evaluated on JAX arrays for ``jit`` and ``vmap``: one environment's
 functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingVectorEnv`
-does it and speaks NumPy to Gymnasium). Nothing of the task is written
-twice: the plant is :class:`auv_envs.batched.docking.DockingPlantMJX` (the
-env's MJCF on MuJoCo MJX, the same hull wrench); the camera projection is
-:func:`auv_envs.core.camera.project_point`; the pose, sensors, docking test,
-failures and reward are :class:`auv_envs.tasks.docking_rules.DockingRules`,
-all evaluated on JAX arrays through :func:`auv_envs.core.ops.jax_ops`; the
-lines of sight to the lights are MJX's ray casts against the same scenery
-(``mujoco.mj_ray`` on the CPU).
+does it and speaks NumPy to Gymnasium). What this shell adds: the plant is
+:class:`auv_envs.batched.docking.DockingPlantMJX` (the env's MJCF on MuJoCo
+MJX, the same hull wrench), the lines of sight to the lights are MJX's ray casts
+against the same scenery (``mujoco.mj_ray`` on the CPU), and the episode's draws
+come from a JAX key (:class:`KeyDraws`, NumPy's ``Generator`` interface).
 
 The interface follows MuJoCo Playground's ``MjxEnv``: :attr:`observation_size`,
 :attr:`action_size`, :attr:`dt`, :attr:`mj_model`, :attr:`mjx_model`, and a
@@ -21,15 +19,10 @@ state then holds the new episode's first observation, and
 ``info["final_obs"]`` and ``metrics`` the one that ended. ``data`` is the
 plant state ``(qpos, qvel)``, not a full ``mjx.Data``.
 
-Every argument of the CPU environment applies: both scenarios (the
-``current`` scenario's current and sensor noise) and every ``difficulty``
-level with its disturbances (the Gauss–Markov current, the per-episode
-perturbation of the simulated vehicle, the thruster lag) and its water (lamp
-detection, failed lamps, passing occluders), each through the CPU env's own
-code (:mod:`auv_envs.core.sea`, :mod:`auv_envs.core.vehicle`,
-:mod:`auv_envs.core.optics`) given JAX's draws. What differs from the CPU
-environment: the episodes' random draws come from JAX's generator, so a seed
-gives other episodes than the CPU env's (the distributions are the same);
+Every argument of the CPU environment applies: both scenarios and every
+``difficulty`` level with its disturbances and water. What differs from the
+CPU environment: the episodes' random draws come from JAX's generator, so a
+seed gives other episodes than the CPU env's (the distributions are the same);
 everything runs in float32; the hull has no contacts (MJX has no
 ellipsoid-box collision), so where the CPU hull would touch the station's
 structure the batched one passes through it. ``image`` is not built.
@@ -38,7 +31,6 @@ structure the batched one passes through it. ``image`` is not built.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import gymnasium as gym
 import jax
@@ -50,15 +42,9 @@ from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.core import frames
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
-from auv_envs.core.optics import LampOutages, lamp_detections
-from auv_envs.core.sea import current_components
-from auv_envs.core.vehicle import PlantPerturbation, lagged_thrust, thruster_lag_gain
-from auv_envs.tasks.docking import (
-    SCENARIO_CURRENT_SPEED,
-    START_HEADING_SPREAD_DEG,
-    START_SURGE,
-)
-from auv_envs.tasks.docking_rules import FAILURE_REASONS
+from auv_envs.core.vehicle import PlantPerturbation
+from auv_envs.tasks import docking_transition as transition
+from auv_envs.tasks.docking_rules import failure_reason  # noqa: F401  (re-exported)
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
@@ -79,9 +65,10 @@ class State:
         done: whether the last step ended the episode (terminated or truncated).
         metrics: the last step's metrics (:data:`STEP_METRICS`), its reward terms
             (``reward_<term>``) and the episode's summary so far (``episode_*``).
-        info: the episode's bookkeeping (``rng``, ``steps``, ...), ``terminated``,
-            ``truncation`` and ``final_obs`` (the observation that ended the
-            episode; the present one otherwise).
+        info: ``rng`` (the episode's key), ``episode`` (the transition's
+            :class:`~auv_envs.tasks.docking_transition.EpisodeState`),
+            ``terminated``, ``truncation`` and ``final_obs`` (the observation
+            that ended the episode; the present one otherwise).
     """
 
     data: dict
@@ -129,17 +116,16 @@ class DockingMJX:
         self.observation_space = cpu.observation_space
         self.action_space = cpu.action_space
         self.ops = jax_ops()
-        self._thrust = jnp.asarray(cal.thrust_limits, dtype=jnp.float32)
         #: The level's disturbances and water (the CPU env's, resolved from ``difficulty``).
         self.disturbances, self.optics = cal.disturbances, cal.optics
-        self._thruster_gain = thruster_lag_gain(self.disturbances.thruster_time_constant,
-                                                cal.control_period)
         lights = np.asarray(self.rules.lights, dtype=np.float32)
         self._lights = tuple(jnp.asarray(lights[:, k]) for k in range(3))
-        self._n_lights = len(lights)
-        if obs_mode == "features":
-            space = cpu.observation_space["pixels"]
-            self._pixel_bounds = (jnp.asarray(space.low), jnp.asarray(space.high))
+        bounds = cpu.params.pixel_bounds
+        #: The CPU env's transition parameters, its arrays in float32.
+        self.params = dataclasses.replace(
+            cpu.params, light_positions=jnp.asarray(lights),
+            pixel_bounds=None if bounds is None else tuple(jnp.asarray(b, jnp.float32)
+                                                           for b in bounds))
         # The scenery the lines of sight are cast against: static geoms, placed once.
         physics = cpu.physics
         # Compiled: run eagerly, op by op, this forward pass took 24 s on 2 CPU cores, 5 compiled.
@@ -174,30 +160,7 @@ class DockingMJX:
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
         """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
-        rng, key = jax.random.split(rng)
-        keys = jax.random.split(key, 7)
-        lay = self.layout
-        x = jax.random.uniform(keys[0], (), minval=lay.start_x[0], maxval=lay.start_x[1])
-        y = jax.random.uniform(keys[1], (), minval=lay.start_y[0], maxval=lay.start_y[1])
-        z = jax.random.uniform(keys[2], (), minval=lay.start_z[0], maxval=lay.start_z[1])
-        yaw = jnp.arctan2(-y, -x) + jax.random.uniform(keys[3], (), minval=-1.0, maxval=1.0) \
-            * math.radians(START_HEADING_SPREAD_DEG)
-        surge = jax.random.uniform(keys[4], (), minval=START_SURGE[0], maxval=START_SURGE[1])
-        qpos, qvel = self.start_state(x, y, z, yaw, surge)
-        varying = self.disturbances.current
-        if self.scenario == "current" or varying.active:
-            speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
-            direction = (jnp.float32(math.radians(self.current_direction))
-                         if self.current_direction is not None
-                         else jax.random.uniform(keys[5], (), maxval=2.0 * math.pi))
-            polar = (speed, direction)
-            if varying.active:
-                polar = varying.start_from(speed, direction,
-                                           *jax.random.normal(keys[6], (2,)), self.ops)
-            mean = (speed, direction)
-        else:
-            polar = mean = (0.0, 0.0)
-        return self.reset_to(qpos, qvel, rng, current_polar=polar, current_mean=mean)
+        return self._begin(rng)
 
     @staticmethod
     def start_state(x, y, z, yaw, surge) -> tuple[jax.Array, jax.Array]:
@@ -221,107 +184,48 @@ class DockingMJX:
         not given, the lamps out) come from ``rng``. The equivalence tests start
         the CPU and the batched env alike this way.
         """
-        ops = self.ops
-        qpos, qvel = jnp.asarray(qpos, jnp.float32), jnp.asarray(qvel, jnp.float32)
         polar = jnp.asarray(current_polar, jnp.float32)
         mean = polar if current_mean is None else jnp.asarray(current_mean, jnp.float32)
-        rng, vehicle_key, lamp_key, obs_key = jax.random.split(rng, 4)
-        zero, false = jnp.float32(0.0), jnp.bool_(False)
-        info = {
-            "rng": rng, "steps": jnp.int32(0), "current_polar": polar, "current_mean": mean,
-            "current": jnp.stack(current_components(polar[0], polar[1], ops)).astype(jnp.float32),
-            "lost_time": zero, "success": false, "failure": jnp.int32(0),
-            "docking_time": jnp.float32(jnp.nan), "fov_violations": jnp.int32(0),
-            "control_effort": zero, "terminated": false, "truncation": false,
-        }
-        plant = self.disturbances.plant
-        if plant.active and plant_draws is not None:
-            info["plant"] = {
-                "mass_scale": jnp.float32(plant_draws["mass_scale"]),
-                "damping_scale": jnp.asarray([*plant_draws["linear_damping_scale"],
-                                              *plant_draws["quadratic_damping_scale"]],
-                                             jnp.float32),
-                "net_buoyancy_offset": jnp.float32(plant_draws["net_buoyancy_offset"]),
-            }
-        elif plant.active:
-            keys = jax.random.split(vehicle_key, 3)
-            info["plant"] = {
-                "mass_scale": jax.random.uniform(keys[0], (), minval=1.0 - plant.mass,
-                                                 maxval=1.0 + plant.mass),
-                "damping_scale": jax.random.uniform(keys[1], (12,), minval=1.0 - plant.damping,
-                                                    maxval=1.0 + plant.damping),
-                "net_buoyancy_offset": jax.random.uniform(
-                    keys[2], (), minval=-plant.net_buoyancy, maxval=plant.net_buoyancy),
-            }
-        if self._thruster_gain != 1.0:
-            info["thrust"] = jnp.zeros(4, jnp.float32)
-        if self.optics is not None:
-            failed_key, occluded_key = jax.random.split(lamp_key)
-            n = self._n_lights
-            info["failed"] = jax.random.uniform(failed_key, (n,)) \
-                < self.optics.lamp_failure_probability
-            info["occluded"] = jax.random.uniform(occluded_key, (n,)) \
-                < LampOutages.occluded_share(self.optics)
-        truth = self._truth(qpos, qvel)
-        obs = self._observation(truth, info, obs_key)
-        info.update(prev_potential=self.rules.potential(truth),
-                    min_lights_visible=truth["n_visible"], final_obs=obs)
-        metrics = self._metrics(truth, info, {term: zero for term in self.cpu_env.reward_terms})
-        return State({"qpos": qpos, "qvel": qvel}, obs, zero, false, metrics, info)
+        start = transition.Start(None, None, None, None, None, polar, mean)
+        vehicle = None
+        if self.disturbances.plant.active and plant_draws is not None:
+            vehicle = (jnp.float32(plant_draws["mass_scale"]),
+                       jnp.asarray([*plant_draws["linear_damping_scale"],
+                                    *plant_draws["quadratic_damping_scale"]], jnp.float32),
+                       jnp.float32(plant_draws["net_buoyancy_offset"]))
+        return self._begin(rng, start, vehicle, jnp.asarray(qpos, jnp.float32),
+                           jnp.asarray(qvel, jnp.float32))
+
+    def _begin(self, rng, start=None, vehicle=None, qpos=None, qvel=None) -> State:
+        """:func:`auv_envs.tasks.docking_transition.reset` on JAX, as a :class:`State`."""
+        rng, key = jax.random.split(rng)
+        plant = _PlantCursor(self, qpos, qvel)
+        episode, truth, obs = transition.reset(
+            self.params, transition.Backend(self.ops, KeyDraws(key), plant), start, vehicle)
+        false = jnp.bool_(False)
+        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
+                "final_obs": obs}
+        zero = jnp.float32(0.0)
+        metrics = self._metrics(truth, episode, {term: zero for term in self.cpu_env.reward_terms})
+        return State({"qpos": plant.qpos, "qvel": plant.qvel}, obs, zero, false, metrics, info)
 
     def step(self, state: State, action: jax.Array) -> State:
-        """One control period under the normalised action (clipped to [-1, 1])."""
-        info = dict(state.info)
-        ops = self.ops
-        rng, current_key, lamp_key, obs_key, reset_key = jax.random.split(info["rng"], 5)
+        """One control period under the normalised action (clipped to [-1, 1]):
+        :func:`auv_envs.tasks.docking_transition.step` on JAX."""
+        rng, key, reset_key = jax.random.split(state.info["rng"], 3)
         action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
-        force = action * self._thrust
-        if self._thruster_gain != 1.0:  # first-order thrusters: the force moves to the command
-            force = lagged_thrust(info["thrust"], force, self._thruster_gain)
-            info["thrust"] = force
-        varying = self.disturbances.current
-        if varying.active:
-            polar = varying.relax(info["current_polar"][0], info["current_polar"][1],
-                                  info["current_mean"][0], info["current_mean"][1], self.dt,
-                                  *jax.random.normal(current_key, (2,)), ops)
-            info["current_polar"] = jnp.stack(polar).astype(jnp.float32)
-            info["current"] = jnp.stack(current_components(*polar, ops)).astype(jnp.float32)
-        tau = jnp.stack([force[0], force[1], force[2], 0.0, 0.0, force[3]])
-        qpos, qvel = self.plant.advance(state.data["qpos"], state.data["qvel"], tau,
-                                        info["current"], self._vehicle(info))
-        truth = self._truth(qpos, qvel)
-        rules = self.rules
-        steps = info["steps"] + 1
-        fov_violation = truth["n_visible"] < rules.min_visible
-        lost_time = rules.lights_lost_time(info["lost_time"], fov_violation, ops)
-        docked = rules.docked(truth)
-        flags = rules.failures(truth, docked, lost_time, ops)
-        code = jnp.asarray(rules.failure_index(flags, ops), jnp.int32)
-        potential = rules.potential(truth)
-        terms = rules.reward_terms(info["prev_potential"], potential,
-                                   tuple(action[k] for k in range(4)), fov_violation, docked,
-                                   code > 0, ops)
-        reward = sum(terms.values())
-        terminated = docked | (code > 0)
-        truncated = jnp.logical_not(terminated) & (steps >= self.max_episode_steps)
-        if self.optics is not None and self.obs_mode == "features":  # occluders pass
-            u = jax.random.uniform(lamp_key, (self._n_lights,))
-            info["occluded"] = LampOutages.occlusions_after(info["occluded"], self.optics,
-                                                            self.dt, u, xp=jnp)
-        obs = self._observation(truth, info, obs_key)
-        info.update({
-            "rng": rng, "steps": steps, "lost_time": lost_time,
-            "prev_potential": potential, "success": info["success"] | docked,
-            "failure": code,
-            "docking_time": jnp.where(docked, steps * self.dt, info["docking_time"]),
-            "fov_violations": info["fov_violations"] + fov_violation,
-            "min_lights_visible": jnp.minimum(info["min_lights_visible"], truth["n_visible"]),
-            "control_effort": info["control_effort"] + jnp.sum(force * force) * self.dt,
-            "terminated": terminated, "truncation": truncated, "final_obs": obs,
-        })
+        plant = _PlantCursor(self, state.data["qpos"], state.data["qvel"])
+        episode, truth, obs, judged = transition.step(
+            self.params, state.info["episode"], self.ops.unpack(action),
+            transition.Backend(self.ops, KeyDraws(key), plant))
+        reward = sum(judged.terms.values())
+        terminated = judged.terminated
+        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
         done = terminated | truncated
-        stepped = State({"qpos": qpos, "qvel": qvel}, obs, reward, done,
-                        self._metrics(truth, info, terms), info)
+        info = {"rng": rng, "episode": episode, "terminated": terminated,
+                "truncation": truncated, "final_obs": obs}
+        stepped = State({"qpos": plant.qpos, "qvel": plant.qvel}, obs, reward, done,
+                        self._metrics(truth, episode, judged.terms), info)
         if not self.auto_reset:
             return stepped
         fresh = self.reset(reset_key)
@@ -342,11 +246,7 @@ class DockingMJX:
         u, v, inside = project_point(self.calibration.intrinsics, lx - cx, ly - cy, lz - cz,
                                      truth.pop("camera_rows"), ops)
         visible = inside & self._line_of_sight(jnp.stack([cx, cy, cz]))
-        pixels = jnp.stack([u, v], axis=-1)
-        truth.update(pixels=pixels, visible=visible,
-                     visible_pixels=jnp.where(visible[:, None], pixels, 0.0),
-                     n_visible=jnp.sum(visible.astype(jnp.int32)))
-        return truth
+        return transition.truth_with_lights(truth, jnp.stack([u, v], axis=-1), visible, ops)
 
     def _line_of_sight(self, origin: jax.Array) -> jax.Array:
         """Per light: nothing of the scenery between ``origin`` and it (MJX's ray cast)."""
@@ -360,66 +260,64 @@ class DockingMJX:
 
         return jax.vmap(clear)(targets)
 
-    def _vehicle(self, info: dict):
+    def _vehicle(self, draws):
         """The episode's simulated vehicle (None: the env's own)."""
-        if "plant" not in info:
+        if draws is None:
             return None
-        draws = info["plant"]
-        return PlantPerturbation.apply(self.plant.hull.params, draws["mass_scale"],
-                                       draws["damping_scale"], draws["net_buoyancy_offset"])
+        return PlantPerturbation.apply(self.plant.hull.params, *draws)
 
-    def _observation(self, truth: dict, info: dict, key):
-        if self.obs_mode == "state":
-            current = info["current"]
-            return jnp.stack(self.rules.state_observation(
-                truth, tuple(current[k] for k in range(3)), self.ops)).astype(jnp.float32)
-        cal = self.calibration
-        pixel_key, sensor_key, lamp_key, centroid_key = jax.random.split(key, 4)
-        noise = None
-        if cal.velocity_noise_std > 0:
-            noise = tuple(jax.random.normal(sensor_key, (7,)))
-        velocity, attitude = self.rules.sensor_readings(truth, noise, (
-            cal.velocity_noise_std, cal.yaw_rate_noise_std, cal.attitude_noise_std))
-        visible = truth["visible"]
-        pixels = truth["visible_pixels"]
-        low, high = self._pixel_bounds
-        if cal.pixel_noise_std > 0:  # as the CPU env: noise, masked again, clipped
-            pixels = pixels + cal.pixel_noise_std * jax.random.normal(pixel_key, pixels.shape)
-            pixels = jnp.clip(jnp.where(visible[:, None], pixels, 0.0), low, high)
-        if self.optics is not None:  # the lamps the camera detects through the water
-            lights = jnp.stack(self._lights, axis=-1)
-            distance = jnp.linalg.norm(lights - jnp.stack(truth["camera_position"]), axis=-1)
-            pixels, visible = lamp_detections(
-                pixels, visible, distance, info["failed"] | info["occluded"], self.optics,
-                cal.intrinsics.fy, jax.random.uniform(lamp_key, (self._n_lights,)),
-                jax.random.normal(centroid_key, (self._n_lights, 2)), xp=jnp)
-            pixels = jnp.clip(pixels, low, high)
-        return {"pixels": pixels.astype(jnp.float32), "visible": visible.astype(jnp.int8),
-                "velocity": jnp.stack(velocity).astype(jnp.float32),
-                "attitude": jnp.stack(attitude).astype(jnp.float32)}
-
-    def _metrics(self, truth: dict, info: dict, terms: dict) -> dict:
+    def _metrics(self, truth: dict, episode: transition.EpisodeState, terms: dict) -> dict:
+        """The step's metrics, its reward terms (``reward_<term>``) and the episode's
+        summary so far (``episode_<key>``, :func:`~auv_envs.tasks.docking_transition.summary`)."""
         return {
-            "distance_to_entrance": truth["distance"],
-            "longitudinal_error": truth["longitudinal"],
-            "lateral_error": truth["lateral"],
-            "vertical_error": truth["vertical"],
-            "heading_error": truth["heading"],
-            "lights_visible": truth["n_visible"],
-            "is_success": info["success"],
+            **transition.step_metrics(truth, episode),
             **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},
-            "episode_success": info["success"],
-            "episode_failure": info["failure"],
-            "episode_steps": info["steps"],
-            "episode_docking_time": info["docking_time"],
-            "episode_fov_violation_steps": info["fov_violations"],
-            "episode_min_lights_visible": info["min_lights_visible"],
-            "episode_control_effort": info["control_effort"],
+            **{f"episode_{key}": value
+               for key, value in transition.summary(episode, truth).items()},
         }
 
 
-def failure_reason(code: int, success: bool) -> str:
-    """The CPU env's ``failure_reason`` episode metric for a batched episode's failure code."""
-    if code:
-        return FAILURE_REASONS[code - 1]
-    return "" if success else "time_limit"
+class KeyDraws:
+    """NumPy ``Generator``'s draws (``uniform``, ``standard_normal``, ``random``) over a JAX
+    key: each call splits a fresh key off, so the transition draws as it does on the CPU."""
+
+    def __init__(self, key: jax.Array):
+        self.key = key
+
+    def _next(self) -> jax.Array:
+        self.key, key = jax.random.split(self.key)
+        return key
+
+    @staticmethod
+    def _shape(size) -> tuple:
+        return () if size is None else (size,) if isinstance(size, int) else tuple(size)
+
+    def uniform(self, low=0.0, high=1.0, size=None) -> jax.Array:
+        return jax.random.uniform(self._next(), self._shape(size), minval=low, maxval=high)
+
+    def standard_normal(self, size=None) -> jax.Array:
+        return jax.random.normal(self._next(), self._shape(size))
+
+    def random(self, size=None) -> jax.Array:
+        return jax.random.uniform(self._next(), self._shape(size))
+
+
+class _PlantCursor:
+    """The transition's plant in one traced call: the free joint's ``(qpos, qvel)``,
+    advanced by :class:`~auv_envs.batched.docking.DockingPlantMJX`."""
+
+    def __init__(self, env: DockingMJX, qpos=None, qvel=None):
+        self.env, self.qpos, self.qvel = env, qpos, qvel
+
+    def place(self, start: transition.Start, vehicle, failed) -> None:
+        if self.qpos is None:  # a drawn start (reset_to gives the plant state)
+            self.qpos, self.qvel = self.env.start_state(start.x, start.y, start.z, start.yaw,
+                                                        start.surge)
+
+    def advance(self, tau, current, vehicle) -> None:
+        self.qpos, self.qvel = self.env.plant.advance(
+            self.qpos, self.qvel, jnp.asarray(tau, jnp.float32), current,
+            self.env._vehicle(vehicle))
+
+    def truth(self) -> dict:
+        return self.env._truth(self.qpos, self.qvel)

@@ -26,8 +26,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from auv_envs.batched.compile_cache import use_compilation_cache
-from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX, failure_reason
+from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX
 from auv_envs.core.env import action_array, clip_actions
+from auv_envs.tasks.docking_rules import failure_reason
 
 
 class DockingVectorEnv(VectorEnv):
@@ -102,23 +103,17 @@ class DockingVectorEnv(VectorEnv):
 
     def episode_metrics(self, metrics: dict) -> dict:
         """The episodes' summaries in the CPU env's names (arrays over the batch)."""
-        success = metrics["episode_success"]
-        steps = metrics["episode_steps"]
-        docking_time = metrics["episode_docking_time"]
-        return {
-            "success": success,
-            "failure_reason": np.array([failure_reason(int(code), bool(ok)) for code, ok in
-                                        zip(metrics["episode_failure"], success, strict=True)]),
-            "docking_time": docking_time,
-            "steps": steps,
-            "final_distance": metrics["distance_to_entrance"],
-            "final_lateral_error": metrics["lateral_error"],
-            "final_vertical_error": metrics["vertical_error"],
-            "final_heading_error_deg": np.degrees(metrics["heading_error"]),
-            "fov_violation_steps": metrics["episode_fov_violation_steps"],
-            "min_lights_visible": metrics["episode_min_lights_visible"],
-            "control_effort": metrics["episode_control_effort"],
-        }
+        out = {}
+        for key, value in metrics.items():
+            if not key.startswith("episode_"):
+                continue
+            key = key.removeprefix("episode_")
+            if key == "failure":
+                key, value = "failure_reason", np.array([
+                    failure_reason(code, ok) for code, ok in
+                    zip(value, metrics["episode_success"], strict=True)])
+            out[key] = value
+        return out
 
     @staticmethod
     def _numpy(tree):

@@ -168,11 +168,11 @@ def quat_from_euler(roll, pitch, yaw, xp=np):
 
 
 def wrap_angle(angle):
-    """Wrap an angle (or array of angles) to ``[-pi, pi)``; a Python float stays a float,
-    and a JAX array stays a JAX array."""
-    if type(angle) is float or hasattr(angle, "at"):  # a Python float or a JAX array
-        return (angle + math.pi) % (2.0 * math.pi) - math.pi
-    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+    """Wrap an angle to ``[-pi, pi)``: plain arithmetic, so a Python float stays a float and
+    a NumPy or JAX array stays one (a list or tuple becomes a NumPy array)."""
+    if isinstance(angle, list | tuple):
+        angle = np.asarray(angle, dtype=float)
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def ned_to_enu(vector) -> np.ndarray:

@@ -12,13 +12,21 @@ modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``,
 ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
 and ``logical_not``. Comparisons combine with ``&`` and
-``|``, which serve Python bools and boolean arrays alike.
+``|``, which serve Python bools and boolean arrays alike. For a transition's
+state (:mod:`auv_envs.tasks.docking_transition`) each also has ``xp`` (its
+array module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean``
+(a scalar of the backend's type: Python's, or float32/int32/bool arrays),
+``vector`` (a few scalars as one value: a tuple, or a float32 array),
+``unpack`` (a 1-D array as a tuple of scalars: Python floats, or array
+elements) and ``count`` (the true entries of a boolean array).
 """
 
 from __future__ import annotations
 
 import math
 import types
+
+import numpy as np
 
 
 def _where(condition, a, b):
@@ -35,6 +43,9 @@ FLOATS = types.SimpleNamespace(
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
     asin=math.asin, clip=_clip, where=_where, minimum=min, maximum=max,
     logical_not=lambda x: not x,
+    xp=np, real=float, integer=int, boolean=bool, vector=tuple,
+    unpack=lambda array: tuple(array.tolist()),
+    count=lambda array: int(np.count_nonzero(array)),
 )
 
 
@@ -47,4 +58,10 @@ def jax_ops() -> types.SimpleNamespace:
         sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan2=jnp.arctan2,
         asin=jnp.arcsin, clip=jnp.clip, where=jnp.where, minimum=jnp.minimum,
         maximum=jnp.maximum, logical_not=jnp.logical_not,
+        xp=jnp, real=lambda value: jnp.asarray(value, jnp.float32),
+        integer=lambda value: jnp.asarray(value, jnp.int32),
+        boolean=lambda value: jnp.asarray(value, jnp.bool_),
+        vector=lambda values: jnp.asarray(values, jnp.float32),
+        unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
+        count=lambda array: jnp.sum(array.astype(jnp.int32)),
     )

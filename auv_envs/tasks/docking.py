@@ -21,7 +21,6 @@ from auv_envs.core import difficulty as levels
 from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
-    add_pixel_noise,
     pixel_space,
     project_few,
 )
@@ -33,19 +32,25 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
-from auv_envs.core.optics import LampOutages, WaterOptics, degrade_image, detect_lamps
+from auv_envs.core.ops import FLOATS
+from auv_envs.core.optics import WaterOptics, degrade_image
 from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
-from auv_envs.core.sea import GaussMarkovCurrent, current_vector
+from auv_envs.core.sea import GaussMarkovCurrent
 from auv_envs.core.vehicle import (
     PlantPerturbation,
     VehicleParams,
     hovering_auv,
-    lagged_thrust,
     thruster_lag_gain,
     with_damping_mismatch,
 )
-from auv_envs.tasks.docking_rules import FAILURE_REASONS, DockingRules, DockingTolerances
+from auv_envs.tasks import docking_transition as transition
+from auv_envs.tasks.docking_rules import (
+    FAILURE_REASONS,
+    DockingRules,
+    DockingTolerances,
+    failure_reason,
+)
 from auv_envs.tasks.docking_station import (
     CHASE_HEADLIGHT,
     LAMP_ARRAY,
@@ -56,6 +61,11 @@ from auv_envs.tasks.docking_station import (
     StationLayout,
     build_docking_model,
 )
+from auv_envs.tasks.docking_transition import (  # noqa: F401  (their home before the transition)
+    SCENARIO_CURRENT_SPEED,
+    START_HEADING_SPREAD_DEG,
+    START_SURGE,
+)
 
 OBS_MODES = ("state", "features", "image")
 SCENARIOS = ("mismatch", "current")
@@ -65,8 +75,6 @@ SCENARIOS = ("mismatch", "current")
 #: comparison of D between plant and prediction model.
 DEFAULT_DAMPING_MISMATCH = (0.7, 1.4, 1.3, 1.0, 1.0, 0.6)
 
-#: [OFNMPC] Scenario 2 current speed, m/s.
-SCENARIO_CURRENT_SPEED = 0.3
 #: [OFNMPC] Scenario 2 noise: 5 px on the light pixels, 0.02 m/s on velocities.
 SCENARIO_PIXEL_NOISE = 5.0
 SCENARIO_VELOCITY_NOISE = 0.02
@@ -74,10 +82,6 @@ SCENARIO_VELOCITY_NOISE = 0.02
 SCENARIO_YAW_RATE_NOISE = 0.005
 SCENARIO_ATTITUDE_NOISE = math.radians(0.2)
 
-#: Start state: heading spread about the line of sight to the entrance (deg) and the
-#: surge speed range (m/s), drawn uniformly (the batched env draws the same).
-START_HEADING_SPREAD_DEG = 10.0
-START_SURGE = (0.0, 0.3)
 #: Seconds per env step. The plant takes ``physics_substeps`` (default 1)
 #: classical RK4 steps per control period, the hull wrench re-evaluated at every
 #: stage; ``docs/physics.md`` gives its error against an independent reference.
@@ -227,30 +231,43 @@ class DockingCalibration:
 
 
 @dataclasses.dataclass
-class _EpisodeState:
-    """Everything that changes during an episode besides MuJoCo's state."""
+class _Episode:
+    """The CPU shell's hold on an episode: the transition's typed state and what its last
+    call returned (the observation, the judgement), for the hooks of :class:`TaskEnv`."""
 
-    steps: int = 0
-    current: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
-    #: Gauss–Markov current: mean and present (speed m/s, direction rad).
-    current_mean: tuple[float, float] = (0.0, 0.0)
-    current_polar: tuple[float, float] = (0.0, 0.0)
-    #: The thrust acting now (X, Y, Z, N), with a thruster lag.
-    thrust: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-    #: The simulated vehicle of this episode (perturbed or nominal) and its draws.
-    vehicle: VehicleParams | None = None
-    plant_draws: dict = dataclasses.field(default_factory=dict)
-    #: With ``optics``: the lamps failed for the episode or hidden now.
-    outages: LampOutages | None = None
-    lost_time: float = 0.0
-    prev_potential: float = 0.0
+    state: transition.EpisodeState | None = None
+    obs: object = None
+    judged: transition.Assessment | None = None
     done: bool = False
-    success: bool = False
-    failure_reason: str = ""
-    docking_time: float | None = None
-    fov_violations: int = 0
-    control_effort: float = 0.0
-    min_lights_visible: int = 0
+
+    @property
+    def steps(self) -> int:
+        return 0 if self.state is None else self.state.steps
+
+
+class _MujocoPlant:
+    """The docking transition's plant on the CPU: the env's MuJoCo model and data, the hull
+    wrench at every integrator stage (:class:`auv_envs.core.plant.StagedIntegrator`)."""
+
+    def __init__(self, env: DockingEnv):
+        self.env = env
+
+    def place(self, start: transition.Start, vehicle, failed) -> None:
+        env = self.env
+        env._use_vehicle(env.vehicle_of(vehicle))
+        env.physics.set_state([start.x, start.y, start.z], [0.0, 0.0, start.yaw],
+                              [start.surge, 0, 0, 0, 0, 0])
+        if failed is not None:  # the episode's failed lamps are drawn unlit
+            env.physics.show_lamps(failed)
+
+    def advance(self, tau, current, vehicle) -> None:
+        env = self.env
+        env.hull.command(tau, [float(c) for c in current])
+        env.physics.skip_contacts_if_clear(env.dt)
+        env.integrator.step(env._physics_substeps)
+
+    def truth(self) -> dict:
+        return self.env._truth()
 
 
 class DockingEnv(TaskEnv):
@@ -263,141 +280,104 @@ class DockingEnv(TaskEnv):
     relative velocity) must reach the entrance of a docking station (DS) on
     the seabed, guided by lights seen by a forward camera. Roll and pitch are
     passively stable (CB 0.15 m above CG). The world frame is the DS frame:
-    origin at the entrance centre, x into the station, z up.
+    origin at the entrance centre, x into the station, z up. The episode is
+    :mod:`auv_envs.tasks.docking_transition`, which the batched environment
+    runs too.
 
-    **Action space.** ``Box(-1, 1, (4,))``: normalised body-frame generalized
-    force (X surge, Y sway, Z heave, N yaw) multiplied by
-    ``calibration.thrust_limits`` (80 N, 80 N, 80 N, 40 N m). Finite values
-    outside [-1, 1] are clipped; NaN or inf raise ``ValueError``.
+    **Action space.** ``Box(-1, 1, (4,))``: normalised body-frame force and
+    moment (X surge, Y sway, Z heave, N yaw) times ``calibration.thrust_limits``
+    (80 N, 80 N, 80 N, 40 N m). Finite values outside [-1, 1] are clipped;
+    NaN, inf and non-numbers raise ``ValueError``.
 
-    **Observation space** (``obs_mode``):
+    **Observation space** (``obs_mode``; n lights):
 
-    * ``"state"`` (privileged), ``Box((16,), float32)``: CG position in the DS
-      frame (3), roll, pitch, cos(yaw), sin(yaw) (4), body velocities
-      u, v, w, p, q, r (6), current velocity in the DS frame (3).
-    * ``"features"``, ``Dict``: ``pixels`` (n, 2) light pixel coordinates
-      (zero where not visible, noisy in the ``current`` scenario),
-      ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w, r) from DVL/INS,
-      ``attitude`` (roll, pitch, yaw) from the INS.
-    * ``"image"``, ``Dict``: ``image`` (H, W, 3) uint8 rendering of the
-      forward camera (dark attenuating water, bright lamps) plus ``velocity``
-      and ``attitude`` as above.
+    ============  ===========================================================
+    mode          space
+    ============  ===========================================================
+    ``state``     ``Box((16,), float32)``, privileged: CG position (3); roll,
+                  pitch, cos yaw, sin yaw (4); body u, v, w, p, q, r (6);
+                  current (3)
+    ``features``  ``Dict``: ``pixels`` (n, 2) (zero where not seen),
+                  ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w, r;
+                  DVL/INS), ``attitude`` (roll, pitch, yaw; INS)
+    ``image``     ``Dict``: ``image`` (H, W, 3) uint8 forward camera,
+                  ``velocity``, ``attitude``
+    ============  ===========================================================
 
-    With ``optics`` (a :class:`auv_envs.core.optics.WaterOptics`, e.g.
-    ``WaterOptics.jerlov("5C")``) the camera looks through that water:
-    ``image`` is the render passed through the underwater image formation
-    model with each pixel's range from the depth buffer (attenuation towards
-    the veiling light, the lamps' glow, sensor noise); in ``features`` a lamp
-    in view is detected with a probability that falls with its received
-    contrast, its pixels get centroid noise that grows with the glow, and
-    lamps hidden by a passing occluder are not detected (undetected lamps:
-    ``visible`` 0, pixels 0). Lamps that failed for the episode stay dark in
-    both modes (and in ``render()``). The reward, the episode's end and
-    ``info["true_visible"]`` still count the lamps geometrically in view.
+    With ``optics`` the camera looks through that water: ``image`` through the
+    image formation model, ``features`` detecting each lamp with a
+    probability that falls with its contrast, with centroid noise, and
+    missing lamps hidden by occluders; failed lamps stay dark. The reward and
+    the episode's end count the lamps geometrically in view.
 
     **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
-    ``progress`` (decrease of the potential distance + 0.5 |heading error|),
-    ``control`` (-0.001 |a|^2), ``visibility`` (-0.01 per step with fewer than
-    ``min_visible_lights`` lights in view), ``success`` (+10 once),
-    ``failure`` (-10 once).
+
+    ==============  =======================================================
+    term            value
+    ==============  =======================================================
+    ``progress``    decrease of (distance to the entrance + 0.5 |heading|)
+    ``control``     -0.001 |a|^2
+    ``visibility``  -0.01 per step with fewer than ``min_visible_lights`` seen
+    ``success``     +10 on docking
+    ``failure``     -10 on failing
+    ==============  =======================================================
 
     **Starting state.** CG at x in [-12, -8] m, y in [-1.5, 1.5] m, z in the
-    layout's range, heading towards the entrance +-10 deg, surge 0-0.3 m/s.
-    In the ``current`` scenario a 0.3 m/s horizontal current flows towards
-    ``current_direction`` (degrees, DS frame; drawn uniformly when None).
+    layout's range, heading towards the entrance +-10 deg, surge 0-0.3 m/s;
+    in the ``current`` scenario a 0.3 m/s current towards
+    ``current_direction`` (deg; drawn when None).
 
-    **Episode end.** Success (terminated): nose within the tolerances of the
-    entrance (``DockingTolerances``: 0.2 m lateral, 0.2 m vertical, 10 deg
-    heading, 0.15 m longitudinal). Failure (terminated): nose more than the
-    longitudinal tolerance behind the entrance plane without success
-    (``behind_entrance``), hull touching the seabed (``seabed``), fewer than
-    ``min_visible_lights`` lights in view for longer than
-    ``lights_lost_timeout`` seconds (``lights_lost``), or more than 30 m from
-    the entrance (``out_of_bounds``). Truncation after ``time_limit`` seconds.
+    **Episode end.** Terminated on success (the nose within
+    ``DockingTolerances`` of the entrance: 0.2 m lateral and vertical, 10 deg,
+    0.15 m along the axis) or failure (``behind_entrance``, ``seabed``,
+    ``lights_lost`` for more than ``lights_lost_timeout`` s, ``out_of_bounds``
+    beyond 30 m); truncated after ``time_limit`` s.
 
     **Info.** Every step: ``distance_to_entrance``, ``lateral_error``,
-    ``vertical_error``, ``longitudinal_error``, ``heading_error``,
-    ``docked``, ``lights_visible``, ``violation_fov``,
-    ``violation_behind_entrance``, ``violation_seabed``, ``is_success``, the
-    reward terms and ground truth for metrics only (``true_position``,
-    ``true_euler``, ``true_velocity``, ``true_pixels``, ``true_visible``,
-    ``current``; ``true_pixels`` is zero where ``true_visible`` is False, the
-    same convention as the observation). ``current`` is the current that
-    acted during the step. With a thruster lag (``disturbances``): ``thrust``
-    (the applied X, Y, Z, N) every step; with a plant perturbation:
-    ``plant`` (the episode's draws: mass and damping factors, net-buoyancy
-    offset) at reset; with ``optics``: ``optics`` at reset, a dict with
-    ``failed_lamps`` (the labels of the lamps dark for the episode). At
-    episode end also ``episode_metrics`` (a dict; ``docking_time`` is None
+    ``vertical_error``, ``longitudinal_error``, ``heading_error``, ``docked``,
+    ``lights_visible``, ``violation_fov``, ``violation_behind_entrance``,
+    ``violation_seabed``, ``is_success``, the reward terms, ground truth for
+    metrics (``true_position``, ``true_euler``, ``true_velocity``,
+    ``true_pixels``, ``true_visible``, ``current``), ``thrust`` with a thruster
+    lag. At reset: ``plant`` (a plant perturbation's draws), ``optics``
+    (``failed_lamps``). At the end: ``episode_metrics`` (``docking_time`` None
     without success).
 
-    **Arguments.** ``obs_mode``, ``scenario`` (``"mismatch"``: [OFNMPC]
-    Scenario 1, model mismatch only; ``"current"``: Scenario 2),
-    ``current_direction``, ``image_size`` (W, H; default 640x480, also the
-    pixel frame of ``features``), ``model_mismatch`` (False: nominal model =
-    plant), ``damping_mismatch`` (scale of the nominal D diagonals),
-    ``tolerances``, ``time_limit`` (s, default 100), ``lights_lost_timeout``
-    (s, default 5), ``min_visible_lights`` (default 3), ``integrator``
-    (``"rk4"``, default; ``"euler"``: the v0 plant), ``physics_substeps``
-    (plant steps per 0.1 s control period, default 1: RK4 is then already
-    within 0.1 mm of the converged solution, see ``docs/physics.md``),
-    ``render_mode`` (``"rgb_array"``), ``render_camera`` (``"chase"``,
-    default: behind and above the vehicle, following its position, the
-    station, its lights and the seabed in view, the water's colour and
-    visibility those of the model, lit by a survey lamp; ``"onboard"``: the
-    forward camera of the ``image`` observation), ``render_size`` (W, H of
-    ``render()``'s frame, default 640x480), ``disturbances``
-    (:class:`DockingDisturbances`, default none: a Gauss–Markov current about
-    the scenario's, a per-episode perturbation of the simulated vehicle's
-    mass, inertia, damping and buoyancy, first-order thrusters), ``optics``
-    (:class:`auv_envs.core.optics.WaterOptics`, default None: clear water,
-    exact features, the plain render; reported in ``calibration.optics``),
-    ``difficulty`` (:mod:`auv_envs.core.difficulty`; ``disturbances`` or
-    ``optics`` given explicitly override the level's): ``"easy"`` (default)
-    sets nothing, the release bit for bit; ``"paper"`` sets
-    ``disturbances=PAPER_DISTURBANCES`` (Gauss–Markov current about the
-    scenario's, 0.1 m/s and 30 deg spread, 30 s correlation, at most 0.3
-    m/s; damping +-30 %, mass +-10 %, net buoyancy +-5 N; 0.5 s thruster
-    lag) and Jerlov 1C water (six lights, [OFNMPC]) or the turbid
-    laboratory water of [LAMP] (lamp array: Jerlov 5C, bright lamps with
-    saturated halos), calibrated on [OFNMPC] Table 4 and [LAMP] Table 4;
-    ``"hard"`` sets a current of up to 0.45 m/s, damping +-40 %, a 0.7 s
-    lag and Jerlov 7C water with 10 % failed lamps and passing occluders
-    (``HARD_DISTURBANCES``, ``HARD_OPTICS``). Each value's unit and source
-    are next to those constants; ``docs/difficulty.md`` gives the measured
-    figures.
+    **Arguments.**
 
-    **Version history.** v1: the plant integrates its equations with
-    classical RK4 (one 0.1 s step, hull wrench re-evaluated at every stage)
-    instead of semi-implicit Euler at 0.05 s, which was centimetres and
-    degrees from their converged solution after 10 s (``docs/physics.md``).
-    v0: initial release; still registered (``integrator="euler"``,
-    ``physics_substeps=2``). Rendering (both versions; dynamics, observations
-    and rewards unchanged): ``render()`` draws the chase camera by default
-    (``render_camera``, ``render_size``); it drew the forward camera at
-    ``image_size`` before. Opt-in additions (both versions): ``disturbances``
-    and ``optics`` (defaults none, which leave the environment bit-identical
-    and draw no extra random numbers); ``difficulty`` (default ``"easy"``,
-    the release). Rendering (both versions; dynamics and rewards unchanged):
-    the seabed is drawn on a 2 m grid instead of 0.1 m, which makes a frame
-    3-4 times cheaper (``docs/speed.md``); an ``image`` observation can
-    differ from before at a few pixels where objects meet the seabed (at
-    most 6 of 7,056 pixels at 84x84, 13 grey levels, on 168 checked frames;
-    none or one in the turbid water of ``hard``). Rendering (both versions;
-    dynamics and rewards unchanged): images under 222 rows draw round geoms
-    (lamps, rails, legs) as polygons of fewer sides, their outlines within
-    half a pixel of a circle spanning two thirds of the image
-    (:func:`~auv_envs.core.rendering.outline_slices`: 17 at 84 rows instead
-    of 28), and the image observation leaves out the vehicle's own hull, which
-    its camera cannot see; a small frame costs about half as much. An
-    ``image`` observation under 222 rows can differ at outline pixels (at
-    84x84, on 480 random-action frames: 0-55 of 7,056 pixels, mean 8 for six
-    lights and 27 for the lamp array); from 222 rows on, images are unchanged.
-    Rendering (both versions; dynamics and rewards unchanged): far lamps and
-    station parts are drawn with coarser polygons whose outlines stay within
-    0.1 px (:class:`~auv_envs.core.rendering.DetailLevels`); an ``image``
-    observation can differ at outline pixels (``docs/speed.md``: along the
-    approach at most 7-9 of 7,056 pixels at 84x84, mean about 1).
+    ===========================  ==============================================
+    argument                     meaning (default)
+    ===========================  ==============================================
+    ``obs_mode``                 ``"state"``, ``"features"``, ``"image"``
+    ``scenario``                 ``"mismatch"`` ([OFNMPC] Scenario 1) or
+                                 ``"current"`` (Scenario 2: current and noise)
+    ``current_direction``        deg (None: drawn)
+    ``image_size``               (W, H) of the camera, also the pixel frame
+                                 of ``features`` (640x480)
+    ``model_mismatch``           False: nominal model = plant (True)
+    ``damping_mismatch``         scale of the nominal D diagonals
+    ``tolerances``               ``DockingTolerances``
+    ``time_limit``               s (100)
+    ``lights_lost_timeout``      s (5)
+    ``min_visible_lights``       (3)
+    ``integrator``               ``"rk4"``; ``"euler"``: the v0 plant
+    ``physics_substeps``         plant steps per 0.1 s (1)
+    ``render_mode``              ``"rgb_array"`` or None
+    ``render_camera``            ``"chase"`` or ``"onboard"``
+    ``render_size``              (W, H) of ``render()`` (640x480)
+    ``disturbances``             :class:`DockingDisturbances` (none)
+    ``optics``                   :class:`~auv_envs.core.optics.WaterOptics`
+                                 (None: clear water)
+    ``difficulty``               ``"easy"`` (the release), ``"paper"``,
+                                 ``"hard"``: ``disturbances`` and ``optics``
+                                 (:data:`PAPER_DISTURBANCES`, ...,
+                                 ``docs/difficulty.md``)
+    ===========================  ==============================================
+
+    **Version history.** v1: the plant integrates with classical RK4 (0.1 s,
+    the hull wrench at every stage). v0: semi-implicit Euler at 0.05 s; still
+    registered. Changes within a version (rendering, opt-in arguments) with
+    their measurements: ``CHANGELOG.md``.
     """
 
     metadata = {
@@ -545,12 +525,7 @@ class DockingEnv(TaskEnv):
             disturbances=disturbances,
             optics=optics,
         )
-        self._disturbances = disturbances
         self._optics = optics
-        self._current_varies = disturbances.current.active  # read once: the step path checks it
-        self._thruster_gain = thruster_lag_gain(disturbances.thruster_time_constant, self._dt)
-        # Per-step constants as Python floats (the step path works in floats).
-        self._thrust = tuple(float(t) for t in self._params.thrust_limits)
         #: The task's geometry and rules (:mod:`auv_envs.tasks.docking_rules`), which the
         #: batched environment evaluates too.
         self.rules = DockingRules(
@@ -567,9 +542,26 @@ class DockingEnv(TaskEnv):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(n_lights, width, height)
+        pixel_bounds = None
         if obs_mode == "features":
             space = self.observation_space["pixels"]
-            self._pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
+            pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
+        cal = self.calibration
+        #: The task as the transition sees it (:mod:`auv_envs.tasks.docking_transition`),
+        #: which the batched environment runs too.
+        self.params = transition.DockingParams(
+            rules=self.rules, start_box=(self.layout.start_x, self.layout.start_y,
+                                         self.layout.start_z),
+            light_positions=light_positions, obs_mode=obs_mode, scenario=scenario,
+            current_direction=current_direction, disturbances=disturbances, optics=optics,
+            # Per-step constants as Python floats (the step path works in floats).
+            thrust_limits=tuple(float(t) for t in self._params.thrust_limits),
+            thruster_gain=thruster_lag_gain(disturbances.thruster_time_constant, self._dt),
+            noise=(cal.pixel_noise_std, cal.velocity_noise_std, cal.yaw_rate_noise_std,
+                   cal.attitude_noise_std),
+            pixel_bounds=pixel_bounds, focal_px=cal.intrinsics.fy,
+            max_episode_steps=self.max_episode_steps)
+        self._plant = _MujocoPlant(self)
         # One renderer for the image observation, one for render(): they differ
         # in camera, size or lighting.
         self.camera_renderer: CameraRenderer | None = None
@@ -587,7 +579,7 @@ class DockingEnv(TaskEnv):
                 fog=chase, skybox=chase, fit_outlines=not chase,  # onboard: as the observation
                 detail=() if chase else self.physics.detail_levels(),
             )
-        self._episode = _EpisodeState()
+        self._episode = _Episode()
 
     # ------------------------------------------------------------------ spaces
     def _make_observation_space(self, n: int, width: int, height: int) -> spaces.Space:
@@ -610,57 +602,45 @@ class DockingEnv(TaskEnv):
         )
 
     # ------------------------------------------------------------------ episode hooks
+    def _backend(self, rng: np.random.Generator) -> transition.Backend:
+        return transition.Backend(FLOATS, rng, self._plant)
+
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        lay = self.layout
-        x = rng.uniform(*lay.start_x)
-        y = rng.uniform(*lay.start_y)
-        z = rng.uniform(*lay.start_z)
-        yaw = math.atan2(-y, -x) + rng.uniform(-1.0, 1.0) * math.radians(START_HEADING_SPREAD_DEG)
-        surge = rng.uniform(*START_SURGE)
-        varying = self._disturbances.current
-        if self.scenario == "current" or self._current_varies:
-            speed = SCENARIO_CURRENT_SPEED if self.scenario == "current" else 0.0
-            direction = (
-                math.radians(self._current_direction)
-                if self._current_direction is not None
-                else rng.uniform(0.0, 2.0 * math.pi)
-            )
-            polar = (varying.start(speed, direction, rng) if self._current_varies
-                     else (speed, direction))
-            current = current_vector(*polar)
-        else:
-            speed = direction = 0.0
-            polar, current = (0.0, 0.0), np.zeros(3)
-        vehicle, draws = self._disturbances.plant.draw(self._params, rng)
-        self._use_vehicle(vehicle)
-        self.physics.set_state([x, y, z], [0.0, 0.0, yaw], [surge, 0, 0, 0, 0, 0])
-        self._episode = _EpisodeState(current=current, current_mean=(speed, direction),
-                                      current_polar=polar, vehicle=vehicle, plant_draws=draws)
-        if self._optics is not None:
-            outages = LampOutages.start(self._optics, len(lay.light_labels), rng)
-            self._episode.outages = outages
-            self.physics.show_lamps(outages.failed)
-        truth = self._truth()
-        self._episode.prev_potential = self.rules.potential(truth)
-        self._episode.min_lights_visible = truth["n_visible"]
+        state, truth, obs = transition.reset(self.params, self._backend(rng))
+        self._episode = _Episode(state, obs)
         extras = {}
-        if draws:
-            extras["plant"] = dict(draws)
-        if self._optics is not None:
-            failed = self._episode.outages.failed
+        if state.plant is not None:
+            extras["plant"] = self.plant_draws(state.plant)
+        if state.failed is not None:
             extras["optics"] = {"failed_lamps": tuple(
-                label for label, out in zip(lay.light_labels, failed, strict=True) if out)}
+                label for label, out in zip(self.layout.light_labels, state.failed, strict=True)
+                if out)}
         return truth, extras
 
+    def vehicle_of(self, draws) -> VehicleParams:
+        """The simulated vehicle of an episode's plant draws (the nominal one for None)."""
+        if draws is None:
+            return self._params
+        mass, damping, buoyancy = draws
+        return PlantPerturbation.apply(self._params, float(mass), damping.tolist(),
+                                       float(buoyancy))
+
+    @staticmethod
+    def plant_draws(draws) -> dict:
+        """``info["plant"]`` at reset: the episode's plant perturbation, named."""
+        mass, damping, buoyancy = draws
+        damping = damping.tolist()
+        return {"mass_scale": float(mass), "linear_damping_scale": damping[:6],
+                "quadratic_damping_scale": damping[6:], "net_buoyancy_offset": float(buoyancy)}
+
     def _set_runtime_state(self, state: dict) -> None:
-        # The episode's (perturbed) vehicle lives in the model and the hull wrench too.
-        vehicle = state["episode"].vehicle
-        if vehicle is not None and vehicle != self._params:
-            self._use_vehicle(vehicle)
+        # The episode's (perturbed) vehicle and failed lamps live in the model too.
+        episode = state["episode"].state
+        if episode is not None:
+            self._use_vehicle(self.vehicle_of(episode.plant))
         super()._set_runtime_state(state)
-        outages = self._episode.outages
-        if outages is not None:  # the episode's failed lamps live in the model too
-            self.physics.show_lamps(outages.failed)
+        if episode is not None and episode.failed is not None:
+            self.physics.show_lamps(episode.failed)
 
     def _use_vehicle(self, vehicle: VehicleParams) -> None:
         """Make ``vehicle`` the simulated one: MuJoCo's mass and inertia, the hull wrench."""
@@ -676,58 +656,21 @@ class DockingEnv(TaskEnv):
 
     def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        ax, ay, az, an = action.tolist()
-        tx, ty, tz, tn = self._thrust
-        x, y, z, n = ax * tx, ay * ty, az * tz, an * tn
-        gain = self._thruster_gain
-        if gain != 1.0:  # first-order thrusters: the force moves towards the command
-            x, y, z, n = (lagged_thrust(previous, command, gain) for previous, command
-                          in zip(ep.thrust, (x, y, z, n), strict=True))
-            ep.thrust = (x, y, z, n)
-        if self._current_varies:
-            varying = self._disturbances.current
-            ep.current_polar = varying.advance(*ep.current_polar, *ep.current_mean, self._dt,
-                                               self.np_random)
-            ep.current = current_vector(*ep.current_polar)
-        self.hull.command((x, y, z, 0.0, 0.0, n), ep.current.tolist())
-        self.physics.skip_contacts_if_clear(self._dt)
-        self.integrator.step(self._physics_substeps)
-        ep.steps += 1
-        ep.control_effort += (x * x + y * y + z * z + n * n) * self._dt
-        return self._truth()
+        ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, ep.state, action.tolist(), self._backend(self.np_random))
+        return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        ep, rules = self._episode, self.rules
-        n_visible = truth["n_visible"]
-        ep.min_lights_visible = min(ep.min_lights_visible, n_visible)
-        fov_violation = n_visible < self._min_visible
-        ep.lost_time = rules.lights_lost_time(ep.lost_time, fov_violation)
-        ep.fov_violations += int(fov_violation)
-
-        docked = rules.docked(truth)
-        flags = rules.failures(truth, docked, ep.lost_time)
-        code = rules.failure_index(flags)
-        failure = FAILURE_REASONS[code - 1] if code else ""
-        potential = rules.potential(truth)
-        terms = rules.reward_terms(ep.prev_potential, potential, action.tolist(), fov_violation,
-                                   docked, bool(failure))
-        ep.prev_potential = potential
-        if docked:
-            ep.success = True
-            ep.docking_time = ep.steps * self._dt
-        ep.failure_reason = failure
-        truth["violations"] = {"fov": fov_violation, "behind_entrance": flags[0],
-                               "seabed": flags[1]}
-        if self._optics is not None and self.obs_mode == "features":
-            ep.outages = ep.outages.advance(self._optics, self._dt, self.np_random)
-        return terms, docked or bool(failure)
+        judged = self._episode.judged
+        return judged.terms, judged.terminated
 
     def _render_frame(self) -> np.ndarray:
         return self._render_camera(self._view)
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
-        """Ground truth after a step, computed once and shared by obs, reward and info.
+        """Ground truth now, computed once a step and shared by obs, reward and info
+        (:func:`~auv_envs.tasks.docking_transition.truth_with_lights`).
 
         Python floats throughout: with a handful of lights, NumPy's per-call
         overhead would cost several times the arithmetic.
@@ -739,67 +682,15 @@ class DockingEnv(TaskEnv):
             self.calibration.intrinsics, self.rules.lights, cam_pos, truth.pop("camera_rows")
         )
         visible = phys.unoccluded(cam_pos, self.rules.lights, in_image)
-        pixel_array = np.array(pixels)
-        visible_array = np.array(visible)
-        # The observation/info convention: zero (not NaN) where not visible.
-        if all(visible):
-            visible_pixels = pixel_array.copy()
-        else:
-            visible_pixels = np.where(visible_array[:, None], pixel_array, 0.0)
-        truth.update(pixels=pixel_array, visible=visible_array, visible_pixels=visible_pixels,
-                     n_visible=sum(visible))
-        return truth
-
-    def _sensors(self, truth: dict) -> dict:
-        cal = self.calibration
-        noise = None
-        if cal.velocity_noise_std > 0:
-            # One draw of 7 standard normals, scaled: the same numbers, in the
-            # same order, as normal(0, s_v, 3), normal(0, s_r), normal(0, s_a, 3)
-            # (Generator.normal is loc + scale * standard_normal), at a third of the cost.
-            noise = self.np_random.standard_normal(7).tolist()
-        velocity, attitude = self.rules.sensor_readings(truth, noise, (
-            cal.velocity_noise_std, cal.yaw_rate_noise_std, cal.attitude_noise_std))
-        return {
-            "velocity": np.array(velocity, dtype=np.float32),
-            "attitude": np.array(attitude, dtype=np.float32),
-        }
+        return transition.truth_with_lights(truth, np.array(pixels), np.array(visible), FLOATS)
 
     def _observation(self, truth: dict):
-        if self.obs_mode == "state":
-            return np.array(self.rules.state_observation(truth, self._episode.current.tolist()),
-                            dtype=np.float32)
-        sensors = self._sensors(truth)
-        if self.obs_mode == "features":
-            visible = truth["visible"]
-            # Noise on the masked true pixels (zero, not NaN, where not visible),
-            # masked again: the same draws and values as noising the raw pixels.
-            # Without noise the bounds hold already (visible pixels lie inside
-            # the image, the others are zero), so only noisy pixels are clipped.
-            pixels = truth["visible_pixels"]
-            if self.calibration.pixel_noise_std > 0:
-                pixels = add_pixel_noise(pixels, self.calibration.pixel_noise_std, self.np_random)
-                if truth["n_visible"] < len(visible):
-                    pixels = np.where(visible[:, None], pixels, 0.0)
-                low, high = self._pixel_bounds
-                np.minimum(np.maximum(pixels, low, out=pixels), high, out=pixels)
-            if self._optics is not None:
-                pixels, visible = self._detect_lamps(truth, pixels, visible)
-            pixels = pixels.astype(np.float32)
-            return {"pixels": pixels, "visible": visible.astype(np.int8), **sensors}
+        obs = self._episode.obs  # the transition's: state, features, or image mode's sensors
+        if self.obs_mode != "image":
+            return obs
         if self._optics is not None:
-            return {"image": self._render_through_water(), **sensors}
-        return {"image": self._render_camera(self.camera_renderer), **sensors}
-
-    def _detect_lamps(self, truth: dict, pixels: np.ndarray,
-                      visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The lamps the camera detects through the water (``optics``), and their pixels."""
-        cal = self.calibration
-        distance = np.linalg.norm(cal.light_positions - truth["camera_position"], axis=1)
-        pixels, detected = detect_lamps(pixels, visible, distance, self._episode.outages,
-                                        self._optics, cal.intrinsics.fy, self.np_random)
-        low, high = self._pixel_bounds
-        return np.clip(pixels, low, high), detected
+            return {"image": self._render_through_water(), **obs}
+        return {"image": self._render_camera(self.camera_renderer), **obs}
 
     def lights_in_view(self) -> tuple[np.ndarray, np.ndarray]:
         """Where the camera sees each light now, geometrically: ``(pixels (n, 2),
@@ -850,50 +741,42 @@ class DockingEnv(TaskEnv):
 
     def _info(self, truth: dict) -> dict:
         ep = self._episode
-        violations = truth.get("violations", _NO_VIOLATIONS)
+        state, judged = ep.state, ep.judged
         info = {
             "distance_to_entrance": truth["distance"],
             "longitudinal_error": truth["longitudinal"],
             "lateral_error": truth["lateral"],
             "vertical_error": truth["vertical"],
             "heading_error": truth["heading"],
-            "docked": ep.success,
-            "is_success": ep.success,
+            "docked": state.success,
+            "is_success": state.success,
             "lights_visible": truth["n_visible"],
-            "violation_fov": violations["fov"],
-            "violation_behind_entrance": violations["behind_entrance"],
-            "violation_seabed": violations["seabed"],
-            "failure_reason": ep.failure_reason,
-            "time": ep.steps * self._dt,
+            "violation_fov": judged is not None and judged.fov_violation,
+            "violation_behind_entrance": judged is not None and judged.behind_entrance,
+            "violation_seabed": judged is not None and judged.seabed,
+            "failure_reason": FAILURE_REASONS[state.failure - 1] if state.failure else "",
+            "time": state.steps * self._dt,
             "true_position": np.array(truth["position"]),
             "true_euler": np.array(truth["euler"]),
             "true_velocity": np.array(truth["velocity"]),
             "true_pixels": truth["visible_pixels"],  # observations build their own arrays
             "true_visible": truth["visible"],
-            "current": ep.current.copy(),
+            "current": np.array(state.current, dtype=float),
         }
-        if self._thruster_gain != 1.0 and ep.steps:
-            info["thrust"] = ep.thrust
+        if state.thrust is not None and state.steps:
+            info["thrust"] = state.thrust
         return info
 
     def _episode_metrics(self, truth: dict) -> dict:
-        ep = self._episode
-        return {
-            "success": ep.success,
-            "failure_reason": ep.failure_reason or ("" if ep.success else "time_limit"),
-            "docking_time": ep.docking_time,
-            "steps": ep.steps,
-            "final_distance": truth["distance"],
-            "final_lateral_error": truth["lateral"],
-            "final_vertical_error": truth["vertical"],
-            "final_heading_error_deg": math.degrees(truth["heading"]),
-            "fov_violation_steps": ep.fov_violations,
-            "min_lights_visible": ep.min_lights_visible,
-            "control_effort": ep.control_effort,
-        }
-
-
-_NO_VIOLATIONS = {"fov": False, "behind_entrance": False, "seabed": False}
+        state = self._episode.state
+        metrics = {}
+        for key, value in transition.summary(state, truth).items():
+            if key == "failure":
+                key, value = "failure_reason", failure_reason(value, state.success)
+            elif key == "docking_time" and math.isnan(value):
+                value = None
+            metrics[key] = value
+        return metrics
 
 
 class DockingStationEnv(DockingEnv):

@@ -20,6 +20,15 @@ from auv_envs.core.ops import FLOATS
 
 #: Failure reasons, in the order they are checked: the first that holds ends the episode.
 FAILURE_REASONS = ("behind_entrance", "seabed", "lights_lost", "out_of_bounds")
+def failure_reason(code, success) -> str:
+    """The ``failure_reason`` episode metric of a failure code (index + 1 in
+    :data:`FAILURE_REASONS`, 0: none): ``""`` for a success, ``"time_limit"`` otherwise."""
+    code = int(code)
+    if code:
+        return FAILURE_REASONS[code - 1]
+    return "" if success else "time_limit"
+
+
 #: Distance from the entrance beyond which the vehicle is out of bounds, m.
 OUT_OF_BOUNDS = 30.0
 

@@ -1,0 +1,368 @@
+"""The docking task's transition, written once for the CPU environment and the batched one.
+
+An episode is :func:`reset` then :func:`step` over a typed, immutable
+:class:`EpisodeState`; the static :class:`DockingParams` say which task it is.
+Both take a :class:`Backend`: the arithmetic (:mod:`auv_envs.core.ops`:
+Python floats and NumPy on the CPU, ``jax.numpy`` in the batched env), the
+episode's random draws (anything with NumPy ``Generator``'s ``uniform``,
+``standard_normal`` and ``random``: the env's own generator on the CPU,
+:class:`auv_envs.batched.docking_env.KeyDraws` over a JAX key), and the
+plant (MuJoCo on the CPU, MJX batched). The start draw, the order of the
+step (thrusters, current, plant, judgement, water, observation), the reward,
+the termination, the observation and the episode summary exist here only;
+:class:`auv_envs.tasks.docking.DockingEnv` (Gymnasium) and
+:class:`auv_envs.batched.docking_env.DockingMJX` (``jit``/``vmap``) are shells
+around them.
+
+On the CPU the draws come in the order the environment has always made them,
+so its episodes are the released ones, bit for bit. The plant's own state (the
+free joint, MuJoCo's warm start) lives in the backend's plant: MuJoCo's
+``MjData`` on the CPU, ``(qpos, qvel)`` arrays in the batched env.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, NamedTuple
+
+from auv_envs.core.optics import LampOutages, WaterOptics, lamp_detections
+from auv_envs.core.sea import current_components
+from auv_envs.core.vehicle import lagged_thrust
+from auv_envs.tasks.docking_rules import DockingRules
+
+#: [OFNMPC] Scenario 2 current speed, m/s.
+SCENARIO_CURRENT_SPEED = 0.3
+#: Start state: heading spread about the line of sight to the entrance (deg) and the
+#: surge speed range (m/s), drawn uniformly.
+START_HEADING_SPREAD_DEG = 10.0
+START_SURGE = (0.0, 0.3)
+
+
+@dataclasses.dataclass(frozen=True)
+class DockingParams:
+    """What makes a docking task this one; fixed for the environment's life.
+
+    Attributes:
+        rules: the scene's geometry and the episode rules.
+        start_box: ``(x, y, z)`` ranges of the start position, m.
+        light_positions: ``(n, 3)`` light positions in the world (NumPy).
+        obs_mode: ``"state"`` or ``"features"`` (the rendered ``image`` mode is
+            the CPU shell's).
+        scenario: ``"mismatch"`` or ``"current"``.
+        current_direction: the scenario current's direction, deg; None: drawn.
+        disturbances: the level's :class:`~auv_envs.tasks.docking.DockingDisturbances`.
+        optics: the level's water (None: clear water, every lamp seen).
+        thrust_limits: (X, Y, Z, N) at full command.
+        thruster_gain: :func:`~auv_envs.core.vehicle.thruster_lag_gain` (1: no lag).
+        noise: standard deviations of the pixel, velocity, yaw-rate and attitude noise.
+        pixel_bounds: ``(low, high)`` of the ``features`` pixels (NumPy), or None.
+        focal_px: the camera's vertical focal length, pixels.
+        max_episode_steps: steps to the time limit.
+    """
+
+    rules: DockingRules
+    start_box: tuple
+    light_positions: Any
+    obs_mode: str
+    scenario: str
+    current_direction: float | None
+    disturbances: Any
+    optics: WaterOptics | None
+    thrust_limits: tuple
+    thruster_gain: float
+    noise: tuple
+    pixel_bounds: tuple | None
+    focal_px: float
+    max_episode_steps: int
+
+    @property
+    def dt(self) -> float:
+        return self.rules.control_period
+
+    @property
+    def n_lights(self) -> int:
+        return len(self.rules.lights)
+
+
+class EpisodeState(NamedTuple):
+    """Everything an episode changes besides the plant; immutable (a JAX pytree as is).
+
+    Numbers are Python scalars and tuples on the CPU and arrays in the batched
+    env. ``failure`` is the index + 1 of the first failure in
+    :data:`~auv_envs.tasks.docking_rules.FAILURE_REASONS` (0: none),
+    ``docking_time`` NaN until docked; ``thrust`` is None without a thruster
+    lag, ``plant`` (the simulated vehicle's draws: mass factor, 12 damping
+    factors, net-buoyancy offset) without a plant perturbation, ``failed`` and
+    ``occluded`` (per lamp) without ``optics``.
+    """
+
+    steps: Any
+    lost_time: Any
+    prev_potential: Any
+    success: Any
+    failure: Any
+    docking_time: Any
+    fov_violations: Any
+    control_effort: Any
+    min_lights_visible: Any
+    current_polar: Any
+    current_mean: Any
+    current: Any
+    thrust: Any = None
+    plant: Any = None
+    failed: Any = None
+    occluded: Any = None
+
+    @property
+    def out(self):
+        """Per lamp: failed or hidden now (``optics`` only)."""
+        return self.failed | self.occluded
+
+
+class Start(NamedTuple):
+    """An episode's start: pose and surge, and the current (speed m/s, direction rad) now
+    and its mean."""
+
+    x: Any
+    y: Any
+    z: Any
+    yaw: Any
+    surge: Any
+    current_polar: tuple
+    current_mean: tuple
+
+
+class Backend(NamedTuple):
+    """How a transition is evaluated.
+
+    Attributes:
+        ops: a namespace of :mod:`auv_envs.core.ops` (with ``xp``, its array module).
+        draws: the episode's random draws (NumPy ``Generator``'s interface).
+        plant: ``place(start, vehicle_draws, failed)``, ``advance(tau, current,
+            vehicle_draws)`` and ``truth()`` -> the kinematics of
+            :meth:`DockingRules.kinematics` with ``pixels`` (n, 2), ``visible``
+            (n,), ``visible_pixels`` and ``n_visible`` (see
+            :func:`truth_with_lights`).
+    """
+
+    ops: Any
+    draws: Any
+    plant: Any
+
+
+class Assessment(NamedTuple):
+    """A step's judgement: reward terms, whether it ended, and the violations."""
+
+    terms: dict
+    terminated: Any
+    fov_violation: Any
+    behind_entrance: Any
+    seabed: Any
+
+
+# ------------------------------------------------------------------ reset
+def draw_start(params: DockingParams, draws, ops) -> Start:
+    """The start pose (uniform in the layout's box, heading towards the entrance within
+    :data:`START_HEADING_SPREAD_DEG`, surge in :data:`START_SURGE`) and the current."""
+    (x0, x1), (y0, y1), (z0, z1) = params.start_box
+    x = draws.uniform(x0, x1)
+    y = draws.uniform(y0, y1)
+    z = draws.uniform(z0, z1)
+    yaw = ops.atan2(-y, -x) + draws.uniform(-1.0, 1.0) * math.radians(START_HEADING_SPREAD_DEG)
+    surge = draws.uniform(*START_SURGE)
+    varying = params.disturbances.current
+    if params.scenario == "current" or varying.active:
+        speed = SCENARIO_CURRENT_SPEED if params.scenario == "current" else 0.0
+        direction = (math.radians(params.current_direction)
+                     if params.current_direction is not None
+                     else draws.uniform(0.0, 2.0 * math.pi))
+        polar = (speed, direction)
+        if varying.active:
+            polar = varying.start_from(speed, direction, draws.standard_normal(),
+                                       draws.standard_normal(), ops)
+        mean = (speed, direction)
+    else:
+        polar = mean = (0.0, 0.0)
+    return Start(x, y, z, yaw, surge, polar, mean)
+
+
+def draw_vehicle(params: DockingParams, draws) -> tuple | None:
+    """The simulated vehicle's draws ``(mass factor, 12 damping factors, net-buoyancy
+    offset N)`` of :class:`~auv_envs.core.vehicle.PlantPerturbation`; None when inactive."""
+    plant = params.disturbances.plant
+    if not plant.active:
+        return None
+    return (draws.uniform(1.0 - plant.mass, 1.0 + plant.mass),
+            draws.uniform(1.0 - plant.damping, 1.0 + plant.damping, 12),
+            draws.uniform(-plant.net_buoyancy, plant.net_buoyancy))
+
+
+def reset(params: DockingParams, backend: Backend, start: Start | None = None,
+          vehicle: tuple | None = None):
+    """A new episode: ``(state, truth, observation)``.
+
+    ``start`` and ``vehicle`` (:func:`draw_vehicle`'s draws) given are used
+    instead of drawn (the equivalence tests start both envs alike this way).
+    """
+    ops, draws, plant = backend
+    if start is None:
+        start = draw_start(params, draws, ops)
+    if vehicle is None:
+        vehicle = draw_vehicle(params, draws)
+    failed = occluded = None
+    if params.optics is not None:
+        n = params.n_lights
+        failed = draws.random(n) < params.optics.lamp_failure_probability
+        occluded = draws.random(n) < LampOutages.occluded_share(params.optics)
+    plant.place(start, vehicle, failed)
+    truth = plant.truth()
+    real, integer = ops.real, ops.integer
+    state = EpisodeState(
+        steps=integer(0), lost_time=real(0.0), prev_potential=params.rules.potential(truth),
+        success=ops.boolean(False), failure=integer(0), docking_time=real(math.nan),
+        fov_violations=integer(0), control_effort=real(0.0),
+        min_lights_visible=truth["n_visible"], current_polar=ops.vector(start.current_polar),
+        current_mean=ops.vector(start.current_mean),
+        current=ops.vector(current_components(*start.current_polar, ops)),
+        thrust=ops.vector((0.0,) * 4) if params.thruster_gain != 1.0 else None,
+        plant=vehicle, failed=failed, occluded=occluded)
+    return state, truth, observe(params, state, truth, backend)
+
+
+# ------------------------------------------------------------------ step
+def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
+    """One control period under ``action``, the normalised ``(X, Y, Z, N)`` command as 4
+    scalars already checked (:func:`auv_envs.core.env.clip_actions`):
+    ``(state, truth, observation, assessment)``."""
+    ops, draws, plant = backend
+    ax, ay, az, an = action
+    tx, ty, tz, tn = params.thrust_limits
+    force = (ax * tx, ay * ty, az * tz, an * tn)
+    thrust = state.thrust
+    if thrust is not None:  # first-order thrusters: the force moves towards the command
+        force = tuple(lagged_thrust(thrust[k], force[k], params.thruster_gain)
+                      for k in range(4))
+        thrust = ops.vector(force)
+    polar, current = state.current_polar, state.current
+    varying = params.disturbances.current
+    if varying.active:
+        noise = draws.standard_normal(2)
+        polar = varying.relax(polar[0], polar[1], state.current_mean[0], state.current_mean[1],
+                              params.dt, noise[0], noise[1], ops)
+        current = ops.vector(current_components(*polar, ops))
+        polar = ops.vector(polar)
+    x, y, z, n = force
+    plant.advance((x, y, z, 0.0, 0.0, n), current, state.plant)
+    truth = plant.truth()
+    steps = state.steps + 1
+    effort = state.control_effort + (x * x + y * y + z * z + n * n) * params.dt
+    state = state._replace(steps=steps, control_effort=effort, thrust=thrust,
+                           current_polar=polar, current=current)
+    state, judged = assess(params, state, truth, action, ops)
+    if params.optics is not None and params.obs_mode == "features":  # occluders pass
+        u = draws.random(params.n_lights)
+        state = state._replace(occluded=LampOutages.occlusions_after(
+            state.occluded, params.optics, params.dt, u, ops.xp))
+    return state, truth, observe(params, state, truth, backend), judged
+
+
+def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops):
+    """The step's reward terms and end, and the episode's record updated by them."""
+    rules = params.rules
+    n_visible = truth["n_visible"]
+    fov_violation = n_visible < rules.min_visible
+    lost_time = rules.lights_lost_time(state.lost_time, fov_violation, ops)
+    docked = rules.docked(truth)
+    flags = rules.failures(truth, docked, lost_time, ops)
+    code = ops.integer(rules.failure_index(flags, ops))
+    failed = code > 0
+    potential = rules.potential(truth)
+    terms = rules.reward_terms(state.prev_potential, potential, action, fov_violation, docked,
+                               failed, ops)
+    state = state._replace(
+        lost_time=lost_time, prev_potential=potential, success=state.success | docked,
+        failure=code, docking_time=ops.where(docked, state.steps * params.dt,
+                                             state.docking_time),
+        fov_violations=state.fov_violations + fov_violation,
+        min_lights_visible=ops.minimum(state.min_lights_visible, n_visible))
+    return state, Assessment(terms, docked | failed, fov_violation, flags[0], flags[1])
+
+
+# ------------------------------------------------------------------ what is seen
+def truth_with_lights(truth: dict, pixels, visible, ops) -> dict:
+    """``truth`` with the lights' ``pixels`` (n, 2; NaN behind the camera) and ``visible``
+    (n,) added, ``visible_pixels`` (zero, not NaN, where not visible) and ``n_visible``."""
+    xp = ops.xp
+    truth.update(pixels=pixels, visible=visible,
+                 visible_pixels=xp.where(visible[:, None], pixels, 0.0),
+                 n_visible=ops.count(visible))
+    return truth
+
+
+def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Backend):
+    """The ``state`` or ``features`` observation (see the environment's docstring); in
+    ``image`` mode its sensors (the CPU shell adds the camera's image)."""
+    ops, draws, _ = backend
+    xp = ops.xp
+    if params.obs_mode == "state":
+        current = state.current
+        return xp.asarray(params.rules.state_observation(
+            truth, (current[0], current[1], current[2]), ops), dtype=xp.float32)
+    pixel_std, velocity_std, yaw_rate_std, attitude_std = params.noise
+    # One draw of 7 standard normals, scaled: the numbers of normal(0, s_v, 3),
+    # normal(0, s_r), normal(0, s_a, 3) (Generator.normal is loc + scale * standard_normal).
+    noise = ops.unpack(draws.standard_normal(7)) if velocity_std > 0 else None
+    velocity, attitude = params.rules.sensor_readings(
+        truth, noise, (velocity_std, yaw_rate_std, attitude_std))
+    sensors = {"velocity": xp.asarray(velocity, dtype=xp.float32),
+               "attitude": xp.asarray(attitude, dtype=xp.float32)}
+    if params.obs_mode != "features":
+        return sensors
+    visible = truth["visible"]
+    pixels = truth["visible_pixels"]
+    if pixel_std > 0:  # noise on the masked true pixels, masked again, clipped
+        pixels = pixels + pixel_std * draws.standard_normal(pixels.shape)
+        pixels = xp.clip(xp.where(visible[:, None], pixels, 0.0), *params.pixel_bounds)
+    if params.optics is not None:  # the lamps the camera detects through the water
+        distance = xp.linalg.norm(params.light_positions - xp.asarray(truth["camera_position"]),
+                                  axis=-1)
+        n = params.n_lights
+        u = draws.random(n)
+        centroid_noise = draws.standard_normal((n, 2))
+        pixels, visible = lamp_detections(pixels, visible, distance, state.out, params.optics,
+                                          params.focal_px, u, centroid_noise, xp)
+        pixels = xp.clip(pixels, *params.pixel_bounds)
+    return {"pixels": pixels.astype(xp.float32), "visible": visible.astype(xp.int8), **sensors}
+
+
+# ------------------------------------------------------------------ the record
+def step_metrics(truth: dict, state: EpisodeState) -> dict:
+    """What ``info`` reports every step besides the reward terms."""
+    return {
+        "distance_to_entrance": truth["distance"],
+        "longitudinal_error": truth["longitudinal"],
+        "lateral_error": truth["lateral"],
+        "vertical_error": truth["vertical"],
+        "heading_error": truth["heading"],
+        "lights_visible": truth["n_visible"],
+        "is_success": state.success,
+    }
+
+
+def summary(state: EpisodeState, truth: dict) -> dict:
+    """The episode's summary as numbers: ``failure`` the code of :class:`EpisodeState`,
+    ``docking_time`` NaN when it did not dock (the shells name and format them)."""
+    return {
+        "success": state.success,
+        "failure": state.failure,
+        "docking_time": state.docking_time,
+        "steps": state.steps,
+        "final_distance": truth["distance"],
+        "final_lateral_error": truth["lateral"],
+        "final_vertical_error": truth["vertical"],
+        "final_heading_error_deg": truth["heading"] * (180.0 / math.pi),
+        "fov_violation_steps": state.fov_violations,
+        "min_lights_visible": state.min_lights_visible,
+        "control_effort": state.control_effort,
+    }
