@@ -255,11 +255,10 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
     x, y, z, n = force
     plant.advance((x, y, z, 0.0, 0.0, n), current, state.plant)
     truth = plant.truth()
-    steps = state.steps + 1
-    effort = state.control_effort + (x * x + y * y + z * z + n * n) * params.dt
-    state = state._replace(steps=steps, control_effort=effort, thrust=thrust,
-                           current_polar=polar, current=current)
-    state, judged = assess(params, state, truth, action, ops)
+    state, judged = assess(params, state, truth, action, ops, steps=state.steps + 1,
+                           control_effort=state.control_effort
+                           + (x * x + y * y + z * z + n * n) * params.dt,
+                           thrust=thrust, current_polar=polar, current=current)
     if params.optics is not None and params.obs_mode == "features":  # occluders pass
         u = draws.random(params.n_lights)
         state = state._replace(occluded=LampOutages.occlusions_after(
@@ -267,8 +266,10 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
     return state, truth, observe(params, state, truth, backend), judged
 
 
-def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops):
-    """The step's reward terms and end, and the episode's record updated by them."""
+def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops, steps,
+           **changes):
+    """The step's reward terms and end, and the episode's record updated by them and by
+    ``steps`` (the step count after this step) and ``changes`` (other fields the step set)."""
     rules = params.rules
     n_visible = truth["n_visible"]
     fov_violation = n_visible < rules.min_visible
@@ -281,11 +282,11 @@ def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops)
     terms = rules.reward_terms(state.prev_potential, potential, action, fov_violation, docked,
                                failed, ops)
     state = state._replace(
-        lost_time=lost_time, prev_potential=potential, success=state.success | docked,
-        failure=code, docking_time=ops.where(docked, state.steps * params.dt,
-                                             state.docking_time),
+        steps=steps, lost_time=lost_time, prev_potential=potential,
+        success=state.success | docked, failure=code,
+        docking_time=ops.where(docked, steps * params.dt, state.docking_time),
         fov_violations=state.fov_violations + fov_violation,
-        min_lights_visible=ops.minimum(state.min_lights_visible, n_visible))
+        min_lights_visible=ops.minimum(state.min_lights_visible, n_visible), **changes)
     return state, Assessment(terms, docked | failed, fov_violation, flags[0], flags[1])
 
 
