@@ -5,7 +5,8 @@
 
 :class:`EpisodeRecorder` is Gymnasium's ``RecordVideo`` (which writes the MP4
 through MoviePy) with three additions a benchmark needs: it keeps every
-``frame_stride``-th frame and always the episode's last one (so a clip plays
+``frame_stride``-th frame and always the episode's last one, held for
+:data:`HOLD_SECONDS` and to at least :data:`MIN_CLIP_SECONDS` (so a clip plays
 faster than real time and still shows how the episode ended), it plays at
 ``speed`` times real time, and it writes a GIF next to each MP4. The packages
 are in the ``video`` extra (``pip install "auv_envs[video]"``).
@@ -41,6 +42,11 @@ TARGET_FPS = 20.0
 #: With ``speed=None``, a clip plays a full-length episode in this many seconds
 #: (never slower than real time).
 CLIP_SECONDS = 20.0
+#: Every clip holds its episode's last frame this long, s (how it ended stays in view)...
+HOLD_SECONDS = 1.0
+#: ... and lasts at least this long, s: a LARS capture of 6-12 frames would otherwise
+#: flash by in half a second (the player shows "0:00").
+MIN_CLIP_SECONDS = 3.0
 
 
 def auto_speed(env: gym.Env) -> float:
@@ -153,6 +159,12 @@ class EpisodeRecorder(RecordVideo):
         self.recording = False
 
     def stop_recording(self):
+        if self.recorded_frames:  # hold the last frame (HOLD_SECONDS, MIN_CLIP_SECONDS)
+            fps = self.frames_per_sec
+            total = max(len(self.recorded_frames) + math.ceil(HOLD_SECONDS * fps),
+                        math.ceil(MIN_CLIP_SECONDS * fps))
+            self.recorded_frames += [self.recorded_frames[-1]] * (total
+                                                                  - len(self.recorded_frames))
         frames, name = list(self.recorded_frames), self._video_name
         super().stop_recording()
         if not frames:

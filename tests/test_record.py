@@ -8,6 +8,7 @@ import gymnasium as gym
 import imageio.v2 as imageio
 import numpy as np
 import pytest
+from PIL import Image
 
 from auv_envs import record
 from baselines.evaluation import EpisodeTask, VideoSpec, run_task
@@ -62,13 +63,26 @@ def test_recorder_keeps_every_nth_frame_and_the_last(tmp_path):
     mp4, gif = tmp_path / "clip-episode-0.mp4", tmp_path / "clip-episode-0.gif"
     assert recorder.written == [mp4, gif]
     frames = _mp4_frames(mp4)
-    # Frames 0, 4, 8, ... of reset + steps, plus the last one when the stride skipped it.
-    expected = len(range(0, steps + 1, 4)) + (steps % 4 != 0)
-    assert frames.shape == (expected, 48, 64, 3)
-    # The last frame is the episode's end state (H.264 is lossy: compare loosely).
-    assert np.abs(frames[-1].astype(int) - last.astype(int)).mean() < 6
+    # Frames 0, 4, 8, ... of reset + steps, plus the last one when the stride skipped it,
+    # then the last held for HOLD_SECONDS and up to MIN_CLIP_SECONDS in all.
+    kept = len(range(0, steps + 1, 4)) + (steps % 4 != 0)
+    fps = recorder.frames_per_sec
+    expected = max(kept + math.ceil(record.HOLD_SECONDS * fps),
+                   math.ceil(record.MIN_CLIP_SECONDS * fps))
+    assert expected > kept and frames.shape == (expected, 48, 64, 3)
+    assert len(frames) / fps >= record.MIN_CLIP_SECONDS
+    # The held frames are the episode's end state (H.264 is lossy: compare loosely).
+    for frame in frames[kept - 1:]:
+        assert np.abs(frame.astype(int) - last.astype(int)).mean() < 6
     gif_frames = imageio.mimread(gif)
-    assert len(gif_frames) == expected and gif_frames[0].shape[:2] == (24, 32)  # half size
+    assert gif_frames[0].shape[:2] == (24, 32)  # half size
+    # The GIF merges repeated frames into longer delays: it lasts as long as the MP4.
+    with Image.open(gif) as image:
+        durations = []
+        for index in range(image.n_frames):
+            image.seek(index)
+            durations.append(image.info["duration"])
+    assert sum(durations) / 1000 == pytest.approx(expected / fps, abs=0.1)
 
 
 def test_recorder_rejects_odd_frame_sizes(tmp_path):
