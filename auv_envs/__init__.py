@@ -31,11 +31,12 @@ ENVIRONMENTS = {
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars:LARSCaptureEnv",
 }
 
+#: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
+_DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2}
+
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
 #: Agents, the leaderboard and the tests use :data:`ENVIRONMENTS`.
-#: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
-_DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2}
 PREVIOUS_VERSIONS = {
     "auv_envs/DockingStation-v0": ("auv_envs.tasks.docking:DockingStationEnv", _DOCKING_V0_PLANT),
     "auv_envs/LampArrayDocking-v0": (

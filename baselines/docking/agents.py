@@ -40,8 +40,10 @@ class DockingPDAgent:
 
     Args:
         env: an unwrapped docking env with ``obs_mode="state"``.
-        kp, kd: translational gains (N/m, N s/m).
-        kp_yaw, kd_yaw: heading gains (N m/rad, N m s/rad).
+        kp: translational proportional gain (N/m).
+        kd: translational derivative gain (N s/m).
+        kp_yaw: heading proportional gain (N m/rad).
+        kd_yaw: heading derivative gain (N m s/rad).
         max_axial_error: clip on the along-axis error (sets approach speed).
     """
 

@@ -126,8 +126,10 @@ class CKFPDAgent:
             see :class:`~baselines.lars.perception.marker.MarkerLocaliser`).
         accel_std: (3,) white-acceleration process noise of the CKF, m/s^2.
         gate: chi-square gate on the fixes' innovation (``None``: no gate).
-        hover_height, strike_duration, follow_timeout: see
-            :class:`~baselines.lars.control.arm.CaptureStrategy`.
+        hover_height: arm end above the AUV's top line while tracking, m
+            (:class:`~baselines.lars.control.arm.CaptureStrategy`).
+        strike_duration: s from the strike decision to contact.
+        follow_timeout: s of following before retreating to tracking.
         sample_period: s between sampled targets (quintic re-plans).
         lookahead: s ahead of the present the tracking targets are sampled.
         heave_window: s of past heights the heave fit uses.
@@ -143,7 +145,8 @@ class CKFPDAgent:
         adapt_pixel_noise: raise the assumed pixel noise to the one measured
             in the observations (``MarkerLocaliser(adapt=...)``).
         strike: ``False`` tracks only (for estimation experiments).
-        kp, kd: eq. 30's gains (default: ``calibration.position_gains``).
+        kp: eq. 30's proportional gain (default: ``calibration.position_gains``).
+        kd: eq. 30's derivative gain (default: ``calibration.position_gains``).
     """
 
     def __init__(self, env, pixel_std: float | None = None, accel_std=(0.02, 0.02, 0.05),

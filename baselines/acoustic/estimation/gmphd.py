@@ -136,9 +136,11 @@ class AdaptiveBirth:
       weight: birth weight of a cluster holding ``n_sources`` fixes; a
         cluster of size s gets ``weight * s / n_sources`` (proportional to size).
       n_sources: the normaliser (the number of bands).
-      position_std, velocity_std: the predefined birth covariance P_gamma.
+      position_std: the predefined birth covariance P_gamma's position std (m).
+      velocity_std: P_gamma's velocity std (m/s).
       exclusion_radius: fixes within this distance (m) of a component with
         weight >= ``confirmed_weight`` are explained and do not seed births.
+      confirmed_weight: the weight from which a component is confirmed.
     """
 
     def __init__(self, eps: float = 1.0, min_samples: int = 3, weight: float = 0.1,

@@ -147,8 +147,9 @@ class ComputedTorquePD:
     Args:
         arm: the ``ArmModel`` (M, C, G of eq. 29).
         torque_limits: (3,) N m, the env's action scale.
-        kp, kd: eq. 30's gains (1/s^2, 1/s): [LTAT] §3.4's Kp = 160, Kd = 20 are the
+        kp: eq. 30's proportional gain (1/s^2); [LTAT] §3.4's Kp = 160 is in the
             env's ``calibration.position_gains``.
+        kd: eq. 30's derivative gain (1/s); [LTAT] §3.4's Kd = 20.
     """
 
     def __init__(self, arm, torque_limits, kp: float, kd: float):
@@ -189,7 +190,8 @@ class CaptureStrategy:
         hover_height: arm end above the AUV's top line while tracking, m.
         strike_duration: s from the strike decision to contact.
         follow_timeout: s.
-        phase: the current phase; strike_end: contact time of the current strike.
+        phase: the current phase.
+        strike_end: contact time of the current strike.
         strikes: strikes started this episode.
     """
 
