@@ -146,6 +146,11 @@ def is_reference(row: Mapping) -> bool:
     return bool(row.get("reference"))
 
 
+def reference_label(row: Mapping) -> str:
+    """What a reference row is (its ``label``; ``"bound"`` when it has none)."""
+    return str(row.get("label") or "bound")
+
+
 def is_member(row: Mapping) -> bool:
     """Whether ``row`` is one training seed of a group (ranked as its group's row)."""
     return bool(row.get("group"))
@@ -273,6 +278,9 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
                 cells += [cell_text(row, k) for k in keys]
                 lines.append("| " + " | ".join(cells) + " |")
             lines.append("")
+            notes = [f"`{r['agent']}`: {reference_label(r)} (a reference, not ranked)."
+                     for r in rows if is_reference(r)]
+            lines += notes + [""] * bool(notes)
         rows = env_rows
         failed = [r for r in rows if r["failed"]]
         if failed:
@@ -376,6 +384,11 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes | None:
         finite = [m for m in means if math.isfinite(m)]
         if finite and min(finite) > 0 and max(finite) / min(finite) > 100:
             ax.set_xscale("log")  # e.g. random next to trackers: keep both readable
+        for position, row, mean in zip(positions, rows, means, strict=True):
+            if not math.isfinite(mean):  # no bar is not a zero bar: say so
+                ax.text(0.01, position, "NaN" if key in row["metrics"] else "not reported",
+                        transform=ax.get_yaxis_transform(), va="center", fontsize=7,
+                        color="#aa3333")
         ax.set_yticks(positions, names, fontsize=8)
         ax.invert_yaxis()
         better = HEADLINE_METRICS.get(key, ("", "", "lower"))[2]
@@ -387,7 +400,8 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes | None:
         ax.grid(axis="x", alpha=0.3)
     for ax in axes[len(keys):]:
         ax.set_visible(False)
-    fig.suptitle(env_id, fontsize=11)
+    # Placed in inches from the top, clear of the subplot titles below it.
+    fig.suptitle(env_id, fontsize=11, y=1 - 0.12 / height, va="top")
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=90)
     return buffer.getvalue()
@@ -442,6 +456,7 @@ img.plot { display: block; max-width: 100%; height: auto; border: 1px solid #ddd
 .clips figure { margin: 0; width: 320px; max-width: 100%; }
 .clips video { display: block; width: 100%; height: auto; background: #000; }
 .clips figcaption { font-size: 0.85rem; color: #444; }
+.clips .outcome { color: #555; }
 code { background: #f4f4f4; padding: 0 0.2rem; }
 details { margin: 2rem 0 1rem; }
 details summary { cursor: pointer; font-weight: 600; }
@@ -454,6 +469,8 @@ details summary { cursor: pointer; font-weight: 600; }
   table.overview td.agent { min-width: 7.5rem; }
   .ci, .mode { display: block; }
   table.overview td.num { white-space: normal; }
+  /* "seed of <group>" wraps instead of widening the detail table */
+  table.leaderboard td.rank { white-space: normal; max-width: 6rem; overflow-wrap: anywhere; }
 }
 """
 
@@ -594,9 +611,11 @@ def _table_html(env_id: str, rows: Sequence[Mapping]) -> str:
            + "".join(f"<th>{esc(h)}</th>" for h in header) + "</tr></thead><tbody>"]
     for row, rank, label in zip(rows, ranks(rows), rank_labels(rows), strict=True):
         cls = ' class="failed"' if row["failed"] else ""
-        cells = [f'<td class="num" data-value="{"" if rank is None else rank[0]}">'
+        cells = [f'<td class="num rank" data-value="{"" if rank is None else rank[0]}">'
                  f"{esc(label)}</td>"]
-        cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("agent", "obs_mode", "scenario")]
+        title = f' title="{esc(reference_label(row))}"' if is_reference(row) else ""
+        cells.append(f"<td{title}>{esc(str(row['agent']))}</td>")
+        cells += [f"<td>{esc(str(row[f]))}</td>" for f in ("obs_mode", "scenario")]
         cells += [f'<td class="num" data-value="{row[f]}">{row[f]}</td>'
                   for f in ("episodes", "failed")]
         for key in keys:
@@ -614,13 +633,36 @@ def clip_key(row: Mapping) -> tuple[str, str, str, str]:
     return row["env_id"], row["agent"], row["obs_mode"], row["scenario"]
 
 
-def _clips_html(rows: Sequence[Mapping], clips: Clips | None) -> str:
-    """A gallery of the clips of one environment's rows that have one ('' when none)."""
+def clip_outcomes(episodes: Sequence, clips: Clips | None) -> dict[tuple, str]:
+    """What each clip's episode came to: ``"success"`` or its failure reason, from the
+    first episode of the clip's row (the recorded one: each row records its first seed)."""
+    out: dict[tuple, str] = {}
+    for episode in episodes:
+        key = (episode.env_id, episode.agent, episode.obs_mode, episode.scenario)
+        if clips and key in clips and key not in out:
+            out[key] = "success" if episode.success else (
+                f"failed: {episode.error}" if episode.status != "ok"
+                else episode.failure_reason or "no success")
+    return out
+
+
+def _clips_html(rows: Sequence[Mapping], clips: Clips | None,
+                outcomes: Mapping[tuple, str] | None = None) -> str:
+    """A gallery of the clips of one environment's rows that have one ('' when none),
+    each captioned with its row and, where known, how its episode ended."""
     esc = html.escape
+    outcomes = outcomes or {}
+
+    def caption(row) -> str:
+        outcome = outcomes.get(clip_key(row))
+        seed = f"seed {row['seeds'][0]}: " if row.get("seeds") else ""
+        return esc(_row_name(row, rows)) + (
+            f' <span class="outcome">({esc(seed + outcome)})</span>' if outcome else "")
+
     # Muted clips may autoplay: the gallery moves as soon as the page opens.
     figures = [f'<figure><video src="{esc(quote(clips[clip_key(row)]))}" width="320" muted loop '
                'playsinline autoplay controls preload="auto"></video>'
-               f"<figcaption>{esc(_row_name(row, rows))}</figcaption></figure>"
+               f"<figcaption>{caption(row)}</figcaption></figure>"
                for row in rows if clips and clip_key(row) in clips]
     if not figures:
         return ""
@@ -642,9 +684,10 @@ def _skipped_html(skipped: Sequence[Mapping]) -> str:
 
 def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
          plots: Mapping[str, str] | None = None, meta: Mapping | None = None,
-         clips: Clips | None = None) -> str:
+         clips: Clips | None = None, outcomes: Mapping[tuple, str] | None = None) -> str:
     """A self-contained HTML page: the overview (:func:`overview_html`) first, then per
-    environment a sortable table, its clips (``clips``: see :data:`Clips`) and its plot."""
+    environment a sortable table, its clips (``clips``: see :data:`Clips`, captioned with
+    ``outcomes``, :func:`clip_outcomes`) and its plot."""
     esc = html.escape
     groups = by_env(summary)
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
@@ -663,7 +706,7 @@ def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
         out.append(f'<section class="env" id="{esc(_anchor(env_id))}" data-env="{esc(env_id)}">'
                    f"<h2>{esc(env_id)}</h2>")
         out.append(_table_html(env_id, rows))
-        out.append(_clips_html(rows, clips))
+        out.append(_clips_html(rows, clips, outcomes))
         if plots and env_id in plots:  # a link: on a phone the plot opens at full size
             out.append(f'<a href="{esc(plots[env_id])}"><img class="plot" '
                        f'src="{esc(plots[env_id])}" alt="metrics of {esc(env_id)}"></a>')
@@ -703,7 +746,8 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
         "leaderboard.md": markdown(summary, skipped, plots, meta, clips=clips),
         "leaderboard.csv": csv_text(summary),
         "leaderboard.json": json.dumps(jsonable(list(summary)), indent=1),
-        "leaderboard.html": page(summary, skipped, plots, meta, clips),
+        "leaderboard.html": page(summary, skipped, plots, meta, clips,
+                                 clip_outcomes(episodes, clips)),
         "skipped.json": json.dumps(list(skipped), indent=1),
         "episodes.json": json.dumps([row_to_dict(r) for r in episodes], indent=1),
     }

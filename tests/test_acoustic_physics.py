@@ -1,5 +1,6 @@
 """The acoustic environment's added physics (sound-speed error, propagation delay,
-travel-time wander) and the Cramer-Rao bound, each against an independent derivation."""
+travel-time wander), the static point's Cramer-Rao bound, each against an independent
+derivation, and the leaderboard's bound row (the bound itself: ``test_acoustic_bound.py``)."""
 
 from __future__ import annotations
 
@@ -210,36 +211,46 @@ def test_paper_level_turns_the_added_physics_on():
 
 def test_leaderboard_shows_the_bound_beside_the_trackers_unranked():
     from baselines import leaderboard
-    from baselines.evaluation import BOUND_AGENT, bound_rows
+    from baselines.evaluation import BOUND_AGENT, BOUND_LABEL, bound_rows
+    from baselines.stats import bootstrap_interval
 
-    def row(agent, rmse, scenario, kwargs):
+    def row(agent, rmse, scenario, kwargs, seeds):
         stat = {"mean": rmse, "std": 0.0, "n": 5, "ci": [rmse * 0.9, rmse * 1.1]}
         return {"env_id": ENV_ID, "obs_mode": "measurements", "scenario": scenario,
-                "agent": agent, "episodes": 5, "failed": 0, "status": "ok", "seeds": [],
+                "agent": agent, "episodes": 5, "failed": 0, "status": "ok", "seeds": seeds,
                 "errors": [], "failure_reasons": {}, "env_kwargs": kwargs, "group": None,
                 "metrics": {"success": {"mean": 1.0, "std": 0.0, "n": 5, "ci": [0.5, 1.0]},
                             "rmse": stat}}
 
-    summary = [row("a", 0.01, "difficulty=paper", {"difficulty": "paper"}),
-               row("b", 0.30, "difficulty=paper", {"difficulty": "paper"}),
-               row("a", 0.50, "difficulty=hard", {"difficulty": "hard"})]
+    paper = {"difficulty": "paper", "time_limit": 3.0}
+    hard = {"difficulty": "hard", "time_limit": 3.0}
+    summary = [row("a", 0.05, "paper", paper, [913010]),
+               row("b", 0.30, "paper", paper, [913011]),
+               row("a", 0.50, "hard", hard, [913010, 913011])]
     bounds = bound_rows(summary)
-    assert [(b["agent"], b["scenario"]) for b in bounds] == [
-        (BOUND_AGENT, "difficulty=paper"), (BOUND_AGENT, "difficulty=hard")]
-    for bound in bounds:
+    assert [(b["agent"], b["scenario"], b["label"]) for b in bounds] == [
+        (BOUND_AGENT, "paper", BOUND_LABEL), (BOUND_AGENT, "hard", BOUND_LABEL)]
+    for bound in bounds:  # one bound per episode of the scenario's seeds, with its interval
+        assert bound["seeds"] == [913010, 913011] and bound["episodes"] == 2
         env = gym.make(ENV_ID, **bound["env_kwargs"])
-        assert bound["metrics"]["rmse"]["mean"] == env.unwrapped.rmse_bound()
+        values = []
+        for seed in bound["seeds"]:
+            env.reset(seed=seed)
+            values.append(env.unwrapped.trajectory_bound())
         env.close()
+        stat = bound["metrics"]["rmse"]
+        assert stat["mean"] == pytest.approx(np.mean(values), rel=1e-12)
+        assert stat["ci"] == pytest.approx(list(bootstrap_interval(values)), rel=1e-12)
     assert bounds[0]["metrics"]["rmse"]["mean"] < bounds[1]["metrics"]["rmse"]["mean"]
     rows = leaderboard.by_env(summary + bounds)[ENV_ID]
     labels = dict(zip([(r["agent"], r["scenario"]) for r in rows],
                       leaderboard.rank_labels(rows), strict=True))
-    assert labels[(BOUND_AGENT, "difficulty=paper")] == "bound"
-    assert labels[("a", "difficulty=paper")] == "1" and labels[("b", "difficulty=paper")] == "2"
-    assert labels[("a", "difficulty=hard")] == "1"
-    # Beside the trackers: sorted by its RMSE between them.
-    paper = [r["agent"] for r in rows if r["scenario"] == "difficulty=paper"]
-    assert paper == ["a", BOUND_AGENT, "b"]
+    assert labels[(BOUND_AGENT, "paper")] == "bound"
+    assert labels[("a", "paper")] == "1" and labels[("b", "paper")] == "2"
+    assert labels[("a", "hard")] == "1"
+    # Beside the trackers, sorted by its RMSE (below every tracker's), with its label.
+    assert [r["agent"] for r in rows if r["scenario"] == "paper"] == [BOUND_AGENT, "a", "b"]
+    assert f"`{BOUND_AGENT}`: {BOUND_LABEL}" in leaderboard.markdown(summary + bounds)
 
 
 def test_band_fading_is_a_gauss_markov_fade_of_each_bands_snr(array_of):

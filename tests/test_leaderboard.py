@@ -16,7 +16,7 @@ import pytest
 
 import evaluate
 from baselines import leaderboard
-from baselines.evaluation import evaluate_all, row_to_dict, summarise
+from baselines.evaluation import EpisodeRow, evaluate_all, row_to_dict, summarise
 from baselines.stats import wilson_interval
 from scripts.screenshot_leaderboard import CHROMIUM, open_chromium, screenshots
 from tests.conftest import DOCKING_IDS
@@ -349,6 +349,28 @@ def _shows_green(png: bytes) -> bool:
 def _png_width(png: bytes) -> int:
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
     return int.from_bytes(png[16:20], "big")
+
+
+def test_clips_are_captioned_with_how_their_episode_ended():
+    rows = [_summary_row(DOCK, "a", 3, 3), _summary_row(DOCK, "b", 1, 3)]
+    for row in rows:
+        row["seeds"] = [7, 8]
+    clips = {(DOCK, "a", "state", "default"): "a.mp4", (DOCK, "b", "state", "default"): "b.mp4"}
+
+    def episode(agent, seed, success, reason=""):
+        return EpisodeRow(DOCK, agent, seed, "state", "default", 1.0, 5, success, reason, {},
+                          0.1)
+
+    # Each row's first episode is the recorded one.
+    episodes = [episode("a", 7, True), episode("a", 8, False, "seabed"),
+                episode("b", 7, False, "lights_lost"), episode("b", 8, True),
+                episode("c", 7, True)]
+    outcomes = leaderboard.clip_outcomes(episodes, clips)
+    assert outcomes == {(DOCK, "a", "state", "default"): "success",
+                        (DOCK, "b", "state", "default"): "lights_lost"}
+    page = leaderboard.page(rows, clips=clips, outcomes=outcomes)
+    assert 'a <span class="outcome">(seed 7: success)</span>' in page
+    assert 'b <span class="outcome">(seed 7: lights_lost)</span>' in page
 
 
 def test_plots_leave_out_metrics_that_are_the_same_for_every_agent(tmp_path):

@@ -15,6 +15,7 @@ device, not a change of model) and many times faster.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -39,6 +40,7 @@ from auv_envs.core.env import (
     check_image_size,
     check_positive_int,
 )
+from auv_envs.tasks.acoustic_bound import EpisodeRecord, MotionPrior, bound_rmse
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
@@ -186,6 +188,8 @@ class _Episode:
     history: np.ndarray | None = None  # (<= HISTORY, 3) source positions before the block
     wander: np.ndarray | None = None  # (N,) the nodes' unit travel-time wander, last period
     fading: np.ndarray | None = None  # (Q, N) the bands' fades at the last period, dB
+    fades: np.ndarray | None = None  # (B, Q, N) the bands' fades over the block, dB
+    heard: np.ndarray | None = None  # (B, 3) or (B, N, 3) the positions measured in the block
     nodes: np.ndarray | None = None  # (B, N) which nodes work, per period of the block
     block_start: int = 0
     positions: np.ndarray | None = None  # (B, 3) of the current block
@@ -402,6 +406,13 @@ class AcousticTrackingEnv(TaskEnv):
     when it is not given, see ``docs/difficulty.md``). With a sound-speed
     error the reset ``info`` holds the episode's true ``sound_speed``.
 
+    **Bound.** ``trajectory_bound()``, called right after ``reset()``: the
+    posterior Cramér–Rao bound (m) on the episode's ``rmse`` metric from this
+    environment's own motion and measurement models along the episode's true
+    trajectory (:mod:`auv_envs.tasks.acoustic_bound`); no tracker's mean squared
+    error goes below its square in expectation. The leaderboard shows it beside
+    the trackers (agent ``pcrb``).
+
     **Rendering.** With ``render_mode="rgb_array"``, ``render()`` returns an
     (H, W, 3) uint8 frame of ``render_size`` drawn with matplotlib's Agg
     canvas (:class:`auv_envs.tasks.acoustic_render.TankPlot`): a top view
@@ -438,6 +449,9 @@ class AcousticTrackingEnv(TaskEnv):
     default); ``rmse_bound()``. Opt-in addition: node dropouts
     (``AcousticConfig.node_dropout_rate``, off by default; on at ``hard``), with the
     ``node_mask`` observation entry and ``info["nodes_working"]`` only when on.
+    ``trajectory_bound()`` (and ``episode_record()``) replaced ``rmse_bound()``, a
+    one-period bound of a static point that a tracker integrating many periods went
+    below (observations, dynamics and rewards unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
@@ -706,6 +720,8 @@ class AcousticTrackingEnv(TaskEnv):
         nodes = array.draw_node_states(self.np_random, count,
                                        None if ep.nodes is None else ep.nodes[-1])
         ep.nodes = nodes
+        ep.fades = fading
+        ep.heard = heard
         ep.block_start = start
         ep.positions = positions
         ep.velocities = velocities
@@ -754,18 +770,51 @@ class AcousticTrackingEnv(TaskEnv):
             info["nodes_working"] = int(np.count_nonzero(ep.nodes[j]))
         return info
 
-    def rmse_bound(self) -> float:
-        """The Cramer-Rao bound (m) on the RMSE of a fix of a static point, from this
-        environment's own measurement model: one sample period of every band's direct-path
-        detection (:meth:`~auv_envs.core.acoustics.HydrophoneArray.position_crb`), averaged
-        over [GMPHD]'s five test points, with the flow noise of the middle of the
-        ``disturbance`` level's current range. The physical limit of one period's
-        information; a tracker that integrates many periods of a slow target can go below
-        it, and the errors every band shares (clock offsets, sound-speed error, wander) are
-        not in it."""
-        speed = float(np.mean(DISTURBANCES[self.disturbance]))
-        array = self.calibration.array
-        return float(np.mean([array.position_crb(p, speed) for p in STATIC_POINTS]))
+    def episode_record(self) -> EpisodeRecord:
+        """The whole episode's truth and realised nuisance, for the bound
+        (:class:`~auv_envs.tasks.acoustic_bound.EpisodeRecord`): the true positions at
+        the steps the episode scores, the current, the true sound speed, the emission
+        positions heard (with propagation delay), the band fades and the node states.
+
+        Plays the episode out on a copy (its generator included), so this episode's
+        observations and draws are unchanged. Call it right after ``reset()``.
+
+        Raises:
+          RuntimeError: before ``reset()`` or after the first step.
+        """
+        ep = self._episode
+        if ep.positions is None or ep.steps:
+            raise RuntimeError("episode_record() replays the episode from its start: call it "
+                               "right after reset()")
+        replay = copy.deepcopy(self)
+        blocks = []
+        for start in range(0, ep.horizon, BLOCK):
+            if start:
+                replay._simulate_block(start)
+            blocks.append(replay._episode)
+            replay._episode = copy.copy(replay._episode)  # keep this block's arrays
+        replay.close()
+        t = ep.horizon
+
+        def joined(name):
+            parts = [getattr(b, name) for b in blocks]
+            return None if parts[0] is None else np.concatenate(parts)[:t]
+
+        heard = joined("heard") if self.calibration.config.propagation_delay else None
+        return EpisodeRecord(
+            positions=joined("positions"), dt=self._dt, sound_speed=ep.sound_speed,
+            current_speed=np.linalg.norm(ep.current[:t], axis=1), heard=heard,
+            fading=joined("fades"), working=joined("nodes"),
+        )
+
+    def trajectory_bound(self, prior: MotionPrior | None = None) -> float:
+        """The posterior Cramér–Rao bound (m) on this episode's ``rmse`` episode metric:
+        ``sqrt(mean_k trace(P_k))`` over the scored steps, ``P_k`` the PCRB of the
+        position given the measurements up to step k, from this environment's own
+        measurement model along this episode's true trajectory
+        (:mod:`auv_envs.tasks.acoustic_bound`; ``prior`` its motion model). Call it right
+        after ``reset()`` (:meth:`episode_record`)."""
+        return bound_rmse(self.calibration.array, self.episode_record(), prior)
 
     def _episode_metrics(self, truth: dict) -> dict:
         ep = self._episode

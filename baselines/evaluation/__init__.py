@@ -62,7 +62,13 @@ from baselines.evaluation.planning import (
     plan,
     resolve_env_kwargs,
 )
-from baselines.evaluation.summary import BOUND_AGENT, SIGNED_METRICS, bound_rows, summarise
+from baselines.evaluation.summary import (
+    BOUND_AGENT,
+    BOUND_LABEL,
+    SIGNED_METRICS,
+    bound_rows,
+    summarise,
+)
 from baselines.fileio import atomic_write, write_figures
 from baselines.registry import agent_names, resolve_agent_names
 from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
@@ -70,6 +76,7 @@ from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 __all__ = [
     "BACKENDS",
     "BOUND_AGENT",
+    "BOUND_LABEL",
     "CACHE_FORMAT",
     "EVAL_SEED_BASE",
     "POLICY_PREFIX",

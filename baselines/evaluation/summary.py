@@ -74,37 +74,50 @@ def summarise(rows: Sequence[EpisodeRow], groups: Mapping[str, str] | None = Non
     return summary
 
 
-#: The agent name of a bound row (:func:`bound_rows`).
-BOUND_AGENT = "cramer-rao-bound"
+#: The agent name and label of a bound row (:func:`bound_rows`).
+BOUND_AGENT = "pcrb"
+BOUND_LABEL = "posterior Cramér–Rao bound"
 
 
 def bound_rows(summary: Sequence[Mapping]) -> list[dict]:
     """Per environment and scenario whose environment states a bound on its ranking
-    metric (``env.rmse_bound()``: the acoustic Cramer-Rao bound), a reference row
-    ``agent`` = :data:`BOUND_AGENT`, ``reference`` True: shown beside the agents,
-    never ranked. The bound is computed from the environment built with the
-    scenario's arguments, so each difficulty level gets its own.
+    metric, a reference row ``agent`` = :data:`BOUND_AGENT` (``label``
+    :data:`BOUND_LABEL`), ``reference`` True: shown beside the agents, never ranked.
+
+    The acoustic tracking bound is per episode (``env.unwrapped.trajectory_bound()``
+    after ``reset(seed)``: the posterior Cramér–Rao bound of that episode's trajectory,
+    :mod:`auv_envs.tasks.acoustic_bound`), so the row holds its statistics over the
+    seeds the scenario's agents ran (the union of their rows' ``seeds``), with the same
+    interval as an agent's metric. The environment is built with the scenario's
+    arguments, so each difficulty level gets its own. A scenario without seeds gets no row.
     """
+    seeds: dict[tuple, set] = {}
+    for row in summary:
+        if not row.get("reference"):
+            seeds.setdefault((row["env_id"], row["scenario"]), set()).update(row["seeds"])
     out, seen = [], set()
     for row in summary:
         key = (row["env_id"], row["scenario"])
-        if key in seen:
+        if key in seen or not seeds.get(key):
             continue
         seen.add(key)
         cls = auv_envs.env_class(row["env_id"])
-        if not hasattr(cls, "rmse_bound"):
+        if not hasattr(cls, "trajectory_bound"):
             continue
         env = cls(**row["env_kwargs"])
         try:
-            bound = env.rmse_bound()
+            values = []
+            for seed in sorted(seeds[key]):
+                env.reset(seed=seed)
+                values.append(env.trajectory_bound())
         finally:
             env.close()
         out.append({
             "env_id": row["env_id"], "obs_mode": "model", "scenario": row["scenario"],
-            "agent": BOUND_AGENT, "episodes": 0, "failed": 0, "status": "ok", "seeds": [],
-            "errors": [], "failure_reasons": {}, "env_kwargs": row["env_kwargs"],
-            "group": None, "reference": True,
-            "metrics": {"rmse": {"mean": bound, "std": 0.0, "n": 1, "ci": [None, None]}},
+            "agent": BOUND_AGENT, "label": BOUND_LABEL, "episodes": len(values), "failed": 0,
+            "status": "ok", "seeds": sorted(seeds[key]), "errors": [], "failure_reasons": {},
+            "env_kwargs": row["env_kwargs"], "group": None, "reference": True,
+            "metrics": {"rmse": _stat(values)},
         })
     return out
 
