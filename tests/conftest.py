@@ -59,3 +59,18 @@ def env_and_mode(request):
     env = make_env(env_id, mode)
     yield env_id, mode, env
     env.close()
+
+
+@pytest.fixture(scope="module")
+def array_of():
+    """``make(config)``: the acoustic env's hydrophone array with another measurement
+    configuration (:class:`auv_envs.core.acoustics.AcousticConfig`)."""
+    from auv_envs.core.acoustics import HydrophoneArray
+
+    env = gym.make("auv_envs/AcousticTracking-v0")
+    base = env.unwrapped.calibration.array
+    env.close()
+
+    def make(config) -> HydrophoneArray:
+        return HydrophoneArray(base.positions, base.surface_z, base.bottom_z, config)
+    return make

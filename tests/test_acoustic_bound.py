@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray
+from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.tasks.acoustic import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
 from auv_envs.tasks.acoustic_bound import (
     EpisodeRecord,
@@ -23,17 +23,6 @@ from auv_envs.tasks.acoustic_bound import (
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: Fresh seeds: clear of the leaderboard's (from 100000) and of the calibration runs.
 FRESH_SEEDS = (913000, 913001, 913002)
-
-
-@pytest.fixture(scope="module")
-def array_of():
-    env = gym.make(ENV_ID)
-    base = env.unwrapped.calibration.array
-    env.close()
-
-    def make(config: AcousticConfig) -> HydrophoneArray:
-        return HydrophoneArray(base.positions, base.surface_z, base.bottom_z, config)
-    return make
 
 
 def _still(point, speed: float = 0.0, working=None) -> EpisodeRecord:

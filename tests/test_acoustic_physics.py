@@ -12,24 +12,13 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray
+from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.tasks.acoustic import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: No noise, no misses, no clutter, no ghosts: measurements are the geometry.
 EXACT = AcousticConfig(noise_scale=0.0, clock_offset_std=0.0, clutter_rate=0.0,
                        ideal_detection=True, multipath=False, max_detections=1)
-
-
-@pytest.fixture(scope="module")
-def array_of():
-    env = gym.make(ENV_ID)
-    base = env.unwrapped.calibration.array
-    env.close()
-
-    def make(config: AcousticConfig) -> HydrophoneArray:
-        return HydrophoneArray(base.positions, base.surface_z, base.bottom_z, config)
-    return make
 
 
 def test_sound_speed_error_scales_every_tdoa(array_of):
