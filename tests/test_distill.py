@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import gymnasium as gym
 import numpy as np
@@ -12,6 +13,7 @@ import auv_envs  # noqa: F401
 from baselines.registry import agent_spec, make_agent
 from baselines.rl import distill
 from baselines.rl.agents import register_external_policy
+from baselines.rl.manifest import policies_root
 
 ENV_ID = "auv_envs/DockingStation-v1"
 
@@ -68,8 +70,13 @@ def test_a_short_distillation_fits_the_teacher_and_ranks_from_pixels(tmp_path):
 
 
 def test_only_a_features_teacher_of_the_same_env_is_taken(tmp_path):
+    # A teacher on the privileged state: a shipped policy's directory, its manifest edited.
+    state_teacher = tmp_path / "state-teacher"
+    shutil.copytree(policies_root() / "ppo-docking-features-s0", state_teacher)
+    manifest = json.loads((state_teacher / "policy.json").read_text())
+    (state_teacher / "policy.json").write_text(json.dumps({**manifest, "obs_mode": "state"}))
     with pytest.raises(ValueError, match="must act on 'features'"):
-        distill.distill("ppo-docking-state", ENV_ID, (84, 63), "paper", 0, tmp_path / "x")
+        distill.distill(state_teacher, ENV_ID, (84, 63), "paper", 0, tmp_path / "x")
     with pytest.raises(SystemExit):  # no such policy: the command line says so
         distill.main(["--teacher", "no-such-policy", "--out", str(tmp_path / "x")])
     with pytest.raises(ValueError, match="was trained on"):

@@ -271,10 +271,10 @@ def test_evaluate_policy_names_follow_the_weights_and_bad_paths_fail(tmp_path, c
     import evaluate
 
     root = agents.policies_root()
-    for shipped in ("ppo-docking-state", "ppo-lamp-array-state"):
+    for shipped in ("ppo-docking-features-s0", "ppo-lamp-array-features-s0"):
         shutil.copytree(root / shipped, tmp_path / "mine" / shipped)
-    first = agents.external_policy_name(tmp_path / "mine" / "ppo-docking-state")
-    second = agents.external_policy_name(tmp_path / "mine" / "ppo-lamp-array-state")
+    first = agents.external_policy_name(tmp_path / "mine" / "ppo-docking-features-s0")
+    second = agents.external_policy_name(tmp_path / "mine" / "ppo-lamp-array-features-s0")
     assert first.split("@")[1] != second.split("@")[1]  # other weights, other name
     with pytest.raises(SystemExit):
         evaluate.main(["--policy", str(tmp_path / "nothing-here"), "--out", str(tmp_path)])
