@@ -16,6 +16,7 @@ import gymnasium as gym
 import pytest
 import torch
 
+from baselines.evaluation import run_episode
 from baselines.registry import agent_groups, agent_spec, group_members, make_agent
 
 #: Fixed seeds, clear of the leaderboard's (100000 on) and of every training range.
@@ -41,16 +42,9 @@ def _episode(name: str, level: str, kwargs: dict, seed: int,
     env = gym.make(env_id or spec.env_ids[0], obs_mode=spec.obs_mode, difficulty=level,
                    **{**spec.env_kwargs, **kwargs})
     try:
-        agent = make_agent(name, env)
-        obs, info = env.reset(seed=seed)
-        agent.reset(seed)
-        done = False
-        while not done:
-            obs, _, terminated, truncated, info = env.step(agent.act(obs, info))
-            done = terminated or truncated
+        return run_episode(env, make_agent(name, env), seed, env.spec.id, name).metrics
     finally:
         env.close()
-    return info["episode_metrics"]
 
 
 def test_every_shipped_group_is_checked():
