@@ -92,6 +92,7 @@ def test_an_edited_metric_fails_its_checksum(cached):
     ("status", "failed", "status is 'failed'"),
     ("metrics", {"final_distance": "1e400"}, None),  # a string metric is allowed
     ("nan_metrics", ["final_distance"], "invalid nan_metrics"),
+    ("nan_metrics", [["a"]], "unhashable"),
 ])
 def test_a_resealed_row_that_breaks_its_task_or_schema_is_rejected(cached, field, value,
                                                                     reason):

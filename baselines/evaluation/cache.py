@@ -143,7 +143,9 @@ class EpisodeCache:
             if data["task"] != jsonable(task.identity()):
                 raise CachedRowError("it was written for another task")
             return check_row(task, data["row"])
-        except (OSError, ValueError) as exc:  # CachedRowError and JSON errors are ValueErrors
+        # CachedRowError and JSON errors are ValueErrors; a TypeError is a value of a shape
+        # the checks did not expect (an unhashable name in nan_metrics, say).
+        except (OSError, ValueError, TypeError) as exc:
             self.rejected.append((path, str(exc)))
             warnings.warn(f"rejected cached episode {path}: {exc}; running it again",
                           RuntimeWarning, stacklevel=2)
