@@ -295,9 +295,10 @@ def test_default_is_clear_water_bit_for_bit_without_extra_draws(env_id, obs_mode
     def refuse(*args, **kwargs):
         raise AssertionError("the optics code ran without optics")
 
-    for name in ("degrade_image", "detect_lamps"):
-        monkeypatch.setattr(f"auv_envs.tasks.docking.{name}", refuse)
-    monkeypatch.setattr(LampOutages, "start", refuse)
+    monkeypatch.setattr("auv_envs.tasks.docking.degrade_image", refuse)
+    monkeypatch.setattr("auv_envs.tasks.docking_transition.lamp_detections", refuse)
+    for name in ("occluded_share", "occlusions_after"):
+        monkeypatch.setattr(LampOutages, name, refuse)
     monkeypatch.setattr(CameraRenderer, "render_with_range", refuse)
     size = {"image_size": SMALL_IMAGE} if obs_mode == "image" else {}
     plain = gym.make(env_id, obs_mode=obs_mode, scenario="current", **size)

@@ -720,8 +720,9 @@ class DockingEnv(TaskEnv):
         mujoco.mj_forward(self.physics.model, self.physics.data)
         ids = self.camera_renderer.render_geom_ids(self.physics.data)
         pixels = np.full((len(self.physics.lamp_geoms), 2), np.nan)
-        outages = self._episode.outages
-        failed = outages.failed if outages is not None else np.zeros(len(pixels), bool)
+        state = self._episode.state
+        failed = (state.failed if state is not None and state.failed is not None
+                  else np.zeros(len(pixels), bool))
         for i, geom in enumerate(self.physics.lamp_geoms):
             rows, cols = np.nonzero(ids == geom)
             if len(rows) and not failed[i]:
