@@ -30,6 +30,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from baselines import aggregate
 from baselines.evaluation import jsonable, row_to_dict
 from baselines.fileio import atomic_write
 from baselines.stats import tied_ranks
@@ -385,7 +386,8 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes | None:
         if finite and min(finite) > 0 and max(finite) / min(finite) > 100:
             ax.set_xscale("log")  # e.g. random next to trackers: keep both readable
         for position, row, mean in zip(positions, rows, means, strict=True):
-            if not math.isfinite(mean):  # no bar is not a zero bar: say so
+            # No bar is not a zero bar: say so (a bound row states one metric only).
+            if not math.isfinite(mean) and not (is_reference(row) and key not in row["metrics"]):
                 ax.text(0.01, position, "NaN" if key in row["metrics"] else "not reported",
                         transform=ax.get_yaxis_transform(), va="center", fontsize=7,
                         color="#aa3333")
@@ -405,6 +407,84 @@ def plot_env(env_id: str, rows: Sequence[Mapping]) -> bytes | None:
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=90)
     return buffer.getvalue()
+
+
+def across_tasks(summary: Sequence[Mapping], episodes: Sequence) -> dict:
+    """Per level, :func:`baselines.aggregate.level_view` of the episodes' normalised
+    scores (training seeds pooled under their group)."""
+    groups = {r["agent"]: r["group"] for r in summary if r.get("group")}
+    scores = aggregate.normalised_scores(episodes, summary, groups)
+    return {level: aggregate.level_view(by_agent) for level, by_agent in scores.items()}
+
+
+def plot_across_tasks(level: str, view: Mapping, top: int = 8) -> bytes:
+    """PNG: the IQM of every agent's normalised score with its stratified bootstrap
+    interval; the performance profiles and the probability of improvement of the
+    ``top`` agents by IQM (and ``random``)."""
+    agents = sorted(view["agents"], key=lambda a: -view["agents"][a]["iqm"])
+    best = [a for a in agents if a != aggregate.RANDOM][:top]
+    best += [aggregate.RANDOM] * (aggregate.RANDOM in agents)
+    height = max(4.0, 0.3 * max(len(agents), len(best)) + 2.0)
+    fig = Figure(figsize=(15.0, height))
+    FigureCanvasAgg(fig)
+    # Fixed margins in inches: the matrix's rotated names need 1.3 in below it.
+    fig.subplots_adjust(left=0.14, right=0.99, bottom=1.3 / height, top=1 - 0.7 / height,
+                        wspace=0.45)
+    bars, curves, matrix = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.0, 1.0, 1.1]})
+    iqms = [view["agents"][a]["iqm"] for a in agents]
+    lows = [view["agents"][a]["iqm"] - view["agents"][a]["ci"][0] for a in agents]
+    highs = [view["agents"][a]["ci"][1] - view["agents"][a]["iqm"] for a in agents]
+    bars.barh(range(len(agents)), iqms, xerr=[lows, highs], color="#4477aa", ecolor="#222222",
+              capsize=3)
+    bars.set_yticks(range(len(agents)), [f"{a} ({len(view['agents'][a]['tasks'])})"
+                                         for a in agents], fontsize=7)
+    bars.invert_yaxis()
+    bars.axvline(0.0, color="#999999", lw=0.8)
+    bars.axvline(1.0, color="#999999", lw=0.8, ls="--")
+    bars.set_title("IQM of the normalised score (tasks)", fontsize=9)
+    for agent in best:
+        curves.plot(view["taus"], view["agents"][agent]["profile"], label=agent, lw=1.2)
+    curves.set_xlabel("normalised score τ", fontsize=8)
+    curves.set_ylabel("fraction of episodes above τ", fontsize=8)
+    curves.set_title("performance profiles", fontsize=9)
+    curves.legend(fontsize=6, loc="lower left")
+    grid = [[view["improvement"].get((x, y), math.nan) for y in best] for x in best]
+    matrix.imshow(grid, vmin=0.0, vmax=1.0, cmap="RdBu", aspect="auto")
+    for i, row in enumerate(grid):
+        for j, value in enumerate(row):
+            if math.isfinite(value):  # light text on the dark ends of the scale
+                matrix.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=6,
+                            color="white" if abs(value - 0.5) > 0.3 else "black")
+    matrix.set_xticks(range(len(best)), best, rotation=60, ha="right", fontsize=6)
+    matrix.set_yticks(range(len(best)), best, fontsize=6)
+    matrix.set_title("P(row beats column)", fontsize=9)
+    for ax in (bars, curves):
+        ax.tick_params(labelsize=7)
+        ax.grid(axis="x", alpha=0.3)
+    fig.suptitle(f"across tasks: {level} (0: random, 1: the task's reference)", fontsize=11,
+                 y=1 - 0.12 / height, va="top")
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=90)
+    return buffer.getvalue()
+
+
+def _across_markdown(views: Mapping) -> list[str]:
+    lines = []
+    for level, view in views.items():
+        lines += [f"## Across tasks · {level}", "", AGGREGATE_NOTE, "",
+                  "| agent | IQM [95 % interval] | tasks | episodes |", "|---|---|---|---|"]
+        for agent, stat in sorted(view["agents"].items(), key=lambda kv: -kv[1]["iqm"]):
+            lines.append(f"| {agent} | {stat['iqm']:.2f} [{stat['ci'][0]:.2f}, "
+                         f"{stat['ci'][1]:.2f}] | {len(stat['tasks'])} | {stat['episodes']} |")
+        lines.append("")
+    return lines
+
+
+#: What the across-task figures show, in a sentence.
+AGGREGATE_NOTE = ("Normalised score per episode: 0 at `random`'s mean, 1 at the task's "
+                  "privileged reference (return) or at the posterior Cramér–Rao bound (RMSE, "
+                  "log scale); interquartile mean with a stratified bootstrap 95 % interval "
+                  "(`baselines/aggregate.py`).")
 
 
 # ---------------------------------------------------------------------- html
@@ -470,7 +550,7 @@ details summary { cursor: pointer; font-weight: 600; }
   .ci, .mode { display: block; }
   table.overview td.num { white-space: normal; }
   /* "seed of <group>" wraps instead of widening the detail table */
-  table.leaderboard td.rank { white-space: normal; max-width: 6rem; overflow-wrap: anywhere; }
+  table.leaderboard td.rank { white-space: normal; max-width: 8rem; overflow-wrap: break-word; }
 }
 """
 
@@ -684,7 +764,8 @@ def _skipped_html(skipped: Sequence[Mapping]) -> str:
 
 def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
          plots: Mapping[str, str] | None = None, meta: Mapping | None = None,
-         clips: Clips | None = None, outcomes: Mapping[tuple, str] | None = None) -> str:
+         clips: Clips | None = None, outcomes: Mapping[tuple, str] | None = None,
+         across: Mapping[str, str] | None = None) -> str:
     """A self-contained HTML page: the overview (:func:`overview_html`) first, then per
     environment a sortable table, its clips (``clips``: see :data:`Clips`, captioned with
     ``outcomes``, :func:`clip_outcomes`) and its plot."""
@@ -710,6 +791,12 @@ def page(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
         if plots and env_id in plots:  # a link: on a phone the plot opens at full size
             out.append(f'<a href="{esc(plots[env_id])}"><img class="plot" '
                        f'src="{esc(plots[env_id])}" alt="metrics of {esc(env_id)}"></a>')
+        out.append("</section>")
+    if across:
+        out.append('<section id="across"><h2>Across tasks</h2>'
+                   f'<p class="legend">{esc(AGGREGATE_NOTE.replace("`", ""))}</p>')
+        out += [f'<a href="{esc(p)}"><img class="plot" src="{esc(p)}" '
+                f'alt="across tasks at {esc(level)}"></a>' for level, p in across.items()]
         out.append("</section>")
     if skipped:
         out.append(_skipped_html(skipped))
@@ -742,12 +829,22 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
         atomic_write(out / rel, png)
         plots[env_id] = rel
         paths[rel] = out / rel
+    views = across_tasks(summary, episodes)
+    across: dict[str, str] = {}
+    for level, view in views.items():
+        rel = f"plots/across-tasks-{level}.png"
+        atomic_write(out / rel, plot_across_tasks(level, view))
+        across[level] = rel
+        paths[rel] = out / rel
     texts = {
-        "leaderboard.md": markdown(summary, skipped, plots, meta, clips=clips),
+        "leaderboard.md": "\n".join([markdown(summary, skipped, plots, meta, clips=clips),
+                                      *_across_markdown(views),
+                                      *(f"![across tasks {lv}]({quote(p)})"
+                                        for lv, p in across.items())]),
         "leaderboard.csv": csv_text(summary),
         "leaderboard.json": json.dumps(jsonable(list(summary)), indent=1),
         "leaderboard.html": page(summary, skipped, plots, meta, clips,
-                                 clip_outcomes(episodes, clips)),
+                                 clip_outcomes(episodes, clips), across),
         "skipped.json": json.dumps(list(skipped), indent=1),
         "episodes.json": json.dumps([row_to_dict(r) for r in episodes], indent=1),
     }
