@@ -296,7 +296,7 @@ def test_default_is_clear_water_bit_for_bit_without_extra_draws(env_id, obs_mode
         raise AssertionError("the optics code ran without optics")
 
     monkeypatch.setattr("auv_envs.tasks.docking.degrade_image", refuse)
-    monkeypatch.setattr("auv_envs.tasks.docking_transition.lamp_detections", refuse)
+    monkeypatch.setattr("auv_envs.tasks.docking_transition.detect_lamps", refuse)
     for name in ("occluded_share", "occlusions_after"):
         monkeypatch.setattr(LampOutages, name, refuse)
     monkeypatch.setattr(CameraRenderer, "render_with_range", refuse)

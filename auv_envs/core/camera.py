@@ -177,8 +177,9 @@ def pixel_space(width: int, height: int, shape: tuple[int, ...]) -> spaces.Box:
                       np.broadcast_to(2 * bound, full).copy(), dtype=np.float32)
 
 
-def add_pixel_noise(pixels: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    """Zero-mean Gaussian pixel noise drawn from the episode's generator."""
+def add_pixel_noise(pixels, std: float, rng):
+    """Zero-mean Gaussian pixel noise drawn from the episode's draws (NumPy's ``Generator``,
+    or a JAX key's): ``std`` times standard normals, the numbers ``normal(0, std)`` gives."""
     if std <= 0.0:
         return pixels.copy()
-    return pixels + rng.normal(0.0, std, size=pixels.shape)
+    return pixels + std * rng.standard_normal(pixels.shape)

@@ -380,9 +380,15 @@ class LampOutages:
     @classmethod
     def start(cls, optics: WaterOptics, n_lamps: int, rng: np.random.Generator) -> LampOutages:
         """An episode's outages: failures, and occlusions from their stationary distribution."""
+        return cls(*cls.draw_start(optics, n_lamps, rng))
+
+    @classmethod
+    def draw_start(cls, optics: WaterOptics, n_lamps: int, rng) -> tuple:
+        """:meth:`start`'s ``(failed, occluded)`` per lamp, from ``rng`` (NumPy's
+        ``Generator``, or a JAX key's draws)."""
         failed = rng.random(n_lamps) < optics.lamp_failure_probability
         occluded = rng.random(n_lamps) < cls.occluded_share(optics)
-        return cls(failed, occluded)
+        return failed, occluded
 
     @staticmethod
     def occluded_share(optics: WaterOptics) -> float:
@@ -392,8 +398,12 @@ class LampOutages:
 
     def advance(self, optics: WaterOptics, dt: float, rng: np.random.Generator) -> LampOutages:
         """The outages ``dt`` seconds later (exact transition probabilities of the process)."""
-        u = rng.random(self.occluded.shape[0])
-        return LampOutages(self.failed, self.occlusions_after(self.occluded, optics, dt, u))
+        return LampOutages(self.failed, self.occlusions_drawn(self.occluded, optics, dt, rng))
+
+    @classmethod
+    def occlusions_drawn(cls, occluded, optics: WaterOptics, dt: float, rng, xp=np):
+        """:meth:`occlusions_after` with its uniform draws from ``rng`` (one per lamp)."""
+        return cls.occlusions_after(occluded, optics, dt, rng.random(occluded.shape[0]), xp)
 
     @staticmethod
     def occlusions_after(occluded, optics: WaterOptics, dt: float, u, xp=np):
@@ -409,8 +419,8 @@ class LampOutages:
 
 
 def detect_lamps(pixels: np.ndarray, visible: np.ndarray, distance: np.ndarray,
-                 outages: LampOutages, optics: WaterOptics, focal_px: float,
-                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+                 outages, optics: WaterOptics, focal_px: float,
+                 rng: np.random.Generator, xp=np) -> tuple[np.ndarray, np.ndarray]:
     """Which lamps in view the camera detects through the water, and where.
 
     A lamp in view (``visible``), not failed and not occluded, is detected with
@@ -423,19 +433,22 @@ def detect_lamps(pixels: np.ndarray, visible: np.ndarray, distance: np.ndarray,
         pixels: (n, 2) pixel coordinates of the lamps.
         visible: (n,) bool, the lamps geometrically in view.
         distance: (n,) range from the camera centre to each lamp, m.
-        outages: the lamps out now.
+        outages: the lamps out now (anything with ``out``, (n,) bool: a
+            :class:`LampOutages`, a transition's episode state).
         optics: the water.
         focal_px: the camera's focal length, pixels.
-        rng: the episode's generator.
+        rng: the episode's draws (NumPy's ``Generator``, or a JAX key's).
+        xp: the array module.
 
     Returns:
         ``(pixels, detected)``: new (n, 2) pixels, zero where not detected,
         and the (n,) bool detection mask.
     """
-    n = len(visible)
+    n = visible.shape[0]
     u = rng.random(n)
     noise = rng.standard_normal((n, 2))
-    return lamp_detections(pixels, visible, distance, outages.out, optics, focal_px, u, noise)
+    return lamp_detections(pixels, visible, distance, outages.out, optics, focal_px, u, noise,
+                           xp)
 
 
 def lamp_detections(pixels, visible, distance, out, optics: WaterOptics, focal_px: float,

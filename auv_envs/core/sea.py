@@ -158,14 +158,15 @@ class GaussMarkovCurrent:
         """Whether the current varies at all (otherwise it stays at its mean, no draws)."""
         return self.speed_std > 0 or self.direction_std_deg > 0
 
-    def start(self, mean_speed: float, mean_direction: float,
-              rng: np.random.Generator) -> tuple[float, float]:
+    def start(self, mean_speed: float, mean_direction: float, rng: np.random.Generator,
+              ops=FLOATS) -> tuple[float, float]:
         """``(speed, direction)`` drawn from the stationary distribution (direction in rad);
-        the means, drawing nothing, when the process is not :attr:`active`."""
+        the means, drawing nothing, when the process is not :attr:`active`. ``rng``: the
+        episode's draws (NumPy's ``Generator``, or a JAX key's with ``ops``)."""
         if not self.active:
             return min(max(mean_speed, 0.0), self.max_speed), mean_direction
         return self.start_from(mean_speed, mean_direction, rng.standard_normal(),
-                               rng.standard_normal())
+                               rng.standard_normal(), ops)
 
     def start_from(self, mean_speed, mean_direction, noise_speed, noise_direction,
                    ops=FLOATS) -> tuple:
@@ -176,11 +177,11 @@ class GaussMarkovCurrent:
         return ops.clip(speed, 0.0, self.max_speed), direction
 
     def advance(self, speed: float, direction: float, mean_speed: float, mean_direction: float,
-                dt: float, rng: np.random.Generator) -> tuple[float, float]:
+                dt: float, rng: np.random.Generator, ops=FLOATS) -> tuple[float, float]:
         """The ``(speed, direction)`` one period ``dt`` later (exact discretisation)."""
         noise_speed, noise_direction = rng.standard_normal(2)
         return self.relax(speed, direction, mean_speed, mean_direction, dt, noise_speed,
-                          noise_direction)
+                          noise_direction, ops)
 
     def relax(self, speed, direction, mean_speed, mean_direction, dt: float, noise_speed,
               noise_direction, ops=FLOATS) -> tuple:

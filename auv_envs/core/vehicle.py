@@ -171,13 +171,22 @@ class PlantPerturbation:
     def active(self) -> bool:
         return self.mass > 0 or self.damping > 0 or self.net_buoyancy > 0
 
+    def draw_factors(self, rng) -> tuple | None:
+        """The episode's draws ``(mass factor, 12 damping factors, net-buoyancy offset N)``
+        from ``rng`` (NumPy's ``Generator``, or a JAX key's draws); None when inactive."""
+        if not self.active:
+            return None
+        return (rng.uniform(1.0 - self.mass, 1.0 + self.mass),
+                rng.uniform(1.0 - self.damping, 1.0 + self.damping, 12),
+                rng.uniform(-self.net_buoyancy, self.net_buoyancy))
+
     def draw(self, params: VehicleParams, rng) -> tuple[VehicleParams, dict]:
         """``(perturbed parameters, the draws)``; ``params`` and no draw when inactive."""
-        if not self.active:
+        factors = self.draw_factors(rng)
+        if factors is None:
             return params, {}
-        mass_scale = float(rng.uniform(1.0 - self.mass, 1.0 + self.mass))
-        damping_scale = rng.uniform(1.0 - self.damping, 1.0 + self.damping, size=12).tolist()
-        buoyancy_offset = float(rng.uniform(-self.net_buoyancy, self.net_buoyancy))
+        mass_scale, damping_scale, buoyancy_offset = (
+            float(factors[0]), factors[1].tolist(), float(factors[2]))
         perturbed = self.apply(params, mass_scale, damping_scale, buoyancy_offset)
         draws = {"mass_scale": mass_scale, "linear_damping_scale": damping_scale[:6],
                  "quadratic_damping_scale": damping_scale[6:],

@@ -26,7 +26,8 @@ import dataclasses
 import math
 from typing import Any, NamedTuple
 
-from auv_envs.core.optics import LampOutages, WaterOptics, lamp_detections
+from auv_envs.core.camera import add_pixel_noise
+from auv_envs.core.optics import LampOutages, WaterOptics, detect_lamps
 from auv_envs.core.sea import current_components
 from auv_envs.core.vehicle import lagged_thrust
 from auv_envs.tasks.docking_rules import DockingRules
@@ -179,8 +180,7 @@ def draw_start(params: DockingParams, draws, ops) -> Start:
                      else draws.uniform(0.0, 2.0 * math.pi))
         polar = (speed, direction)
         if varying.active:
-            polar = varying.start_from(speed, direction, draws.standard_normal(),
-                                       draws.standard_normal(), ops)
+            polar = varying.start(speed, direction, draws, ops)
         mean = (speed, direction)
     else:
         polar = mean = (0.0, 0.0)
@@ -190,12 +190,7 @@ def draw_start(params: DockingParams, draws, ops) -> Start:
 def draw_vehicle(params: DockingParams, draws) -> tuple | None:
     """The simulated vehicle's draws ``(mass factor, 12 damping factors, net-buoyancy
     offset N)`` of :class:`~auv_envs.core.vehicle.PlantPerturbation`; None when inactive."""
-    plant = params.disturbances.plant
-    if not plant.active:
-        return None
-    return (draws.uniform(1.0 - plant.mass, 1.0 + plant.mass),
-            draws.uniform(1.0 - plant.damping, 1.0 + plant.damping, 12),
-            draws.uniform(-plant.net_buoyancy, plant.net_buoyancy))
+    return params.disturbances.plant.draw_factors(draws)
 
 
 def reset(params: DockingParams, backend: Backend, start: Start | None = None,
@@ -212,9 +207,7 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
         vehicle = draw_vehicle(params, draws)
     failed = occluded = None
     if params.optics is not None:
-        n = params.n_lights
-        failed = draws.random(n) < params.optics.lamp_failure_probability
-        occluded = draws.random(n) < LampOutages.occluded_share(params.optics)
+        failed, occluded = LampOutages.draw_start(params.optics, params.n_lights, draws)
     plant.place(start, vehicle, failed)
     truth = plant.truth()
     real, integer = ops.real, ops.integer
@@ -247,9 +240,8 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
     polar, current = state.current_polar, state.current
     varying = params.disturbances.current
     if varying.active:
-        noise = draws.standard_normal(2)
-        polar = varying.relax(polar[0], polar[1], state.current_mean[0], state.current_mean[1],
-                              params.dt, noise[0], noise[1], ops)
+        polar = varying.advance(polar[0], polar[1], state.current_mean[0],
+                                state.current_mean[1], params.dt, draws, ops)
         current = ops.vector(current_components(*polar, ops))
         polar = ops.vector(polar)
     x, y, z, n = force
@@ -260,9 +252,8 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
                            + (x * x + y * y + z * z + n * n) * params.dt,
                            thrust=thrust, current_polar=polar, current=current)
     if params.optics is not None and params.obs_mode == "features":  # occluders pass
-        u = draws.random(params.n_lights)
-        state = state._replace(occluded=LampOutages.occlusions_after(
-            state.occluded, params.optics, params.dt, u, ops.xp))
+        state = state._replace(occluded=LampOutages.occlusions_drawn(
+            state.occluded, params.optics, params.dt, draws, ops.xp))
     return state, truth, observe(params, state, truth, backend), judged
 
 
@@ -323,16 +314,13 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
     visible = truth["visible"]
     pixels = truth["visible_pixels"]
     if pixel_std > 0:  # noise on the masked true pixels, masked again, clipped
-        pixels = pixels + pixel_std * draws.standard_normal(pixels.shape)
+        pixels = add_pixel_noise(pixels, pixel_std, draws)
         pixels = xp.clip(xp.where(visible[:, None], pixels, 0.0), *params.pixel_bounds)
     if params.optics is not None:  # the lamps the camera detects through the water
         distance = xp.linalg.norm(params.light_positions - xp.asarray(truth["camera_position"]),
                                   axis=-1)
-        n = params.n_lights
-        u = draws.random(n)
-        centroid_noise = draws.standard_normal((n, 2))
-        pixels, visible = lamp_detections(pixels, visible, distance, state.out, params.optics,
-                                          params.focal_px, u, centroid_noise, xp)
+        pixels, visible = detect_lamps(pixels, visible, distance, state, params.optics,
+                                       params.focal_px, draws, xp)
         pixels = xp.clip(pixels, *params.pixel_bounds)
     return {"pixels": pixels.astype(xp.float32), "visible": visible.astype(xp.int8), **sensors}
 
