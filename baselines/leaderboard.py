@@ -33,7 +33,7 @@ from matplotlib.ticker import MaxNLocator
 from baselines import aggregate
 from baselines.evaluation import jsonable, row_to_dict
 from baselines.fileio import atomic_write
-from baselines.stats import tied_ranks
+from baselines.stats import paired_p_value, tied_ranks
 
 #: Metrics shown in the tables and plots when an environment reports them:
 #: key -> (label, format, which way is better). The final deviations appear as
@@ -163,18 +163,29 @@ def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
     for a failed row and for a group's member (its group row is ranked:
     :func:`is_member`).
 
-    By :func:`rank_metric`: a row whose 95 % interval overlaps the one above it
-    shares its rank (a tie).
+    By :func:`rank_metric`: a row shares the rank of the one above it (a tie) unless
+    they differ: on the same seeds, by the paired permutation test of the mean per-seed
+    difference at 5 %; otherwise by disjoint 95 % intervals
+    (:func:`baselines.stats.tied_ranks`).
     """
     key, _ = rank_metric(rows)
     out: list[tuple[int, bool] | None] = [None] * len(rows)
     for scenario in dict.fromkeys(r["scenario"] for r in rows):
         ok = [i for i, r in enumerate(rows) if r["scenario"] == scenario
               and r["status"] != "failed" and not is_member(r) and not is_reference(r)]
-        for i, rank in zip(ok, tied_ranks([_rank_interval(rows[i], key) for i in ok]),
-                           strict=True):
+        p_values = [None] + [_paired(rows[a], rows[b], key)
+                             for a, b in zip(ok[:-1], ok[1:], strict=True)]
+        for i, rank in zip(ok, tied_ranks([_rank_interval(rows[i], key) for i in ok],
+                                          p_values), strict=True):
             out[i] = rank
     return out
+
+
+def _paired(above: Mapping, row: Mapping, key: str) -> float | None:
+    """The paired test's p-value of ``above``'s rank metric against ``row``'s over the
+    seeds both played (:func:`baselines.stats.paired_p_value`); None when not paired."""
+    a, b = (r.get("by_seed", {}).get(key) for r in (above, row))
+    return None if a is None or b is None else paired_p_value(a, b)
 
 
 def rank_labels(rows: Sequence[Mapping]) -> list[str]:
@@ -246,7 +257,9 @@ COMPACT_METRICS = ("success", "docking_time", "final_capture_error", "rmse", "ma
 
 INTERVAL_NOTE = ("Each cell: mean [95 % interval] over the episodes (success: Wilson; "
                  "others: percentile bootstrap of the mean). Rank by success rate (tracking: "
-                 "by RMSE); rows whose intervals overlap share a rank (tie).")
+                 "by RMSE); a row shares the rank of the one above it (tie) unless they differ: "
+                 "on the same seeds by a paired permutation test of the per-seed difference "
+                 "at 5 %, otherwise by disjoint intervals.")
 
 
 def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
@@ -583,9 +596,10 @@ document.querySelectorAll("table.leaderboard").forEach(function (table) {
 });
 """
 
-OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE); =2: tied, their 95 % "
-                 "intervals overlap; –: the agent failed. Each cell: mean [95 % interval] "
-                 "over the episodes. Full tables, clips and plots per environment below.")
+OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE); =2: tied with the row "
+                 "above (no difference at 95 %); –: the agent failed. Each cell: mean "
+                 "[95 % interval] over the episodes. Full tables, clips and plots per "
+                 "environment below.")
 
 
 def overview_metric(rows: Sequence[Mapping]) -> str | None:
@@ -659,7 +673,7 @@ def _card_html(env_id: str, scenario: str | None, rows: Sequence[Mapping]) -> st
            f"{head}</tr></thead><tbody>"]
     for row, rank in zip(rows, ranks(rows), strict=True):
         cells = "".join(f'<td class="num">{_cell_html(row, k)}</td>' for k in keys)
-        tie = ' title="tied: 95 % intervals overlap"' if rank and rank[1] else ""
+        tie = ' title="tied: no difference at 95 % from the row above"' if rank and rank[1] else ""
         cls = ' class="failed"' if row["status"] == "failed" else ""
         out.append(f'<tr{cls}><td class="rank"{tie}>{esc(short_rank(rank))}</td>'
                    f'<td class="agent">{_agent_html(row, rows)}</td>{cells}</tr>')

@@ -10,14 +10,17 @@ therefore carries a 95 % interval:
   Tibshirani 1993), from SciPy's ``bootstrap`` with a fixed generator, so the
   same episodes always give the same interval.
 
-Agents are ranked by success rate; two agents whose success intervals overlap
-share a rank (a tie).
+Agents are ranked by success rate (tracking: RMSE), best first; a row shares the
+rank of the one above it (a tie) unless the two differ: when both were played on
+the same seeds, by a paired permutation test of the mean per-seed difference at
+the 5 % level (what the seeds share cancels; on success rates it is the exact
+McNemar test), otherwise by disjoint 95 % intervals.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
@@ -64,22 +67,61 @@ def bootstrap_interval(values: Sequence[float],
     return float(result.confidence_interval.low), float(result.confidence_interval.high)
 
 
+#: The paired test's significance level (two-sided).
+ALPHA = 1 - CONFIDENCE
+#: Random sign flips of the paired test when there are more distinct ones (2**n).
+PERMUTATIONS = 9999
+
+
+def paired_p_value(a: Mapping, b: Mapping) -> float | None:
+    """Two-sided p-value that ``a`` and ``b`` (seed -> value) have the same mean, by the
+    paired permutation test: under the null each seed's two values are exchangeable, so
+    the mean difference is referred to its distribution over sign flips of the per-seed
+    differences (SciPy's ``permutation_test``, ``permutation_type="samples"``: exact up
+    to 13 seeds whose values differ, else 9999 random flips from a fixed generator). On success
+    rates it is the exact McNemar test. None unless both have the same seeds, at least
+    two (rows played on different seeds are not paired)."""
+    if set(a) != set(b) or len(a) < 2:
+        return None
+    seeds = sorted(a)
+    x = np.array([a[s] for s in seeds], dtype=float)
+    y = np.array([b[s] for s in seeds], dtype=float)
+    # A seed whose two values are equal flips to itself: leaving it out changes no
+    # permutation's standing, and makes the test exact up to 13 differing seeds.
+    differ = x != y
+    if np.count_nonzero(differ) < 2:
+        return 1.0
+    x, y = x[differ], y[differ]
+    result = stats.permutation_test(
+        (x, y), lambda u, v, axis: np.mean(u - v, axis=axis), permutation_type="samples",
+        vectorized=True, n_resamples=PERMUTATIONS, alternative="two-sided",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    )
+    return float(result.pvalue)
+
+
 def overlap(a: Sequence[float], b: Sequence[float]) -> bool:
     """Whether two closed intervals ``(low, high)`` share a point."""
     return a[0] <= b[1] and b[0] <= a[1]
 
 
-def tied_ranks(intervals: Sequence[Sequence[float]]) -> list[tuple[int, bool]]:
+def tied_ranks(intervals: Sequence[Sequence[float]],
+               p_values: Sequence[float | None] = ()) -> list[tuple[int, bool]]:
     """Ranks of entries already sorted best first, with ties.
 
-    An entry shares the rank of the one above it when their intervals
-    overlap; otherwise its rank is its position (1-based), as in sports
-    tables. Returns ``(rank, tied)`` per entry; ``tied`` is True when another
+    An entry shares the rank of the one above it unless they differ: when
+    ``p_values[i]`` (entry ``i`` against entry ``i - 1``, :func:`paired_p_value`) is
+    given, when it is below :data:`ALPHA`; otherwise when their ``intervals`` are
+    disjoint. An entry that differs takes its position (1-based) as its rank, as in
+    sports tables. Returns ``(rank, tied)`` per entry; ``tied`` is True when another
     entry has the same rank.
     """
     ranks = []
     for i, interval in enumerate(intervals):
-        if i and overlap(interval, intervals[i - 1]):
+        p = p_values[i] if i < len(p_values) else None
+        same = (p >= ALPHA if p is not None
+                else overlap(interval, intervals[i - 1]) if i else False)
+        if i and same:
             ranks.append(ranks[-1])
         else:
             ranks.append(i + 1)

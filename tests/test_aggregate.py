@@ -34,11 +34,11 @@ def test_profiles_weigh_tasks_equally():
 
 def test_stratified_bootstrap_keeps_each_task_and_brackets_the_estimate():
     tasks = [np.linspace(0, 1, 30), np.linspace(2, 3, 10)]
-    low, high = aggregate.stratified_interval(tasks, lambda t: float(np.mean(t[1])))
+    low, high = aggregate.stratified_interval(tasks, lambda t: np.mean(t[1], axis=1))
     # Task 2's mean, 2.5, from task 2's scores alone: about 2.5 -+ 1.96 * 0.32 / sqrt(10).
     assert low == pytest.approx(2.30, abs=0.05) and high == pytest.approx(2.70, abs=0.05)
     # Equal scores: no spread, the point itself.
-    assert aggregate.stratified_interval([[1.0, 1.0]], lambda t: float(np.mean(t[0]))) == (1.0,
+    assert aggregate.stratified_interval([[1.0, 1.0]], lambda t: np.mean(t[0], axis=1)) == (1.0,
                                                                                            1.0)
 
 
@@ -50,7 +50,7 @@ def _row(env_id, agent, seed, ret, level="paper", rmse=None):
 
 def test_scores_run_from_random_to_the_reference():
     episodes = [_row(DOCK, "random", 1, -10.0), _row(DOCK, "random", 2, -6.0),  # mean -8
-                _row(DOCK, "ofnmpc-state", 1, 12.0), _row(DOCK, "ofnmpc-state", 2, 12.0),
+                _row(DOCK, "pd-state", 1, 12.0), _row(DOCK, "pd-state", 2, 12.0),
                 _row(DOCK, "mine-s0", 1, 2.0), _row(DOCK, "mine-s1", 1, 7.0),
                 _row(ACOUSTIC, "random", 1, 0.0, rmse=100.0),
                 _row(ACOUSTIC, "tracker", 1, 0.0, rmse=1.0),
@@ -62,14 +62,14 @@ def test_scores_run_from_random_to_the_reference():
     paper = scores["paper"]
     task = "DockingStation-v1 (difficulty=paper)"
     assert paper["random"][task] == [-0.1, 0.1]  # (-10 + 8) / 20, (-6 + 8) / 20
-    assert paper["ofnmpc-state"][task] == [1.0, 1.0]
+    assert paper["pd-state"][task] == [1.0, 1.0]
     assert paper["mine"][task] == [0.5, 0.75]  # the seeds pooled under their group
     # log(100 / 1) / log(100 / 0.01) = 2 / 4.
     assert paper["tracker"]["AcousticTracking-v0 (difficulty=paper)"] == pytest.approx([0.5])
     assert all("LARSCapture" not in t for agent in paper.values() for t in agent)
     view = aggregate.level_view(paper)
-    assert view["agents"]["ofnmpc-state"]["iqm"] == 1.0
-    assert view["improvement"]["ofnmpc-state", "random"] == 1.0
+    assert view["agents"]["pd-state"]["iqm"] == 1.0
+    assert view["improvement"]["pd-state", "random"] == 1.0
     assert view["improvement"]["mine", "random"] == 1.0
     assert ("tracker", "mine") not in view["improvement"]  # no task in common
 
@@ -79,7 +79,7 @@ def test_the_page_shows_the_levels_across_tasks(tmp_path):
     from baselines.evaluation import summarise
 
     episodes = [_row(DOCK, agent, seed, ret) for agent, rets in
-                (("random", (-9.0, -7.0)), ("ofnmpc-state", (11.0, 13.0)), ("mine", (1.0, 5.0)))
+                (("random", (-9.0, -7.0)), ("pd-state", (11.0, 13.0)), ("mine", (1.0, 5.0)))
                 for seed, ret in zip((1, 2), rets, strict=True)]
     paths = leaderboard.write(tmp_path, summarise(episodes), episodes=episodes)
     assert "plots/across-tasks-paper.png" in paths

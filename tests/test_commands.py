@@ -123,7 +123,7 @@ def test_default_run_leaves_out_heavy_agents_and_says_so(tmp_path, capsys):
                           "--workers", "1", "--no-progress", "--no-video",
                           "--out", str(tmp_path)])
     assert code == 0
-    assert "left out of this run as heavy (--all-agents adds them): " \
+    assert "left out of this run (--all-agents adds them): " \
         + ", ".join(heavy_everywhere) in capsys.readouterr().err
     ran = {r["agent"] for r in json.loads((tmp_path / "leaderboard.json").read_text())}
     assert ran and not ran & set(heavy_everywhere)

@@ -204,7 +204,9 @@ def test_html_page_opens_in_headless_chromium_and_sorts(tiny_run):
     console, page_errors, failed, rows, images, sort = _chromium_page(page.as_uri())
     assert console == [] and page_errors == [] and failed == []
     assert sorted(map(tuple, rows)) == sorted(PAIRS)  # one row per agent and environment
-    assert images == [True]  # the docking plot loaded; LARS (one agent) has none
+    # The docking plot and the across-task view (pd-state is docking's reference) loaded;
+    # LARS (one agent) has no plot.
+    assert images == [True, True]
     ascending, state_up, descending, state_down = sort
     assert len(ascending) == 2 and ascending == sorted(ascending)
     assert descending == sorted(ascending, reverse=True) and ascending != descending

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from baselines.stats import bootstrap_interval, overlap, tied_ranks, wilson_interval
+from baselines.stats import (
+    bootstrap_interval,
+    overlap,
+    paired_p_value,
+    tied_ranks,
+    wilson_interval,
+)
 
 Z95 = scipy_stats.norm.ppf(0.975)
 
@@ -84,3 +90,39 @@ def test_tied_ranks():
     # 30 episodes can.
     assert tied_ranks([wilson_interval(30, 30), wilson_interval(0, 30)]) == [(1, False),
                                                                              (2, False)]
+
+
+def _by_seed(values):
+    return {str(1000 + i): float(v) for i, v in enumerate(values)}
+
+
+@pytest.mark.parametrize("wins, losses, ties", [(5, 0, 25), (6, 0, 24), (9, 2, 19), (7, 7, 6)])
+def test_paired_test_on_success_is_the_exact_mcnemar_test(wins, losses, ties):
+    """Binary outcomes on shared seeds: the sign-flip test of the mean difference is
+    the exact binomial test on the discordant seeds (McNemar's exact test)."""
+    a = [1] * wins + [0] * losses + [1] * (ties // 2) + [0] * (ties - ties // 2)
+    b = [0] * wins + [1] * losses + [1] * (ties // 2) + [0] * (ties - ties // 2)
+    expected = scipy_stats.binomtest(wins, wins + losses).pvalue
+    assert paired_p_value(_by_seed(a), _by_seed(b)) == pytest.approx(expected, rel=1e-9)
+
+
+def test_paired_test_cancels_what_the_seeds_share():
+    """Two trackers whose errors move together from seed to seed: their marginal
+    intervals overlap, the paired test separates them."""
+    rng = np.random.default_rng(3)
+    shared = rng.lognormal(-2.0, 0.4, size=12)  # the seeds' own difficulty
+    a, b = shared, shared * 1.15 + 0.002 * rng.standard_normal(12)
+    assert overlap(bootstrap_interval(a), bootstrap_interval(b))
+    assert paired_p_value(_by_seed(a), _by_seed(b)) < 0.01
+    # The ranks follow the test: b is below a.
+    ranks = tied_ranks([bootstrap_interval(a), bootstrap_interval(b)],
+                       [None, paired_p_value(_by_seed(a), _by_seed(b))])
+    assert ranks == [(1, False), (2, False)]
+
+
+def test_paired_test_needs_the_same_seeds():
+    assert paired_p_value({"1": 1.0, "2": 0.0}, {"1": 0.0, "3": 1.0}) is None
+    assert paired_p_value({"1": 1.0}, {"1": 0.0}) is None
+    assert paired_p_value(_by_seed([1, 0, 1]), _by_seed([1, 0, 1])) == 1.0
+    # Not paired: the marginal rule decides (overlapping intervals tie).
+    assert tied_ranks([(0.5, 0.9), (0.4, 0.6)], [None, None]) == [(1, True), (1, True)]

@@ -9,7 +9,8 @@ Installed, the same command is ``auv-evaluate``. Writes
 ``episodes.json`` under ``--out`` and prints one compact Markdown table per
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
 mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
-and agents whose intervals overlap share a rank.
+and a row shares the rank of the one above it unless they differ (on the same seeds,
+by a paired permutation test of the per-seed difference at 5 %).
 A run merges into the board already in ``--out`` (``board.json``): the rows it
 evaluates are replaced, the others kept, so the page always shows one whole
 board (``--new-board`` starts afresh). Finished episodes are cached under
@@ -18,13 +19,20 @@ rerun, or a run after an interruption, only runs what is missing. The cache
 key includes a fingerprint of the package code and assets, so episodes of
 edited agents or environments run again.
 
-Default run (the README's main command): every environment at the ``paper``
-and ``hard`` difficulty levels (``DEFAULT_LEVELS``), every registered agent
-in its default obs mode except the heavy ones (``AgentSpec.heavy``: the image
-front ends, about a minute an episode; ``--all-agents`` adds them), 3
-episodes on the frozen seeds 100000-100002, each environment's default
-arguments except the acoustic episodes, shortened to 30 s
-(``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local worker processes.
+Default run (the README's main command), the quick board
+(:mod:`baselines.evaluation.quick`): every environment at the ``paper`` and ``hard``
+difficulty levels (``DEFAULT_LEVELS``), every registered agent in its default obs
+mode except the heavy ones (``AgentSpec.heavy``: the image front ends, about a minute
+an episode; ``--all-agents`` adds them) and those of the full board only
+(``quick.FULL_BOARD_ONLY``: superseded, second or comparator agents), on the frozen
+seeds from 100000: 10 episodes a table at ``paper``, 30 at ``hard`` (acoustic
+tracking, ranked by RMSE: 6 and 10), a group's training seeds taking the seeds in
+turn; each environment's default arguments except the acoustic episodes, shortened
+to 30 s (``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local worker processes.
+``--episodes N`` (or ``--seeds``) runs the full board instead: N episodes for every
+agent and every training seed of a group, every agent but the heavy ones.
+``--design quick --seeds A-B`` runs the quick board on other seeds (each table its
+first seeds of those).
 """
 
 from __future__ import annotations
@@ -52,6 +60,7 @@ from baselines.evaluation import (
     env_parameters,
     evaluate_all,
     import_agent_modules,
+    quick,
     resolve_env_kwargs,
     summarise,
 )
@@ -135,17 +144,20 @@ def scenario_groups(groups, scenario: str | None, difficulty) -> list[list[str]]
     return out
 
 
-def default_agents(env_ids) -> tuple[list[str], list[str]]:
-    """``(agents, heavy)``: the registered agents of the default run, and the heavy ones
-    (:attr:`AgentSpec.heavy`) it leaves out that apply to one of ``env_ids``."""
-    agents, heavy = [], []
+def default_agents(env_ids, quick_board: bool = False) -> tuple[list[str], list[str]]:
+    """``(agents, left_out)``: the registered agents of a run that names none, and those
+    it leaves out that apply to one of ``env_ids``: the heavy ones
+    (:attr:`AgentSpec.heavy`) and, on the quick board, those of the full board only
+    (:data:`baselines.evaluation.quick.FULL_BOARD_ONLY`; a group by its name)."""
+    agents, left_out = [], []
+    groups = agent_groups()
     for name in agent_names():
         spec = agent_spec(name)
-        if not spec.heavy:
+        if not spec.heavy and (not quick_board or quick.in_default_run(name, groups)):
             agents.append(name)
         elif spec.env_ids is None or set(spec.env_ids) & set(env_ids):
-            heavy.append(name)
-    return agents, heavy
+            left_out.append(groups.get(name, name))
+    return agents, list(dict.fromkeys(left_out))
 
 
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
@@ -165,9 +177,18 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--obs-modes", nargs="+", default=None, metavar="MODE",
                         help="evaluate each agent in these of its obs modes "
                              "(default: the agent's default mode)")
-    parser.add_argument("--episodes", type=int, default=3,
-                        help="episodes per pair on the frozen seeds from "
-                             f"{EVAL_SEED_BASE} (default 3)")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="the full board: this many episodes per pair (every training "
+                             f"seed of a group) on the frozen seeds from {EVAL_SEED_BASE} "
+                             "(default: the quick board, 10 episodes a table at paper and 30 "
+                             "at hard, 6 and 10 for acoustic tracking, a group's training "
+                             "seeds in turn; docs/evaluation.md)")
+    parser.add_argument("--design", choices=("quick", "full"), default=None,
+                        help="quick: each table its own number of episodes, a group's "
+                             "training seeds in turn, the full board's extra agents left out "
+                             "(with --seeds: each table takes its first seeds of those); "
+                             "full: every agent and training seed on every seed (default: "
+                             "quick, full when --episodes or --seeds is given)")
     parser.add_argument("--seeds", type=str, default=None,
                         help="'A-B' or 'A,B,C': override the frozen evaluation seeds")
     parser.add_argument("--env-kwargs", nargs="+", action="append", default=None,
@@ -338,12 +359,21 @@ def _main(argv, prog: str) -> int:
         if agents is not None:  # a group's name stands for its training seeds
             agents = resolve_agent_names(agents)
         check_names(env_ids, agents or ())
+        quick_board = (args.design == "quick" if args.design is not None
+                       else args.episodes is None and args.seeds is None)
+        if quick_board and args.episodes is not None:
+            raise ValueError("--episodes sets the full board's episodes; the quick board "
+                             "plays each table's own (--design quick takes --seeds)")
         if agents is None and not args.all_agents:
-            agents, heavy = default_agents(env_ids)
-            if heavy:
-                print(f"left out of this run as heavy (--all-agents adds them): "
-                      f"{', '.join(heavy)}", file=sys.stderr)
-        seeds = parse_seeds(args.seeds) if args.seeds else default_seeds(args.episodes)
+            agents, left_out = default_agents(env_ids, quick_board)
+            if left_out:
+                print(f"left out of this run (--all-agents adds them): "
+                      f"{', '.join(left_out)}", file=sys.stderr)
+        if args.seeds:
+            seeds = parse_seeds(args.seeds)
+        else:
+            seeds = default_seeds(quick.max_episodes() if quick_board
+                                  else args.episodes if args.episodes is not None else 3)
         if any(s < EVAL_SEED_BASE for s in seeds):
             print(f"warning: seeds below {EVAL_SEED_BASE} may overlap training seeds",
                   file=sys.stderr)
@@ -364,6 +394,8 @@ def _main(argv, prog: str) -> int:
             refresh=args.no_cache, backend=args.backend, workers=args.workers,
             ray_address=args.ray_address, agent_modules=agent_modules,
             progress=not args.no_progress, video=video, earlier=earlier,
+            select=(lambda tasks: quick.thin(tasks, seeds, agent_groups())) if quick_board
+            else None,
         )
     except (ValueError, KeyError, RuntimeError) as exc:  # PolicyFileError is a RuntimeError
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
@@ -380,8 +412,10 @@ def _main(argv, prog: str) -> int:
     summary += bound_rows(summary)
     meta = {
         "command": f"{prog} {shlex.join(argv)}".strip(),
-        "seeds": f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
-        else ",".join(map(str, seeds)),
+        "seeds": (f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1))
+                  else ",".join(map(str, seeds)))
+        + (" (the quick board: each table its first seeds of these, a group's training "
+           "seeds in turn; docs/evaluation.md)" if quick_board else ""),
         "auv_envs version": auv_envs.__version__,
     }
     clips = {key: Path(os.path.relpath(path, args.out)).as_posix()

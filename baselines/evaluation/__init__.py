@@ -34,7 +34,7 @@ module has one job:
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +70,7 @@ from baselines.evaluation.summary import (
     summarise,
 )
 from baselines.fileio import atomic_write, write_figures
-from baselines.registry import agent_names, resolve_agent_names
+from baselines.registry import agent_groups, agent_names, resolve_agent_names
 from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 
 __all__ = [
@@ -143,21 +143,26 @@ def evaluate_all(
     progress: bool = False,
     video: VideoSpec | None = None,
     earlier: Sequence[EpisodeTask] = (),
+    select: Callable[[list[EpisodeTask]], list[EpisodeTask]] | None = None,
 ) -> EvaluationRun:
     """Plan, check and run an evaluation (see :func:`plan` and :func:`run_tasks`).
 
     Defaults: every registered environment and agent, 3 frozen seeds, no cache.
     With ``video``, the first seed's episode of every (environment, agent, obs
-    mode, scenario) is recorded (``EvaluationRun.clips``). ``earlier``: the
+    mode, scenario) is recorded (``EvaluationRun.clips``); of a group's training
+    seeds, only the first one's. ``earlier``: the
     tasks of a board to merge into (:func:`baselines.evaluation.board.merge`):
     its rows that this run does not evaluate are kept (read from the cache, or
-    run again).
+    run again). ``select``: which of the planned episodes to run (e.g. the default
+    run's design, :func:`baselines.evaluation.quick.thin`); default all.
     """
     import_agent_modules(agent_modules)
     env_ids = list(dict.fromkeys(env_ids or auv_envs.ENVIRONMENTS))
     agents = resolve_agent_names(agents) if agents else agent_names()  # groups: members
     seeds = check_seeds(seeds) if seeds is not None else default_seeds(3)
     tasks, skipped = plan(env_ids, agents, seeds, obs_modes, env_kwargs)
+    if select is not None:
+        tasks = select(tasks)
     planned = len(tasks)
     tasks = board.merge(earlier, tasks)
     check_env_kwargs(tasks)
@@ -166,8 +171,10 @@ def evaluate_all(
     videos = {}
     if video is not None:
         first: dict[tuple, EpisodeTask] = {}
-        for task in tasks:
-            first.setdefault((task.env_id, task.agent, task.obs_mode, task.env_kwargs), task)
+        groups = agent_groups()
+        for task in tasks:  # a group's clip is its first-run member's
+            first.setdefault((task.env_id, groups.get(task.agent, task.agent), task.obs_mode,
+                              task.env_kwargs), task)
         videos = {task: video for task in first.values()}
     rows = run_tasks(tasks, cache, backend, workers, ray_address, agent_modules, progress, stats,
                      refresh, videos)

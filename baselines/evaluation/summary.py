@@ -142,6 +142,13 @@ def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
             if name in SIGNED_METRICS:
                 not_numbers[f"{name}_abs"] += 1
     metrics = {k: _stat(v, success=k == "success") for k, v in values.items()}
+    by_seed: dict[str, dict[str, list[float]]] = {}  # per rank metric: seed -> values
+    for r in items:
+        if "success" in values:
+            by_seed.setdefault("success", {}).setdefault(str(r.seed), []).append(float(r.success))
+        rmse = r.metrics.get("rmse")
+        if r.status == "ok" and is_number(rmse) and math.isfinite(float(rmse)):
+            by_seed.setdefault("rmse", {}).setdefault(str(r.seed), []).append(float(rmse))
     for name, count in not_numbers.items():  # shown, never dropped silently
         metrics.setdefault(name, {"mean": math.nan, "std": math.nan, "n": 0,
                                   "ci": [None, None]})["nan"] = count
@@ -160,4 +167,8 @@ def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
         "failure_reasons": dict(sorted(reasons.items())),
         "env_kwargs": items[0].env_kwargs,
         "metrics": metrics,
+        # The rank metrics' mean per evaluation seed (a group's training seeds averaged),
+        # for paired comparisons of rows played on the same seeds.
+        "by_seed": {k: {seed: float(np.mean(v)) for seed, v in per.items()}
+                    for k, per in by_seed.items()},
     }
