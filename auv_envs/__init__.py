@@ -25,10 +25,10 @@ __version__ = "0.1.0"
 
 #: Every environment id this package registers, with its entry point.
 ENVIRONMENTS = {
-    "auv_envs/DockingStation-v1": "auv_envs.tasks.docking:DockingStationEnv",
-    "auv_envs/LampArrayDocking-v1": "auv_envs.tasks.docking:LampArrayDockingEnv",
-    "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic:AcousticTrackingEnv",
-    "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars:LARSCaptureEnv",
+    "auv_envs/DockingStation-v1": "auv_envs.tasks.docking.env:DockingStationEnv",
+    "auv_envs/LampArrayDocking-v1": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
+    "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
+    "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
 }
 
 #: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
@@ -38,9 +38,11 @@ _DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2}
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
 #: Agents, the leaderboard and the tests use :data:`ENVIRONMENTS`.
 PREVIOUS_VERSIONS = {
-    "auv_envs/DockingStation-v0": ("auv_envs.tasks.docking:DockingStationEnv", _DOCKING_V0_PLANT),
+    "auv_envs/DockingStation-v0": (
+        "auv_envs.tasks.docking.env:DockingStationEnv", _DOCKING_V0_PLANT
+    ),
     "auv_envs/LampArrayDocking-v0": (
-        "auv_envs.tasks.docking:LampArrayDockingEnv", _DOCKING_V0_PLANT
+        "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V0_PLANT
     ),
 }
 

@@ -22,9 +22,9 @@ from baselines.frontend import front_end_spec
 from baselines.registry import AgentSpec, env_ids_of, lazy, register_source
 
 #: Every registered id of each environment family (the module of its entry point).
-DOCKING = env_ids_of("auv_envs.tasks.docking")
-LARS = env_ids_of("auv_envs.tasks.lars")
-ACOUSTIC = env_ids_of("auv_envs.tasks.acoustic")
+DOCKING = env_ids_of("auv_envs.tasks.docking.env")
+LARS = env_ids_of("auv_envs.tasks.lars.env")
+ACOUSTIC = env_ids_of("auv_envs.tasks.acoustic.env")
 
 AGENTS: tuple[AgentSpec, ...] = (
     AgentSpec(

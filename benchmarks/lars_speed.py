@@ -19,7 +19,7 @@ from throughput import steps_per_second  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401
 from auv_envs.core.rendering import CameraRenderer
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 
 
 def render_seconds(env: LARSCaptureEnv, views, size, n: int, repeats: int):

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import torch
 
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars import CONTROL_PERIOD, LARSCaptureEnv
+from auv_envs.tasks.lars.env import CONTROL_PERIOD, LARSCaptureEnv
 from baselines.lars.perception.front_end import LTATFrontEnd
 from baselines.lars.perception.siamese import Pyramid, SiameseTracker, marker_box
 

@@ -13,9 +13,9 @@ from baselines import catalogue, registry
 
 #: The page of each environment family (the module of its entry point).
 FAMILY_PAGES = {
-    "auv_envs.tasks.docking": ("Docking", "docking.md"),
-    "auv_envs.tasks.lars": ("LARS capture", "lars.md"),
-    "auv_envs.tasks.acoustic": ("Acoustic tracking", "acoustic.md"),
+    "auv_envs.tasks.docking.env": ("Docking", "docking.md"),
+    "auv_envs.tasks.lars.env": ("LARS capture", "lars.md"),
+    "auv_envs.tasks.acoustic.env": ("Acoustic tracking", "acoustic.md"),
 }
 RL_PAGE = ("RL agents", "rl.md")
 

@@ -1,7 +1,7 @@
 """The reST of this project's docstrings as Markdown, for the documentation site.
 
 The docstrings are Google style with reST inline markup, as Sphinx reads them:
-``literal``, roles such as :class:`~auv_envs.core.optics.WaterOptics`, ``::``
+``literal``, roles such as :class:`~auv_envs.tasks.docking.optics.WaterOptics`, ``::``
 literal blocks and, in the docking environment, simple tables. MkDocs renders
 Markdown, so :func:`to_markdown` rewrites exactly those four constructs and
 leaves everything else (paragraphs, ``*`` lists, ``**bold**``, Google sections)

@@ -10,7 +10,7 @@ leaderboard's frozen seeds, from 100000, and of the calibration runs that
 
 * the bound, ``env.unwrapped.trajectory_bound()`` (the leaderboard's ``pcrb``
   row: the posterior Cramér–Rao bound with the motion known,
-  :mod:`auv_envs.tasks.acoustic_bound`), and for comparison the model-based
+  :mod:`auv_envs.tasks.acoustic.bound`), and for comparison the model-based
   white-jerk bound (``MotionPrior(jerk_scale=1)``, not a guaranteed limit);
 * every acoustic agent's mean squared error and RMSE per episode (the
   environment's ``rmse`` metric);
@@ -37,7 +37,7 @@ import numpy as np  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
 from auv_envs.core.difficulty import LEVELS  # noqa: E402
-from auv_envs.tasks.acoustic_bound import MotionPrior, bound_rmse  # noqa: E402
+from auv_envs.tasks.acoustic.bound import MotionPrior, bound_rmse  # noqa: E402
 from baselines.evaluation import evaluate_all  # noqa: E402
 from baselines.registry import agent_names, agent_spec  # noqa: E402
 from baselines.stats import bootstrap_interval  # noqa: E402

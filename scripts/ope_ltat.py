@@ -56,7 +56,7 @@ import torch
 from auv_envs.core.difficulty import LEVELS
 from auv_envs.datasets.lars import export_sequence, load_sequence
 from auv_envs.metrics import box_iou
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 from baselines.evaluation import EVAL_SEED_BASE, write_figures
 from baselines.lars.perception.corners import MarkerCornerExtractor
 from baselines.lars.perception.ltat import LTATParams, LTATracker

@@ -55,8 +55,8 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.core.difficulty import LEVELS
-from auv_envs.tasks.lars import CONTROL_PERIOD
-from auv_envs.tasks.lars_sea import SeaSample, ShipPose
+from auv_envs.tasks.lars.env import CONTROL_PERIOD
+from auv_envs.tasks.lars.sea import SeaSample, ShipPose
 from baselines.evaluation import run_episode, write_figures
 from baselines.lars.agents import CKFPDAgent
 from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude

@@ -51,7 +51,7 @@ import numpy as np  # noqa: E402
 import auv_envs  # noqa: E402, F401
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES  # noqa: E402
 from auv_envs.core.hydrodynamics import NominalModel  # noqa: E402
-from auv_envs.tasks.docking import (  # noqa: E402
+from auv_envs.tasks.docking.env import (  # noqa: E402
     SCENARIO_CURRENT_SPEED,
     SCENARIO_PIXEL_NOISE,
     SCENARIO_VELOCITY_NOISE,

@@ -36,7 +36,7 @@ def compare(env_id: str, size: tuple[int, int], poses: int, seed: int = 11,
     import mujoco
 
     from auv_envs.core.rendering import CameraRenderer
-    from auv_envs.tasks.docking_station import STATION_COLLISION_GROUP, VISUAL_GROUP
+    from auv_envs.tasks.docking.station import STATION_COLLISION_GROUP, VISUAL_GROUP
 
     env = gym.make(env_id, obs_mode="image", image_size=size)
     physics = env.unwrapped.physics

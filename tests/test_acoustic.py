@@ -21,7 +21,7 @@ from auv_envs.core.acoustics import (
     flow_noise_level,
     thorp_absorption,
 )
-from auv_envs.tasks import acoustic
+from auv_envs.tasks.acoustic import env as acoustic
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 

@@ -1,4 +1,4 @@
-"""The posterior Cramér–Rao bound of an acoustic episode (:mod:`auv_envs.tasks.acoustic_bound`),
+"""The posterior Cramér–Rao bound of an acoustic episode (:mod:`auv_envs.tasks.acoustic.bound`),
 each part against an independent derivation, and against the trackers on fresh seeds."""
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import pytest
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
-from auv_envs.tasks.acoustic import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
-from auv_envs.tasks.acoustic_bound import (
+from auv_envs.tasks.acoustic.bound import (
     EpisodeRecord,
     MotionPrior,
     measurement_information,
     pcrb,
     position_bounds,
 )
+from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: Fresh seeds: clear of the leaderboard's (from 100000) and of the calibration runs.

@@ -9,8 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from auv_envs.tasks.acoustic import AcousticTrackingEnv
-from auv_envs.tasks.acoustic_render import TankPlot
+from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.render import TankPlot
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: Where test_sample_frame_is_not_blank leaves a frame for a person to look at.

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from auv_envs.core.assets import asset_path
-from auv_envs.tasks import docking
+from auv_envs.tasks.docking import env as docking
 from tests.conftest import DOCKING_IDS, ENV_IDS, leaves, make_env
 
 

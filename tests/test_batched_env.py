@@ -25,7 +25,7 @@ import jax.numpy as jnp  # noqa: E402
 import auv_envs  # noqa: E402,F401
 from auv_envs.batched.docking_env import DockingMJX, failure_reason  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
-from auv_envs.tasks.docking import DockingDisturbances  # noqa: E402
+from auv_envs.tasks.docking.env import DockingDisturbances  # noqa: E402
 from scripts.batched_equivalence import (  # noqa: E402
     LAYOUTS,
     line_of_sight_policy,

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from auv_envs.tasks.lars_scene import auv_rotation
+from auv_envs.tasks.lars.scene import auv_rotation
 from baselines.evaluation import run_episode
 from baselines.lars.agents import CKFPDAgent
 from baselines.lars.perception.marker import MarkerLocaliser, marker_attitude

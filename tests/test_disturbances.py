@@ -11,7 +11,7 @@ import pytest
 
 from auv_envs.core.sea import GaussMarkovCurrent, current_vector
 from auv_envs.core.vehicle import PlantPerturbation, hovering_auv, thruster_lag_gain
-from auv_envs.tasks.docking import DockingDisturbances
+from auv_envs.tasks.docking.env import DockingDisturbances
 from tests.conftest import DOCKING_IDS
 from tests.plant_reference import LIMITS, env_plant_error
 

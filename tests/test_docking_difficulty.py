@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from auv_envs.core.optics import WaterOptics
-from auv_envs.tasks.docking import DockingDisturbances
+from auv_envs.tasks.docking.env import DockingDisturbances
+from auv_envs.tasks.docking.optics import WaterOptics
 
 DOCKING_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1",
                "auv_envs/DockingStation-v0", "auv_envs/LampArrayDocking-v0")

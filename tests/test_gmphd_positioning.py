@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from auv_envs.tasks.acoustic import STATIC_POINTS, AcousticTrackingEnv
+from auv_envs.tasks.acoustic.env import STATIC_POINTS, AcousticTrackingEnv
 from baselines.acoustic.perception.positioning import (
     METHODS,
     ClockOffsetEstimator,

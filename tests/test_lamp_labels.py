@@ -75,7 +75,7 @@ def test_labels_need_the_camera_renderer():
 
 
 def test_a_failed_lamp_is_not_labelled():
-    from auv_envs.core.optics import WaterOptics
+    from auv_envs.tasks.docking.optics import WaterOptics
 
     optics = WaterOptics.jerlov("1C", lamp_failure_probability=1.0)
     env = gym.make(DOCKING_IDS[1], obs_mode="image", optics=optics)

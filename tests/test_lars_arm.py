@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 
 
 @pytest.fixture(scope="module")

@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 
 from auv_envs.core.camera import CameraIntrinsics
-from auv_envs.core.stereo import StereoRig, triangulate
 from auv_envs.datasets.lars import export_dataset, load_sequence, main
+from auv_envs.tasks.lars.stereo import StereoRig, triangulate
 
 
 def test_export_and_reload(tmp_path):

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
-from auv_envs.core.waves import SeaSpectrum
-from auv_envs.tasks.lars import (
+from auv_envs.tasks.lars.env import (
     DEFAULT_PIXEL_NOISE_STD,
     HARD_PIXEL_NOISE_STD,
     HARD_SEA,
     PAPER_SEA,
     LARSCaptureEnv,
 )
-from auv_envs.tasks.lars_sea import SunGlint
+from auv_envs.tasks.lars.sea import SunGlint
+from auv_envs.tasks.lars.waves import SeaSpectrum
 from baselines.evaluation import run_episode
 from baselines.registry import agent_spec
 

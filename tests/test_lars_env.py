@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 
 
 def _capture_action(env, info, height):

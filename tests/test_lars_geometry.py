@@ -9,15 +9,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from auv_envs.core.stereo import triangulate
-from auv_envs.tasks.lars import LARSCaptureEnv
-from auv_envs.tasks.lars_scene import (
+from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.scene import (
     MARKER_SIDES,
     MOTION_RANGES,
     MarkerGeometry,
     sample_motion,
     uniform_draws,
 )
+from auv_envs.tasks.lars.stereo import triangulate
 from baselines.lars.perception.marker import marker_pitch_yaw
 
 

@@ -11,15 +11,15 @@ import pytest
 
 from auv_envs.core.camera import CameraIntrinsics, project_few
 from auv_envs.core.frames import GRAVITY
-from auv_envs.core.waves import SeaSpectrum
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars import HARD_SEA, LARSCaptureEnv
-from auv_envs.tasks.lars_sea import (
+from auv_envs.tasks.lars.env import HARD_SEA, LARSCaptureEnv
+from auv_envs.tasks.lars.sea import (
     GlintField,
     SunGlint,
     cox_munk_slope_variance,
     fully_developed_wind_speed,
 )
+from auv_envs.tasks.lars.waves import SeaSpectrum
 
 
 def _sun_at(elevation_deg: float, azimuth_deg: float = 0.0, **kwargs) -> SunGlint:

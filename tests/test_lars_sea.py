@@ -10,7 +10,7 @@ import pytest
 
 from auv_envs.core.sea import WashOver, segments_cross_box
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 
 
 def test_segments_cross_box_cases():

@@ -18,7 +18,7 @@ import torch
 from auv_envs.core.assets import sha256_file
 from auv_envs.datasets.lars import tracking_action
 from auv_envs.metrics import box_iou
-from auv_envs.tasks.lars import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureEnv
 from baselines.evaluation import EVAL_SEED_BASE
 from baselines.lars.perception.corners import MarkerCornerExtractor
 from baselines.lars.perception.detector import OnlineDetector

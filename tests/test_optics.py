@@ -10,14 +10,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from auv_envs.core.optics import (
+from auv_envs.core.rendering import CameraRenderer
+from auv_envs.tasks.docking.optics import (
     JERLOV_TYPES,
     LampOutages,
     WaterOptics,
     degrade_image,
     detect_lamps,
 )
-from auv_envs.core.rendering import CameraRenderer
 from tests.conftest import DOCKING_IDS, SMALL_IMAGE
 
 NOISELESS = {"shot_noise": 0.0, "read_noise": 0.0}
@@ -295,8 +295,8 @@ def test_default_is_clear_water_bit_for_bit_without_extra_draws(env_id, obs_mode
     def refuse(*args, **kwargs):
         raise AssertionError("the optics code ran without optics")
 
-    monkeypatch.setattr("auv_envs.tasks.docking.degrade_image", refuse)
-    monkeypatch.setattr("auv_envs.tasks.docking_transition.detect_lamps", refuse)
+    monkeypatch.setattr("auv_envs.tasks.docking.env.degrade_image", refuse)
+    monkeypatch.setattr("auv_envs.tasks.docking.transition.detect_lamps", refuse)
     for name in ("occluded_share", "occlusions_after"):
         monkeypatch.setattr(LampOutages, name, refuse)
     monkeypatch.setattr(CameraRenderer, "render_with_range", refuse)

@@ -29,7 +29,7 @@ from auv_envs.core.vehicle import (
     remus100,
     with_damping_mismatch,
 )
-from auv_envs.tasks import docking
+from auv_envs.tasks.docking import env as docking
 
 ENV_ID = "auv_envs/DockingStation-v1"
 ZERO6 = (0.0,) * 6

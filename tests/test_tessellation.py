@@ -153,7 +153,7 @@ def test_a_posed_geom_is_placed_where_mujoco_puts_it():
 def test_the_station_is_drawn_as_meshes_and_collides_as_primitives(env_id):
     import mujoco
 
-    from auv_envs.tasks.docking_station import STATION_COLLISION_GROUP, VISUAL_GROUP
+    from auv_envs.tasks.docking.station import STATION_COLLISION_GROUP, VISUAL_GROUP
 
     env = make_env(env_id, "features")
     physics = env.unwrapped.physics

@@ -13,7 +13,19 @@ from scipy.signal import welch
 
 from auv_envs.core.camera import points_in_camera, project
 from auv_envs.core.sea import heave
-from auv_envs.core.waves import (
+from auv_envs.datasets.lars import tracking_action
+from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.scene import AUV_DIAMETER, AUV_FREEBOARD
+from auv_envs.tasks.lars.sea import (
+    AUV_RESPONSE,
+    SHIP_ORIGIN,
+    EpisodeSea,
+    LARSSeaModel,
+    ShipPose,
+    analogs_in_play,
+    wash_over_timing,
+)
+from auv_envs.tasks.lars.waves import (
     FloaterResponse,
     HarmonicSeries,
     SeaSpectrum,
@@ -24,18 +36,6 @@ from auv_envs.core.waves import (
     sea_state_code,
     slope_average,
     typical_sea,
-)
-from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars import LARSCaptureEnv
-from auv_envs.tasks.lars_scene import AUV_DIAMETER, AUV_FREEBOARD
-from auv_envs.tasks.lars_sea import (
-    AUV_RESPONSE,
-    SHIP_ORIGIN,
-    EpisodeSea,
-    LARSSeaModel,
-    ShipPose,
-    analogs_in_play,
-    wash_over_timing,
 )
 
 MODERATE = SeaSpectrum(0.5, 6.0)

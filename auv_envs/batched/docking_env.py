@@ -1,7 +1,7 @@
 """The docking environments in JAX: ``reset(rng) -> state``, ``step(state, action) -> state``.
 
 The transition of ``auv_envs/DockingStation-v1`` and ``auv_envs/LampArrayDocking-v1``
-(:mod:`auv_envs.tasks.docking_transition`, the very functions the CPU environment
+(:mod:`auv_envs.tasks.docking.transition`, the very functions the CPU environment
 calls) evaluated on JAX arrays for ``jit`` and ``vmap``: one environment's
 functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingVectorEnv`
 does it and speaks NumPy to Gymnasium). What this shell adds: the plant is
@@ -43,8 +43,8 @@ from auv_envs.core import frames
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.vehicle import PlantPerturbation
-from auv_envs.tasks import docking_transition as transition
-from auv_envs.tasks.docking_rules import failure_reason  # noqa: F401  (re-exported)
+from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.rules import failure_reason  # noqa: F401  (re-exported)
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
@@ -66,7 +66,7 @@ class State:
         metrics: the last step's metrics (:data:`STEP_METRICS`), its reward terms
             (``reward_<term>``) and the episode's summary so far (``episode_*``).
         info: ``rng`` (the episode's key), ``episode`` (the transition's
-            :class:`~auv_envs.tasks.docking_transition.EpisodeState`),
+            :class:`~auv_envs.tasks.docking.transition.EpisodeState`),
             ``terminated``, ``truncation`` and ``final_obs`` (the observation
             that ended the episode; the present one otherwise).
     """
@@ -197,7 +197,7 @@ class DockingMJX:
                            jnp.asarray(qvel, jnp.float32))
 
     def _begin(self, rng, start=None, vehicle=None, qpos=None, qvel=None) -> State:
-        """:func:`auv_envs.tasks.docking_transition.reset` on JAX, as a :class:`State`."""
+        """:func:`auv_envs.tasks.docking.transition.reset` on JAX, as a :class:`State`."""
         rng, key = jax.random.split(rng)
         plant = _PlantCursor(self, qpos, qvel)
         episode, truth, obs = transition.reset(
@@ -211,7 +211,7 @@ class DockingMJX:
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1]):
-        :func:`auv_envs.tasks.docking_transition.step` on JAX."""
+        :func:`auv_envs.tasks.docking.transition.step` on JAX."""
         rng, key, reset_key = jax.random.split(state.info["rng"], 3)
         action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
         plant = _PlantCursor(self, state.data["qpos"], state.data["qvel"])
@@ -268,7 +268,7 @@ class DockingMJX:
 
     def _metrics(self, truth: dict, episode: transition.EpisodeState, terms: dict) -> dict:
         """The step's metrics, its reward terms (``reward_<term>``) and the episode's
-        summary so far (``episode_<key>``, :func:`~auv_envs.tasks.docking_transition.summary`)."""
+        summary so far (``episode_<key>``, :func:`~auv_envs.tasks.docking.transition.summary`)."""
         return {
             **transition.step_metrics(truth, episode),
             **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},

@@ -28,7 +28,7 @@ from gymnasium.vector.utils import batch_space
 from auv_envs.batched.compile_cache import use_compilation_cache
 from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX
 from auv_envs.core.env import action_array, clip_actions
-from auv_envs.tasks.docking_rules import failure_reason
+from auv_envs.tasks.docking.rules import failure_reason
 
 
 class DockingVectorEnv(VectorEnv):

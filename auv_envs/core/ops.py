@@ -13,7 +13,7 @@ Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``,
 ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
 and ``logical_not``. Comparisons combine with ``&`` and
 ``|``, which serve Python bools and boolean arrays alike. For a transition's
-state (:mod:`auv_envs.tasks.docking_transition`) each also has ``xp`` (its
+state (:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its
 array module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean``
 (a scalar of the backend's type: Python's, or float32/int32/bool arrays),
 ``vector`` (a few scalars as one value: a tuple, or a float32 array),

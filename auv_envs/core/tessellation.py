@@ -17,7 +17,7 @@ meridian (the outline seen side-on) ``4 * cap_stacks(slices)`` sides, at
 least as many.
 
 The mesh is visual only; the primitives it replaces keep colliding and
-blocking rays (``auv_envs.tasks.docking_station``).
+blocking rays (``auv_envs.tasks.docking.station``).
 """
 
 from __future__ import annotations

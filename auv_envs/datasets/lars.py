@@ -44,8 +44,8 @@ import cv2
 import numpy as np
 
 from auv_envs.core.camera import points_in_camera, project
-from auv_envs.tasks.lars import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv
-from auv_envs.tasks.lars_scene import auv_rotation
+from auv_envs.tasks.lars.env import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv
+from auv_envs.tasks.lars.scene import auv_rotation
 
 FORMAT_VERSION = 1
 

@@ -86,7 +86,7 @@ def bound_rows(summary: Sequence[Mapping]) -> list[dict]:
 
     The acoustic tracking bound is per episode (``env.unwrapped.trajectory_bound()``
     after ``reset(seed)``: the posterior Cramér–Rao bound of that episode's trajectory,
-    :mod:`auv_envs.tasks.acoustic_bound`), so the row holds its statistics over the
+    :mod:`auv_envs.tasks.acoustic.bound`), so the row holds its statistics over the
     seeds the scenario's agents ran (the union of their rows' ``seeds``), with the same
     interval as an agent's metric. The environment is built with the scenario's
     arguments, so each difficulty level gets its own. A scenario without seeds gets no row.

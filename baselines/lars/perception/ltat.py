@@ -20,7 +20,7 @@ import dataclasses
 
 import numpy as np
 
-from auv_envs.core.stereo import StereoRig, triangulate
+from auv_envs.tasks.lars.stereo import StereoRig, triangulate
 from baselines.lars.perception.corners import CornerParams, MarkerCornerExtractor
 from baselines.lars.perception.detector import DetectorParams, OnlineDetector
 from baselines.lars.perception.siamese import (

@@ -2,7 +2,7 @@
 
 [LTAT], §2.2: the marker corners A1, A2 (base) and A3 (apex) matched in the left and right
 images are triangulated in the left camera frame (eq. 2, through
-:func:`auv_envs.core.stereo.triangulate`), carried to the arm base (world)
+:func:`auv_envs.tasks.lars.stereo.triangulate`), carried to the arm base (world)
 frame by the hand-eye transform composed with the arm's forward kinematics
 (eq. 3, ``LARSCalibration.camera_poses``), and give the AUV's pitch and yaw
 (eqs. 4-6, :func:`marker_pitch_yaw`). With the attitude, the marker's known
@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from auv_envs.core import frames
-from auv_envs.core.stereo import StereoRig, triangulate
+from auv_envs.tasks.lars.stereo import StereoRig, triangulate
 
 #: Floor on the pixel noise the measurement covariance assumes (px): detectors
 #: are never better than sub-pixel, and a zero covariance would make the

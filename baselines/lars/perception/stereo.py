@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from auv_envs.core.stereo import StereoRig, triangulate
+from auv_envs.tasks.lars.stereo import StereoRig, triangulate
 from baselines.lars.perception.corners import MarkerCornerExtractor
 
 

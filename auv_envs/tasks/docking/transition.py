@@ -10,7 +10,7 @@ episode's random draws (anything with NumPy ``Generator``'s ``uniform``,
 plant (MuJoCo on the CPU, MJX batched). The start draw, the order of the
 step (thrusters, current, plant, judgement, water, observation), the reward,
 the termination, the observation and the episode summary exist here only;
-:class:`auv_envs.tasks.docking.DockingEnv` (Gymnasium) and
+:class:`auv_envs.tasks.docking.env.DockingEnv` (Gymnasium) and
 :class:`auv_envs.batched.docking_env.DockingMJX` (``jit``/``vmap``) are shells
 around them.
 
@@ -27,10 +27,10 @@ import math
 from typing import Any, NamedTuple
 
 from auv_envs.core.camera import add_pixel_noise
-from auv_envs.core.optics import LampOutages, WaterOptics, detect_lamps
 from auv_envs.core.sea import current_components
 from auv_envs.core.vehicle import lagged_thrust
-from auv_envs.tasks.docking_rules import DockingRules
+from auv_envs.tasks.docking.optics import LampOutages, WaterOptics, detect_lamps
+from auv_envs.tasks.docking.rules import DockingRules
 
 #: [OFNMPC] Scenario 2 current speed, m/s.
 SCENARIO_CURRENT_SPEED = 0.3
@@ -52,7 +52,7 @@ class DockingParams:
             the CPU shell's).
         scenario: ``"mismatch"`` or ``"current"``.
         current_direction: the scenario current's direction, deg; None: drawn.
-        disturbances: the level's :class:`~auv_envs.tasks.docking.DockingDisturbances`.
+        disturbances: the level's :class:`~auv_envs.tasks.docking.env.DockingDisturbances`.
         optics: the level's water (None: clear water, every lamp seen).
         thrust_limits: (X, Y, Z, N) at full command.
         thruster_gain: :func:`~auv_envs.core.vehicle.thruster_lag_gain` (1: no lag).
@@ -91,7 +91,7 @@ class EpisodeState(NamedTuple):
 
     Numbers are Python scalars and tuples on the CPU and arrays in the batched
     env. ``failure`` is the index + 1 of the first failure in
-    :data:`~auv_envs.tasks.docking_rules.FAILURE_REASONS` (0: none),
+    :data:`~auv_envs.tasks.docking.rules.FAILURE_REASONS` (0: none),
     ``docking_time`` NaN until docked; ``thrust`` is None without a thruster
     lag, ``plant`` (the simulated vehicle's draws: mass factor, 12 damping
     factors, net-buoyancy offset) without a plant perturbation, ``failed`` and

@@ -3,7 +3,7 @@
 What the vehicle's state means for the task: the camera's pose, where the
 nose is against the entrance, the attitude and body velocities the sensors
 report, when the vehicle has docked or failed, and the reward. The CPU
-environment (:mod:`auv_envs.tasks.docking`) evaluates these functions on
+environment (:mod:`auv_envs.tasks.docking.env`) evaluates these functions on
 Python floats every step; the batched environment
 (:mod:`auv_envs.batched.docking`) evaluates the same functions on JAX arrays.
 """

@@ -1,6 +1,6 @@
 """Irregular seas for the LARS capture task (opt-in: ``LARSCaptureEnv(sea=SeaSpectrum(...))``).
 
-What the sea does to one episode, built from :mod:`auv_envs.core.waves`:
+What the sea does to one episode, built from :mod:`auv_envs.tasks.lars.waves`:
 
 * the AUV (1.8 m x 0.2 m waterplane) heaves, rolls and pitches with the
   waves it meets along its surge track (:data:`AUV_RESPONSE`);
@@ -19,8 +19,9 @@ What the sea does to one episode, built from :mod:`auv_envs.core.waves`:
   points of the wind-roughened surface (:class:`SunGlint`, :class:`GlintField`)
   whose number follows the Cox–Munk slope variance of the wind that raised ``Hs``.
 
-All of it is linear in the wave components, so one :class:`~auv_envs.core.waves.HarmonicSeries`
-per episode evaluates every channel at any time (no filter state to carry).
+All of it is linear in the wave components, so one
+:class:`~auv_envs.tasks.lars.waves.HarmonicSeries` per episode evaluates every channel at
+any time (no filter state to carry).
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ from typing import NamedTuple
 import numpy as np
 
 from auv_envs.core.frames import GRAVITY
-from auv_envs.core.waves import (
+from auv_envs.tasks.lars.scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH, uniform_draws
+from auv_envs.tasks.lars.waves import (
     DEFAULT_BAND,
     DEFAULT_COMPONENTS,
     PM_ALPHA,
@@ -44,7 +46,6 @@ from auv_envs.core.waves import (
     WaveRealisation,
     sea_state_code,
 )
-from auv_envs.tasks.lars_scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH, uniform_draws
 
 #: The AUV's response: its waterplane, roll/pitch lags (assumed, see FloaterResponse).
 AUV_RESPONSE = FloaterResponse(AUV_LENGTH, AUV_DIAMETER)
@@ -90,7 +91,7 @@ class LARSSeaModel:
 
     Attributes:
         spectrum: the wave spectrum.
-        auv, analog, ship: response models (:mod:`auv_envs.core.waves`).
+        auv, analog, ship: response models (:mod:`auv_envs.tasks.lars.waves`).
         ship_origin: world point (m) the ship's roll and pitch turn about.
         n_components: harmonic components per realisation.
         band: frequency band, in units of the peak frequency.
@@ -236,7 +237,7 @@ def fully_developed_wind_speed(hs: float) -> float:
     """Wind speed (m/s) that raises a fully developed Pierson–Moskowitz sea of ``hs`` (m).
 
     ``Hs = 2 sqrt(alpha / beta) U^2 / g ~= 0.21 U^2 / g`` (Pierson & Moskowitz
-    1964, the relation behind :func:`~auv_envs.core.waves.fully_developed_peak_period`).
+    1964, the relation behind :func:`~auv_envs.tasks.lars.waves.fully_developed_peak_period`).
     PM's ``U`` is at 19.5 m, Cox–Munk's at 12.5 m, about 4 % apart in a
     logarithmic wind profile: neglected.
     """

@@ -1,9 +1,9 @@
 """Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision [LTAT].
 
 Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
-is described in :mod:`auv_envs.tasks.lars_scene`, the arm's kinematics and
-dynamics in :mod:`auv_envs.tasks.lars_arm`, the opt-in irregular sea and sun
-glint in :mod:`auv_envs.tasks.lars_sea`.
+is described in :mod:`auv_envs.tasks.lars.scene`, the arm's kinematics and
+dynamics in :mod:`auv_envs.tasks.lars.arm`, the opt-in irregular sea and sun
+glint in :mod:`auv_envs.tasks.lars.sea`.
 """
 
 from __future__ import annotations
@@ -27,18 +27,16 @@ from auv_envs.core.env import (
 )
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
-from auv_envs.core.stereo import StereoRig
-from auv_envs.core.waves import SeaSpectrum, WaveRealisation, sea_state_code
-from auv_envs.tasks.lars_arm import ArmModel
-from auv_envs.tasks.lars_calibration import (
+from auv_envs.tasks.lars.arm import ArmModel
+from auv_envs.tasks.lars.calibration import (
     CaptureTolerances,
     LARSCalibration,
     read_only,
     read_only_pose,
 )
-from auv_envs.tasks.lars_glint import GlintCamera
-from auv_envs.tasks.lars_physics import LARSPhysics
-from auv_envs.tasks.lars_scene import (
+from auv_envs.tasks.lars.glint import GlintCamera
+from auv_envs.tasks.lars.physics import LARSPhysics
+from auv_envs.tasks.lars.scene import (
     ANALOG_MARKER_BASE_X,
     ANALOG_SCALE,
     AUV_DIAMETER,
@@ -53,7 +51,7 @@ from auv_envs.tasks.lars_scene import (
     sample_motion,
     uniform_draws,
 )
-from auv_envs.tasks.lars_sea import (
+from auv_envs.tasks.lars.sea import (
     EpisodeSea,
     GlintField,
     LARSSeaModel,
@@ -62,6 +60,8 @@ from auv_envs.tasks.lars_sea import (
     SunGlint,
     sample_waves,
 )
+from auv_envs.tasks.lars.stereo import StereoRig
+from auv_envs.tasks.lars.waves import SeaSpectrum, WaveRealisation, sea_state_code
 
 OBS_MODES = ("state", "features", "stereo")
 SEA_STATES = ("calm", "severe")
@@ -102,7 +102,7 @@ PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
 #: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/difficulty.md``).
 HARD_SEA = SeaSpectrum(hs=0.4, tp=7.0)
 HARD_PIXEL_NOISE_STD = 3.0
-#: ``difficulty="hard"``: sun glint (:class:`~auv_envs.tasks.lars_sea.SunGlint`)
+#: ``difficulty="hard"``: sun glint (:class:`~auv_envs.tasks.lars.sea.SunGlint`)
 #: under a sun 40-80 deg high, any azimuth: the sun around noon from the
 #: equinox to the solstice between latitudes 30 and 50 deg (noon elevation
 #: 90 deg - latitude + declination, declination 0-23.4 deg); the wind is the
@@ -167,7 +167,7 @@ class LARSCaptureEnv(TaskEnv):
     0.9 m hulls of the same paint with a 0.8x red triangle) drift in view.
     World frame: x along the ship, y outboard, z up, calm water at z = 0.
 
-    With ``sea=SeaSpectrum(...)`` (opt-in, :mod:`auv_envs.tasks.lars_sea`)
+    With ``sea=SeaSpectrum(...)`` (opt-in, :mod:`auv_envs.tasks.lars.sea`)
     the sinusoid gives way to an irregular long-crested sea (a seeded sum of
     harmonics of a JONSWAP/PM spectrum): the AUV heaves with the surface
     averaged over its hull and rolls and pitches with its slope (on top of
@@ -179,7 +179,7 @@ class LARSCaptureEnv(TaskEnv):
     analogs then follow ``Hs``.
 
     With ``glint=SunGlint(...)`` (opt-in; on at ``difficulty="hard"``) the
-    sun glitters on the water (:class:`~auv_envs.tasks.lars_sea.SunGlint`):
+    sun glitters on the water (:class:`~auv_envs.tasks.lars.sea.SunGlint`):
     specular points of a Cox–Munk sea whose slope variance follows the wind
     that raised ``Hs``, each saturating a small spot, drawn afresh every
     frame. ``stereo`` images carry the spots on the water; in ``features`` a
@@ -231,9 +231,9 @@ class LARSCaptureEnv(TaskEnv):
     realisation (``calibration.sea.n_components`` frequencies and phases);
     the starting arm end is then 0.8 m above the AUV on the moved ship.
     Severe sea draws its schedule every ``[0.75, 1.25]`` times the mean
-    interval of :func:`~auv_envs.tasks.lars_sea.wash_over_timing` (never
+    interval of :func:`~auv_envs.tasks.lars.sea.wash_over_timing` (never
     when ``Hs / 2`` is below the freeboard) and keeps
-    :func:`~auv_envs.tasks.lars_sea.analogs_in_play` of the two analogs
+    :func:`~auv_envs.tasks.lars.sea.analogs_in_play` of the two analogs
     (the draws are those of ``sea=None``). With ``glint``, the reset draws
     last the sun's elevation and azimuth (two uniforms; nothing when off),
     and every ``features`` observation 24 uniforms after its noise (4 a
@@ -290,7 +290,7 @@ class LARSCaptureEnv(TaskEnv):
     (``SeaSpectrum`` or None, default: the [LTAT] sinusoid, bit-identical
     to the env without the argument and with no extra draws;
     ``calibration.sea`` reports the model), ``glint``
-    (:class:`~auv_envs.tasks.lars_sea.SunGlint`; ``False``: off whatever the
+    (:class:`~auv_envs.tasks.lars.sea.SunGlint`; ``False``: off whatever the
     level; None: the level's; needs a ``sea`` or the glint's
     ``wind_speed``; ``env.glint`` reports it), ``difficulty``
     (:mod:`auv_envs.core.difficulty`; ``sea``, ``pixel_noise_std`` and

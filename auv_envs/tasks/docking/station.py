@@ -1,6 +1,6 @@
 """The docking scene: light layouts, the composed MuJoCo model and its physics accessors.
 
-What the docking task (:mod:`auv_envs.tasks.docking`) simulates and reads: a
+What the docking task (:mod:`auv_envs.tasks.docking.env`) simulates and reads: a
 station with its lights (:class:`StationLayout`: six lights, [OFNMPC]; the
 L-shaped lamp array, [LAMP]), the vehicle with its forward and chase
 cameras (:func:`build_docking_model`), and :class:`DockingPhysics`, the named

@@ -33,7 +33,6 @@ from auv_envs.core.env import (
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
 from auv_envs.core.ops import FLOATS
-from auv_envs.core.optics import WaterOptics, degrade_image
 from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import GaussMarkovCurrent
@@ -44,14 +43,15 @@ from auv_envs.core.vehicle import (
     thruster_lag_gain,
     with_damping_mismatch,
 )
-from auv_envs.tasks import docking_transition as transition
-from auv_envs.tasks.docking_rules import (
+from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.optics import WaterOptics, degrade_image
+from auv_envs.tasks.docking.rules import (
     FAILURE_REASONS,
     DockingRules,
     DockingTolerances,
     failure_reason,
 )
-from auv_envs.tasks.docking_station import (
+from auv_envs.tasks.docking.station import (
     CHASE_HEADLIGHT,
     LAMP_ARRAY,
     OWN_HULL_GROUP,
@@ -61,7 +61,7 @@ from auv_envs.tasks.docking_station import (
     StationLayout,
     build_docking_model,
 )
-from auv_envs.tasks.docking_transition import (  # noqa: F401  (their home before the transition)
+from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home before the transition)
     SCENARIO_CURRENT_SPEED,
     START_HEADING_SPREAD_DEG,
     START_SURGE,
@@ -207,7 +207,7 @@ class DockingCalibration:
             (:class:`DockingDisturbances`; each episode's draws are in the
             reset ``info``).
         optics: the water between camera and lamps and the camera's sensor
-            (:class:`auv_envs.core.optics.WaterOptics`), None for clear water.
+            (:class:`auv_envs.tasks.docking.optics.WaterOptics`), None for clear water.
     """
 
     intrinsics: CameraIntrinsics
@@ -281,7 +281,7 @@ class DockingEnv(TaskEnv):
     the seabed, guided by lights seen by a forward camera. Roll and pitch are
     passively stable (CB 0.15 m above CG). The world frame is the DS frame:
     origin at the entrance centre, x into the station, z up. The episode is
-    :mod:`auv_envs.tasks.docking_transition`, which the batched environment
+    :mod:`auv_envs.tasks.docking.transition`, which the batched environment
     runs too.
 
     **Action space.** ``Box(-1, 1, (4,))``: normalised body-frame force and
@@ -366,7 +366,7 @@ class DockingEnv(TaskEnv):
     ``render_camera``            ``"chase"`` or ``"onboard"``
     ``render_size``              (W, H) of ``render()`` (640x480)
     ``disturbances``             :class:`DockingDisturbances` (none)
-    ``optics``                   :class:`~auv_envs.core.optics.WaterOptics`
+    ``optics``                   :class:`~auv_envs.tasks.docking.optics.WaterOptics`
                                  (None: clear water)
     ``difficulty``               ``"easy"`` (the release), ``"paper"``,
                                  ``"hard"``: ``disturbances`` and ``optics``
@@ -526,7 +526,7 @@ class DockingEnv(TaskEnv):
             optics=optics,
         )
         self._optics = optics
-        #: The task's geometry and rules (:mod:`auv_envs.tasks.docking_rules`), which the
+        #: The task's geometry and rules (:mod:`auv_envs.tasks.docking.rules`), which the
         #: batched environment evaluates too.
         self.rules = DockingRules(
             intrinsics=self.calibration.intrinsics,
@@ -547,7 +547,7 @@ class DockingEnv(TaskEnv):
             space = self.observation_space["pixels"]
             pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
         cal = self.calibration
-        #: The task as the transition sees it (:mod:`auv_envs.tasks.docking_transition`),
+        #: The task as the transition sees it (:mod:`auv_envs.tasks.docking.transition`),
         #: which the batched environment runs too.
         self.params = transition.DockingParams(
             rules=self.rules, start_box=(self.layout.start_x, self.layout.start_y,
@@ -670,7 +670,7 @@ class DockingEnv(TaskEnv):
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
         """Ground truth now, computed once a step and shared by obs, reward and info
-        (:func:`~auv_envs.tasks.docking_transition.truth_with_lights`).
+        (:func:`~auv_envs.tasks.docking.transition.truth_with_lights`).
 
         Python floats throughout: with a handful of lights, NumPy's per-call
         overhead would cost several times the arithmetic.

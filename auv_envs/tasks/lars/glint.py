@@ -1,6 +1,6 @@
 """Sun glint as the LARS capture head's cameras see it (``difficulty="hard"``).
 
-:class:`GlintCamera` turns the episode's :class:`~auv_envs.tasks.lars_sea.GlintField`
+:class:`GlintCamera` turns the episode's :class:`~auv_envs.tasks.lars.sea.GlintField`
 (the glint density of the sea surface, Cox & Munk 1954, Longuet-Higgins
 1960) into what one frame shows: in ``features``, which marker corners a
 glint moves or hides; in ``stereo``, the saturated spots on the rendered
@@ -14,7 +14,7 @@ import math
 import numpy as np
 
 from auv_envs.core.camera import CameraIntrinsics
-from auv_envs.tasks.lars_sea import GlintField, SunGlint
+from auv_envs.tasks.lars.sea import GlintField, SunGlint
 
 #: A rendered pixel shows the water when its range is within this of the water plane's
 #: along its ray, m (the depth buffer resolves ~1e-6 m at 1 m).

@@ -1,6 +1,6 @@
-"""Named accessors into the LARS capture model (:func:`auv_envs.tasks.lars_scene.build_lars_model`).
+"""Named accessors into the LARS capture model (:func:`auv_envs.tasks.lars.scene.build_lars_model`).
 
-The task (:mod:`auv_envs.tasks.lars`) reads and sets the physics only
+The task (:mod:`auv_envs.tasks.lars.env`) reads and sets the physics only
 through :class:`LARSPhysics`: ids resolved by name once, the episode's
 initial state restored without clearing all of ``MjData``, the kinematic
 bodies (water, crest, head, AUV, analogs) posed for rendering, and the

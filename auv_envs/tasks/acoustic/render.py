@@ -126,7 +126,7 @@ class TankPlot:
     """Draws the acoustic tank as an RGB frame; build once, call :meth:`frame` per step.
 
     Args:
-      calibration: the env's :class:`~auv_envs.tasks.acoustic.AcousticCalibration`
+      calibration: the env's :class:`~auv_envs.tasks.acoustic.env.AcousticCalibration`
         (node positions, tank size and depth, work area).
       size: (width, height) of the frames in pixels.
       ray_length: the longest ray (m) drawn from a node (default: the tank's

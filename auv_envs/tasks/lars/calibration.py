@@ -3,7 +3,7 @@
 The stereo rig and its hand-eye transforms, the arm's kinematics and
 dynamics, the marker and the AUV, the success tolerances and the workspace,
 read-only ([LTAT] eq. 3 for the hand-eye transforms, eqs. 29-30 for the arm).
-The task (:mod:`auv_envs.tasks.lars`) builds it; agents read it as
+The task (:mod:`auv_envs.tasks.lars.env`) builds it; agents read it as
 ``env.unwrapped.calibration``.
 """
 
@@ -13,10 +13,10 @@ import dataclasses
 
 import numpy as np
 
-from auv_envs.core.stereo import StereoRig
-from auv_envs.tasks.lars_arm import ArmModel
-from auv_envs.tasks.lars_scene import MarkerGeometry
-from auv_envs.tasks.lars_sea import LARSSeaModel
+from auv_envs.tasks.lars.arm import ArmModel
+from auv_envs.tasks.lars.scene import MarkerGeometry
+from auv_envs.tasks.lars.sea import LARSSeaModel
+from auv_envs.tasks.lars.stereo import StereoRig
 
 
 @dataclasses.dataclass(frozen=True)

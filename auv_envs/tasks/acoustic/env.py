@@ -40,7 +40,7 @@ from auv_envs.core.env import (
     check_image_size,
     check_positive_int,
 )
-from auv_envs.tasks.acoustic_bound import EpisodeRecord, MotionPrior, bound_rmse
+from auv_envs.tasks.acoustic.bound import EpisodeRecord, MotionPrior, bound_rmse
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
@@ -409,13 +409,13 @@ class AcousticTrackingEnv(TaskEnv):
     **Bound.** ``trajectory_bound()``, called right after ``reset()``: the
     posterior Cramér–Rao bound (m) on the episode's ``rmse`` metric from this
     environment's own motion and measurement models along the episode's true
-    trajectory (:mod:`auv_envs.tasks.acoustic_bound`); no tracker's mean squared
+    trajectory (:mod:`auv_envs.tasks.acoustic.bound`); no tracker's mean squared
     error goes below its square in expectation. The leaderboard shows it beside
     the trackers (agent ``pcrb``).
 
     **Rendering.** With ``render_mode="rgb_array"``, ``render()`` returns an
     (H, W, 3) uint8 frame of ``render_size`` drawn with matplotlib's Agg
-    canvas (:class:`auv_envs.tasks.acoustic_render.TankPlot`): a top view
+    canvas (:class:`auv_envs.tasks.acoustic.render.TankPlot`): a top view
     (x-y) and a side view (x-z, depth stretched) of the tank with the eight
     nodes, the work area, the end effector's path over the last 10 s and its
     position now, the agent's latest estimate (the last action) joined to it
@@ -633,7 +633,7 @@ class AcousticTrackingEnv(TaskEnv):
 
     @property
     def plot(self):
-        """The :class:`~auv_envs.tasks.acoustic_render.TankPlot` that draws ``render()``'s
+        """The :class:`~auv_envs.tasks.acoustic.render.TankPlot` that draws ``render()``'s
         frames: built on the first render, None before it and after ``close()``."""
         return self._plot
 
@@ -645,7 +645,7 @@ class AcousticTrackingEnv(TaskEnv):
         or random draw. Before the first reset it draws the empty tank.
         """
         if self._plot is None:
-            from auv_envs.tasks.acoustic_render import TankPlot  # matplotlib only when drawing
+            from auv_envs.tasks.acoustic.render import TankPlot  # matplotlib only when drawing
 
             self._plot = TankPlot(self.calibration, self._render_size,
                                   track_gate=self._track_gate, trail_seconds=RENDER_TRAIL,
@@ -772,7 +772,7 @@ class AcousticTrackingEnv(TaskEnv):
 
     def episode_record(self) -> EpisodeRecord:
         """The whole episode's truth and realised nuisance, for the bound
-        (:class:`~auv_envs.tasks.acoustic_bound.EpisodeRecord`): the true positions at
+        (:class:`~auv_envs.tasks.acoustic.bound.EpisodeRecord`): the true positions at
         the steps the episode scores, the current, the true sound speed, the emission
         positions heard (with propagation delay), the band fades and the node states.
 
@@ -812,7 +812,7 @@ class AcousticTrackingEnv(TaskEnv):
         ``sqrt(mean_k trace(P_k))`` over the scored steps, ``P_k`` the PCRB of the
         position given the measurements up to step k, from this environment's own
         measurement model along this episode's true trajectory
-        (:mod:`auv_envs.tasks.acoustic_bound`; ``prior`` its motion model). Call it right
+        (:mod:`auv_envs.tasks.acoustic.bound`; ``prior`` its motion model). Call it right
         after ``reset()`` (:meth:`episode_record`)."""
         return bound_rmse(self.calibration.array, self.episode_record(), prior)
 

@@ -1,0 +1,7 @@
+"""The docking-station approach: the six-light station [OFNMPC] and the L-shaped
+lamp array [LAMP].
+
+``env`` the Gymnasium environments, ``transition`` the episode written once for
+them and the batched env, ``rules`` the geometry and rules, ``station`` the scene,
+``optics`` the water's light.
+"""
