@@ -54,15 +54,10 @@ STATIC_POINTS = (
     (289.0, 245.0, -8.0),
     (47.0, 251.0, -20.0),
 )
-#: TCFE ([GMPHD] §3.4) as the episode metrics report it. ``tcfe`` is the paper's literal
-#: definition: the entropy of the lengths of the differences between consecutive estimates
-#: (:func:`auv_envs.metrics.tcfe`, first differences) in 1 cm bins. That reading also bins the
-#: end effector's own speed: it moves at up to 0.9-2.3 m/s (0-2.3 cm per 10 ms step; seeds
-#: 0-5, 60 s, low and high current), so the noise-free truth alone scores 0 to 0.47 nats,
-#: depending on the route, and every tracker inherits that. ``tcfe_fluctuation`` is the same
-#: entropy of the second differences, x̂_{t+2} - 2 x̂_{t+1} + x̂_t (``order=2``): the true
-#: motion's second differences stayed below 0.71 mm (accelerations below 7.1 m/s^2) in those
-#: episodes, so the truth scores 0 there and only the estimate's own fluctuation is measured.
+#: TCFE ([GMPHD] §3.4): the entropy of the lengths of the estimate's consecutive
+#: differences in bins of this width (m). ``tcfe`` is the paper's literal definition (first
+#: differences), which also bins the end effector's own speed; ``tcfe_fluctuation`` uses
+#: second differences, which the true motion leaves at 0 (measured: ``CHANGELOG.md``).
 TCFE_BIN_WIDTH = 0.01
 #: Sample periods simulated and measured per block (0.5 s at 100 Hz).
 BLOCK = 50
@@ -328,130 +323,112 @@ class AcousticTrackingEnv(TaskEnv):
     heard in Q = 10 sub-bands at fs = 100 Hz; per band and period the array
     reports a set of detections (TDOAs against node 1, per-node azimuth and
     elevation) with band-dependent noise and misses, multipath ghosts from
-    the surface and the bottom, Poisson false alarms and clock offsets: see
-    :mod:`auv_envs.core.acoustics` for the documented model. By default the
-    current moves the arm but leaves the measurements alone; with
-    ``acoustic=AcousticConfig(flow_noise_level=...)`` (e.g.
-    ``GMPHD_FLOW_NOISE_LEVEL``) the current generators' flow noise grows
-    with the current's speed in each sample period and lowers every band's
-    SNR, most in the low bands (noisier delays and angles, more misses).
+    the surface and the bottom, Poisson false alarms and clock offsets
+    (:mod:`auv_envs.core.acoustics` documents the model). With
+    ``AcousticConfig.flow_noise_level`` the current generators' flow noise
+    lowers every band's SNR with the current's speed.
 
     **Action space.** ``Box([0, 0, -30], [300, 300, 0], (3,), float32)``: the
     agent's estimate of the end effector's position (tank frame, m) at the
     time of the latest observation. Finite values outside the tank are
-    clipped; NaN or inf raise ``ValueError``.
+    clipped; NaN, inf and non-numbers raise ``ValueError``.
 
-    **Observation space** (``obs_mode``):
+    **Observation space** (``obs_mode``; padded to K = ``max_detections`` per band):
 
-    * ``"state"`` (privileged), ``Box((9,), float32)``: end-effector position
-      (3) and velocity (3), current velocity (3).
-    * ``"measurements"``, ``Dict`` of float64 arrays padded to K =
-      ``max_detections`` per band: ``tdoa`` (Q, K, 7) s, ``azimuth``
-      (Q, K, 8) rad in [-pi, pi], ``elevation`` (Q, K, 8) rad in [0, pi] (seed
-      004's angle from the upward vertical), ``mask`` ``MultiBinary((Q, K))``
-      (1 where a detection is real; padded entries are zero). The order within
-      a band is random: which detection is the source is not observable. With
-      node dropouts (``AcousticConfig.node_dropout_rate`` > 0, the ``hard``
-      level) also ``node_mask`` ``MultiBinary((8,))``, 1 where a node works:
-      an out node's azimuth and elevation columns, and the TDOA columns of the
-      pairs it belongs to (all of them while node 1 is out), are zero in every
-      detection and measure nothing.
+    ================  =======================================================
+    mode              space
+    ================  =======================================================
+    ``state``         ``Box((9,), float32)``, privileged: end-effector
+                      position (3) and velocity (3), current velocity (3)
+    ``measurements``  ``Dict`` of float64 arrays: ``tdoa`` (Q, K, 7) s,
+                      ``azimuth`` (Q, K, 8) rad in [-pi, pi], ``elevation``
+                      (Q, K, 8) rad in [0, pi] (from the upward vertical),
+                      ``mask`` ``MultiBinary((Q, K))`` (1: a real detection);
+                      with node dropouts also ``node_mask``
+                      ``MultiBinary((8,))`` (1: the node works)
+    ================  =======================================================
 
-    **Rewards.** One term, ``estimate`` = ``-min(e, error_clip) / error_clip``
-    with ``e`` the Euclidean estimation error (m); in [-1, 0].
+    Within a band the detections' order is random: which one is the source is
+    not observable. An out node's azimuth and elevation columns, and the TDOA
+    columns of the pairs it belongs to (all of them while node 1 is out), are
+    zero and measure nothing.
 
-    **Starting state.** ``trajectory="dynamic"``: the carrier starts at a
-    random point of its route area at rest (x, y in [65, 265] m, z in [-20,
-    -8] m) and follows a seeded route (:func:`plan_route`); the arm's joints
-    sweep sinusoidally about ``NOMINAL_POSTURE`` (amplitudes 0.1-0.35 rad for
-    the first three joints, 0.05-0.2 rad for the wrist, periods 12-40 s).
-    ``trajectory="static"``: the carrier holds the end effector at one of seed
-    004's five test points (``static_point``, 1-5; drawn per episode when
-    None) in the nominal posture. The current (:func:`current_profile`)
-    sweeps the ``disturbance`` level's speed range with a veering direction.
+    **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
 
-    **Episode end.** No terminal state; truncation after ``time_limit``
-    seconds (``time_limit * 100`` steps).
+    ============  =========================================================
+    term          value
+    ============  =========================================================
+    ``estimate``  ``-min(e, error_clip) / error_clip``, ``e`` the Euclidean
+                  estimation error (m); in [-1, 0]
+    ============  =========================================================
 
-    **Info.** Every step: ``estimate_error`` (m; NaN at reset, before any
-    estimate), ``running_rmse`` (m, over the episode so far; NaN at reset),
-    ``tracked`` (error within ``track_gate``), ``is_success`` (running RMSE
-    within ``success_radius``), the reward term, and ground truth for metrics
-    only: ``true_position``, ``true_velocity``, ``current``,
-    ``detection_origin`` (Q, K; codes ``ORIGIN_*`` of
-    :mod:`auv_envs.core.acoustics`: -1 padding, 0 source, 1 surface ghost,
-    2 bottom ghost, 3 false alarm), ``time``; with node dropouts also
-    ``nodes_working`` (how many nodes work this period). At episode end also
-    ``episode_metrics``: RMSE, maximum error, TFC, TCFE and mean OSPA of the
-    estimates (:mod:`auv_envs.metrics`), ``error_bias`` (the norm of the mean
-    error vector, the systematic part of the RMSE) and ``success``. ``tcfe`` is
-    [GMPHD]'s TCFE, the entropy of the estimate's consecutive differences in
-    1 cm bins (``TCFE_BIN_WIDTH``), which also scores the end effector's speed
-    profile; ``tcfe_fluctuation`` is the entropy of the second differences, 0
-    for the true motion, so it measures only the tracking curve's fluctuation.
+    **Starting state.** ``trajectory="dynamic"``: the carrier starts at rest
+    at a random point of its route area (x, y in [65, 265] m, z in [-20, -8]
+    m) and follows a seeded route (:func:`plan_route`); the arm's joints sweep
+    sinusoidally about ``NOMINAL_POSTURE`` (amplitudes 0.1-0.35 rad for the
+    first three joints, 0.05-0.2 rad for the wrist, periods 12-40 s).
+    ``trajectory="static"``: the carrier holds the end effector at one of
+    [GMPHD] Table 1's five points (``static_point``; drawn when None) in the
+    nominal posture. The current (:func:`current_profile`) sweeps the
+    ``disturbance`` level's speed range with a veering direction.
 
-    **Arguments.** ``obs_mode``, ``disturbance`` (``"low"``, ``"medium"``,
-    ``"high"``), ``trajectory`` (``"dynamic"``, ``"static"``),
-    ``static_point`` (1-5 or None), ``time_limit`` (s, default 60),
-    ``acoustic`` (an ``AcousticConfig``; default the documented model),
-    ``error_clip`` (m, default 5), ``track_gate`` (m, default 1),
-    ``success_radius`` (m, default 0.5), ``physics_substeps`` (physics steps
-    per 0.01 s sample period, default 1; the end effector then stays within
-    6 mm of a 16x finer integration over 20 s, ``docs/physics.md``),
-    ``render_mode`` (None or ``"rgb_array"``), ``render_size`` ((width,
-    height) of the rendered frames in pixels, default (640, 480), at least
-    8x8; ``ValueError`` otherwise), ``difficulty`` (``"easy"``, default: the
-    release's model; ``"paper"``: ``PAPER_ACOUSTICS``, calibrated to seed
-    004's tank; ``"hard"``: ``HARD_ACOUSTICS``; the level sets ``acoustic``
-    when it is not given, see ``docs/difficulty.md``). With a sound-speed
-    error the reset ``info`` holds the episode's true ``sound_speed``.
+    **Episode end.** No terminal state; truncated after ``time_limit`` s
+    (``time_limit * 100`` steps).
 
-    **Bound.** ``trajectory_bound()``, called right after ``reset()``: the
-    posterior Cramér–Rao bound (m) on the episode's ``rmse`` metric from this
-    environment's own motion and measurement models along the episode's true
-    trajectory (:mod:`auv_envs.tasks.acoustic.bound`); no tracker's mean squared
-    error goes below its square in expectation. The leaderboard shows it beside
-    the trackers (agent ``pcrb``).
+    **Info.** Every step: ``estimate_error`` (m; NaN at reset),
+    ``running_rmse`` (m; NaN at reset), ``tracked`` (error within
+    ``track_gate``), ``is_success`` (running RMSE within ``success_radius``),
+    the reward term, ground truth for metrics (``true_position``,
+    ``true_velocity``, ``current``, ``detection_origin`` (Q, K): -1 padding,
+    0 source, 1 surface ghost, 2 bottom ghost, 3 false alarm), ``time``;
+    with node dropouts ``nodes_working``. At reset, with a sound-speed error,
+    the episode's true ``sound_speed``. At the end ``episode_metrics``:
+    ``rmse``, ``max_error``, ``error_bias`` (norm of the mean error),
+    ``tfc``, ``tcfe`` ([GMPHD]'s entropy of the estimate's first differences
+    in 1 cm bins, which also scores the source's own speed),
+    ``tcfe_fluctuation`` (the same on second differences, 0 for the true
+    motion), ``mean_ospa``, ``success``.
 
-    **Rendering.** With ``render_mode="rgb_array"``, ``render()`` returns an
-    (H, W, 3) uint8 frame of ``render_size`` drawn with matplotlib's Agg
-    canvas (:class:`auv_envs.tasks.acoustic.render.TankPlot`): a top view
-    (x-y) and a side view (x-z, depth stretched) of the tank with the eight
-    nodes, the work area, the end effector's path over the last 10 s and its
-    position now, the agent's latest estimate (the last action) joined to it
-    by a line, and the current observation's real detections: each a 3-D ray
-    from its node along its azimuth and elevation, drawn until it leaves the
-    water and coloured by ``detection_origin`` (the source's rays meet at the
-    end effector; a ghost's ray ends at its reflection point on the surface
-    or the bottom); plus a close-up of the last 2 s around the end effector
-    (the estimate's error at its own scale), time, error (the last step's
-    ``estimate_error``), running RMSE, source depth and detection counts by
-    origin. The picture is drawn from the episode's own record, so rendering
-    changes no observation, reward, info or random draw. Before the first
-    ``reset()`` the unwrapped env draws the empty tank (``gym.make``'s
-    order-enforcing wrapper raises instead). The figure is built on the first
-    ``render()`` (about 0.5 s; then about 15 ms a 640x480 frame) and freed by
-    ``close()`` (a later ``render()`` builds it again); ``render()`` returns
-    None when ``render_mode`` is None.
+    **Arguments.**
 
-    **Version history.** v0: initial release. Metric additions (dynamics,
-    observations and reward unchanged): ``episode_metrics`` gained
-    ``tcfe_fluctuation`` and ``error_bias``. Opt-in addition:
-    ``AcousticConfig.flow_noise_level`` (off by default, so the default
-    observations are unchanged, bit for bit). Opt-in addition:
-    ``physics_substeps`` (default 1, the v0 plant). Rendering:
-    ``render_mode="rgb_array"`` draws a top view, a side view and a close-up
-    of the tank with the nodes, the true path, the estimate and the current
-    detections (``render_size``; observations, dynamics, rewards unchanged).
-    Opt-in addition: ``difficulty`` (default ``"easy"``, the release bit for
-    bit) and the physics its levels use (``AcousticConfig``'s propagation
-    delay, sound-speed error, travel-time wander and band fading, all off by
-    default); ``rmse_bound()``. Opt-in addition: node dropouts
-    (``AcousticConfig.node_dropout_rate``, off by default; on at ``hard``), with the
-    ``node_mask`` observation entry and ``info["nodes_working"]`` only when on.
-    ``trajectory_bound()`` (and ``episode_record()``) replaced ``rmse_bound()``, a
-    one-period bound of a static point that a tracker integrating many periods went
-    below (observations, dynamics and rewards unchanged).
+    ====================  ===================================================
+    argument              meaning (default)
+    ====================  ===================================================
+    ``obs_mode``          ``"state"``, ``"measurements"`` (``"measurements"``)
+    ``disturbance``       current speeds: ``"low"``, ``"medium"``, ``"high"``
+                          ([GMPHD] §3.4; ``"medium"``)
+    ``trajectory``        ``"dynamic"`` or ``"static"`` (``"dynamic"``)
+    ``static_point``      1-5 or None (drawn)
+    ``time_limit``        s (60)
+    ``acoustic``          :class:`~auv_envs.core.acoustics.AcousticConfig`
+                          (the documented model)
+    ``error_clip``        m (5)
+    ``track_gate``        m (1)
+    ``success_radius``    m (0.5)
+    ``physics_substeps``  physics steps per 0.01 s period (1)
+    ``render_mode``       ``"rgb_array"`` or None
+    ``render_size``       (W, H) of ``render()``, at least 8x8 (640x480)
+    ``difficulty``        ``"easy"`` (the release), ``"paper"``
+                          (:data:`PAPER_ACOUSTICS`, calibrated to [GMPHD]'s
+                          tank), ``"hard"`` (:data:`HARD_ACOUSTICS`); sets
+                          ``acoustic`` when it is not given
+                          (``docs/difficulty.md``)
+    ====================  ===================================================
+
+    **Bound.** ``trajectory_bound()``, right after ``reset()``: the posterior
+    Cramér–Rao bound (m) on the episode's ``rmse`` from this environment's
+    own motion and measurement models along its true trajectory
+    (:mod:`auv_envs.tasks.acoustic.bound`; the leaderboard's ``pcrb`` row).
+
+    **Rendering.** ``render_mode="rgb_array"``: a top view, a side view and a
+    close-up of the tank with the nodes, the end effector's recent path, the
+    latest estimate and the current detections' rays coloured by origin
+    (:class:`auv_envs.tasks.acoustic.render.TankPlot`), drawn from the
+    episode's record, so rendering changes no observation, reward or draw.
+
+    **Version history.** v0: initial release. Changes within v0 (added
+    metrics, opt-in arguments and levels, each leaving the default episodes
+    unchanged bit for bit) with their measurements: ``CHANGELOG.md``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
