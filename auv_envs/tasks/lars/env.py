@@ -158,159 +158,133 @@ class LARSCaptureEnv(TaskEnv):
     (its tip 0.35 m below the head) and a binocular camera looking straight
     down. A surfaced Explore-100-like AUV (1.8 m x 0.2 m, 47 kg; upper
     surface 5 cm above the local water) floats beside the ship with the
-    isosceles-triangle marker (0.15, 0.4, 0.4 m) on its top. It moves as in
-    the paper's test case (§2.3): uniform surge along world x, fixed y,
-    sinusoidal heave of 0.2 m amplitude, riding the local wave, with
-    constant yaw and pitch offsets. The opaque sea surface hides what is
-    below it. In ``severe`` sea, crests wash over the AUV and hide the
-    marker for stretches of time, and two floating look-alikes ("analogs":
-    0.9 m hulls of the same paint with a 0.8x red triangle) drift in view.
-    World frame: x along the ship, y outboard, z up, calm water at z = 0.
+    isosceles-triangle marker (0.15, 0.4, 0.4 m) on its top, moving as in the
+    paper's test case (§2.3): uniform surge, sinusoidal heave of 0.2 m
+    amplitude, constant yaw and pitch offsets. The opaque sea surface hides
+    what is below it. In ``severe`` sea, crests wash over the AUV and hide
+    the marker for stretches of time, and two floating look-alikes
+    ("analogs": 0.9 m hulls with a 0.8x red triangle) drift in view. World
+    frame: x along the ship, y outboard, z up, calm water at z = 0.
 
-    With ``sea=SeaSpectrum(...)`` (opt-in, :mod:`auv_envs.tasks.lars.sea`)
-    the sinusoid gives way to an irregular long-crested sea (a seeded sum of
-    harmonics of a JONSWAP/PM spectrum): the AUV heaves with the surface
-    averaged over its hull and rolls and pitches with its slope (on top of
-    the pitch offset); the analogs heave with the elevation at their own
-    places; the ship heaves, rolls and pitches (linear RAOs of a ~32 m
-    vessel) and carries the arm: its joint angles are relative to the ship,
-    its end point moves with the ship and the levelled head (cameras,
-    capture tip) with it. ``severe`` wash-over timing and the number of
-    analogs then follow ``Hs``.
-
-    With ``glint=SunGlint(...)`` (opt-in; on at ``difficulty="hard"``) the
-    sun glitters on the water (:class:`~auv_envs.tasks.lars.sea.SunGlint`):
-    specular points of a Cox–Munk sea whose slope variance follows the wind
-    that raised ``Hs``, each saturating a small spot, drawn afresh every
-    frame. ``stereo`` images carry the spots on the water; in ``features`` a
+    With a ``sea`` (:mod:`auv_envs.tasks.lars.sea`) the sinusoid gives way to
+    an irregular long-crested sea (a seeded sum of harmonics of a JONSWAP/PM
+    spectrum): the AUV heaves, rolls and pitches with the surface under its
+    hull, the analogs with the water at their places, and the ship (linear
+    RAOs of a ~32 m vessel) carries the arm; wash-over timing and the number
+    of analogs follow ``Hs``. With a ``glint``
+    (:class:`~auv_envs.tasks.lars.sea.SunGlint`) the sun glitters on a
+    Cox–Munk sea: saturated spots in ``stereo`` images; in ``features`` a
     glint near a corner takes the corner detector.
 
-    **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"`` (default):
-    joint torques (slew, shoulder, elbow) as fractions of
-    ``calibration.torque_limits`` (1000, 4000, 1500 N m); gravity is *not*
-    compensated for the agent. ``control="position"``: joint-angle targets,
-    -1..1 mapped linearly onto the joint limits, tracked by a computed-torque
-    inner loop at the physics rate (eq. 30 gains Kp = 160, Kd = 20 through
-    eq. 29's model, torques saturated at the limits). Finite values outside
-    [-1, 1] are clipped; NaN or inf raise ``ValueError``.
+    **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"``: joint
+    torques (slew, shoulder, elbow) as fractions of
+    ``calibration.torque_limits`` (1000, 4000, 1500 N m), gravity not
+    compensated. ``control="position"``: joint-angle targets, -1..1 mapped
+    onto the joint limits, tracked by a computed-torque loop at the physics
+    rate (eq. 30 gains Kp = 160, Kd = 20 through eq. 29's model). Finite
+    values outside [-1, 1] are clipped; NaN, inf and non-numbers raise
+    ``ValueError``.
 
     **Observation space** (``obs_mode``):
 
-    * ``"state"`` (privileged), ``Box((24,), float32)``: joint angles (3)
-      and rates (3), arm-end position (3) and velocity (3), AUV CG minus
-      arm end (3), AUV velocity (3), capture point minus capture tip (3),
-      AUV pitch (nose up, with a sea including the waves' part) and yaw
-      (2), local water level (1).
-    * ``"features"``, ``Dict``: ``pixels`` (2, 3, 2) float32, the marker
-      corners A1 (port base), A2 (starboard base), A3 (apex) in the left
-      (index 0) and right (1) images, in the pixel frame of ``image_size``,
-      with Gaussian noise (``pixel_noise_std``) and zero where not visible;
-      ``visible`` ``MultiBinary((2, 3))`` (in front, inside the image, not
-      under a wash-over crest, not lost under a glint's bloom);
-      ``joint_position`` (3) and ``joint_velocity`` (3). With ``glint``, a
-      corner that a glint takes is reported at the glint (plus the noise).
-    * ``"stereo"``, ``Dict``: ``left`` and ``right`` (H, W, 3) uint8 images
-      rendered in one pass into one buffer (with ``glint``, white saturated
-      spots on the water), plus ``joint_position`` and ``joint_velocity``.
+    ============  ===========================================================
+    mode          space
+    ============  ===========================================================
+    ``state``     ``Box((24,), float32)``, privileged: joint angles (3) and
+                  rates (3), arm-end position (3) and velocity (3), AUV CG
+                  minus arm end (3), AUV velocity (3), capture point minus
+                  capture tip (3), AUV pitch and yaw (2), water level (1)
+    ``features``  ``Dict``: ``pixels`` (2, 3, 2) float32, the marker corners
+                  A1 (port base), A2 (starboard base), A3 (apex) in the left
+                  (0) and right (1) images at ``image_size``, with Gaussian
+                  noise (``pixel_noise_std``), zero where not seen;
+                  ``visible`` ``MultiBinary((2, 3))``; ``joint_position``
+                  (3), ``joint_velocity`` (3)
+    ``stereo``    ``Dict``: ``left`` and ``right`` (H, W, 3) uint8 images
+                  rendered in one pass, ``joint_position``,
+                  ``joint_velocity``
+    ============  ===========================================================
 
     **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
-    ``progress`` (decrease of the capture error, m), ``control``
-    (-0.001 |a|^2), ``success`` (+10 once), ``failure`` (-10 once).
 
-    **Starting state.** AUV motion drawn from ``lars_scene.MOTION_RANGES``:
-    CG x0 in [-0.4, 0.4] m, y0 in [1.9, 2.2] m, surge 0.03-0.12 m/s, heave
-    amplitude 0.2 m, period 5-9 s, phase 0-2 pi, yaw -30..30 deg, pitch
-    -4..4 deg (``reset(options={"motion": {...}})`` pins any of them). The
-    arm starts at rest with its end 0.8 m above the AUV's top line and the
-    cameras over the AUV, offset up to 0.2 m along x and 0.1 m along y (the
-    arm end within 1 m of the AUV's CG).
-    Severe sea also draws the wash-over schedule (every 3-5 s for 1.2-2 s)
-    and the two analogs' offsets and drifts. With a ``sea``, the reset
-    draws, after the AUV's motion, the wave direction (uniform in
-    ``[0, 2 pi)``; ``options={"wave_heading": rad}`` pins it) and the
-    realisation (``calibration.sea.n_components`` frequencies and phases);
-    the starting arm end is then 0.8 m above the AUV on the moved ship.
-    Severe sea draws its schedule every ``[0.75, 1.25]`` times the mean
-    interval of :func:`~auv_envs.tasks.lars.sea.wash_over_timing` (never
-    when ``Hs / 2`` is below the freeboard) and keeps
-    :func:`~auv_envs.tasks.lars.sea.analogs_in_play` of the two analogs
-    (the draws are those of ``sea=None``). With ``glint``, the reset draws
-    last the sun's elevation and azimuth (two uniforms; nothing when off),
-    and every ``features`` observation 24 uniforms after its noise (4 a
-    corner), every ``stereo`` one a uniform per pixel and camera.
+    ============  =======================================================
+    term          value
+    ============  =======================================================
+    ``progress``  decrease of the capture error (m)
+    ``control``   -0.001 |a|^2
+    ``success``   +10 once, on capture
+    ``failure``   -10 once, on failing
+    ============  =======================================================
 
-    **Episode end.** Success (terminated): capture tip within 0.05 m of the
-    capture point (lifting eye, 0.45 m aft of the CG on the top line) with a
-    relative speed below 0.25 m/s (``CaptureTolerances``). Failure
-    (terminated): hard collision (``collision``: the capture tip enters the
-    hull without meeting the success condition) or the arm end leaving
-    ``calibration.workspace`` (``workspace``; a box in the ship's frame).
-    Truncation after ``time_limit`` seconds.
+    **Starting state.** The AUV's motion from ``scene.MOTION_RANGES``: CG x0
+    in [-0.4, 0.4] m, y0 in [1.9, 2.2] m, surge 0.03-0.12 m/s, heave period
+    5-9 s and phase, yaw -30..30 deg, pitch -4..4 deg
+    (``reset(options={"motion": {...}})`` pins any of them). The arm starts at
+    rest with its end 0.8 m above the AUV's top line and the cameras over the
+    AUV (offset up to 0.2 m along x, 0.1 m along y). Severe sea also draws the
+    wash-over schedule and the analogs' offsets and drifts; a ``sea`` its
+    direction (``options={"wave_heading": rad}`` pins it) and realisation; a
+    ``glint`` the sun's elevation and azimuth. The order of the draws:
+    ``docs/environments.md``.
 
-    **Info.** Every step: ``capture_error`` (m), ``capture_offset`` (capture
-    point minus tip, 3), ``relative_position`` (AUV CG minus arm end, 3),
-    ``relative_speed`` (m/s), ``is_success``, ``collision``,
-    ``violation_workspace``, ``marker_visible`` (corners visible in both
-    images, 0-3), ``marker_occluded`` (a crest hides at least one corner),
-    ``distractors_in_view`` (analogs whose marker centre projects into the
-    left image), ``failure_reason``, ``time``, the reward terms, and ground
-    truth for metrics only: ``true_position`` / ``true_velocity`` (AUV CG),
-    ``true_pitch``, ``true_yaw``, ``true_corners`` (3, 3) world,
-    ``true_pixels`` (2, 3, 2) noise-free projections (NaN behind a camera),
-    ``true_visible`` (2, 3), ``end_position`` (arm end), ``water_level``.
-    At episode end also ``episode_metrics`` (a dict). With a ``sea``, every
-    step also ``true_roll`` (rad, port side up) and ``ship_motion`` (ship
-    heave m, roll rad (+y side up), pitch rad (bow down)); the reset's info
-    also ``sea``: ``hs_realised`` (m, ``4 sqrt(m0)`` of the realisation),
-    ``sea_state_code``, ``components``, ``wave_heading`` (rad, direction of
-    travel from +x), ``wash_period`` / ``wash_duration`` (s, None without
-    wash-over) and ``analogs`` (in play). With ``glint``: the reset's info
-    ``glint`` (``sun_elevation``, ``sun_azimuth`` rad, ``slope_variance``);
-    in ``features`` and ``stereo`` every step ``glint_corners`` (2, 3) int8
-    (0 clean, 1 a glint within ``detector_radius`` px: in ``features`` the
-    corner reported at it, 2 the corner under a glint's bloom: lost in
-    ``features``); in ``features`` ``glint_probability`` (2, 3), the model's
-    chance of 1 or 2 this frame; in ``stereo`` ``glints_in_view`` (2,) and
-    ``glint_expected`` (2,), the glints drawn in each image and their mean;
-    ``episode_metrics`` ``glint_fraction`` (steps with a corner in
-    ``glint_corners``).
+    **Episode end.** Success (terminated): the capture tip within 0.05 m of
+    the capture point (lifting eye, 0.45 m aft of the CG on the top line)
+    with a relative speed below 0.25 m/s (``CaptureTolerances``). Failure
+    (terminated): ``collision`` (the tip enters the hull without capturing)
+    or ``workspace`` (the arm end leaves ``calibration.workspace``).
+    Truncated after ``time_limit`` s.
 
-    **Arguments.** ``obs_mode``, ``sea_state`` (``"calm"``: no
-    interference; ``"severe"``), ``control`` (``"torque"``/``"position"``),
-    ``image_size`` (W, H; default 640x480, also the pixel frame of
-    ``features``; the paper used 1280x960), ``baseline`` (m, default 0.12),
-    ``focal_length`` (px at ``image_size``; default: 60 deg vertical field
-    of view), ``pixel_noise_std`` (px; default None: the level's, 1.0 at
-    ``easy`` and ``paper``), ``tolerances``,
-    ``time_limit`` (s, default 30), ``render_mode`` (``"rgb_array"``),
-    ``render_camera`` (``"side"``, default: from outboard and astern, the
-    ship's side, the arm, the AUV and the sea surface, which heaves with the
-    local wave; ``"stereo"``: the stereo pair side by side, each camera at
-    ``render_size``), ``render_size`` (W, H, default 640x480), ``sea``
-    (``SeaSpectrum`` or None, default: the [LTAT] sinusoid, bit-identical
-    to the env without the argument and with no extra draws;
-    ``calibration.sea`` reports the model), ``glint``
-    (:class:`~auv_envs.tasks.lars.sea.SunGlint`; ``False``: off whatever the
-    level; None: the level's; needs a ``sea`` or the glint's
-    ``wind_speed``; ``env.glint`` reports it), ``difficulty``
-    (:mod:`auv_envs.core.difficulty`; ``sea``, ``pixel_noise_std`` and
-    ``glint`` given explicitly override the level's): ``"easy"`` (default):
-    the release above, bit for bit; ``"paper"``: ``sea=PAPER_SEA`` (JONSWAP
-    Hs 0.3 m, Tp 9 s, a low swell whose largest crests heave the AUV by
-    about the paper's 0.2 m), calibrated on [LTAT]'s 28 mm capture in
-    ``calm`` sea, no glint; ``"hard"``: ``sea=HARD_SEA`` (JONSWAP Hs 0.4 m,
-    Tp 7 s), ``pixel_noise_std=3.0`` px and ``glint=HARD_GLINT`` (a sun
-    40-80 deg high), where ``ckf-pd`` succeeds in at most 80 % of episodes
-    and the privileged ``ckf-pd-state`` in at least 90 %
-    (``docs/difficulty.md``). ``sea_state`` stays separate (the paper's
-    interference off/on) at every level.
+    **Info.** Every step: ``capture_error`` (m), ``capture_offset`` (3),
+    ``relative_position`` (3), ``relative_speed`` (m/s), ``is_success``,
+    ``collision``, ``violation_workspace``, ``marker_visible`` (corners seen
+    in both images, 0-3), ``marker_occluded``, ``distractors_in_view``,
+    ``failure_reason``, ``time``, the reward terms, and ground truth for
+    metrics (``true_position``, ``true_velocity``, ``true_pitch``,
+    ``true_yaw``, ``true_corners``, ``true_pixels``, ``true_visible``,
+    ``end_position``, ``water_level``). With a ``sea`` also ``true_roll`` and
+    ``ship_motion`` (heave, roll, pitch), and at reset ``sea``
+    (``hs_realised``, ``sea_state_code``, ``components``, ``wave_heading``,
+    ``wash_period``, ``wash_duration``, ``analogs``). With a ``glint``: at
+    reset ``glint`` (``sun_elevation``, ``sun_azimuth``, ``slope_variance``),
+    every step ``glint_corners`` (2, 3) int8 (0 clean, 1 taken by a glint, 2
+    lost under its bloom), in ``features`` ``glint_probability``, in
+    ``stereo`` ``glints_in_view`` and ``glint_expected``. At the end
+    ``episode_metrics``.
 
-    **Version history.** v0: initial release. Rendering (dynamics,
-    observations and rewards unchanged): ``render()`` draws the side view by
-    default (``render_camera``, ``render_size``); it drew the stereo pair at
-    ``image_size`` before. Opt-in irregular seas (``sea``); the default
-    episode is unchanged. Opt-in ``difficulty`` levels (the default ``easy``
-    is the release, bit for bit). Opt-in sun ``glint`` (on at ``hard``).
+    **Arguments.**
+
+    ====================  ===================================================
+    argument              meaning (default)
+    ====================  ===================================================
+    ``obs_mode``          ``"state"``, ``"features"``, ``"stereo"``
+    ``sea_state``         ``"calm"`` (no interference) or ``"severe"``
+    ``control``           ``"torque"`` or ``"position"`` (``"torque"``)
+    ``image_size``        (W, H) of the cameras, also the pixel frame of
+                          ``features`` (640x480; the paper used 1280x960)
+    ``baseline``          m (0.12)
+    ``focal_length``      px at ``image_size`` (60 deg vertical field of view)
+    ``pixel_noise_std``   px (None: the level's, 1.0 at ``easy``/``paper``)
+    ``tolerances``        ``CaptureTolerances``
+    ``time_limit``        s (30)
+    ``render_mode``       ``"rgb_array"`` or None
+    ``render_camera``     ``"side"`` (from outboard and astern) or
+                          ``"stereo"`` (the pair side by side)
+    ``render_size``       (W, H) of ``render()`` (640x480)
+    ``sea``               :class:`~auv_envs.tasks.lars.sea.SeaSpectrum` or
+                          None (the [LTAT] sinusoid)
+    ``glint``             :class:`~auv_envs.tasks.lars.sea.SunGlint`,
+                          ``False`` (off) or None (the level's)
+    ``difficulty``        ``"easy"`` (the release), ``"paper"``
+                          (``sea=PAPER_SEA``, JONSWAP Hs 0.3 m, Tp 9 s),
+                          ``"hard"`` (``HARD_SEA`` Hs 0.4 m, Tp 7 s, 3 px
+                          noise, ``HARD_GLINT``); explicit ``sea``,
+                          ``pixel_noise_std`` and ``glint`` override the
+                          level's (``docs/difficulty.md``)
+    ====================  ===================================================
+
+    **Version history.** v0: initial release. Changes within v0 (rendering,
+    opt-in seas, levels and glint, each leaving the default episodes
+    unchanged bit for bit): ``CHANGELOG.md``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 25}
