@@ -33,7 +33,7 @@ from matplotlib.ticker import MaxNLocator
 from baselines import aggregate
 from baselines.evaluation import jsonable, row_to_dict
 from baselines.fileio import atomic_write
-from baselines.stats import paired_p_value, tied_ranks
+from baselines.stats import RANK_METRICS, paired_p_value, tied_ranks
 
 #: Metrics shown in the tables and plots when an environment reports them:
 #: key -> (label, format, which way is better). The final deviations appear as
@@ -123,10 +123,6 @@ def cell_text(row: Mapping, key: str) -> str:
     return f"{_format(key, stat['mean'])} [{low}, {high}]{note}"
 
 
-#: What ranks an environment's agents: the first of these its rows report, with
-#: the direction that is better. Tracking tasks rank by RMSE (every tracker
-#: "succeeds" at following the target); the others by success rate.
-RANK_METRICS = (("rmse", "lower"), ("success", "higher"))
 
 
 def rank_metric(rows: Sequence[Mapping]) -> tuple[str, str]:

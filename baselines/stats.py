@@ -67,6 +67,10 @@ def bootstrap_interval(values: Sequence[float],
     return float(result.confidence_interval.low), float(result.confidence_interval.high)
 
 
+#: What ranks an environment's agents: the first of these its rows report, with
+#: the direction that is better. Tracking tasks rank by RMSE (every tracker
+#: "succeeds" at following the target); the others by success rate.
+RANK_METRICS = (("rmse", "lower"), ("success", "higher"))
 #: The paired test's significance level (two-sided).
 ALPHA = 1 - CONFIDENCE
 #: Random sign flips of the paired test when there are more distinct ones (2**n).

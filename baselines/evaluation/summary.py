@@ -15,7 +15,7 @@ import numpy as np
 
 import auv_envs
 from baselines.evaluation.episodes import EpisodeRow, is_number
-from baselines.stats import bootstrap_interval, wilson_interval
+from baselines.stats import RANK_METRICS, bootstrap_interval, wilson_interval
 
 #: Episode metrics that are signed deviations (either side of the target is a
 #: miss): the leaderboard averages their magnitudes, as ``<key>_abs``, so that a
@@ -143,12 +143,12 @@ def _summary_row(key: tuple, items: Sequence[EpisodeRow]) -> dict:
                 not_numbers[f"{name}_abs"] += 1
     metrics = {k: _stat(v, success=k == "success") for k, v in values.items()}
     by_seed: dict[str, dict[str, list[float]]] = {}  # per rank metric: seed -> values
-    for r in items:
-        if "success" in values:
-            by_seed.setdefault("success", {}).setdefault(str(r.seed), []).append(float(r.success))
-        rmse = r.metrics.get("rmse")
-        if r.status == "ok" and is_number(rmse) and math.isfinite(float(rmse)):
-            by_seed.setdefault("rmse", {}).setdefault(str(r.seed), []).append(float(rmse))
+    for r in items:  # success over every episode, a metric over the completed ones
+        for key, _ in RANK_METRICS:
+            value = r.success if key == "success" else (
+                r.metrics.get(key) if r.status == "ok" else None)
+            if is_number(value) and math.isfinite(float(value)):
+                by_seed.setdefault(key, {}).setdefault(str(r.seed), []).append(float(value))
     for name, count in not_numbers.items():  # shown, never dropped silently
         metrics.setdefault(name, {"mean": math.nan, "std": math.nan, "n": 0,
                                   "ci": [None, None]})["nan"] = count
