@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import copy
+import dataclasses
 import math
 import sys
 from collections.abc import Iterable
@@ -205,6 +206,22 @@ class ReconstructingPickleMixin:
             self._np_random = rng
             self._np_random_seed = state["rng_seed"]
         self._set_runtime_state(state["runtime"])
+
+
+@dataclasses.dataclass
+class ShellEpisode:
+    """A Gymnasium shell's hold on an episode of a task's transition: its typed state and
+    what the transition's last call returned (the observation, the judgement) for the
+    hooks of :class:`TaskEnv`; ``done`` is the loop's."""
+
+    state: Any = None
+    obs: Any = None
+    judged: Any = None
+    done: bool = False
+
+    @property
+    def steps(self) -> int:
+        return 0 if self.state is None else self.state.steps
 
 
 _REQUIRED_CLASS_ATTRIBUTES = ("obs_modes", "reward_terms", "metric_keys")

@@ -26,6 +26,7 @@ from auv_envs.core.camera import (
 )
 from auv_envs.core.env import (
     ActionValidator,
+    ShellEpisode,
     TaskEnv,
     check_choice,
     check_image_size,
@@ -228,21 +229,6 @@ class DockingCalibration:
     attitude_noise_std: float
     disturbances: DockingDisturbances = DockingDisturbances()
     optics: WaterOptics | None = None
-
-
-@dataclasses.dataclass
-class _Episode:
-    """The CPU shell's hold on an episode: the transition's typed state and what its last
-    call returned (the observation, the judgement), for the hooks of :class:`TaskEnv`."""
-
-    state: transition.EpisodeState | None = None
-    obs: object = None
-    judged: transition.Assessment | None = None
-    done: bool = False
-
-    @property
-    def steps(self) -> int:
-        return 0 if self.state is None else self.state.steps
 
 
 class _MujocoPlant:
@@ -579,7 +565,7 @@ class DockingEnv(TaskEnv):
                 fog=chase, skybox=chase, fit_outlines=not chase,  # onboard: as the observation
                 detail=() if chase else self.physics.detail_levels(),
             )
-        self._episode = _Episode()
+        self._episode = ShellEpisode()
 
     # ------------------------------------------------------------------ spaces
     def _make_observation_space(self, n: int, width: int, height: int) -> spaces.Space:
@@ -607,7 +593,7 @@ class DockingEnv(TaskEnv):
 
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         state, truth, obs = transition.reset(self.params, self._backend(rng))
-        self._episode = _Episode(state, obs)
+        self._episode = ShellEpisode(state, obs)
         extras = {}
         if state.plant is not None:
             extras["plant"] = self.plant_draws(state.plant)

@@ -8,9 +8,7 @@ glint in :mod:`auv_envs.tasks.lars.sea`.
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import operator
 
 import mujoco
 import numpy as np
@@ -18,15 +16,17 @@ from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
 from auv_envs.core import frames
-from auv_envs.core.camera import CameraIntrinsics, pixel_space, project_few
+from auv_envs.core.camera import CameraIntrinsics, pixel_space
 from auv_envs.core.env import (
     ActionValidator,
+    ShellEpisode,
     TaskEnv,
     check_choice,
     check_image_size,
 )
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.rendering import CameraRenderer
-from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
+from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.arm import ArmModel
 from auv_envs.tasks.lars.calibration import (
     CaptureTolerances,
@@ -48,20 +48,14 @@ from auv_envs.tasks.lars.scene import (
     AUVMotion,
     MarkerGeometry,
     build_lars_model,
-    sample_motion,
-    uniform_draws,
 )
 from auv_envs.tasks.lars.sea import (
-    EpisodeSea,
     GlintField,
     LARSSeaModel,
-    SeaSample,
-    ShipPose,
     SunGlint,
-    sample_waves,
 )
 from auv_envs.tasks.lars.stereo import StereoRig
-from auv_envs.tasks.lars.waves import SeaSpectrum, WaveRealisation, sea_state_code
+from auv_envs.tasks.lars.waves import SeaSpectrum
 
 OBS_MODES = ("state", "features", "stereo")
 SEA_STATES = ("calm", "severe")
@@ -120,31 +114,6 @@ DEFAULT_FOVY_DEG = 60.0
 #: floating ``AUV_FREEBOARD`` proud (the hull's footprint seen from above).
 WATERLINE_HALF_WIDTH = math.sqrt(
     (AUV_DIAMETER / 2.0) ** 2 - (AUV_DIAMETER / 2.0 - AUV_FREEBOARD) ** 2)
-
-
-@dataclasses.dataclass
-class _EpisodeState:
-    """Everything that changes during an episode besides MuJoCo's state."""
-
-    motion: AUVMotion | None = None
-    wash: WashOver | None = None
-    analogs: tuple[FloatingAnalog, ...] = ()
-    waves: WaveRealisation | None = None
-    glint: GlintField | None = None
-    #: The last observation's glint (:meth:`LARSCaptureEnv._info` reports it).
-    glint_frame: dict | None = None
-    steps: int = 0
-    prev_error: float = 0.0
-    done: bool = False
-    success: bool = False
-    failure_reason: str = ""
-    capture_time: float | None = None
-    min_error: float = math.inf
-    visible_steps: int = 0
-    occluded_steps: int = 0
-    distractor_steps: int = 0
-    glint_steps: int = 0
-    control_effort: float = 0.0
 
 
 class LARSCaptureEnv(TaskEnv):
@@ -344,8 +313,6 @@ class LARSCaptureEnv(TaskEnv):
         sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
         #: The sun-glint model (``SunGlint``), None when off.
         self.glint = glint
-        self._glint_slope_variance = (
-            None if glint is None else glint.slope_variance(None if sea is None else sea.hs))
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
@@ -412,36 +379,39 @@ class LARSCaptureEnv(TaskEnv):
             pixel_noise_std=float(pixel_noise_std),
             sea=sea_model,
         )
-        # Constants of the per-step geometry, precomputed once.
-        self._left_in_end = tuple(left_t.tolist())
-        self._tip_z = CAPTURE_TIP_IN_END[2]
-        self._intrinsics = intr
-        self._baseline = float(baseline)
         self._q_mid = arm.joint_limits.mean(axis=1)
         self._q_half = 0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0])
-        self._ws_lo = tuple(self.calibration.workspace[:, 0].tolist())
-        self._ws_hi = tuple(self.calibration.workspace[:, 1].tolist())
-        tol = self.calibration.tolerances
-        self._tolerance = (tol.position, tol.speed)
-        self._marker_corners = self.calibration.marker.corners
-        self._corners_body = [tuple(v) for v in self._marker_corners.tolist()]
-        self._capture_point = self.calibration.capture_point_body
-        self._kp, self._kd = POSITION_GAINS
-        self._tau = np.zeros(3)
-        self._hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
-        self._analog_centre = float(
-            analog_marker.corners[:, 0].mean()
-        ), float(analog_marker.corners[:, 2].mean())
-
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(width, height)
+        pixel_bounds = None
         if obs_mode == "features":  # noisy pixels are clipped to the space's bounds
             pixels = self.observation_space["pixels"]
-            self._pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
+            pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
         self._width, self._height = width, height
+        hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
         self._glint_camera = None if glint is None else GlintCamera(
-            glint, intr, self._hull_half, WATERLINE_HALF_WIDTH, images=obs_mode == "stereo")
+            glint, intr, hull_half, WATERLINE_HALF_WIDTH, images=obs_mode == "stereo")
+        workspace = self.calibration.workspace
+        tol = self.calibration.tolerances
+        #: The transition's :class:`~auv_envs.tasks.lars.transition.LARSParams`.
+        self.params = transition.LARSParams(
+            obs_mode=obs_mode, control=control, sea_state=sea_state, dt=self._dt,
+            max_episode_steps=self.max_episode_steps, arm=arm, sea=sea_model, glint=glint,
+            glint_slope_variance=(None if glint is None else glint.slope_variance(
+                None if sea is None else sea.hs)),
+            glint_camera=self._glint_camera, intrinsics=intr, baseline=float(baseline),
+            left_in_end=tuple(left_t.tolist()), tip_z=CAPTURE_TIP_IN_END[2],
+            corners_body=tuple(tuple(v) for v in marker.corners.tolist()),
+            capture_point=self.calibration.capture_point_body,
+            tolerance=(tol.position, tol.speed),
+            workspace=(tuple(workspace[:, 0].tolist()), tuple(workspace[:, 1].tolist())),
+            pixel_noise_std=float(pixel_noise_std), pixel_bounds=pixel_bounds,
+            hull_half=hull_half,
+            analog_centre=(float(analog_marker.corners[:, 0].mean()),
+                           float(analog_marker.corners[:, 2].mean())),
+            joint_mid=self._q_mid, joint_half=self._q_half)
+        self._plant = _MujocoArm(self)
         # One renderer for the stereo observation, one for render().
         self.camera_renderer: CameraRenderer | None = None
         if obs_mode == "stereo":
@@ -453,10 +423,7 @@ class LARSCaptureEnv(TaskEnv):
                 model, ("side",) if side else ("left", "right"), render_width, render_height,
                 skybox=side,
             )
-        self._episode = _EpisodeState()
-        self._geom: dict = {}
-        self._sea: EpisodeSea | None = None
-        self._sea_sample: tuple[float, SeaSample] | None = None
+        self._episode = ShellEpisode()
 
     # ------------------------------------------------------------------ spaces
     def _make_observation_space(self, width: int, height: int) -> spaces.Space:
@@ -481,107 +448,50 @@ class LARSCaptureEnv(TaskEnv):
         image = spaces.Box(0, 255, shape=(height, width, 3), dtype=np.uint8)
         return spaces.Dict({"left": image, "right": image, **joints})
 
-    # ------------------------------------------------------------------ API
     # ------------------------------------------------------------------ episode hooks
-    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        options = dict(options or {})
-        sea = self.calibration.sea
-        valid = {"motion"} if sea is None else {"motion", "wave_heading"}
-        unknown = set(options) - valid
-        if unknown:
-            raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
-        motion = sample_motion(rng, options.get("motion"))
-        waves = None if sea is None else sample_waves(rng, sea, options.get("wave_heading"))
-        wash, analogs = None, ()
-        if self.sea_state == "severe":
-            if sea is None:
-                wash = WashOver.sample(rng)
-            elif sea.wash_ranges() is not None:
-                wash = WashOver.sample(rng, *sea.wash_ranges())
-            side = 1.0 if rng.uniform() < 0.5 else -1.0
-            analogs = (FloatingAnalog.sample(rng, side), FloatingAnalog.sample(rng, -side))
-            if sea is not None:
-                analogs = analogs[:sea.analogs]
-        self._episode = _EpisodeState(motion=motion, wash=wash, analogs=analogs, waves=waves)
-        self._prepare_episode_constants(motion)
+    def _backend(self, rng: np.random.Generator) -> transition.Backend:
+        return transition.Backend(FLOATS, rng, self._plant)
 
-        # The arm end 0.8 m above the AUV's top ([LTAT] tracks at about
-        # 0.8 m), the cameras over the AUV: within 1 m of the AUV's CG.
-        top = self._auv_position(0.0)[2] + AUV_DIAMETER / 2.0
-        offset = uniform_draws(rng, ((-0.2, 0.2), (-0.1, 0.1)))
-        if self.glint is not None:  # drawn last: everything else is drawn as without glint
-            self._episode.glint = self.glint.sample(rng, self._glint_slope_variance)
-        end = np.array(
-            [motion.x0 + offset[0], motion.y0 - CAMERA_MOUNT_IN_END[1] + offset[1], top + 0.8]
-        )
-        if self._sea is not None:  # the joint angles that put the end there on the moved ship
-            end = self._ship_pose(0.0).to_ship(end)
-        self.physics.reset(self._arm.inverse_kinematics(end))
-        truth = self._truth()
-        self._episode.prev_error = truth["capture_error"]
-        self._episode.min_error = truth["capture_error"]
-        extras = {}
-        if waves is not None:
-            wash = self._episode.wash
-            extras["sea"] = {
-                "hs_realised": waves.significant_height,
-                "sea_state_code": sea_state_code(sea.spectrum.hs),
-                "components": int(waves.omega.size),
-                "wave_heading": waves.heading,
-                "wash_period": None if wash is None else wash.period,
-                "wash_duration": None if wash is None else wash.duration,
-                "analogs": len(self._episode.analogs),
-            }
-        field = self._episode.glint
-        if field is not None:
-            extras["glint"] = {
-                "sun_elevation": field.elevation,
-                "sun_azimuth": field.azimuth,
-                "slope_variance": field.slope_variance,
-            }
-        return truth, extras
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
+        state, truth, obs = transition.reset(self.params, self._backend(rng), options)
+        self._episode = ShellEpisode(state, obs)
+        return truth, transition.reset_info(self.params, state)
 
     def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        if self.control == "torque":
-            a0, a1, a2 = action.tolist()
-            data = self.physics.data
-            data.ctrl[:] = action
-            mujoco.mj_step(self.physics.model, data, FRAME_SKIP)
-            # |a|^2 in floats: a @ a costs more than the sum
-            ep.control_effort += (a0 * a0 + a1 * a1 + a2 * a2) * self._dt
-        else:
-            self._track_position(self._q_mid + action * self._q_half)
-        ep.steps += 1
-        return self._truth()
+        ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, ep.state, action, self._backend(self.np_random))
+        return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+        judged = self._episode.judged
+        return judged.terms, judged.terminated
+
+    def _truth(self) -> dict:
+        return transition.truth_now(self.params, self._episode.state, self._plant)
+
+    def _observation(self, truth: dict):
         ep = self._episode
-        a0, a1, a2 = action.tolist()
-        error = truth["capture_error"]
-        captured = error <= self._tolerance[0] and truth["relative_speed"] <= self._tolerance[1]
-        collision = (not captured) and truth["tip_in_hull"]
-        (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = (
-            truth["end_on_ship"], self._ws_lo, self._ws_hi)
-        workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
-        failure = "collision" if collision else ("workspace" if workspace else "")
-        terms = {
-            "progress": ep.prev_error - error,
-            "control": -0.001 * (a0 * a0 + a1 * a1 + a2 * a2),
-            "success": 10.0 if captured else 0.0,
-            "failure": -10.0 if failure else 0.0,
-        }
-        ep.prev_error = error
-        ep.min_error = min(ep.min_error, error)
-        if captured:
-            ep.success = True
-            ep.capture_time = ep.steps * self._dt
-        ep.failure_reason = failure
-        ep.visible_steps += truth["n_visible"] == 3
-        ep.occluded_steps += truth["occluded"]
-        ep.distractor_steps += truth["distractors"] > 0
-        truth["collision"], truth["workspace"] = collision, workspace
-        return terms, captured or bool(failure)
+        if self.obs_mode != "stereo":
+            return ep.obs  # the transition's
+        field = ep.state.scene.glint
+        if field is None:
+            pair = self._render_pair()
+        else:
+            self._pose_scene()
+            pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
+            pair, frame = self._glint_camera.on_pair(field, truth, pair, ranges, self.np_random)
+            ep.state = transition.with_glint_frame(ep.state, frame)
+        w = self._width
+        return {"left": np.ascontiguousarray(pair[:, :w]),
+                "right": np.ascontiguousarray(pair[:, w:]), **ep.obs}
+
+    def _info(self, truth: dict) -> dict:
+        ep = self._episode
+        return transition.info(self.params, ep.state, truth, ep.judged)
+
+    def _episode_metrics(self, truth: dict) -> dict:
+        return transition.summary(self.params, self._episode.state, truth)
 
     def _render_frame(self) -> np.ndarray:
         self._pose_scene()
@@ -592,285 +502,20 @@ class LARSCaptureEnv(TaskEnv):
     def auv_motion(self) -> AUVMotion | None:
         """The episode's AUV motion (surge, sway, heave sinusoid, attitude; drawn at
         reset, None before the first)."""
-        return self._episode.motion
+        state = self._episode.state
+        return None if state is None else state.scene.motion
 
     @property
     def glint_field(self) -> GlintField | None:
         """The episode's sun-glint field (``glint``; None without glint or before the
         first reset)."""
-        return self._episode.glint
-
-    def _prepare_episode_constants(self, motion: AUVMotion) -> None:
-        """The AUV's per-episode geometry in world axes, as floats for the per-step code,
-        and the episode's sea channels when there is a sea.
-
-        The body quaternion is left to :meth:`_pose_scene`: only rendering needs it.
-        """
-        rot = motion.rotation()
-        self._geom = {
-            "corners": [tuple(v) for v in (self._marker_corners @ rot.T).tolist()],
-            "capture": tuple((rot @ self._capture_point).tolist()),
-            "axis": tuple(rot[:, 0].tolist()),
-            "z_centre": AUV_FREEBOARD - AUV_DIAMETER / 2.0,
-            "omega": motion.omega,
-        }
-        self._sea_sample = None
-        waves = self._episode.waves
-        if waves is None:
-            self._sea = None
-            return
-        tracks = [(motion.x0 + a.dx0, motion.y0 + a.dy, motion.surge + a.drift)
-                  for a in self._episode.analogs]
-        self._sea = EpisodeSea(self.calibration.sea, waves, motion.x0, motion.y0,
-                               motion.surge, motion.yaw, tracks)
-
-    def _sea_at(self, t: float) -> SeaSample:
-        """The sea at time ``t``; the last one is kept (truth, analogs and the scene share it)."""
-        if self._sea_sample is None or self._sea_sample[0] != t:
-            self._sea_sample = (t, self._sea(t))
-        return self._sea_sample[1]
-
-    def _ship_pose(self, t: float) -> ShipPose:
-        """The ship's displacement at time ``t`` (only with a sea)."""
-        return ShipPose(self.calibration.sea.ship_origin, self._sea_at(t))
-
-    def _auv_attitude(self, t: float) -> tuple[float, float]:
-        """AUV roll and nose-up pitch at time ``t`` (constant without a sea)."""
-        m = self._episode.motion
-        if self._sea is None:
-            return 0.0, m.pitch
-        sample = self._sea_at(t)
-        return sample.auv_roll, m.pitch + sample.auv_pitch
-
-    def _auv_position(self, t: float) -> tuple[float, float, float]:
-        """AUV CG position at time ``t`` ([LTAT] motion model, or the sea's heave)."""
-        m = self._episode.motion
-        if self._sea is None:
-            level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
-        else:
-            level = self._sea_at(t).auv_heave
-        return (m.x0 + m.surge * t, m.y0, level + self._geom["z_centre"])
-
-    def _body_to_world(self, roll: float, pitch: float, yaw: float) -> tuple:
-        """Marker corners (3 points), capture point and hull axis of the AUV at an
-        attitude, in world axes (floats): the per-step twin of
-        :meth:`_prepare_episode_constants` for a rolling, pitching AUV."""
-        rows = frames.rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
-        corners = [frames.rotate_rows(rows, p) for p in self._corners_body]
-        capture = frames.rotate_rows(rows, self._capture_point.tolist())
-        return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
+        state = self._episode.state
+        return None if state is None else state.scene.glint
 
     def position_action(self, q) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
         the inverse of the action's linear map onto the joint limits (not clipped)."""
         return (np.asarray(q, dtype=float) - self._q_mid) / self._q_half
-
-    def _track_position(self, q_target: np.ndarray) -> None:
-        """Computed-torque PD (eqs. 29-30) at the physics rate, torque-limited."""
-        model, data = self.physics.model, self.physics.data
-        limits = self.calibration.torque_limits
-        tau = self._tau
-        for _ in range(FRAME_SKIP):
-            mujoco.mj_step1(model, data)
-            accel = self._kp * (q_target - data.qpos) - self._kd * data.qvel
-            mujoco.mj_mulM(model, data, tau, accel)
-            tau += data.qfrc_bias
-            np.clip(tau / limits, -1.0, 1.0, out=data.ctrl)
-            self._episode.control_effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
-            mujoco.mj_step2(model, data)
-
-    def _truth(self) -> dict:
-        """Ground truth after a step, computed once and shared by obs, reward and info.
-
-        Plain-float arithmetic on purpose: three corners in two cameras cost
-        less as scalars than as many tiny numpy operations. ``corners`` (9)
-        and ``pixels`` (12: left u, v of A1, A2, A3, then right) are flat
-        lists, shaped once when they become arrays.
-        """
-        data = self.physics.data
-        ep = self._episode
-        g = self._geom
-        t = ep.steps * self._dt
-        q = data.qpos.tolist()
-        qd = data.qvel.tolist()
-        ex, ey, ez, evx, evy, evz = self._arm.end_state(q, qd)
-        end_on_ship = (ex, ey, ez)
-        c, s = math.cos(q[0]), math.sin(q[0])
-        m = ep.motion
-        if self._sea is None:
-            level, rate = heave(t, m.heave_amplitude, g["omega"], m.heave_phase)
-            px, py, pz = m.x0 + m.surge * t, m.y0, level + g["z_centre"]
-            roll, pitch = 0.0, m.pitch
-            body_corners, (kx, ky, kz), (ax, ay, az) = g["corners"], g["capture"], g["axis"]
-        else:
-            sea = self._sea_at(t)
-            level, rate = sea.level, sea.auv_heave_rate
-            px, py, pz = m.x0 + m.surge * t, m.y0, sea.auv_heave + g["z_centre"]
-            roll, pitch = sea.auv_roll, m.pitch + sea.auv_pitch
-            body_corners, (kx, ky, kz), (ax, ay, az) = self._body_to_world(roll, pitch, m.yaw)
-            # The arm's end is a point of the moving ship; the levelled head hangs from it.
-            ex, ey, ez, evx, evy, evz = self._ship_pose(t).carry(ex, ey, ez, evx, evy, evz)
-        lx, ly, lz = self._left_in_end
-        camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
-
-        # Camera -> world rows (OpenCV axes): x = (c, s, 0), y = (s, -c, 0), z = down; the
-        # right camera sits one baseline along the left camera's x axis.
-        rows = self._camera_rows(c, s)
-        points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in body_corners]
-        corners = [x for point in points for x in point]
-        b = self._baseline
-        left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
-        left_px, vis_left = project_few(self._intrinsics, points, left_cam, rows)
-        right_px, vis_right = project_few(self._intrinsics, points, right_cam, rows)
-        left = [x for uv in left_px for x in uv]
-        right = [x for uv in right_px for x in uv]
-
-        occluded = False
-        distractors = 0
-        if ep.wash is not None:
-            crest = self._crest_centre(t, (px, py, pz), level)
-            if crest is not None and (any(vis_left) or any(vis_right)):
-                cams = np.array([left_cam, right_cam])
-                hidden_left, hidden_right = segments_cross_box(
-                    cams[:, None, :], np.array(corners).reshape(1, 3, 3), crest,
-                    ep.wash.half_size,
-                ).tolist()
-                occluded = any(hidden_left) or any(hidden_right)
-                vis_left = [v and not h for v, h in zip(vis_left, hidden_left, strict=True)]
-                vis_right = [v and not h for v, h in zip(vis_right, hidden_right, strict=True)]
-            distractors = self._count_distractors(t, (px, py, pz), left_cam, rows)
-
-        # Capture tip vs the AUV: capture point offset and hull penetration.
-        tx, ty, tz = ex, ey, ez + self._tip_z
-        offset = (px + kx - tx, py + ky - ty, pz + kz - tz)
-        dx, dy, dz = tx - px, ty - py, tz - pz
-        half = self._hull_half
-        along = dx * ax + dy * ay + dz * az
-        along = -half if along < -half else (half if along > half else along)
-        radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
-        dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
-        return {
-            "q": q,
-            "qd": qd,
-            "end": (ex, ey, ez),
-            "end_on_ship": end_on_ship,
-            "end_vel": (evx, evy, evz),
-            "position": (px, py, pz),
-            "velocity": (m.surge, 0.0, rate),
-            "level": level,
-            "roll": roll,
-            "pitch": pitch,
-            "corners": corners,
-            "cameras": (left_cam, right_cam),
-            "hull_axis": (ax, ay, az),
-            "pixels": left + right,
-            "visible": [vis_left, vis_right],
-            "n_visible": sum(map(operator.and_, vis_left, vis_right)),
-            "occluded": occluded,
-            "distractors": distractors,
-            "offset": offset,
-            "capture_error": math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
-            "relative_speed": math.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
-            "tip_in_hull": radial2 < (AUV_DIAMETER / 2.0) ** 2,
-        }
-
-    def _crest_centre(self, t: float, pos: np.ndarray, level: float):
-        shift = self._episode.wash.offset(t)
-        if shift is None:
-            return None
-        wash = self._episode.wash
-        top = level + AUV_FREEBOARD + wash.overtop
-        return (pos[0] + shift, pos[1], top - wash.half_size[2])
-
-    def _analog_pose(self, k: int, t: float, pos: np.ndarray):
-        """Centre and yaw of analog ``k``: heaving with its own phase lag, or, with a
-        sea, with the elevation at its own place."""
-        m = self._episode.motion
-        analog = self._episode.analogs[k]
-        if self._sea is None:
-            level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
-        else:
-            level = self._sea_at(t).analog_levels[k]
-        centre = (pos[0] + analog.dx0 + analog.drift * t, pos[1] + analog.dy,
-                  level + self._geom["z_centre"])
-        return centre, analog.yaw
-
-    def _count_distractors(self, t, pos, cam, rows) -> int:
-        """Analogs whose marker centre projects into the left image (camera centre ``cam``,
-        camera -> world ``rows`` of :meth:`_camera_rows`)."""
-        mx, mz = self._analog_centre
-        centres = []
-        for k in range(len(self._episode.analogs)):
-            (ax, ay, az), yaw = self._analog_pose(k, t, pos)
-            centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
-        return sum(project_few(self._intrinsics, centres, cam, rows)[1])
-
-    @staticmethod
-    def _camera_rows(c: float, s: float) -> tuple:
-        """Left camera -> world rotation rows of the downward head at slew ``(cos, sin)``."""
-        return ((c, s, 0.0), (s, -c, 0.0), (0.0, 0.0, -1.0))
-
-    def _joints(self, truth: dict) -> dict:
-        return {
-            "joint_position": np.array(truth["q"], dtype=np.float32),
-            "joint_velocity": np.array(truth["qd"], dtype=np.float32),
-        }
-
-    def _observation(self, truth: dict):
-        obs = self._observe(truth)
-        ep = self._episode
-        if ep.steps and ep.glint_frame is not None:  # the glint the step's observation met
-            ep.glint_steps += bool(ep.glint_frame["glint_corners"].any())
-        return obs
-
-    def _observe(self, truth: dict):
-        if self.obs_mode == "state":
-            m = self._episode.motion
-            (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
-            return np.array(
-                [*truth["q"], *truth["qd"], ex, ey, ez, *truth["end_vel"],
-                 px - ex, py - ey, pz - ez, *truth["velocity"], *truth["offset"],
-                 truth["pitch"], m.yaw, truth["level"]],
-                dtype=np.float32,
-            )
-        if self.obs_mode == "features":
-            vis_left, vis_right = visible = truth["visible"]
-            true_pixels = truth["pixels"]
-            std = self.calibration.pixel_noise_std
-            # Drawn always, whatever is visible: the same noise stream every step.
-            noise = self.np_random.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
-            seen = vis_left + vis_right
-            if self._episode.glint is not None:
-                true_pixels, seen, self._episode.glint_frame = self._glint_camera.on_corners(
-                    self._episode.glint, truth, seen, self.np_random)
-                visible = [seen[:3], seen[3:]]
-            lo_u, lo_v, hi_u, hi_v = self._pixel_bounds
-            pixels = [0.0] * 12
-            i = 0  # u of the corner; v at i + 1
-            for corner_seen in seen:
-                if corner_seen:  # finite; clipped by comparisons (cheaper than min/max)
-                    u, v = true_pixels[i] + noise[i], true_pixels[i + 1] + noise[i + 1]
-                    pixels[i] = lo_u if u < lo_u else (hi_u if u > hi_u else u)
-                    pixels[i + 1] = lo_v if v < lo_v else (hi_v if v > hi_v else v)
-                i += 2
-            return {
-                "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
-                "visible": np.array(visible, dtype=np.int8),
-                **self._joints(truth),
-            }
-        if self._episode.glint is None:
-            pair = self._render_pair()
-        else:
-            self._pose_scene()
-            pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
-            pair, self._episode.glint_frame = self._glint_camera.on_pair(
-                self._episode.glint, truth, pair, ranges, self.np_random)
-        w = self._width
-        return {
-            "left": np.ascontiguousarray(pair[:, :w]),
-            "right": np.ascontiguousarray(pair[:, w:]),
-            **self._joints(truth),
-        }
 
     def _pose_scene(self) -> None:
         """Pose the kinematic bodies (AUV, sea, head, analogs) for rendering.
@@ -878,31 +523,34 @@ class LARSCaptureEnv(TaskEnv):
         The physics never reads them; they are posed only before a render.
         """
         phys = self.physics
-        ep = self._episode
-        t = ep.steps * self._dt
-        pos = self._auv_position(t)
+        state = self._episode.state
+        scene = state.scene
+        t = state.steps * self._dt
+        sample = transition.sea_sample(scene, t)
+        pos = transition.auv_position(scene, t, sample)
         q = phys.data.qpos
         end = self._arm.forward_kinematics(q)
         ship = None
-        if self._sea is None:
-            level = pos[2] - self._geom["z_centre"]
-            quat = ep.motion.quaternion()
+        if sample is None:
+            level = pos[2] - transition.Z_CENTRE
+            quat = scene.motion.quaternion()
         else:
-            level = self._sea_at(t).level
-            roll, pitch = self._auv_attitude(t)
-            quat = frames.quat_from_euler(roll, -pitch, ep.motion.yaw)
-            pose = self._ship_pose(t)
+            level = sample.level
+            roll, pitch = transition.auv_attitude(scene, sample)
+            quat = frames.quat_from_euler(roll, -pitch, scene.motion.yaw)
+            pose = transition.ship_pose(self.params, sample)
             end = pose.carry(*end.tolist(), 0.0, 0.0, 0.0)[:3]
             ship = pose.transform()
         phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
         phys.pose("auv", pos, quat)
         half = 0.5 * float(q[0])
         phys.pose("head", end, (math.cos(half), 0.0, 0.0, math.sin(half)))
-        crest = self._crest_centre(t, pos, level) if ep.wash is not None else None
+        crest = (transition.crest_centre(scene, t, pos, level) if scene.wash is not None
+                 else None)
         phys.pose("crest", PARKED if crest is None else crest, (1.0, 0.0, 0.0, 0.0))
         for k in range(2):
-            if k < len(ep.analogs):
-                centre, yaw = self._analog_pose(k, t, pos)
+            if k < len(scene.analogs):
+                centre, yaw = transition.analog_pose(scene, k, t, pos, sample)
                 quat = (math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0))
             else:
                 centre, quat = PARKED, (1.0, 0.0, 0.0, 0.0)
@@ -914,62 +562,45 @@ class LARSCaptureEnv(TaskEnv):
         self._pose_scene()
         return self.camera_renderer.render(self.physics.data)
 
-    def _info(self, truth: dict) -> dict:
-        ep = self._episode
-        m = ep.motion
-        (px, py, pz), (ex, ey, ez) = truth["position"], truth["end"]
-        info = {
-            "capture_error": truth["capture_error"],
-            "capture_offset": np.array(truth["offset"]),
-            "relative_position": np.array((px - ex, py - ey, pz - ez)),
-            "relative_speed": truth["relative_speed"],
-            "is_success": ep.success,
-            "collision": truth.get("collision", False),
-            "violation_workspace": truth.get("workspace", False),
-            "marker_visible": truth["n_visible"],
-            "marker_occluded": truth["occluded"],
-            "distractors_in_view": truth["distractors"],
-            "failure_reason": ep.failure_reason,
-            "time": ep.steps * self._dt,
-            "true_position": np.array(truth["position"]),
-            "true_velocity": np.array(truth["velocity"]),
-            "true_pitch": truth["pitch"],
-            "true_yaw": m.yaw,
-            "true_corners": np.array(truth["corners"]).reshape(3, 3),
-            "true_pixels": np.array(truth["pixels"]).reshape(2, 3, 2),
-            "true_visible": np.array(truth["visible"]),
-            "end_position": np.array(truth["end"]),
-            "water_level": truth["level"],
-        }
-        if ep.glint_frame is not None:
-            info.update(ep.glint_frame)
-        if self._sea is not None:
-            sea = self._sea_at(info["time"])
-            info["true_roll"] = truth["roll"]
-            info["ship_motion"] = np.array((sea.ship_heave, sea.ship_roll, sea.ship_pitch))
-        return info
 
-    def _episode_metrics(self, truth: dict) -> dict:
-        ep = self._episode
-        steps = max(ep.steps, 1)
-        glint = {} if self.glint is None else {"glint_fraction": ep.glint_steps / steps}
-        return {
-            "success": ep.success,
-            "failure_reason": ep.failure_reason or ("" if ep.success else "time_limit"),
-            "capture_time": ep.capture_time,
-            "steps": ep.steps,
-            "final_capture_error": truth["capture_error"],
-            "min_capture_error": ep.min_error,
-            "final_relative_speed": truth["relative_speed"],
-            "marker_visible_fraction": ep.visible_steps / steps,
-            "occluded_fraction": ep.occluded_steps / steps,
-            "distractor_fraction": ep.distractor_steps / steps,
-            "control_effort": ep.control_effort,
-            **glint,
-        }
+class _MujocoArm:
+    """The LARS transition's plant on the CPU: the env's MuJoCo arm, driven by joint
+    torques (``control="torque"``) or by the computed-torque loop of [LTAT] eqs. 29-30
+    at the physics rate (``control="position"``)."""
 
-    # ------------------------------------------------------------------ pickling
-    def _set_runtime_state(self, state: dict) -> None:
-        super()._set_runtime_state(state)
-        if self._episode.motion is not None:
-            self._prepare_episode_constants(self._episode.motion)
+    def __init__(self, env: LARSCaptureEnv):
+        self.model, self.data = env.physics.model, env.physics.data
+        self.physics = env.physics
+        self.torque_mode = env.control == "torque"
+        self.dt = env.dt
+        self.q_mid, self.q_half = env._q_mid, env._q_half
+        self.kp, self.kd = POSITION_GAINS
+        self.limits = env.calibration.torque_limits
+        self.tau = np.zeros(3)
+
+    def place(self, q) -> None:
+        self.physics.reset(q)
+
+    def joints(self) -> tuple[list, list]:
+        return self.data.qpos.tolist(), self.data.qvel.tolist()
+
+    def advance(self, action: np.ndarray, effort: float) -> float:
+        """One control period under ``action``; the control effort with it added."""
+        model, data = self.model, self.data
+        if self.torque_mode:
+            a0, a1, a2 = action.tolist()
+            data.ctrl[:] = action
+            mujoco.mj_step(model, data, FRAME_SKIP)
+            # |a|^2 in floats: a @ a costs more than the sum
+            return effort + (a0 * a0 + a1 * a1 + a2 * a2) * self.dt
+        q_target = self.q_mid + action * self.q_half
+        tau = self.tau
+        for _ in range(FRAME_SKIP):
+            mujoco.mj_step1(model, data)
+            accel = self.kp * (q_target - data.qpos) - self.kd * data.qvel
+            mujoco.mj_mulM(model, data, tau, accel)
+            tau += data.qfrc_bias
+            np.clip(tau / self.limits, -1.0, 1.0, out=data.ctrl)
+            effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
+            mujoco.mj_step2(model, data)
+        return effort

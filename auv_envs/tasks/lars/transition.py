@@ -1,0 +1,618 @@
+"""The LARS capture task's transition: one episode as :func:`reset` then :func:`step`.
+
+An episode is an immutable :class:`EpisodeState` (what the episode's record
+holds, and its :class:`Scene`: the AUV's motion, the sea and the sun drawn at
+reset); the static :class:`LARSParams` say which task it is. Both functions
+take a :class:`Backend`: the arithmetic (:data:`auv_envs.core.ops.FLOATS` on
+the CPU), the episode's random draws (NumPy ``Generator``'s interface) and
+the arm's plant (MuJoCo on the CPU). The start draw, the order of the step
+(arm, truth, judgement, observation), the reward terms, the episode's end,
+the ``state``/``features`` observations, ``info`` and the episode summary
+exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
+Gymnasium shell around them (it renders the ``stereo`` images).
+
+The draws come in the order the environment has always made them
+(``docs/environments.md``), so its episodes are the released ones, bit for
+bit. The truth is plain-float arithmetic on purpose: three corners in two
+cameras cost less as scalars than as many tiny NumPy operations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import operator
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from auv_envs.core import frames
+from auv_envs.core.camera import CameraIntrinsics, project_few
+from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
+from auv_envs.tasks.lars.scene import (
+    AUV_DIAMETER,
+    AUV_FREEBOARD,
+    AUVMotion,
+    sample_motion,
+    uniform_draws,
+)
+from auv_envs.tasks.lars.sea import EpisodeSea, GlintField, SeaSample, ShipPose, sample_waves
+from auv_envs.tasks.lars.waves import WaveRealisation, sea_state_code
+
+#: Why an episode failed: ``EpisodeState.failure`` is the index + 1 (0: none).
+FAILURE_REASONS = ("collision", "workspace")
+#: The AUV's CG below the local water level, m (the hull floats ``AUV_FREEBOARD`` proud).
+Z_CENTRE = AUV_FREEBOARD - AUV_DIAMETER / 2.0
+#: The arm's end at reset: this far above the AUV's top line ([LTAT] tracks at about
+#: 0.8 m), the cameras over the AUV within these offsets (m, along x and y).
+START_HEIGHT = 0.8
+START_OFFSET = ((-0.2, 0.2), (-0.1, 0.1))
+
+
+@dataclasses.dataclass(frozen=True)
+class LARSParams:
+    """What makes a LARS task this one; fixed for the environment's life.
+
+    Attributes:
+        obs_mode: ``"state"``, ``"features"`` or ``"stereo"`` (the images are the
+            shell's; the transition gives that mode's joint readings).
+        control: ``"torque"`` or ``"position"``.
+        sea_state: ``"calm"`` or ``"severe"`` (wash-over and analogs).
+        dt: seconds per step. max_episode_steps: steps to the time limit.
+        arm: the :class:`~auv_envs.tasks.lars.arm.ArmModel` (inverse kinematics at reset).
+        sea: the :class:`~auv_envs.tasks.lars.sea.LARSSeaModel`, None for [LTAT]'s sinusoid.
+        glint: the :class:`~auv_envs.tasks.lars.sea.SunGlint`, None without glint;
+            ``glint_slope_variance`` its sea's, ``glint_camera`` its
+            :class:`~auv_envs.tasks.lars.glint.GlintCamera`.
+        intrinsics: each camera's; ``baseline`` m; ``left_in_end`` the left camera's
+            centre in the arm-end frame; ``tip_z`` the capture tip's height in it.
+        corners_body: the marker's corners A1, A2, A3 in the AUV's body frame;
+            ``capture_point`` the lifting eye's (3,) NumPy.
+        tolerance: ``(position m, speed m/s)`` of a capture.
+        workspace: ``(low, high)`` corners of the arm end's box in the ship's frame.
+        pixel_noise_std: ``features`` noise, px; ``pixel_bounds`` ``(u_lo, v_lo,
+            u_hi, v_hi)`` the noisy pixels are clipped to (``features`` only).
+        hull_half: the hull's cylinder half-length between its hemispherical ends, m.
+        analog_centre: ``(x, z)`` of an analog's marker centre in its body frame.
+        joint_mid, joint_half: the joint limits' middle and half-range (``position``).
+    """
+
+    obs_mode: str
+    control: str
+    sea_state: str
+    dt: float
+    max_episode_steps: int
+    arm: Any
+    sea: Any
+    glint: Any
+    glint_slope_variance: float | None
+    glint_camera: Any
+    intrinsics: CameraIntrinsics
+    baseline: float
+    left_in_end: tuple
+    tip_z: float
+    corners_body: tuple
+    capture_point: Any
+    tolerance: tuple
+    workspace: tuple
+    pixel_noise_std: float
+    pixel_bounds: tuple | None
+    hull_half: float
+    analog_centre: tuple
+    joint_mid: Any
+    joint_half: Any
+
+
+class Scene(NamedTuple):
+    """An episode's world, drawn at reset and fixed through it.
+
+    ``corners``, ``capture`` and ``axis`` are the marker's corners, the
+    capture point and the hull's axis in world axes about the CG (floats; a
+    sea's roll and pitch recompute them every step); ``sea`` is the
+    episode's sea channels (None without a sea).
+    """
+
+    motion: AUVMotion
+    wash: WashOver | None
+    analogs: tuple[FloatingAnalog, ...]
+    waves: WaveRealisation | None
+    glint: GlintField | None
+    sea: EpisodeSea | None
+    corners: list
+    capture: tuple
+    axis: tuple
+
+
+class EpisodeState(NamedTuple):
+    """Everything an episode changes besides the arm's plant; immutable.
+
+    ``failure`` is the index + 1 of this step's failure in
+    :data:`FAILURE_REASONS` (0: none); ``capture_time`` NaN until captured;
+    ``glint_frame`` the last observation's glint (None without glint).
+    """
+
+    scene: Scene
+    steps: int
+    prev_error: float
+    min_error: float
+    success: bool
+    failure: int
+    capture_time: float
+    visible_steps: int
+    occluded_steps: int
+    distractor_steps: int
+    glint_steps: int
+    control_effort: float
+    glint_frame: dict | None = None
+
+
+class Backend(NamedTuple):
+    """How a transition is evaluated.
+
+    Attributes:
+        ops: a namespace of :mod:`auv_envs.core.ops`.
+        draws: the episode's random draws (NumPy ``Generator``'s interface).
+        plant: ``place(q)`` (the arm at rest at joint angles ``q``), ``advance(action,
+            effort) -> effort`` (one control period under the checked ``action``, the
+            running control effort updated) and ``joints() -> (q, qd)`` (lists).
+    """
+
+    ops: Any
+    draws: Any
+    plant: Any
+
+
+class Assessment(NamedTuple):
+    """A step's judgement: reward terms, whether it ended, and the violations."""
+
+    terms: dict
+    terminated: bool
+    collision: bool
+    workspace: bool
+
+
+# ------------------------------------------------------------------ the scene
+def scene_of(params: LARSParams, motion: AUVMotion, waves=None, wash=None, analogs=(),
+             glint=None) -> Scene:
+    """The :class:`Scene` of an episode's draws (the per-episode geometry precomputed)."""
+    rot = motion.rotation()
+    sea = None
+    if waves is not None:
+        tracks = [(motion.x0 + a.dx0, motion.y0 + a.dy, motion.surge + a.drift)
+                  for a in analogs]
+        sea = EpisodeSea(params.sea, waves, motion.x0, motion.y0, motion.surge, motion.yaw,
+                         tracks)
+    corners = np.asarray(params.corners_body) @ rot.T
+    return Scene(motion=motion, wash=wash, analogs=analogs, waves=waves, glint=glint, sea=sea,
+                 corners=[tuple(v) for v in corners.tolist()],
+                 capture=tuple((rot @ params.capture_point).tolist()),
+                 axis=tuple(rot[:, 0].tolist()))
+
+
+def sea_sample(scene: Scene, t: float) -> SeaSample | None:
+    """The sea at time ``t`` (None without a sea)."""
+    return None if scene.sea is None else scene.sea(t)
+
+
+def ship_pose(params: LARSParams, sample: SeaSample) -> ShipPose:
+    """The ship's displacement in the sea state ``sample``."""
+    return ShipPose(params.sea.ship_origin, sample)
+
+
+def auv_position(scene: Scene, t: float, sample: SeaSample | None) -> tuple:
+    """AUV CG position at time ``t`` ([LTAT] motion model, or the sea's heave)."""
+    m = scene.motion
+    if sample is None:
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
+    else:
+        level = sample.auv_heave
+    return (m.x0 + m.surge * t, m.y0, level + Z_CENTRE)
+
+
+def auv_attitude(scene: Scene, sample: SeaSample | None) -> tuple[float, float]:
+    """AUV roll and nose-up pitch (constant without a sea)."""
+    m = scene.motion
+    if sample is None:
+        return 0.0, m.pitch
+    return sample.auv_roll, m.pitch + sample.auv_pitch
+
+
+def crest_centre(scene: Scene, t: float, position, level: float):
+    """Centre of the wash-over crest at time ``t`` over the AUV at ``position``; None
+    between events."""
+    wash = scene.wash
+    shift = wash.offset(t)
+    if shift is None:
+        return None
+    top = level + AUV_FREEBOARD + wash.overtop
+    return (position[0] + shift, position[1], top - wash.half_size[2])
+
+
+def analog_pose(scene: Scene, k: int, t: float, position, sample: SeaSample | None):
+    """Centre and yaw of analog ``k``: heaving with its own phase lag, or, with a sea,
+    with the elevation at its own place."""
+    m = scene.motion
+    analog = scene.analogs[k]
+    if sample is None:
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
+    else:
+        level = sample.analog_levels[k]
+    centre = (position[0] + analog.dx0 + analog.drift * t, position[1] + analog.dy,
+              level + Z_CENTRE)
+    return centre, analog.yaw
+
+
+def camera_rows(c: float, s: float) -> tuple:
+    """Left camera -> world rotation rows of the downward head at slew ``(cos, sin)``
+    (OpenCV axes: x = (c, s, 0), y = (s, -c, 0), z down)."""
+    return ((c, s, 0.0), (s, -c, 0.0), (0.0, 0.0, -1.0))
+
+
+def _body_to_world(params: LARSParams, roll: float, pitch: float, yaw: float) -> tuple:
+    """Marker corners (3 points), capture point and hull axis of the AUV at an
+    attitude, in world axes (floats): the per-step twin of :func:`scene_of`'s
+    geometry for a rolling, pitching AUV."""
+    rows = frames.rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
+    corners = [frames.rotate_rows(rows, p) for p in params.corners_body]
+    capture = frames.rotate_rows(rows, params.capture_point.tolist())
+    return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
+
+
+def _count_distractors(params: LARSParams, scene: Scene, t, position, sample, camera,
+                       rows) -> int:
+    """Analogs whose marker centre projects into the left image (camera centre
+    ``camera``, camera -> world ``rows``)."""
+    mx, mz = params.analog_centre
+    centres = []
+    for k in range(len(scene.analogs)):
+        (ax, ay, az), yaw = analog_pose(scene, k, t, position, sample)
+        centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
+    return sum(project_few(params.intrinsics, centres, camera, rows)[1])
+
+
+# ------------------------------------------------------------------ the truth
+def truth(params: LARSParams, scene: Scene, steps: int, q: list, qd: list) -> dict:
+    """Ground truth at step ``steps`` with the arm at joint angles ``q`` and rates ``qd``,
+    computed once a step and shared by observation, reward and info.
+
+    ``corners`` (9) and ``pixels`` (12: left u, v of A1, A2, A3, then right) are
+    flat lists, shaped once when they become arrays; ``sea`` is the sea's
+    sample (None without a sea).
+    """
+    t = steps * params.dt
+    ex, ey, ez, evx, evy, evz = params.arm.end_state(q, qd)
+    end_on_ship = (ex, ey, ez)
+    c, s = math.cos(q[0]), math.sin(q[0])
+    m = scene.motion
+    sample = sea_sample(scene, t)
+    if sample is None:
+        level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase)
+        px, py, pz = m.x0 + m.surge * t, m.y0, level + Z_CENTRE
+        roll, pitch = 0.0, m.pitch
+        body_corners, (kx, ky, kz), (ax, ay, az) = scene.corners, scene.capture, scene.axis
+    else:
+        level, rate = sample.level, sample.auv_heave_rate
+        px, py, pz = m.x0 + m.surge * t, m.y0, sample.auv_heave + Z_CENTRE
+        roll, pitch = sample.auv_roll, m.pitch + sample.auv_pitch
+        body_corners, (kx, ky, kz), (ax, ay, az) = _body_to_world(params, roll, pitch, m.yaw)
+        # The arm's end is a point of the moving ship; the levelled head hangs from it.
+        ex, ey, ez, evx, evy, evz = ship_pose(params, sample).carry(ex, ey, ez, evx, evy, evz)
+    lx, ly, lz = params.left_in_end
+    camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
+
+    # The right camera sits one baseline along the left camera's x axis.
+    rows = camera_rows(c, s)
+    points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in body_corners]
+    corners = [x for point in points for x in point]
+    b = params.baseline
+    left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
+    left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows)
+    right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows)
+    left = [x for uv in left_px for x in uv]
+    right = [x for uv in right_px for x in uv]
+
+    occluded = False
+    distractors = 0
+    if scene.wash is not None:
+        crest = crest_centre(scene, t, (px, py, pz), level)
+        if crest is not None and (any(vis_left) or any(vis_right)):
+            cams = np.array([left_cam, right_cam])
+            hidden_left, hidden_right = segments_cross_box(
+                cams[:, None, :], np.array(corners).reshape(1, 3, 3), crest,
+                scene.wash.half_size,
+            ).tolist()
+            occluded = any(hidden_left) or any(hidden_right)
+            vis_left = [v and not h for v, h in zip(vis_left, hidden_left, strict=True)]
+            vis_right = [v and not h for v, h in zip(vis_right, hidden_right, strict=True)]
+        distractors = _count_distractors(params, scene, t, (px, py, pz), sample, left_cam,
+                                         rows)
+
+    # Capture tip vs the AUV: capture point offset and hull penetration.
+    tx, ty, tz = ex, ey, ez + params.tip_z
+    offset = (px + kx - tx, py + ky - ty, pz + kz - tz)
+    dx, dy, dz = tx - px, ty - py, tz - pz
+    half = params.hull_half
+    along = dx * ax + dy * ay + dz * az
+    along = -half if along < -half else (half if along > half else along)
+    radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
+    dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
+    return {
+        "q": q,
+        "qd": qd,
+        "end": (ex, ey, ez),
+        "end_on_ship": end_on_ship,
+        "end_vel": (evx, evy, evz),
+        "position": (px, py, pz),
+        "velocity": (m.surge, 0.0, rate),
+        "level": level,
+        "roll": roll,
+        "pitch": pitch,
+        "sea": sample,
+        "corners": corners,
+        "cameras": (left_cam, right_cam),
+        "hull_axis": (ax, ay, az),
+        "pixels": left + right,
+        "visible": [vis_left, vis_right],
+        "n_visible": sum(map(operator.and_, vis_left, vis_right)),
+        "occluded": occluded,
+        "distractors": distractors,
+        "offset": offset,
+        "capture_error": math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
+        "relative_speed": math.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
+        "tip_in_hull": radial2 < (AUV_DIAMETER / 2.0) ** 2,
+    }
+
+
+def truth_now(params: LARSParams, state: EpisodeState, plant) -> dict:
+    """:func:`truth` at the state's step with the plant's joints now."""
+    return truth(params, state.scene, state.steps, *plant.joints())
+
+
+# ------------------------------------------------------------------ reset
+def draw_scene(params: LARSParams, draws, options: dict | None = None):
+    """The episode's world and where the arm's end starts: ``(scene, end)``, ``end``
+    the arm end's (3,) position in the ship's frame.
+
+    Draws, in order: the AUV's motion; with a sea, its realisation; in
+    ``severe`` sea the wash-over schedule, the analogs' side and the two
+    analogs; the arm end's offset over the AUV; with glint, the sun.
+    ``options``: ``motion`` (pins fields of the motion) and, with a sea,
+    ``wave_heading`` (rad); ``ValueError`` for any other.
+    """
+    options = dict(options or {})
+    sea = params.sea
+    valid = {"motion"} if sea is None else {"motion", "wave_heading"}
+    unknown = set(options) - valid
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
+    motion = sample_motion(draws, options.get("motion"))
+    waves = None if sea is None else sample_waves(draws, sea, options.get("wave_heading"))
+    wash, analogs = None, ()
+    if params.sea_state == "severe":
+        if sea is None:
+            wash = WashOver.sample(draws)
+        elif sea.wash_ranges() is not None:
+            wash = WashOver.sample(draws, *sea.wash_ranges())
+        side = 1.0 if draws.uniform() < 0.5 else -1.0
+        analogs = (FloatingAnalog.sample(draws, side), FloatingAnalog.sample(draws, -side))
+        if sea is not None:
+            analogs = analogs[:sea.analogs]
+    scene = scene_of(params, motion, waves, wash, analogs)
+    sample = sea_sample(scene, 0.0)
+    top = auv_position(scene, 0.0, sample)[2] + AUV_DIAMETER / 2.0
+    offset = uniform_draws(draws, START_OFFSET)
+    if params.glint is not None:  # drawn last: everything else is drawn as without glint
+        scene = scene._replace(glint=params.glint.sample(draws, params.glint_slope_variance))
+    # The cameras (at y = left_in_end[1] in the end frame) over the AUV's CG line.
+    end = np.array([motion.x0 + offset[0], motion.y0 - params.left_in_end[1] + offset[1],
+                    top + START_HEIGHT])
+    if sample is not None:  # the joint angles that put the end there on the moved ship
+        end = ship_pose(params, sample).to_ship(end)
+    return scene, end
+
+
+def reset(params: LARSParams, backend: Backend, options: dict | None = None):
+    """A new episode: ``(state, truth, observation)``."""
+    scene, end = draw_scene(params, backend.draws, options)
+    backend.plant.place(params.arm.inverse_kinematics(end))
+    now = truth(params, scene, 0, *backend.plant.joints())
+    error = now["capture_error"]
+    state = EpisodeState(
+        scene=scene, steps=0, prev_error=error, min_error=error, success=False, failure=0,
+        capture_time=math.nan, visible_steps=0, occluded_steps=0, distractor_steps=0,
+        glint_steps=0, control_effort=0.0)
+    state, obs = observe(params, state, now, backend)
+    return state, now, obs
+
+
+def reset_info(params: LARSParams, state: EpisodeState) -> dict:
+    """What the reset ``info`` adds: the sea's realisation and the sun (with each)."""
+    scene = state.scene
+    extras = {}
+    if scene.waves is not None:
+        waves, wash = scene.waves, scene.wash
+        extras["sea"] = {
+            "hs_realised": waves.significant_height,
+            "sea_state_code": sea_state_code(params.sea.spectrum.hs),
+            "components": int(waves.omega.size),
+            "wave_heading": waves.heading,
+            "wash_period": None if wash is None else wash.period,
+            "wash_duration": None if wash is None else wash.duration,
+            "analogs": len(scene.analogs),
+        }
+    field = scene.glint
+    if field is not None:
+        extras["glint"] = {
+            "sun_elevation": field.elevation,
+            "sun_azimuth": field.azimuth,
+            "slope_variance": field.slope_variance,
+        }
+    return extras
+
+
+# ------------------------------------------------------------------ step
+def step(params: LARSParams, state: EpisodeState, action, backend: Backend):
+    """One control period under ``action`` (the (3,) command already checked,
+    :func:`auv_envs.core.env.clip_actions`): ``(state, truth, observation,
+    assessment)``."""
+    plant = backend.plant
+    effort = plant.advance(action, state.control_effort)
+    steps = state.steps + 1
+    now = truth(params, state.scene, steps, *plant.joints())
+    state, judged = assess(params, state, now, action, backend.ops, steps=steps,
+                           control_effort=effort)
+    state, obs = observe(params, state, now, backend)
+    return state, now, obs, judged
+
+
+def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, steps: int,
+           **changes):
+    """The step's reward terms and end, and the episode's record updated by them, by
+    ``steps`` (the step count after this step) and ``changes``."""
+    a0, a1, a2 = ops.unpack(action)
+    error = now["capture_error"]
+    position_tolerance, speed_tolerance = params.tolerance
+    captured = error <= position_tolerance and now["relative_speed"] <= speed_tolerance
+    collision = (not captured) and now["tip_in_hull"]
+    (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = (now["end_on_ship"],
+                                                         *params.workspace)
+    workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
+    failure = 1 if collision else (2 if workspace else 0)
+    terms = {
+        "progress": state.prev_error - error,
+        "control": -0.001 * (a0 * a0 + a1 * a1 + a2 * a2),
+        "success": 10.0 if captured else 0.0,
+        "failure": -10.0 if failure else 0.0,
+    }
+    state = state._replace(
+        steps=steps, prev_error=error, min_error=min(state.min_error, error),
+        success=state.success or captured,
+        capture_time=steps * params.dt if captured else state.capture_time,
+        failure=failure,
+        visible_steps=state.visible_steps + (now["n_visible"] == 3),
+        occluded_steps=state.occluded_steps + now["occluded"],
+        distractor_steps=state.distractor_steps + (now["distractors"] > 0), **changes)
+    return state, Assessment(terms, captured or bool(failure), collision, workspace)
+
+
+# ------------------------------------------------------------------ what is seen
+def joint_readings(now: dict) -> dict:
+    """The joint angles and rates every image-based mode carries."""
+    return {
+        "joint_position": np.array(now["q"], dtype=np.float32),
+        "joint_velocity": np.array(now["qd"], dtype=np.float32),
+    }
+
+
+def with_glint_frame(state: EpisodeState, frame: dict | None) -> EpisodeState:
+    """``state`` with the observation's glint ``frame``, counted when a glint took a corner
+    after a step."""
+    glint_steps = state.glint_steps
+    if state.steps and frame is not None:
+        glint_steps += bool(frame["glint_corners"].any())
+    return state._replace(glint_frame=frame, glint_steps=glint_steps)
+
+
+def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend):
+    """``(state, observation)``: the ``state`` or ``features`` observation (see the
+    environment's docstring); in ``stereo`` mode the joint readings (the shell adds
+    the images and their glint, :func:`with_glint_frame`)."""
+    if params.obs_mode == "state":
+        m = state.scene.motion
+        (px, py, pz), (ex, ey, ez) = now["position"], now["end"]
+        return state, np.array(
+            [*now["q"], *now["qd"], ex, ey, ez, *now["end_vel"],
+             px - ex, py - ey, pz - ez, *now["velocity"], *now["offset"],
+             now["pitch"], m.yaw, now["level"]],
+            dtype=np.float32,
+        )
+    if params.obs_mode != "features":
+        return state, joint_readings(now)
+    draws = backend.draws
+    vis_left, vis_right = visible = now["visible"]
+    true_pixels = now["pixels"]
+    std = params.pixel_noise_std
+    # Drawn always, whatever is visible: the same noise stream every step.
+    noise = draws.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
+    seen = vis_left + vis_right
+    field = state.scene.glint
+    if field is not None:
+        true_pixels, seen, frame = params.glint_camera.on_corners(field, now, seen, draws)
+        visible = [seen[:3], seen[3:]]
+        state = with_glint_frame(state, frame)
+    lo_u, lo_v, hi_u, hi_v = params.pixel_bounds
+    pixels = [0.0] * 12
+    i = 0  # u of the corner; v at i + 1
+    for corner_seen in seen:
+        if corner_seen:  # finite; clipped by comparisons (cheaper than min/max)
+            u, v = true_pixels[i] + noise[i], true_pixels[i + 1] + noise[i + 1]
+            pixels[i] = lo_u if u < lo_u else (hi_u if u > hi_u else u)
+            pixels[i + 1] = lo_v if v < lo_v else (hi_v if v > hi_v else v)
+        i += 2
+    return state, {
+        "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
+        "visible": np.array(visible, dtype=np.int8),
+        **joint_readings(now),
+    }
+
+
+# ------------------------------------------------------------------ the record
+def failure_reason(state: EpisodeState) -> str:
+    """This step's failure by name ("" when none)."""
+    return FAILURE_REASONS[state.failure - 1] if state.failure else ""
+
+
+def info(params: LARSParams, state: EpisodeState, now: dict,
+         judged: Assessment | None) -> dict:
+    """The step's ``info`` without the reward terms (see the environment's docstring)."""
+    (px, py, pz), (ex, ey, ez) = now["position"], now["end"]
+    out = {
+        "capture_error": now["capture_error"],
+        "capture_offset": np.array(now["offset"]),
+        "relative_position": np.array((px - ex, py - ey, pz - ez)),
+        "relative_speed": now["relative_speed"],
+        "is_success": state.success,
+        "collision": judged is not None and judged.collision,
+        "violation_workspace": judged is not None and judged.workspace,
+        "marker_visible": now["n_visible"],
+        "marker_occluded": now["occluded"],
+        "distractors_in_view": now["distractors"],
+        "failure_reason": failure_reason(state),
+        "time": state.steps * params.dt,
+        "true_position": np.array(now["position"]),
+        "true_velocity": np.array(now["velocity"]),
+        "true_pitch": now["pitch"],
+        "true_yaw": state.scene.motion.yaw,
+        "true_corners": np.array(now["corners"]).reshape(3, 3),
+        "true_pixels": np.array(now["pixels"]).reshape(2, 3, 2),
+        "true_visible": np.array(now["visible"]),
+        "end_position": np.array(now["end"]),
+        "water_level": now["level"],
+    }
+    if state.glint_frame is not None:
+        out.update(state.glint_frame)
+    sample = now["sea"]
+    if sample is not None:
+        out["true_roll"] = now["roll"]
+        out["ship_motion"] = np.array((sample.ship_heave, sample.ship_roll, sample.ship_pitch))
+    return out
+
+
+def summary(params: LARSParams, state: EpisodeState, now: dict) -> dict:
+    """The episode's summary (``info["episode_metrics"]`` at its end)."""
+    steps = max(state.steps, 1)
+    glint = {} if params.glint is None else {"glint_fraction": state.glint_steps / steps}
+    return {
+        "success": state.success,
+        "failure_reason": failure_reason(state) or ("" if state.success else "time_limit"),
+        "capture_time": None if math.isnan(state.capture_time) else state.capture_time,
+        "steps": state.steps,
+        "final_capture_error": now["capture_error"],
+        "min_capture_error": state.min_error,
+        "final_relative_speed": now["relative_speed"],
+        "marker_visible_fraction": state.visible_steps / steps,
+        "occluded_fraction": state.occluded_steps / steps,
+        "distractor_fraction": state.distractor_steps / steps,
+        "control_effort": state.control_effort,
+        **glint,
+    }
