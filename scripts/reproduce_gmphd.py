@@ -42,7 +42,8 @@ import numpy as np
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
-from auv_envs.tasks.acoustic.env import TCFE_BIN_WIDTH, AcousticTrackingEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.transition import TCFE_BIN_WIDTH
 from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec

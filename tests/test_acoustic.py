@@ -21,7 +21,7 @@ from auv_envs.core.acoustics import (
     flow_noise_level,
     thorp_absorption,
 )
-from auv_envs.tasks.acoustic import env as acoustic
+from auv_envs.tasks.acoustic import transition
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 
@@ -245,7 +245,7 @@ def test_hydrophone_geometry_is_well_conditioned_over_the_work_area():
 
 def test_static_points_and_disturbance_levels():
     deviation = {}
-    for level, (lo, hi) in acoustic.DISTURBANCES.items():
+    for level, (lo, hi) in transition.DISTURBANCES.items():
         env = make(obs_mode="state", trajectory="static", static_point=2, disturbance=level,
                    time_limit=10.0)
         _, info = env.reset(seed=1)
@@ -253,7 +253,7 @@ def test_static_points_and_disturbance_levels():
         truncated = False
         while not truncated:
             _, _, _, truncated, info = env.step(info["true_position"])
-            devs.append(np.linalg.norm(info["true_position"] - acoustic.STATIC_POINTS[1]))
+            devs.append(np.linalg.norm(info["true_position"] - transition.STATIC_POINTS[1]))
             speeds.append(np.linalg.norm(info["current"]))
         env.close()
         assert lo - 1e-9 <= min(speeds) and max(speeds) <= hi + 1e-9
@@ -268,21 +268,21 @@ def test_static_trajectory_holds_each_paper_point(point):
                time_limit=2.0)
     _, info = env.reset(seed=0)
     env.close()
-    assert np.linalg.norm(info["true_position"] - acoustic.STATIC_POINTS[point - 1]) < 0.1
+    assert np.linalg.norm(info["true_position"] - transition.STATIC_POINTS[point - 1]) < 0.1
 
 
 def test_routes_mix_straight_segments_curves_and_pauses():
     dt = 0.01
     for seed in range(20):
-        reference, velocity = acoustic.plan_route(np.random.default_rng(seed), 6001, dt)
+        reference, velocity = transition.plan_route(np.random.default_rng(seed), 6001, dt)
         speed = np.hypot(velocity[:, 0], velocity[:, 1])
-        assert np.all(reference[:, :2] >= acoustic.ROUTE_XY[0])
-        assert np.all(reference[:, :2] <= acoustic.ROUTE_XY[1])
-        assert np.all((reference[:, 2] >= acoustic.ROUTE_Z[0]) &
-                      (reference[:, 2] <= acoustic.ROUTE_Z[1]))
+        assert np.all(reference[:, :2] >= transition.ROUTE_XY[0])
+        assert np.all(reference[:, :2] <= transition.ROUTE_XY[1])
+        assert np.all((reference[:, 2] >= transition.ROUTE_Z[0]) &
+                      (reference[:, 2] <= transition.ROUTE_Z[1]))
         # Positions integrate the velocities (no jumps) away from the limits.
         step = np.linalg.norm(np.diff(reference[:, :3], axis=0), axis=1)
-        assert step.max() <= acoustic.CARRIER_SPEED[1] * dt * 1.5
+        assert step.max() <= transition.CARRIER_SPEED[1] * dt * 1.5
         kinds = {"pause": speed == 0, "curve": (speed > 0) & (velocity[:, 3] != 0),
                  "straight": (speed > 0) & (velocity[:, 3] == 0)}
         for name, where in kinds.items():

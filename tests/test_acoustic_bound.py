@@ -18,7 +18,8 @@ from auv_envs.tasks.acoustic.bound import (
     pcrb,
     position_bounds,
 )
-from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
+from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS
+from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: Fresh seeds: clear of the leaderboard's (from 100000) and of the calibration runs.

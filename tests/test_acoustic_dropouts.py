@@ -15,7 +15,8 @@ from scipy.linalg import expm
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray
-from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
+from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS
+from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode
 from baselines.registry import make_agent

@@ -13,7 +13,8 @@ import pytest
 
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
-from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS, STATIC_POINTS
+from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS
+from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 
 ENV_ID = "auv_envs/AcousticTracking-v0"
 #: No noise, no misses, no clutter, no ghosts: measurements are the geometry.

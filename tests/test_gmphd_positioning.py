@@ -5,7 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from auv_envs.tasks.acoustic.env import STATIC_POINTS, AcousticTrackingEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 from baselines.acoustic.perception.positioning import (
     METHODS,
     ClockOffsetEstimator,

@@ -4,13 +4,10 @@
 6-DOF arm, carried through a 300 m x 300 m tank by a neutrally buoyant
 carrier and disturbed by the current, is heard by eight hydrophone nodes. The
 agent estimates the end effector's position from the multi-band detection
-sets (:mod:`auv_envs.core.acoustics`).
-
-The agent's estimates do not act on the physics, so the environment simulates
-the physics and draws the measurements in blocks of ``BLOCK`` sample periods,
-vectorised over the block, and serves them one period per step. The result is
-the same as stepping one period at a time (the blocks are a computational
-device, not a change of model) and many times faster.
+sets (:mod:`auv_envs.core.acoustics`). The episode is
+:mod:`auv_envs.tasks.acoustic.transition` (which also says why the physics
+runs in blocks of ``BLOCK`` sample periods); this module is its Gymnasium
+shell, its levels and its MuJoCo plant.
 """
 
 from __future__ import annotations
@@ -24,54 +21,33 @@ import numpy as np
 from dm_control import mjcf
 from gymnasium import spaces
 
-from auv_envs import metrics
 from auv_envs.core import difficulty as levels
 from auv_envs.core.acoustics import (
     GMPHD_FLOW_NOISE_LEVEL,
     AcousticConfig,
     HydrophoneArray,
-    Measurements,
 )
 from auv_envs.core.assets import asset_path
 from auv_envs.core.env import (
     ActionValidator,
+    ShellEpisode,
     TaskEnv,
     check_choice,
     check_image_size,
     check_positive_int,
 )
+from auv_envs.core.ops import FLOATS
+from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.bound import EpisodeRecord, MotionPrior, bound_rmse
+from auv_envs.tasks.acoustic.transition import (
+    BLOCK,
+    DISTURBANCES,
+    NOMINAL_POSTURE,
+    STATIC_POINTS,
+)
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
-#: Current speed ranges in m/s ([GMPHD] §3.4's disturbance levels).
-DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
-#: [GMPHD] Table 1: the five static end-effector positions (tank frame, m).
-STATIC_POINTS = (
-    (50.0, 102.0, -10.0),
-    (170.0, 234.0, -15.5),
-    (215.0, 236.0, -12.0),
-    (289.0, 245.0, -8.0),
-    (47.0, 251.0, -20.0),
-)
-#: TCFE ([GMPHD] §3.4): the entropy of the lengths of the estimate's consecutive
-#: differences in bins of this width (m). ``tcfe`` is the paper's literal definition (first
-#: differences), which also bins the end effector's own speed; ``tcfe_fluctuation`` uses
-#: second differences, which the true motion leaves at 0 (measured: ``CHANGELOG.md``).
-TCFE_BIN_WIDTH = 0.01
-#: Sample periods simulated and measured per block (0.5 s at 100 Hz).
-BLOCK = 50
-#: Source positions kept from before a block for the propagation delay (0.64 s at 100 Hz:
-#: sound crosses the tank's 424 m diagonal in 0.28 s).
-HISTORY = 64
-#: The arm's nominal joint posture (rad): the source about 3.5 m ahead of
-#: and 0.9 m below the carrier's centre.
-NOMINAL_POSTURE = (0.0, 0.6, -1.2, 0.0, 0.6, 0.0)
-#: Carrier route limits (m): keeps the end effector inside the work area
-#: x, y in [40, 295], z in [-25, -5].
-ROUTE_XY = (45.0, 285.0)
-ROUTE_Z = (-20.0, -8.0)
-CARRIER_SPEED = (0.2, 0.8)
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
               "tool_roll")
 CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
@@ -167,117 +143,13 @@ class AcousticCalibration:
     max_detections: int
 
 
-@dataclasses.dataclass
-class _Episode:
-    """Everything an episode changes besides MuJoCo's state (deep-copied to pickle)."""
-
-    steps: int = 0
-    horizon: int = 0
-    done: bool = False
-    carrier_ref: np.ndarray | None = None  # (T+1, 4) x, y, z, yaw
-    carrier_vel: np.ndarray | None = None  # (T+1, 4)
-    arm_ref: np.ndarray | None = None  # (T+1, 6)
-    current: np.ndarray | None = None  # (T+1, 3)
-    clock_offsets: np.ndarray | None = None
-    sound_speed: float | None = None  # the water's true sound speed, m/s
-    history: np.ndarray | None = None  # (<= HISTORY, 3) source positions before the block
-    wander: np.ndarray | None = None  # (N,) the nodes' unit travel-time wander, last period
-    fading: np.ndarray | None = None  # (Q, N) the bands' fades at the last period, dB
-    fades: np.ndarray | None = None  # (B, Q, N) the bands' fades over the block, dB
-    heard: np.ndarray | None = None  # (B, 3) or (B, N, 3) the positions measured in the block
-    nodes: np.ndarray | None = None  # (B, N) which nodes work, per period of the block
-    block_start: int = 0
-    positions: np.ndarray | None = None  # (B, 3) of the current block
-    velocities: np.ndarray | None = None
-    measurements: Measurements | None = None
-    estimates: np.ndarray | None = None  # (T, 3)
-    truths: np.ndarray | None = None  # (T, 3)
-    squared_error_sum: float = 0.0
-    static_point: int | None = None
-
-
-def plan_route(rng: np.random.Generator, n: int, dt: float):
-    """A carrier route of ``n`` samples: straight segments, curves and pauses.
-
-    Segment kinds come from shuffled bags of two straights, two curves and
-    one pause, so every route mixes all three: straight (4-12 s), curve
-    (6-15 s, turning 30-120 deg), pause (1.5-5 s); speeds
-    uniform in ``CARRIER_SPEED`` and a slow climb or descent (|w| <= 0.05 m/s)
-    while moving. Near the route limits a segment heads back towards the
-    centre. Returns (reference (n, 4) of x, y, z, yaw and its rate (n, 4)).
-    """
-    lo, hi = ROUTE_XY
-    centre = 0.5 * (lo + hi)
-    speed = np.zeros(n)
-    turn = np.zeros(n)
-    climb = np.zeros(n)
-    heading0 = np.zeros(n)
-    position = np.array([rng.uniform(lo + 20, hi - 20), rng.uniform(lo + 20, hi - 20),
-                         rng.uniform(*ROUTE_Z)])
-    start = position.copy()
-    heading = rng.uniform(-math.pi, math.pi)
-    i = 0
-    bag: list[int] = []
-    while i < n:
-        if not bag:
-            bag = list(rng.permutation((0, 0, 1, 1, 2)))
-        kind = bag.pop()
-        duration = (rng.uniform(4, 12), rng.uniform(6, 15), rng.uniform(1.5, 5))[kind]
-        count = min(n - i, max(1, int(round(duration / dt))))
-        v = rng.uniform(*CARRIER_SPEED) if kind != 2 else 0.0
-        w = 0.0
-        home = math.atan2(centre - position[1], centre - position[0])
-        near_edge = np.any(position[:2] < lo + 25) or np.any(position[:2] > hi - 25)
-        if near_edge and math.cos(heading - home) < 0.5:
-            heading = home + rng.uniform(-0.5, 0.5)
-        if kind == 1:
-            sign = rng.choice((-1.0, 1.0))
-            w = sign * rng.uniform(math.pi / 6, 2 * math.pi / 3) / (count * dt)
-        vz = rng.uniform(-0.05, 0.05) if v > 0 else 0.0
-        if not ROUTE_Z[0] + 1 < position[2] < ROUTE_Z[1] - 1:
-            vz = math.copysign(abs(vz), 0.5 * sum(ROUTE_Z) - position[2])
-        speed[i : i + count], turn[i : i + count], climb[i : i + count] = v, w, vz
-        heading0[i : i + count] = heading + w * dt * np.arange(count)
-        heading += w * dt * count
-        travel = heading0[i : i + count]
-        position = position + dt * np.array(
-            [np.sum(v * np.cos(travel)), np.sum(v * np.sin(travel)), vz * count]
-        )
-        i += count
-    velocity = np.stack([speed * np.cos(heading0), speed * np.sin(heading0), climb, turn], 1)
-    reference = np.empty((n, 4))
-    reference[0, :3] = start
-    reference[1:, :3] = start + np.cumsum(velocity[:-1, :3] * dt, axis=0)
-    reference[:, 3] = heading0
-    reference[:, 0:2] = np.clip(reference[:, 0:2], lo, hi)
-    reference[:, 2] = np.clip(reference[:, 2], *ROUTE_Z)
-    return reference, velocity
-
-
-def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) -> np.ndarray:
-    """A horizontal current (n, 3): speed sweeping ``speed_range``, direction veering.
-
-    ``speed(t) = lo + (hi - lo) (1 + sin(2 pi t / T_s + phi)) / 2`` with
-    ``T_s`` uniform in 20-60 s, and direction ``theta0 + 0.3 sin(2 pi t / T_d
-    + psi)`` with ``T_d`` uniform in 30-90 s.
-    """
-    lo, hi = speed_range
-    t = dt * np.arange(n)
-    speed = lo + (hi - lo) * 0.5 * (1 + np.sin(2 * np.pi * t / rng.uniform(20, 60)
-                                               + rng.uniform(0, 2 * np.pi)))
-    direction = rng.uniform(-np.pi, np.pi) + 0.3 * np.sin(
-        2 * np.pi * t / rng.uniform(30, 90) + rng.uniform(0, 2 * np.pi)
-    )
-    return np.stack([speed * np.cos(direction), speed * np.sin(direction), np.zeros(n)], 1)
-
-
 class AcousticPhysics:
     """The MuJoCo model/data pair with the ids this task needs, resolved once."""
 
     def __init__(self, model: mujoco.MjModel):
         self.model = model
         self.data = mujoco.MjData(model)
-        self.source = model.site("rig/source").id
+        self.source_site = model.site("rig/source").id
         self.hydrophones = np.array(
             [model.site_pos[model.site(f"hydrophone_{i}").id] for i in range(1, 9)]
         )
@@ -295,20 +167,43 @@ class AcousticPhysics:
         self.tank_depth = -float(bottom.pos[2])
         self.tank_size = (2.0 * float(bottom.size[0]), 2.0 * float(bottom.size[1]))
         self._jac = np.zeros((3, model.nv))
+        #: Physics steps per sample period.
+        self.substeps = 1
 
-    def source_state(self) -> tuple[np.ndarray, np.ndarray]:
+    def place(self, carrier, arm) -> None:
+        """The rig at rest with the carrier's and the arm's joints at ``carrier`` (4) and
+        ``arm`` (6) (the transition's plant, :mod:`auv_envs.tasks.acoustic.transition`)."""
+        model, data = self.model, self.data
+        mujoco.mj_resetData(model, data)
+        data.qpos[self.carrier_qpos] = carrier
+        data.qpos[self.arm_qpos] = arm
+        mujoco.mj_forward(model, data)
+
+    def advance(self, carrier_ref, carrier_vel, arm_ref, current) -> None:
+        """One sample period (``substeps`` physics steps) with the servos' references and
+        the current (MuJoCo's ``wind``); the kinematics made current."""
+        model, data = self.model, self.data
+        ctrl = data.ctrl
+        ctrl[self.carrier_pos_act] = carrier_ref
+        ctrl[self.carrier_vel_act] = carrier_vel
+        ctrl[self.arm_act] = arm_ref
+        model.opt.wind[:] = current
+        mujoco.mj_step(model, data, self.substeps)
+        mujoco.mj_kinematics(model, data)
+
+    def source(self) -> tuple[np.ndarray, np.ndarray]:
         """Source position and velocity at the current state (kinematics must be current)."""
         model, data = self.model, self.data
         mujoco.mj_comPos(model, data)
-        mujoco.mj_jacSite(model, data, self._jac, None, self.source)
-        return data.site_xpos[self.source].copy(), self._jac @ data.qvel
+        mujoco.mj_jacSite(model, data, self._jac, None, self.source_site)
+        return data.site_xpos[self.source_site].copy(), self._jac @ data.qvel
 
     def source_offset(self, posture) -> np.ndarray:
         """Source position relative to the carrier at yaw 0 in a given arm posture."""
         data = mujoco.MjData(self.model)
         data.qpos[self.arm_qpos] = posture
         mujoco.mj_kinematics(self.model, data)
-        return data.site_xpos[self.source].copy()
+        return data.site_xpos[self.source_site].copy()
 
 
 class AcousticTrackingEnv(TaskEnv):
@@ -364,12 +259,14 @@ class AcousticTrackingEnv(TaskEnv):
 
     **Starting state.** ``trajectory="dynamic"``: the carrier starts at rest
     at a random point of its route area (x, y in [65, 265] m, z in [-20, -8]
-    m) and follows a seeded route (:func:`plan_route`); the arm's joints sweep
+    m) and follows a seeded route
+    (:func:`~auv_envs.tasks.acoustic.transition.plan_route`); the arm's joints sweep
     sinusoidally about ``NOMINAL_POSTURE`` (amplitudes 0.1-0.35 rad for the
     first three joints, 0.05-0.2 rad for the wrist, periods 12-40 s).
     ``trajectory="static"``: the carrier holds the end effector at one of
     [GMPHD] Table 1's five points (``static_point``; drawn when None) in the
-    nominal posture. The current (:func:`current_profile`) sweeps the
+    nominal posture. The current
+    (:func:`~auv_envs.tasks.acoustic.transition.current_profile`) sweeps the
     ``disturbance`` level's speed range with a veering direction.
 
     **Episode end.** No terminal state; truncated after ``time_limit`` s
@@ -494,7 +391,7 @@ class AcousticTrackingEnv(TaskEnv):
         self.physics = AcousticPhysics(build_tank_model())
         self._dt = 1.0 / config.sample_rate
         self.physics.model.opt.timestep = self._dt / physics_substeps
-        self._physics_substeps = physics_substeps
+        self.physics.substeps = physics_substeps
         self._horizon = int(round(time_limit * config.sample_rate))
         #: Step period, s (one env step).
         self.dt = self._dt
@@ -522,12 +419,18 @@ class AcousticTrackingEnv(TaskEnv):
             work_area=((40.0, 40.0, -25.0), (295.0, 295.0, -5.0)),
             max_detections=config.max_detections,
         )
-        self._source_offset = self.physics.source_offset(NOMINAL_POSTURE)
+        #: The transition's :class:`~auv_envs.tasks.acoustic.transition.AcousticParams`.
+        self.params = transition.AcousticParams(
+            obs_mode=obs_mode, trajectory=trajectory, static_point=static_point,
+            current_range=DISTURBANCES[disturbance], dt=self._dt, horizon=self._horizon,
+            array=array, source_offset=self.physics.source_offset(NOMINAL_POSTURE),
+            error_clip=self._error_clip, track_gate=self._track_gate,
+            success_radius=self._success_radius)
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(array)
-        self._episode = _Episode()
+        self._episode = ShellEpisode()
         self._plot = None  # the TankPlot, built on the first render()
 
     def _make_observation_space(self, array: HydrophoneArray) -> spaces.Space:
@@ -546,62 +449,28 @@ class AcousticTrackingEnv(TaskEnv):
         return spaces.Dict(entries)
 
     # ------------------------------------------------------------------ episode hooks
-    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        n = self._horizon + 1
-        ep = _Episode(horizon=self._horizon)
-        if self.trajectory == "dynamic":
-            ep.carrier_ref, ep.carrier_vel = plan_route(rng, n, self._dt)
-            t = self._dt * np.arange(n)[:, None]
-            amplitude = np.concatenate([rng.uniform(0.1, 0.35, 3), rng.uniform(0.05, 0.2, 3)])
-            period = rng.uniform(12.0, 40.0, 6)
-            phase = rng.uniform(0, 2 * np.pi, 6)
-            ep.arm_ref = NOMINAL_POSTURE + amplitude * (
-                np.sin(2 * np.pi * t / period + phase) - np.sin(phase)
-            )
-        else:
-            point = self._static_point or int(rng.integers(1, len(STATIC_POINTS) + 1))
-            ep.static_point = point
-            ref = np.append(np.asarray(STATIC_POINTS[point - 1]) - self._source_offset, 0.0)
-            ep.carrier_ref = np.broadcast_to(ref, (n, 4)).copy()
-            ep.carrier_vel = np.zeros((n, 4))
-            ep.arm_ref = np.broadcast_to(NOMINAL_POSTURE, (n, 6)).copy()
-        ep.current = current_profile(rng, n, self._dt, DISTURBANCES[self.disturbance])
-        ep.clock_offsets = self.calibration.array.draw_clock_offsets(rng)
-        ep.sound_speed = self.calibration.array.draw_sound_speed(rng)
-        ep.estimates = np.full((self._horizon, 3), np.nan)
-        ep.truths = np.full((self._horizon, 3), np.nan)
+    def _backend(self, rng: np.random.Generator) -> transition.Backend:
+        return transition.Backend(FLOATS, rng, self.physics)
 
-        physics = self.physics
-        model, data = physics.model, physics.data
-        mujoco.mj_resetData(model, data)
-        data.qpos[physics.carrier_qpos] = ep.carrier_ref[0]
-        data.qpos[physics.arm_qpos] = ep.arm_ref[0]
-        mujoco.mj_forward(model, data)
-        self._episode = ep
-        self._simulate_block(0)
+    def _begin_episode(self, rng: np.random.Generator, options: dict | None):
+        state, truth, obs = transition.reset(self.params, self._backend(rng))
+        self._episode = ShellEpisode(state, obs)
         extras = {}
         if self.calibration.config.sound_speed_error_std > 0:
-            extras["sound_speed"] = ep.sound_speed
-        return {"k": 0, "error": float("nan")}, extras
+            extras["sound_speed"] = state.plan.sound_speed
+        return truth, extras
 
     def _simulate(self, action: np.ndarray) -> dict:
         """Score the estimate ``action`` against the truth at the last observation, then
-        move on one sample period (the physics runs a block of periods at a time)."""
+        move on one sample period (:func:`~auv_envs.tasks.acoustic.transition.step`)."""
         ep = self._episode
-        k = ep.steps  # the estimate is scored against the truth at observation k
-        truth = ep.positions[k - ep.block_start]
-        error = float(np.linalg.norm(action - truth))
-        ep.estimates[k] = action
-        ep.truths[k] = truth
-        ep.squared_error_sum += error * error
-        ep.steps = k + 1
-        if ep.steps - ep.block_start >= BLOCK:
-            self._simulate_block(ep.steps)
-        return {"k": ep.steps, "error": error}
+        ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, ep.state, action, self._backend(self.np_random))
+        return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
         """The (clipped, normalised) estimate error; an episode ends only at its time limit."""
-        return {"estimate": -min(truth["error"], self._error_clip) / self._error_clip}, False
+        return self._episode.judged, False
 
     def _truth(self) -> dict:
         if self._episode.steps < 1:
@@ -627,33 +496,34 @@ class AcousticTrackingEnv(TaskEnv):
             self._plot = TankPlot(self.calibration, self._render_size,
                                   track_gate=self._track_gate, trail_seconds=RENDER_TRAIL,
                                   closeup_seconds=RENDER_CLOSEUP)
-        ep = self._episode
-        if ep.positions is None:  # no episode yet
+        state = self._episode.state
+        if state is None:  # no episode yet
             return self._plot.frame()
-        k = ep.steps
-        j = k - ep.block_start
+        block = state.block
+        k = state.steps
+        j = k - block.start
         trail_steps = int(round(RENDER_TRAIL / self._dt))
         first = max(0, k - trail_steps)
-        trail = np.concatenate([ep.truths[first:k], ep.positions[j : j + 1]])
-        m = ep.measurements
+        trail = np.concatenate([state.truths[first:k], block.positions[j : j + 1]])
+        m = block.measurements
         mask = m.mask[j].ravel()
         n = self.calibration.array.n_nodes
         azimuth = m.azimuth[j].reshape(-1, n)[mask]
         elevation = m.elevation[j].reshape(-1, n)[mask]
-        if ep.nodes is not None:  # an out node draws no ray (its zeros are no measurement)
-            azimuth[:, ~ep.nodes[j]] = np.nan
-            elevation[:, ~ep.nodes[j]] = np.nan
+        if block.nodes is not None:  # an out node draws no ray (its zeros are no measurement)
+            azimuth[:, ~block.nodes[j]] = np.nan
+            elevation[:, ~block.nodes[j]] = np.nan
         estimate, error, rmse = None, float("nan"), float("nan")
         if k:
-            estimate = ep.estimates[k - 1]
-            error = float(np.linalg.norm(estimate - ep.truths[k - 1]))
-            rmse = math.sqrt(ep.squared_error_sum / k)
+            estimate = state.estimates[k - 1]
+            error = float(np.linalg.norm(estimate - state.truths[k - 1]))
+            rmse = math.sqrt(state.squared_error_sum / k)
         closeup_steps = int(round(RENDER_CLOSEUP / self._dt))
         return self._plot.frame(
             time=k * self._dt,
             trail=trail,
             estimate=estimate,
-            estimate_trail=ep.estimates[max(0, k - closeup_steps) : k],
+            estimate_trail=state.estimates[max(0, k - closeup_steps) : k],
             azimuth=azimuth,
             elevation=elevation,
             origin=m.origin[j].ravel()[mask],
@@ -661,91 +531,11 @@ class AcousticTrackingEnv(TaskEnv):
             rmse=rmse,
         )
 
-    # ------------------------------------------------------------------ internals
-    def _simulate_block(self, start: int) -> None:
-        """Advance the physics over sample periods [start, start + BLOCK) and measure them."""
-        ep = self._episode
-        physics = self.physics
-        model, data = physics.model, physics.data
-        count = min(BLOCK, ep.horizon + 1 - start)
-        positions = np.empty((count, 3))
-        velocities = np.empty((count, 3))
-        wind = model.opt.wind
-        ctrl = data.ctrl
-        for j in range(count):
-            k = start + j
-            if k > 0:
-                ctrl[physics.carrier_pos_act] = ep.carrier_ref[k]
-                ctrl[physics.carrier_vel_act] = ep.carrier_vel[k]
-                ctrl[physics.arm_act] = ep.arm_ref[k]
-                wind[:] = ep.current[k - 1]
-                mujoco.mj_step(model, data, self._physics_substeps)
-                mujoco.mj_kinematics(model, data)
-            positions[j], velocities[j] = physics.source_state()
-        array = self.calibration.array
-        heard = positions
-        if array.config.propagation_delay:
-            track = positions if ep.history is None else np.concatenate([ep.history, positions])
-            heard = array.emission_positions(track, count, self._dt, ep.sound_speed)
-            ep.history = track[-HISTORY:]
-        wander = array.draw_wander(self.np_random, count, ep.wander)
-        if wander is not None:
-            ep.wander = wander[-1]
-        fading = array.draw_fading(self.np_random, count, ep.fading)
-        if fading is not None:
-            ep.fading = fading[-1]
-        nodes = array.draw_node_states(self.np_random, count,
-                                       None if ep.nodes is None else ep.nodes[-1])
-        ep.nodes = nodes
-        ep.fades = fading
-        ep.heard = heard
-        ep.block_start = start
-        ep.positions = positions
-        ep.velocities = velocities
-        ep.measurements = array.measure(
-            self.np_random, heard, ep.clock_offsets,
-            np.linalg.norm(ep.current[start:start + count], axis=1), ep.sound_speed, wander,
-            fading, nodes,
-        )
-
     def _observation(self, truth: dict):
-        ep = self._episode
-        k = truth["k"]
-        j = k - ep.block_start
-        if self.obs_mode == "state":
-            return np.concatenate([ep.positions[j], ep.velocities[j], ep.current[k]]).astype(
-                np.float32
-            )
-        m = ep.measurements
-        obs = {
-            "tdoa": m.tdoa[j].copy(),
-            "azimuth": m.azimuth[j].copy(),
-            "elevation": m.elevation[j].copy(),
-            "mask": m.mask[j].astype(np.int8),
-        }
-        if ep.nodes is not None:
-            obs["node_mask"] = ep.nodes[j].astype(np.int8)
-        return obs
+        return self._episode.obs  # the transition's
 
     def _info(self, truth: dict) -> dict:
-        ep = self._episode
-        k, error = truth["k"], truth["error"]
-        j = k - ep.block_start
-        rmse = math.sqrt(ep.squared_error_sum / k) if k else float("nan")
-        info = {
-            "estimate_error": error,
-            "running_rmse": rmse,
-            "tracked": error <= self._track_gate,
-            "is_success": rmse <= self._success_radius,
-            "true_position": ep.positions[j].copy(),
-            "true_velocity": ep.velocities[j].copy(),
-            "current": ep.current[k].copy(),
-            "detection_origin": ep.measurements.origin[j].copy(),
-            "time": k * self._dt,
-        }
-        if ep.nodes is not None:
-            info["nodes_working"] = int(np.count_nonzero(ep.nodes[j]))
-        return info
+        return transition.info(self.params, self._episode.state, truth)
 
     def episode_record(self) -> EpisodeRecord:
         """The whole episode's truth and realised nuisance, for the bound
@@ -759,19 +549,18 @@ class AcousticTrackingEnv(TaskEnv):
         Raises:
           RuntimeError: before ``reset()`` or after the first step.
         """
-        ep = self._episode
-        if ep.positions is None or ep.steps:
+        state = self._episode.state
+        if state is None or state.steps:
             raise RuntimeError("episode_record() replays the episode from its start: call it "
                                "right after reset()")
         replay = copy.deepcopy(self)
-        blocks = []
-        for start in range(0, ep.horizon, BLOCK):
-            if start:
-                replay._simulate_block(start)
-            blocks.append(replay._episode)
-            replay._episode = copy.copy(replay._episode)  # keep this block's arrays
+        backend = replay._backend(replay.np_random)
+        t = self.params.horizon
+        blocks = [state.block]
+        for start in range(BLOCK, t, BLOCK):
+            blocks.append(transition.simulate_block(self.params, state.plan, blocks[-1], start,
+                                                    backend))
         replay.close()
-        t = ep.horizon
 
         def joined(name):
             parts = [getattr(b, name) for b in blocks]
@@ -779,8 +568,8 @@ class AcousticTrackingEnv(TaskEnv):
 
         heard = joined("heard") if self.calibration.config.propagation_delay else None
         return EpisodeRecord(
-            positions=joined("positions"), dt=self._dt, sound_speed=ep.sound_speed,
-            current_speed=np.linalg.norm(ep.current[:t], axis=1), heard=heard,
+            positions=joined("positions"), dt=self._dt, sound_speed=state.plan.sound_speed,
+            current_speed=np.linalg.norm(state.plan.current[:t], axis=1), heard=heard,
             fading=joined("fades"), working=joined("nodes"),
         )
 
@@ -794,29 +583,4 @@ class AcousticTrackingEnv(TaskEnv):
         return bound_rmse(self.calibration.array, self.episode_record(), prior)
 
     def _episode_metrics(self, truth: dict) -> dict:
-        ep = self._episode
-        est, truth = ep.estimates[: ep.steps], ep.truths[: ep.steps]
-        errors = metrics.position_errors(est, truth)
-        rmse = metrics.rmse(est, truth)
-        # One estimate per step: the track is "on" the source while within the
-        # gate (label 0) and lost otherwise; TFC counts the re-acquisitions.
-        labels = np.where(errors <= self._track_gate, 0, metrics.NO_TRACK)
-        out = {
-            "rmse": rmse,
-            "max_error": metrics.max_error(est, truth),
-            # The systematic part of the error: rmse^2 = error_bias^2 + (random part)^2.
-            "error_bias": float(np.linalg.norm(np.mean(est - truth, axis=0))),
-            "tfc": metrics.track_fragmentation_count(labels),
-            # [GMPHD] §3.4's TCFE as written (first differences), and the same
-            # entropy on second differences, which the true motion leaves at 0.
-            "tcfe": metrics.tcfe(est, bin_width=TCFE_BIN_WIDTH),
-            "tcfe_fluctuation": metrics.tcfe(est, bin_width=TCFE_BIN_WIDTH, order=2),
-            # OSPA between singleton sets {estimate} and {truth} (p = 1, c =
-            # error_clip) is min(error, c) per step.
-            "mean_ospa": float(np.mean(np.minimum(errors, self._error_clip))),
-            "steps": ep.steps,
-            "success": bool(rmse <= self._success_radius),
-        }
-        if ep.static_point is not None:
-            out["static_point"] = ep.static_point
-        return out
+        return transition.summary(self.params, self._episode.state)

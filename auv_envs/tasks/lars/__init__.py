@@ -1,5 +1,6 @@
 """LARS capture by a ship's 3-DOF arm with a stereo camera [LTAT].
 
-``env`` the Gymnasium environment; ``arm``, ``physics``, ``scene``, ``calibration``;
-the sea (``sea``, ``waves``), sun glint (``glint``) and the stereo rig (``stereo``).
+``transition`` the episode (reset and step over a typed state), ``env`` its
+Gymnasium shell; ``arm``, ``physics``, ``scene``, ``calibration``; the sea
+(``sea``, ``waves``), sun glint (``glint``) and the stereo rig (``stereo``).
 """

@@ -1,7 +1,9 @@
 """Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision [LTAT].
 
-Registered as ``auv_envs/LARSCapture-v0``. The scene (arm, AUV, marker, sea)
-is described in :mod:`auv_envs.tasks.lars.scene`, the arm's kinematics and
+Registered as ``auv_envs/LARSCapture-v0``. The episode is
+:mod:`auv_envs.tasks.lars.transition`; this module is its Gymnasium shell (and
+renders the ``stereo`` images). The scene (arm, AUV, marker, sea) is
+described in :mod:`auv_envs.tasks.lars.scene`, the arm's kinematics and
 dynamics in :mod:`auv_envs.tasks.lars.arm`, the opt-in irregular sea and sun
 glint in :mod:`auv_envs.tasks.lars.sea`.
 """
