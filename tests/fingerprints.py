@@ -3,10 +3,14 @@
 ``tests/data/release_fingerprints.json`` holds the fingerprints of every
 registered id and non-image observation mode as released before the
 ``difficulty`` presets existed; ``tests/test_difficulty.py`` checks that the
-default and ``difficulty="easy"`` still produce them. Regenerate only when a
-behaviour change is intended (and bump the id's version):
+default and ``difficulty="easy"`` still produce them.
+``tests/data/level_fingerprints.json`` holds those of the ``paper`` and
+``hard`` levels (recorded at stop 47, when the LARS and acoustic episodes
+became transitions; :func:`level_cases`). Regenerate only when a behaviour
+change is intended (and bump the id's version):
 
     python -m tests.fingerprints tests/data/release_fingerprints.json
+    python -m tests.fingerprints --levels tests/data/level_fingerprints.json
 """
 
 from __future__ import annotations
@@ -75,15 +79,35 @@ def cases() -> list[tuple[str, str, dict]]:
     return out
 
 
+#: The levels beyond the release that :func:`level_cases` fingerprints.
+LEVELS = ("paper", "hard")
+
+
+def level_cases() -> list[tuple[str, str, dict]]:
+    """(id, obs mode, keywords) of every levelled id's non-image modes at each of
+    :data:`LEVELS`, plain and varied."""
+    return [(env_id, mode, {**kwargs, "difficulty": level})
+            for env_id, mode, kwargs in cases()
+            if hasattr(auv_envs.env_class(env_id), "difficulty_presets")
+            for level in LEVELS]
+
+
 def key(env_id: str, mode: str, kwargs: dict, seed: int) -> str:
     return "|".join([env_id, mode, json.dumps(kwargs, sort_keys=True), str(seed)])
 
 
-def record() -> dict:
+def record(levels: bool = False) -> dict:
+    """Every case's fingerprints: the release's (both seeds), or with ``levels`` the
+    levels' (the first seed)."""
+    if levels:
+        return {key(env_id, mode, kwargs, SEEDS[0]): fingerprint(env_id, mode, SEEDS[0], **kwargs)
+                for env_id, mode, kwargs in level_cases()}
     return {key(env_id, mode, kwargs, seed): fingerprint(env_id, mode, seed, **kwargs)
             for env_id, mode, kwargs in cases() for seed in SEEDS}
 
 
 if __name__ == "__main__":
-    with open(sys.argv[1], "w") as f:
-        json.dump(record(), f, indent=0)
+    levels = "--levels" in sys.argv[1:]
+    path = [a for a in sys.argv[1:] if a != "--levels"][0]
+    with open(path, "w") as f:
+        json.dump(record(levels), f, indent=0)

@@ -12,9 +12,10 @@ import pytest
 
 import auv_envs
 from auv_envs.core import difficulty
-from tests.fingerprints import SEEDS, cases, fingerprint, key
+from tests.fingerprints import SEEDS, cases, fingerprint, key, level_cases
 
 RELEASE = json.loads((Path(__file__).parent / "data" / "release_fingerprints.json").read_text())
+LEVELS = json.loads((Path(__file__).parent / "data" / "level_fingerprints.json").read_text())
 LEVELLED = [case for case in cases()
             if hasattr(auv_envs.env_class(case[0]), "difficulty_presets")]
 
@@ -44,6 +45,15 @@ def test_easy_is_the_release(case):
     seed = SEEDS[0]
     _assert_release(fingerprint(env_id, mode, seed, difficulty="easy", **kwargs),
                     RELEASE[key(env_id, mode, kwargs, seed)])
+
+
+@pytest.mark.parametrize("case", level_cases(), ids=_ids)
+def test_levels_are_unchanged(case):
+    """``paper`` and ``hard`` episodes as recorded (``tests/data/level_fingerprints.json``):
+    a refactor of a family's transition must leave them as they were."""
+    env_id, mode, kwargs = case
+    _assert_release(fingerprint(env_id, mode, SEEDS[0], **kwargs),
+                    LEVELS[key(env_id, mode, kwargs, SEEDS[0])])
 
 
 @pytest.mark.parametrize("env_id", sorted({case[0] for case in LEVELLED}))
