@@ -39,6 +39,7 @@ import numpy as np
 from mujoco import mjx
 
 from auv_envs.batched.docking import DockingPlantMJX
+from auv_envs.batched.functional import KeyDraws, State
 from auv_envs.core import frames
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
@@ -51,35 +52,6 @@ OBS_MODES = ("state", "features")
 #: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
 STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
                 "heading_error", "lights_visible", "is_success")
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass
-class State:
-    """One environment's state (a batch of them under ``vmap``), as Playground's.
-
-    Attributes:
-        data: the plant state, ``{"qpos": (7,), "qvel": (6,)}``.
-        obs: the observation (an array for ``state``, a dict for ``features``).
-        reward: the last step's reward.
-        done: whether the last step ended the episode (terminated or truncated).
-        metrics: the last step's metrics (:data:`STEP_METRICS`), its reward terms
-            (``reward_<term>``) and the episode's summary so far (``episode_*``).
-        info: ``rng`` (the episode's key), ``episode`` (the transition's
-            :class:`~auv_envs.tasks.docking.transition.EpisodeState`),
-            ``terminated``, ``truncation`` and ``final_obs`` (the observation
-            that ended the episode; the present one otherwise).
-    """
-
-    data: dict
-    obs: object
-    reward: jax.Array
-    done: jax.Array
-    metrics: dict
-    info: dict
-
-    def replace(self, **changes) -> State:
-        return dataclasses.replace(self, **changes)
 
 
 class DockingMJX:
@@ -275,31 +247,6 @@ class DockingMJX:
             **{f"episode_{key}": value
                for key, value in transition.summary(episode, truth).items()},
         }
-
-
-class KeyDraws:
-    """NumPy ``Generator``'s draws (``uniform``, ``standard_normal``, ``random``) over a JAX
-    key: each call splits a fresh key off, so the transition draws as it does on the CPU."""
-
-    def __init__(self, key: jax.Array):
-        self.key = key
-
-    def _next(self) -> jax.Array:
-        self.key, key = jax.random.split(self.key)
-        return key
-
-    @staticmethod
-    def _shape(size) -> tuple:
-        return () if size is None else (size,) if isinstance(size, int) else tuple(size)
-
-    def uniform(self, low=0.0, high=1.0, size=None) -> jax.Array:
-        return jax.random.uniform(self._next(), self._shape(size), minval=low, maxval=high)
-
-    def standard_normal(self, size=None) -> jax.Array:
-        return jax.random.normal(self._next(), self._shape(size))
-
-    def random(self, size=None) -> jax.Array:
-        return jax.random.uniform(self._next(), self._shape(size))
 
 
 class _PlantCursor:

@@ -137,6 +137,7 @@ def project_few(
     points_world: list,
     cam_position_world: tuple,
     cam_rotation_world: list,
+    ops=FLOATS,
 ) -> tuple[list, list]:
     """Project a handful of world points into the image: an environment's per-step path.
 
@@ -150,6 +151,7 @@ def project_few(
         cam_position_world: camera centre in the world, 3 floats.
         cam_rotation_world: rotation from the OpenCV camera frame to the
             world as 3 rows of 3 floats.
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
 
     Returns:
         ``(pixels, in_image)``: a ``(u, v)`` tuple per point (NaN for points
@@ -159,7 +161,8 @@ def project_few(
     px, py, pz = cam_position_world
     pixels, in_image = [], []
     for x, y, z in points_world:
-        u, v, inside = project_point(intrinsics, x - px, y - py, z - pz, cam_rotation_world)
+        u, v, inside = project_point(intrinsics, x - px, y - py, z - pz, cam_rotation_world,
+                                     ops)
         pixels.append((u, v))
         in_image.append(inside)
     return pixels, in_image

@@ -40,8 +40,8 @@ GRAVITY = 9.81
 def rotation_from_euler(roll, pitch, yaw, ops=np):
     """Body-to-world rotation matrix for ZYX Euler angles (radians).
 
-    ``ops`` is ``numpy`` (the default; returns a (3, 3) array) or ``casadi``
-    (symbolic angles; returns a 3x3 CasADi matrix), as in
+    ``ops`` is ``numpy`` (the default; returns a (3, 3) array), ``jax.numpy`` (a
+    (3, 3) JAX array) or ``casadi`` (symbolic angles; returns a 3x3 CasADi matrix), as in
     :mod:`auv_envs.core.hydrodynamics`: one definition for the environments and
     the CasADi observers.
     """
@@ -53,9 +53,9 @@ def rotation_from_euler(roll, pitch, yaw, ops=np):
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
         [-sp, cp * sr, cp * cr],
     ]
-    if ops is np:
-        return np.array(rows)
-    return ops.vertcat(*(ops.horzcat(*row) for row in rows))
+    if hasattr(ops, "vertcat"):
+        return ops.vertcat(*(ops.horzcat(*row) for row in rows))
+    return ops.array(rows)
 
 
 def rotation_rows_from_quat(w, x, y, z) -> tuple:

@@ -9,7 +9,8 @@ the same code then evaluates a batch of JAX arrays elementwise, inside
 ``jit`` and ``vmap``. The dynamics accept ``math``, ``numpy`` or ``casadi``
 modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
-Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``,
+Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``, ``acos``,
+``hypot``,
 ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
 and ``logical_not``. Comparisons combine with ``&`` and
 ``|``, which serve Python bools and boolean arrays alike. For a transition's
@@ -17,6 +18,9 @@ state (:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its
 array module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean``
 (a scalar of the backend's type: Python's, or float32/int32/bool arrays),
 ``vector`` (a few scalars as one value: a tuple, or a float32 array),
+``masked_clip(values, mask, low, high)`` (sequences of scalars: each value clipped to
+its bounds where its mask is true, zero elsewhere; a list of Python floats, or an
+array),
 ``unpack`` (a 1-D array as a tuple of scalars: Python floats, or array
 elements) and ``count`` (the true entries of a boolean array).
 """
@@ -33,19 +37,28 @@ def _where(condition, a, b):
     return a if condition else b
 
 
+def _masked_clip(values, mask, low, high) -> list:
+    return [(lo if v < lo else (hi if v > hi else v)) if m else 0.0
+            for v, m, lo, hi in zip(values, mask, low, high, strict=True)]
+
+
 def _clip(x, low, high):
-    return min(high, max(low, x))
+    # Comparisons, not min/max (which are slower and turn NaN into a bound): NaN stays NaN,
+    # as NumPy's and JAX's clip leave it.
+    return low if x < low else (high if x > high else x)
 
 
 #: Python floats (and bools): :mod:`math`, with ``where`` a conditional expression.
 FLOATS = types.SimpleNamespace(
     name="floats",
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
-    asin=math.asin, clip=_clip, where=_where, minimum=min, maximum=max,
+    asin=math.asin, acos=math.acos, hypot=math.hypot, clip=_clip, where=_where,
+    minimum=min, maximum=max,
     logical_not=lambda x: not x,
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
     count=lambda array: int(np.count_nonzero(array)),
+    masked_clip=_masked_clip,
 )
 
 
@@ -56,7 +69,8 @@ def jax_ops() -> types.SimpleNamespace:
     return types.SimpleNamespace(
         name="jax",
         sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan2=jnp.arctan2,
-        asin=jnp.arcsin, clip=jnp.clip, where=jnp.where, minimum=jnp.minimum,
+        asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, clip=jnp.clip, where=jnp.where,
+        minimum=jnp.minimum,
         maximum=jnp.maximum, logical_not=jnp.logical_not,
         xp=jnp, real=lambda value: jnp.asarray(value, jnp.float32),
         integer=lambda value: jnp.asarray(value, jnp.int32),
@@ -64,4 +78,7 @@ def jax_ops() -> types.SimpleNamespace:
         vector=lambda values: jnp.asarray(values, jnp.float32),
         unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
         count=lambda array: jnp.sum(array.astype(jnp.int32)),
+        masked_clip=lambda values, mask, low, high: jnp.where(
+            jnp.asarray(mask), jnp.clip(jnp.stack(list(values)), jnp.asarray(low),
+                                        jnp.asarray(high)), 0.0),
     )

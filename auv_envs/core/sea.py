@@ -36,10 +36,14 @@ class WashOver:
 
     def offset(self, t: float) -> float | None:
         """Crest x offset from the body centre at time ``t``; None between events."""
+        active, shift = self.shift(t)
+        return shift if active else None
+
+    def shift(self, t) -> tuple:
+        """``(active, offset)`` at time ``t``: whether an event is on, and the crest's x
+        offset from the body centre were it on (Python floats, or arrays elementwise)."""
         since = (t - self.phase) % self.period
-        if since >= self.duration:
-            return None
-        return -self.sweep + 2.0 * self.sweep * since / self.duration
+        return since < self.duration, -self.sweep + 2.0 * self.sweep * since / self.duration
 
     @classmethod
     def sample(
@@ -79,40 +83,41 @@ class FloatingAnalog:
         )
 
 
-def segments_cross_box(starts: np.ndarray, ends: np.ndarray, center, half_size) -> np.ndarray:
+def segments_cross_box(starts, ends, center, half_size, xp=np):
     """Whether each segment ``starts[i] -> ends[i]`` crosses an axis-aligned box.
 
     Args:
         starts, ends: (..., 3) segment end points (broadcast together).
         center, half_size: the box, (3,) each.
+        xp: the array module (NumPy, or ``jax.numpy`` elementwise under ``vmap``).
 
     Returns:
         Boolean array of the broadcast leading shape.
     """
-    lo = np.asarray(center) - half_size
-    hi = np.asarray(center) + half_size
+    lo = xp.asarray(center) - xp.asarray(half_size)
+    hi = xp.asarray(center) + xp.asarray(half_size)
     d = ends - starts
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / d
-        t0 = (lo - starts) * inv
-        t1 = (hi - starts) * inv
-    near = np.minimum(t0, t1)
-    far = np.maximum(t0, t1)
     # An axis parallel to the segment: inside the slab => (-inf, inf), outside => empty.
     parallel = d == 0.0
-    if parallel.any():
-        inside = (starts >= lo) & (starts <= hi)
-        near = np.where(parallel, np.where(inside, -np.inf, np.inf), near)
-        far = np.where(parallel, np.where(inside, np.inf, -np.inf), far)
-    t_enter = np.maximum(near.max(axis=-1), 0.0)
-    t_exit = np.minimum(far.min(axis=-1), 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / xp.where(parallel, 1.0, d)
+        t0 = (lo - starts) * inv
+        t1 = (hi - starts) * inv
+    near = xp.minimum(t0, t1)
+    far = xp.maximum(t0, t1)
+    inside = (starts >= lo) & (starts <= hi)
+    near = xp.where(parallel, xp.where(inside, -np.inf, np.inf), near)
+    far = xp.where(parallel, xp.where(inside, np.inf, -np.inf), far)
+    t_enter = xp.maximum(near.max(axis=-1), 0.0)
+    t_exit = xp.minimum(far.min(axis=-1), 1.0)
     return t_enter <= t_exit
 
 
-def heave(t: float, amplitude: float, omega: float, phase: float) -> tuple[float, float]:
-    """Sinusoidal heave ([LTAT], motion model) and its rate at time ``t``."""
+def heave(t, amplitude, omega, phase, ops=FLOATS) -> tuple:
+    """Sinusoidal heave ([LTAT], motion model) and its rate at time ``t`` (Python floats,
+    or any backend of :mod:`auv_envs.core.ops`)."""
     arg = omega * t + phase
-    return amplitude * math.sin(arg), amplitude * omega * math.cos(arg)
+    return amplitude * ops.sin(arg), amplitude * omega * ops.cos(arg)
 
 
 @dataclasses.dataclass(frozen=True)

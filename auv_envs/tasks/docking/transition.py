@@ -6,7 +6,7 @@ Both take a :class:`Backend`: the arithmetic (:mod:`auv_envs.core.ops`:
 Python floats and NumPy on the CPU, ``jax.numpy`` in the batched env), the
 episode's random draws (anything with NumPy ``Generator``'s ``uniform``,
 ``standard_normal`` and ``random``: the env's own generator on the CPU,
-:class:`auv_envs.batched.docking_env.KeyDraws` over a JAX key), and the
+:class:`auv_envs.batched.functional.KeyDraws` over a JAX key), and the
 plant (MuJoCo on the CPU, MJX batched). The start draw, the order of the
 step (thrusters, current, plant, judgement, water, observation), the reward,
 the termination, the observation and the episode summary exist here only;

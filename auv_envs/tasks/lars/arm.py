@@ -19,6 +19,8 @@ import math
 import mujoco
 import numpy as np
 
+from auv_envs.core.ops import FLOATS
+
 JOINT_NAMES = ("slew", "shoulder", "elbow")
 
 
@@ -60,17 +62,18 @@ class ArmModel:
         self.torque_limits = _read_only([gear[i] for i in ids])
 
     # ----------------------------------------------------------- kinematics
-    def end_state(self, q, qd=(0.0, 0.0, 0.0)) -> tuple[float, ...]:
-        """Arm-end position and velocity as six floats ``(x, y, z, vx, vy, vz)``.
+    def end_state(self, q, qd=(0.0, 0.0, 0.0), ops=FLOATS) -> tuple[float, ...]:
+        """Arm-end position and velocity as six scalars ``(x, y, z, vx, vy, vz)``.
 
-        Plain-float arithmetic: the env calls this every step.
+        Scalar arithmetic (the env calls this every step): Python floats, or
+        any backend of :mod:`auv_envs.core.ops`.
         """
         q1, q2, q3 = q
         w1, w2, w3 = qd
         l1, l2 = self.link_lengths
-        c1, s1 = math.cos(q1), math.sin(q1)
-        a2, a23 = l1 * math.cos(q2), l2 * math.cos(q2 + q3)
-        b2, b23 = l1 * math.sin(q2), l2 * math.sin(q2 + q3)
+        c1, s1 = ops.cos(q1), ops.sin(q1)
+        a2, a23 = l1 * ops.cos(q2), l2 * ops.cos(q2 + q3)
+        b2, b23 = l1 * ops.sin(q2), l2 * ops.sin(q2 + q3)
         reach, rise = a2 + a23, b2 + b23
         reach_rate = -b2 * w2 - b23 * (w2 + w3)
         sx, sy, sz = self._shoulder
@@ -118,19 +121,28 @@ class ArmModel:
         p = np.asarray(position, dtype=float)
         if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
             raise ValueError(f"position must be a finite (3,) vector, got {position!r}")
-        dx, dy, dz = (p - self.shoulder).tolist()
-        reach = math.hypot(dx, dy)
+        return np.array(self.joint_angles(p.tolist()))
+
+    def joint_angles(self, position, ops=FLOATS) -> tuple:
+        """:meth:`inverse_kinematics` in scalar arithmetic: the three angles for an end
+        ``position`` (three scalars), in any backend of :mod:`auv_envs.core.ops`
+        (Python floats by default). Python floats out of reach raise ``ValueError``;
+        arrays are not checked (NaN angles)."""
+        sx, sy, sz = self._shoulder
+        x, y, z = position
+        dx, dy, dz = x - sx, y - sy, z - sz
+        reach = ops.hypot(dx, dy)
         l1, l2 = self.link_lengths
         cos_elbow = (reach**2 + dz**2 - l1**2 - l2**2) / (2.0 * l1 * l2)
-        if not -1.0 <= cos_elbow <= 1.0:
+        if isinstance(cos_elbow, float) and not -1.0 <= cos_elbow <= 1.0:
             raise ValueError(
-                f"position {p.tolist()} is out of the arm's reach "
+                f"position {[x, y, z]} is out of the arm's reach "
                 f"({abs(l1 - l2):.2f} to {l1 + l2:.2f} m from the shoulder)"
             )
-        q1 = math.atan2(-dx, dy)
-        q3 = -math.acos(cos_elbow)
-        q2 = math.atan2(dz, reach) - math.atan2(l2 * math.sin(q3), l1 + l2 * math.cos(q3))
-        return np.array([q1, q2, q3])
+        q1 = ops.atan2(-dx, dy)
+        q3 = -ops.acos(cos_elbow)
+        q2 = ops.atan2(dz, reach) - ops.atan2(l2 * ops.sin(q3), l1 + l2 * ops.cos(q3))
+        return q1, q2, q3
 
     def within_limits(self, q) -> bool:
         q = np.asarray(q, dtype=float)

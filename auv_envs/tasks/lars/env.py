@@ -389,7 +389,8 @@ class LARSCaptureEnv(TaskEnv):
         pixel_bounds = None
         if obs_mode == "features":  # noisy pixels are clipped to the space's bounds
             pixels = self.observation_space["pixels"]
-            pixel_bounds = (*pixels.low[0, 0].tolist(), *pixels.high[0, 0].tolist())
+            pixel_bounds = (tuple(pixels.low.ravel().tolist()),
+                            tuple(pixels.high.ravel().tolist()))
         self._width, self._height = width, height
         hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
         self._glint_camera = None if glint is None else GlintCamera(
@@ -493,7 +494,7 @@ class LARSCaptureEnv(TaskEnv):
         return transition.info(self.params, ep.state, truth, ep.judged)
 
     def _episode_metrics(self, truth: dict) -> dict:
-        return transition.summary(self.params, self._episode.state, truth)
+        return transition.episode_metrics(self.params, self._episode.state, truth)
 
     def _render_frame(self) -> np.ndarray:
         self._pose_scene()
@@ -547,9 +548,11 @@ class LARSCaptureEnv(TaskEnv):
         phys.pose("auv", pos, quat)
         half = 0.5 * float(q[0])
         phys.pose("head", end, (math.cos(half), 0.0, 0.0, math.sin(half)))
-        crest = (transition.crest_centre(scene, t, pos, level) if scene.wash is not None
-                 else None)
-        phys.pose("crest", PARKED if crest is None else crest, (1.0, 0.0, 0.0, 0.0))
+        crest = PARKED
+        if scene.wash is not None:
+            active, centre = transition.crest_centre(scene, t, pos, level)
+            crest = centre if active else PARKED
+        phys.pose("crest", crest, (1.0, 0.0, 0.0, 0.0))
         for k in range(2):
             if k < len(scene.analogs):
                 centre, yaw = transition.analog_pose(scene, k, t, pos, sample)

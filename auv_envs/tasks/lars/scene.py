@@ -20,6 +20,7 @@ from dm_control import mjcf
 
 from auv_envs.core import frames
 from auv_envs.core.assets import asset_path
+from auv_envs.core.ops import FLOATS
 
 #: Explore-100-like AUV ([LTAT], Table 1).
 AUV_LENGTH = 1.8
@@ -41,12 +42,13 @@ ANALOG_SCALE = 0.8
 ANALOG_MARKER_BASE_X = -0.12
 
 
-def auv_rotation(pitch: float, yaw: float) -> np.ndarray:
-    """Body-to-world rotation of the level-rolled AUV with nose-up ``pitch`` and ``yaw``.
+def auv_rotation(pitch, yaw, xp=np):
+    """Body-to-world rotation (3, 3) of the level-rolled AUV with nose-up ``pitch`` and
+    ``yaw`` (``xp``: NumPy, or ``jax.numpy``).
 
     frames.py's ZYX pitch is nose-down positive, hence the sign.
     """
-    return frames.rotation_from_euler(0.0, -pitch, yaw)
+    return frames.rotation_from_euler(0.0, -pitch, yaw, xp)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,23 +162,26 @@ MOTION_RANGES = {
 }
 
 
-def uniform_draws(rng: np.random.Generator, bounds) -> list[float]:
-    """One uniform draw in each ``(low, high)`` of ``bounds``, as Python floats.
+def uniform_draws(rng: np.random.Generator, bounds, ops=FLOATS) -> list[float]:
+    """One uniform draw in each ``(low, high)`` of ``bounds``, as Python floats (or the
+    scalars of another backend of :mod:`auv_envs.core.ops`).
 
     ``Generator.uniform(low, high)`` is ``low + (high - low) * random()``, so
     these are the values (and the stream position) of successive scalar
     ``rng.uniform`` calls, drawn in one call: a reset draws about ten, and
     each scalar call costs more than the arithmetic.
     """
-    draws = rng.random(len(bounds)).tolist()
+    draws = ops.unpack(rng.random(len(bounds)))
     return [lo + (hi - lo) * u for (lo, hi), u in zip(bounds, draws, strict=True)]
 
 
 _MOTION_BOUNDS = tuple(MOTION_RANGES.values())
 
 
-def sample_motion(rng: np.random.Generator, overrides: dict | None = None) -> AUVMotion:
-    """Draw an :class:`AUVMotion` in :data:`MOTION_RANGES`; ``overrides`` pins fields."""
+def sample_motion(rng: np.random.Generator, overrides: dict | None = None,
+                  ops=FLOATS) -> AUVMotion:
+    """Draw an :class:`AUVMotion` in :data:`MOTION_RANGES`; ``overrides`` pins fields
+    (Python floats; the draws are the scalars of ``ops``)."""
     overrides = dict(overrides or {})
     unknown = set(overrides) - set(MOTION_RANGES)
     if unknown:
@@ -185,12 +190,16 @@ def sample_motion(rng: np.random.Generator, overrides: dict | None = None) -> AU
         )
     values = {}
     # Always draw every field: pinning one keeps the rest of the stream.
-    for name, drawn in zip(MOTION_RANGES, uniform_draws(rng, _MOTION_BOUNDS), strict=True):
-        values[name] = float(overrides.get(name, drawn))
+    for name, drawn in zip(MOTION_RANGES, uniform_draws(rng, _MOTION_BOUNDS, ops),
+                           strict=True):
+        if name not in overrides:
+            values[name] = drawn
+            continue
+        values[name] = float(overrides[name])
         if not math.isfinite(values[name]):
             raise ValueError(f"motion option {name} must be finite, got {values[name]}")
-    if values["heave_period"] <= 0:
-        raise ValueError("heave_period must be positive")
+        if name == "heave_period" and values[name] <= 0:
+            raise ValueError("heave_period must be positive")
     return AUVMotion(**values)
 
 

@@ -20,6 +20,8 @@ cameras cost less as scalars than as many tiny NumPy operations.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import itertools
 import math
 import operator
 from typing import Any, NamedTuple
@@ -28,11 +30,13 @@ import numpy as np
 
 from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics, project_few
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
 from auv_envs.tasks.lars.scene import (
     AUV_DIAMETER,
     AUV_FREEBOARD,
     AUVMotion,
+    auv_rotation,
     sample_motion,
     uniform_draws,
 )
@@ -70,8 +74,9 @@ class LARSParams:
             ``capture_point`` the lifting eye's (3,) NumPy.
         tolerance: ``(position m, speed m/s)`` of a capture.
         workspace: ``(low, high)`` corners of the arm end's box in the ship's frame.
-        pixel_noise_std: ``features`` noise, px; ``pixel_bounds`` ``(u_lo, v_lo,
-            u_hi, v_hi)`` the noisy pixels are clipped to (``features`` only).
+        pixel_noise_std: ``features`` noise, px; ``pixel_bounds`` ``(low, high)``, 12
+            floats each, the bounds of the u, v of the six corners the noisy pixels are
+            clipped to (``features`` only).
         hull_half: the hull's cylinder half-length between its hemispherical ends, m.
         analog_centre: ``(x, z)`` of an analog's marker centre in its body frame.
         joint_mid, joint_half: the joint limits' middle and half-range (``position``).
@@ -173,20 +178,19 @@ class Assessment(NamedTuple):
 
 # ------------------------------------------------------------------ the scene
 def scene_of(params: LARSParams, motion: AUVMotion, waves=None, wash=None, analogs=(),
-             glint=None) -> Scene:
+             glint=None, ops=FLOATS) -> Scene:
     """The :class:`Scene` of an episode's draws (the per-episode geometry precomputed)."""
-    rot = motion.rotation()
+    rot = auv_rotation(motion.pitch, motion.yaw, ops.xp)
     sea = None
     if waves is not None:
         tracks = [(motion.x0 + a.dx0, motion.y0 + a.dy, motion.surge + a.drift)
                   for a in analogs]
         sea = EpisodeSea(params.sea, waves, motion.x0, motion.y0, motion.surge, motion.yaw,
                          tracks)
-    corners = np.asarray(params.corners_body) @ rot.T
+    corners = ops.xp.asarray(params.corners_body) @ rot.T
     return Scene(motion=motion, wash=wash, analogs=analogs, waves=waves, glint=glint, sea=sea,
-                 corners=[tuple(v) for v in corners.tolist()],
-                 capture=tuple((rot @ params.capture_point).tolist()),
-                 axis=tuple(rot[:, 0].tolist()))
+                 corners=[ops.unpack(row) for row in corners],
+                 capture=ops.unpack(rot @ params.capture_point), axis=ops.unpack(rot[:, 0]))
 
 
 def sea_sample(scene: Scene, t: float) -> SeaSample | None:
@@ -199,11 +203,11 @@ def ship_pose(params: LARSParams, sample: SeaSample) -> ShipPose:
     return ShipPose(params.sea.ship_origin, sample)
 
 
-def auv_position(scene: Scene, t: float, sample: SeaSample | None) -> tuple:
+def auv_position(scene: Scene, t: float, sample: SeaSample | None, ops=FLOATS) -> tuple:
     """AUV CG position at time ``t`` ([LTAT] motion model, or the sea's heave)."""
     m = scene.motion
     if sample is None:
-        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase)[0]
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase, ops)[0]
     else:
         level = sample.auv_heave
     return (m.x0 + m.surge * t, m.y0, level + Z_CENTRE)
@@ -217,24 +221,24 @@ def auv_attitude(scene: Scene, sample: SeaSample | None) -> tuple[float, float]:
     return sample.auv_roll, m.pitch + sample.auv_pitch
 
 
-def crest_centre(scene: Scene, t: float, position, level: float):
-    """Centre of the wash-over crest at time ``t`` over the AUV at ``position``; None
-    between events."""
+def crest_centre(scene: Scene, t: float, position, level: float) -> tuple:
+    """``(active, centre)`` of the wash-over crest at time ``t`` over the AUV at
+    ``position``: whether an event is on, and where the crest is were it on."""
     wash = scene.wash
-    shift = wash.offset(t)
-    if shift is None:
-        return None
+    active, shift = wash.shift(t)
     top = level + AUV_FREEBOARD + wash.overtop
-    return (position[0] + shift, position[1], top - wash.half_size[2])
+    return active, (position[0] + shift, position[1], top - wash.half_size[2])
 
 
-def analog_pose(scene: Scene, k: int, t: float, position, sample: SeaSample | None):
+def analog_pose(scene: Scene, k: int, t: float, position, sample: SeaSample | None,
+                ops=FLOATS):
     """Centre and yaw of analog ``k``: heaving with its own phase lag, or, with a sea,
     with the elevation at its own place."""
     m = scene.motion
     analog = scene.analogs[k]
     if sample is None:
-        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag)[0]
+        level = heave(t, m.heave_amplitude, m.omega, m.heave_phase + analog.heave_lag,
+                      ops)[0]
     else:
         level = sample.analog_levels[k]
     centre = (position[0] + analog.dx0 + analog.drift * t, position[1] + analog.dy,
@@ -259,34 +263,35 @@ def _body_to_world(params: LARSParams, roll: float, pitch: float, yaw: float) ->
 
 
 def _count_distractors(params: LARSParams, scene: Scene, t, position, sample, camera,
-                       rows) -> int:
+                       rows, ops) -> int:
     """Analogs whose marker centre projects into the left image (camera centre
     ``camera``, camera -> world ``rows``)."""
     mx, mz = params.analog_centre
     centres = []
     for k in range(len(scene.analogs)):
-        (ax, ay, az), yaw = analog_pose(scene, k, t, position, sample)
-        centres.append((ax + mx * math.cos(yaw), ay + mx * math.sin(yaw), az + mz))
-    return sum(project_few(params.intrinsics, centres, camera, rows)[1])
+        (ax, ay, az), yaw = analog_pose(scene, k, t, position, sample, ops)
+        centres.append((ax + mx * ops.cos(yaw), ay + mx * ops.sin(yaw), az + mz))
+    return sum(project_few(params.intrinsics, centres, camera, rows, ops)[1])
 
 
 # ------------------------------------------------------------------ the truth
-def truth(params: LARSParams, scene: Scene, steps: int, q: list, qd: list) -> dict:
-    """Ground truth at step ``steps`` with the arm at joint angles ``q`` and rates ``qd``,
-    computed once a step and shared by observation, reward and info.
+def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
+    """Ground truth at step ``steps`` with the arm at joint angles ``q`` and rates ``qd``
+    (three scalars each), computed once a step and shared by observation, reward and
+    info, in the scalars of ``ops``.
 
     ``corners`` (9) and ``pixels`` (12: left u, v of A1, A2, A3, then right) are
     flat lists, shaped once when they become arrays; ``sea`` is the sea's
     sample (None without a sea).
     """
     t = steps * params.dt
-    ex, ey, ez, evx, evy, evz = params.arm.end_state(q, qd)
+    ex, ey, ez, evx, evy, evz = params.arm.end_state(q, qd, ops)
     end_on_ship = (ex, ey, ez)
-    c, s = math.cos(q[0]), math.sin(q[0])
+    c, s = ops.cos(q[0]), ops.sin(q[0])
     m = scene.motion
     sample = sea_sample(scene, t)
     if sample is None:
-        level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase)
+        level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase, ops)
         px, py, pz = m.x0 + m.surge * t, m.y0, level + Z_CENTRE
         roll, pitch = 0.0, m.pitch
         body_corners, (kx, ky, kz), (ax, ay, az) = scene.corners, scene.capture, scene.axis
@@ -306,34 +311,38 @@ def truth(params: LARSParams, scene: Scene, steps: int, q: list, qd: list) -> di
     corners = [x for point in points for x in point]
     b = params.baseline
     left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
-    left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows)
-    right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows)
+    left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows, ops)
+    right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows, ops)
     left = [x for uv in left_px for x in uv]
     right = [x for uv in right_px for x in uv]
 
     occluded = False
     distractors = 0
     if scene.wash is not None:
-        crest = crest_centre(scene, t, (px, py, pz), level)
-        if crest is not None and (any(vis_left) or any(vis_right)):
-            cams = np.array([left_cam, right_cam])
-            hidden_left, hidden_right = segments_cross_box(
-                cams[:, None, :], np.array(corners).reshape(1, 3, 3), crest,
-                scene.wash.half_size,
-            ).tolist()
-            occluded = any(hidden_left) or any(hidden_right)
-            vis_left = [v and not h for v, h in zip(vis_left, hidden_left, strict=True)]
-            vis_right = [v and not h for v, h in zip(vis_right, hidden_right, strict=True)]
+        active, crest = crest_centre(scene, t, (px, py, pz), level)
+        # Python bools can skip the test when nothing can be hidden; arrays always run it.
+        skip = isinstance(active, bool) and not (active and (any(vis_left) or any(vis_right)))
+        if not skip:
+            xp = ops.xp
+            hidden = segments_cross_box(
+                xp.asarray([left_cam, right_cam])[:, None, :],
+                xp.asarray(corners).reshape(1, 3, 3), crest, scene.wash.half_size, xp,
+            ) & active
+            hidden_left, hidden_right = ops.unpack(hidden[0]), ops.unpack(hidden[1])
+            occluded = functools.reduce(operator.or_, hidden_left + hidden_right)
+            vis_left = [v & ops.logical_not(h) for v, h in zip(vis_left, hidden_left,
+                                                                strict=True)]
+            vis_right = [v & ops.logical_not(h) for v, h in zip(vis_right, hidden_right,
+                                                                  strict=True)]
         distractors = _count_distractors(params, scene, t, (px, py, pz), sample, left_cam,
-                                         rows)
+                                         rows, ops)
 
     # Capture tip vs the AUV: capture point offset and hull penetration.
     tx, ty, tz = ex, ey, ez + params.tip_z
     offset = (px + kx - tx, py + ky - ty, pz + kz - tz)
     dx, dy, dz = tx - px, ty - py, tz - pz
     half = params.hull_half
-    along = dx * ax + dy * ay + dz * az
-    along = -half if along < -half else (half if along > half else along)
+    along = ops.clip(dx * ax + dy * ay + dz * az, -half, half)
     radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
     dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
     return {
@@ -357,21 +366,21 @@ def truth(params: LARSParams, scene: Scene, steps: int, q: list, qd: list) -> di
         "occluded": occluded,
         "distractors": distractors,
         "offset": offset,
-        "capture_error": math.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
-        "relative_speed": math.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
+        "capture_error": ops.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
+        "relative_speed": ops.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
         "tip_in_hull": radial2 < (AUV_DIAMETER / 2.0) ** 2,
     }
 
 
-def truth_now(params: LARSParams, state: EpisodeState, plant) -> dict:
+def truth_now(params: LARSParams, state: EpisodeState, plant, ops=FLOATS) -> dict:
     """:func:`truth` at the state's step with the plant's joints now."""
-    return truth(params, state.scene, state.steps, *plant.joints())
+    return truth(params, state.scene, state.steps, *plant.joints(), ops)
 
 
 # ------------------------------------------------------------------ reset
-def draw_scene(params: LARSParams, draws, options: dict | None = None):
+def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOATS):
     """The episode's world and where the arm's end starts: ``(scene, end)``, ``end``
-    the arm end's (3,) position in the ship's frame.
+    the arm end's position (three scalars) in the ship's frame.
 
     Draws, in order: the AUV's motion; with a sea, its realisation; in
     ``severe`` sea the wash-over schedule, the analogs' side and the two
@@ -385,7 +394,7 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None):
     unknown = set(options) - valid
     if unknown:
         raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
-    motion = sample_motion(draws, options.get("motion"))
+    motion = sample_motion(draws, options.get("motion"), ops)
     waves = None if sea is None else sample_waves(draws, sea, options.get("wave_heading"))
     wash, analogs = None, ()
     if params.sea_state == "severe":
@@ -393,36 +402,43 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None):
             wash = WashOver.sample(draws)
         elif sea.wash_ranges() is not None:
             wash = WashOver.sample(draws, *sea.wash_ranges())
-        side = 1.0 if draws.uniform() < 0.5 else -1.0
+        side = ops.where(draws.uniform() < 0.5, 1.0, -1.0)
         analogs = (FloatingAnalog.sample(draws, side), FloatingAnalog.sample(draws, -side))
         if sea is not None:
             analogs = analogs[:sea.analogs]
-    scene = scene_of(params, motion, waves, wash, analogs)
+    scene = scene_of(params, motion, waves, wash, analogs, ops=ops)
     sample = sea_sample(scene, 0.0)
-    top = auv_position(scene, 0.0, sample)[2] + AUV_DIAMETER / 2.0
-    offset = uniform_draws(draws, START_OFFSET)
+    top = auv_position(scene, 0.0, sample, ops)[2] + AUV_DIAMETER / 2.0
+    offset = uniform_draws(draws, START_OFFSET, ops)
     if params.glint is not None:  # drawn last: everything else is drawn as without glint
         scene = scene._replace(glint=params.glint.sample(draws, params.glint_slope_variance))
     # The cameras (at y = left_in_end[1] in the end frame) over the AUV's CG line.
-    end = np.array([motion.x0 + offset[0], motion.y0 - params.left_in_end[1] + offset[1],
-                    top + START_HEIGHT])
+    end = (motion.x0 + offset[0], motion.y0 - params.left_in_end[1] + offset[1],
+           top + START_HEIGHT)
     if sample is not None:  # the joint angles that put the end there on the moved ship
-        end = ship_pose(params, sample).to_ship(end)
+        end = tuple(ship_pose(params, sample).to_ship(np.array(end)).tolist())
     return scene, end
 
 
 def reset(params: LARSParams, backend: Backend, options: dict | None = None):
     """A new episode: ``(state, truth, observation)``."""
-    scene, end = draw_scene(params, backend.draws, options)
-    backend.plant.place(params.arm.inverse_kinematics(end))
-    now = truth(params, scene, 0, *backend.plant.joints())
-    error = now["capture_error"]
-    state = EpisodeState(
-        scene=scene, steps=0, prev_error=error, min_error=error, success=False, failure=0,
-        capture_time=math.nan, visible_steps=0, occluded_steps=0, distractor_steps=0,
-        glint_steps=0, control_effort=0.0)
-    state, obs = observe(params, state, now, backend)
+    ops, draws, plant = backend
+    scene, end = draw_scene(params, draws, options, ops)
+    plant.place(params.arm.joint_angles(end, ops))
+    now = truth(params, scene, ops.integer(0), *plant.joints(), ops)
+    state, obs = observe(params, first_state(scene, now, ops), now, backend)
     return state, now, obs
+
+
+def first_state(scene: Scene, now: dict, ops=FLOATS) -> EpisodeState:
+    """The record of an episode in ``scene`` before its first step (``now`` its truth)."""
+    error = now["capture_error"]
+    zero = ops.integer(0)
+    return EpisodeState(
+        scene=scene, steps=zero, prev_error=error, min_error=error,
+        success=ops.boolean(False), failure=zero, capture_time=ops.real(math.nan),
+        visible_steps=zero, occluded_steps=zero, distractor_steps=zero, glint_steps=zero,
+        control_effort=ops.real(0.0))
 
 
 def reset_info(params: LARSParams, state: EpisodeState) -> dict:
@@ -455,52 +471,53 @@ def step(params: LARSParams, state: EpisodeState, action, backend: Backend):
     """One control period under ``action`` (the (3,) command already checked,
     :func:`auv_envs.core.env.clip_actions`): ``(state, truth, observation,
     assessment)``."""
-    plant = backend.plant
+    ops, _, plant = backend
     effort = plant.advance(action, state.control_effort)
     steps = state.steps + 1
-    now = truth(params, state.scene, steps, *plant.joints())
-    state, judged = assess(params, state, now, action, backend.ops, steps=steps,
+    now = truth(params, state.scene, steps, *plant.joints(), ops)
+    state, judged = assess(params, state, now, action, ops, steps=steps,
                            control_effort=effort)
     state, obs = observe(params, state, now, backend)
     return state, now, obs, judged
 
 
-def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, steps: int,
-           **changes):
+def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, steps,
+           control_effort):
     """The step's reward terms and end, and the episode's record updated by them, by
-    ``steps`` (the step count after this step) and ``changes``."""
+    ``steps`` (the step count after this step) and the ``control_effort`` so far."""
     a0, a1, a2 = ops.unpack(action)
     error = now["capture_error"]
     position_tolerance, speed_tolerance = params.tolerance
-    captured = error <= position_tolerance and now["relative_speed"] <= speed_tolerance
-    collision = (not captured) and now["tip_in_hull"]
+    captured = (error <= position_tolerance) & (now["relative_speed"] <= speed_tolerance)
+    collision = ops.logical_not(captured) & now["tip_in_hull"]
     (x, y, z), (x_lo, y_lo, z_lo), (x_hi, y_hi, z_hi) = (now["end_on_ship"],
                                                          *params.workspace)
-    workspace = not (x_lo <= x <= x_hi and y_lo <= y <= y_hi and z_lo <= z <= z_hi)
-    failure = 1 if collision else (2 if workspace else 0)
+    workspace = ops.logical_not((x_lo <= x) & (x <= x_hi) & (y_lo <= y) & (y <= y_hi)
+                                & (z_lo <= z) & (z <= z_hi))
+    failure = ops.integer(ops.where(collision, 1, ops.where(workspace, 2, 0)))
+    failed = collision | workspace
     terms = {
         "progress": state.prev_error - error,
         "control": -0.001 * (a0 * a0 + a1 * a1 + a2 * a2),
-        "success": 10.0 if captured else 0.0,
-        "failure": -10.0 if failure else 0.0,
+        "success": ops.where(captured, 10.0, 0.0),
+        "failure": ops.where(failed, -10.0, 0.0),
     }
-    state = state._replace(
-        steps=steps, prev_error=error, min_error=min(state.min_error, error),
-        success=state.success or captured,
-        capture_time=steps * params.dt if captured else state.capture_time,
-        failure=failure,
-        visible_steps=state.visible_steps + (now["n_visible"] == 3),
-        occluded_steps=state.occluded_steps + now["occluded"],
-        distractor_steps=state.distractor_steps + (now["distractors"] > 0), **changes)
-    return state, Assessment(terms, captured or bool(failure), collision, workspace)
+    state = EpisodeState(
+        state.scene, steps, error, ops.minimum(state.min_error, error),
+        state.success | captured, failure,
+        ops.where(captured, steps * params.dt, state.capture_time),
+        state.visible_steps + (now["n_visible"] == 3), state.occluded_steps + now["occluded"],
+        state.distractor_steps + (now["distractors"] > 0), state.glint_steps, control_effort,
+        state.glint_frame)
+    return state, Assessment(terms, captured | failed, collision, workspace)
 
 
 # ------------------------------------------------------------------ what is seen
-def joint_readings(now: dict) -> dict:
+def joint_readings(now: dict, xp=np) -> dict:
     """The joint angles and rates every image-based mode carries."""
     return {
-        "joint_position": np.array(now["q"], dtype=np.float32),
-        "joint_velocity": np.array(now["qd"], dtype=np.float32),
+        "joint_position": xp.asarray(now["q"], dtype=xp.float32),
+        "joint_velocity": xp.asarray(now["qd"], dtype=xp.float32),
     }
 
 
@@ -517,42 +534,38 @@ def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend
     """``(state, observation)``: the ``state`` or ``features`` observation (see the
     environment's docstring); in ``stereo`` mode the joint readings (the shell adds
     the images and their glint, :func:`with_glint_frame`)."""
+    ops, draws, _ = backend
+    xp = ops.xp
     if params.obs_mode == "state":
         m = state.scene.motion
         (px, py, pz), (ex, ey, ez) = now["position"], now["end"]
-        return state, np.array(
+        return state, xp.asarray(
             [*now["q"], *now["qd"], ex, ey, ez, *now["end_vel"],
              px - ex, py - ey, pz - ez, *now["velocity"], *now["offset"],
              now["pitch"], m.yaw, now["level"]],
-            dtype=np.float32,
+            dtype=xp.float32,
         )
     if params.obs_mode != "features":
-        return state, joint_readings(now)
-    draws = backend.draws
+        return state, joint_readings(now, xp)
     vis_left, vis_right = visible = now["visible"]
     true_pixels = now["pixels"]
     std = params.pixel_noise_std
     # Drawn always, whatever is visible: the same noise stream every step.
-    noise = draws.normal(0.0, std, 12).tolist() if std > 0 else [0.0] * 12
+    noise = ops.unpack(draws.normal(0.0, std, 12)) if std > 0 else (0.0,) * 12
     seen = vis_left + vis_right
     field = state.scene.glint
     if field is not None:
         true_pixels, seen, frame = params.glint_camera.on_corners(field, now, seen, draws)
         visible = [seen[:3], seen[3:]]
         state = with_glint_frame(state, frame)
-    lo_u, lo_v, hi_u, hi_v = params.pixel_bounds
-    pixels = [0.0] * 12
-    i = 0  # u of the corner; v at i + 1
-    for corner_seen in seen:
-        if corner_seen:  # finite; clipped by comparisons (cheaper than min/max)
-            u, v = true_pixels[i] + noise[i], true_pixels[i + 1] + noise[i + 1]
-            pixels[i] = lo_u if u < lo_u else (hi_u if u > hi_u else u)
-            pixels[i + 1] = lo_v if v < lo_v else (hi_v if v > hi_v else v)
-        i += 2
+    # The noisy pixel clipped to the space's bounds where its corner is seen, zero elsewhere.
+    seen_uv = list(itertools.chain.from_iterable(zip(seen, seen, strict=True)))
+    pixels = ops.masked_clip(list(map(operator.add, true_pixels, noise)), seen_uv,
+                             *params.pixel_bounds)
     return state, {
-        "pixels": np.array(pixels, dtype=np.float32).reshape(2, 3, 2),
-        "visible": np.array(visible, dtype=np.int8),
-        **joint_readings(now),
+        "pixels": xp.asarray(pixels, dtype=xp.float32).reshape(2, 3, 2),
+        "visible": xp.asarray(visible, dtype=xp.int8),
+        **joint_readings(now, xp),
     }
 
 
@@ -598,14 +611,16 @@ def info(params: LARSParams, state: EpisodeState, now: dict,
     return out
 
 
-def summary(params: LARSParams, state: EpisodeState, now: dict) -> dict:
-    """The episode's summary (``info["episode_metrics"]`` at its end)."""
-    steps = max(state.steps, 1)
+def summary(params: LARSParams, state: EpisodeState, now: dict, ops=FLOATS) -> dict:
+    """The episode's summary as numbers: ``failure`` the code of :class:`EpisodeState`,
+    ``capture_time`` NaN when it did not capture, ``glint_fraction`` with glint only
+    (:func:`episode_metrics` names and formats them)."""
+    steps = ops.maximum(state.steps, 1)
     glint = {} if params.glint is None else {"glint_fraction": state.glint_steps / steps}
     return {
         "success": state.success,
-        "failure_reason": failure_reason(state) or ("" if state.success else "time_limit"),
-        "capture_time": None if math.isnan(state.capture_time) else state.capture_time,
+        "failure": state.failure,
+        "capture_time": state.capture_time,
         "steps": state.steps,
         "final_capture_error": now["capture_error"],
         "min_capture_error": state.min_error,
@@ -616,3 +631,18 @@ def summary(params: LARSParams, state: EpisodeState, now: dict) -> dict:
         "control_effort": state.control_effort,
         **glint,
     }
+
+
+def episode_metrics(params: LARSParams, state: EpisodeState, now: dict) -> dict:
+    """``info["episode_metrics"]``: :func:`summary` with the failure named
+    (``failure_reason``: ``"time_limit"`` when it neither captured nor failed) and
+    ``capture_time`` None when it did not capture."""
+    out = {}
+    for key, value in summary(params, state, now).items():
+        if key == "failure":
+            key, value = "failure_reason", failure_reason(state) or (
+                "" if state.success else "time_limit")
+        elif key == "capture_time" and math.isnan(value):
+            value = None
+        out[key] = value
+    return out

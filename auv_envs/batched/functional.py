@@ -1,0 +1,72 @@
+"""What the batched environments share: Playground's ``State`` and NumPy's draws over a key.
+
+A batched environment is a task's transition (``auv_envs/tasks/<family>/transition.py``)
+evaluated on JAX arrays: :class:`State` is what its ``reset``/``step`` return (as
+MuJoCo Playground's ``mjx_env.State``), :class:`KeyDraws` the episode's random draws
+with NumPy ``Generator``'s interface over a JAX key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass
+class State:
+    """One environment's state (a batch of them under ``vmap``), as Playground's.
+
+    Attributes:
+        data: the plant's state (docking: ``{"qpos": (7,), "qvel": (6,)}``; LARS: the
+            arm's ``mjx.Data``).
+        obs: the observation (an array for ``state``, a dict for ``features``).
+        reward: the last step's reward.
+        done: whether the last step ended the episode (terminated or truncated).
+        metrics: the last step's metrics (the environment's ``STEP_METRICS``), its
+            reward terms (``reward_<term>``) and the episode's summary so far
+            (``episode_*``).
+        info: ``rng`` (the episode's key), ``episode`` (the transition's
+            ``EpisodeState``), ``terminated``, ``truncation`` and ``final_obs`` (the
+            observation that ended the episode; the present one otherwise).
+    """
+
+    data: dict
+    obs: object
+    reward: jax.Array
+    done: jax.Array
+    metrics: dict
+    info: dict
+
+    def replace(self, **changes) -> State:
+        return dataclasses.replace(self, **changes)
+
+
+class KeyDraws:
+    """NumPy ``Generator``'s draws (``uniform``, ``standard_normal``, ``normal``, ``random``)
+    over a JAX key: each call splits a fresh key off, so a transition draws as it does on
+    the CPU."""
+
+    def __init__(self, key: jax.Array):
+        self.key = key
+
+    def _next(self) -> jax.Array:
+        self.key, key = jax.random.split(self.key)
+        return key
+
+    @staticmethod
+    def _shape(size) -> tuple:
+        return () if size is None else (size,) if isinstance(size, int) else tuple(size)
+
+    def uniform(self, low=0.0, high=1.0, size=None) -> jax.Array:
+        return jax.random.uniform(self._next(), self._shape(size), minval=low, maxval=high)
+
+    def standard_normal(self, size=None) -> jax.Array:
+        return jax.random.normal(self._next(), self._shape(size))
+
+    def normal(self, loc=0.0, scale=1.0, size=None) -> jax.Array:
+        return loc + scale * self.standard_normal(size)
+
+    def random(self, size=None) -> jax.Array:
+        return jax.random.uniform(self._next(), self._shape(size))

@@ -1,0 +1,271 @@
+"""The LARS capture environment in JAX: ``reset(rng) -> state``, ``step(state, action) -> state``.
+
+The transition of ``auv_envs/LARSCapture-v0`` (:mod:`auv_envs.tasks.lars.transition`,
+the very functions the CPU environment calls) evaluated on JAX arrays for ``jit``
+and ``vmap``. What this shell adds: the arm is the CPU environment's own MuJoCo
+model on MJX (:class:`ArmPlantMJX`), and the episode's draws come from a JAX key
+(:class:`~auv_envs.batched.functional.KeyDraws`). The interface is
+:class:`~auv_envs.batched.docking_env.DockingMJX`'s (MuJoCo Playground's
+``MjxEnv``), with the same auto-reset.
+
+Built: ``state`` and ``features``, ``sea_state`` ``"calm"`` and ``"severe"``
+(wash-over occlusion, the analogs), both ``control`` modes, the [LTAT]
+sinusoidal sea of the ``easy`` level. Not built yet, and refused with a
+``ValueError``: the irregular ``sea`` and the sun ``glint`` (the ``paper`` and
+``hard`` levels), and the rendered ``stereo`` mode.
+
+What differs from the CPU environment: a seed gives other episodes (JAX's
+generator; the distributions are the same); everything runs in float32; MJX's
+constraint solver is not MuJoCo's, so an arm at a joint limit moves slightly
+differently (the equivalence tests bound the difference).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from auv_envs.batched.functional import KeyDraws, State
+from auv_envs.core.ops import jax_ops
+from auv_envs.core.sea import FloatingAnalog, WashOver
+from auv_envs.tasks.lars import transition
+from auv_envs.tasks.lars.env import FRAME_SKIP, PHYSICS_TIMESTEP, POSITION_GAINS, LARSCaptureEnv
+from auv_envs.tasks.lars.scene import AUVMotion
+
+#: The observation modes the batched environment builds.
+OBS_MODES = ("state", "features")
+#: ``info`` metrics carried every step (the CPU env's that are numbers).
+STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
+                "distractors_in_view", "is_success", "collision", "violation_workspace")
+
+
+def _register(cls, meta=()) -> None:
+    """Make a frozen dataclass of an episode's draws a JAX pytree (once per process)."""
+    fields = [f.name for f in dataclasses.fields(cls)]
+    jax.tree_util.register_dataclass(cls, data_fields=[f for f in fields if f not in meta],
+                                     meta_fields=list(meta))
+
+
+for _cls, _meta in ((AUVMotion, ()), (FloatingAnalog, ()),
+                    (WashOver, ("sweep", "overtop", "half_size"))):
+    _register(_cls, _meta)
+
+
+class ArmPlantMJX:
+    """The LARS arm on MJX: the CPU environment's model with contacts off (the CPU
+    model has them disabled too), stepped ``FRAME_SKIP`` physics steps a control period.
+
+    ``control="torque"``: the action is the actuators' control. ``"position"``:
+    [LTAT]'s computed-torque loop (eqs. 29-30) at the physics rate, as
+    :class:`auv_envs.tasks.lars.env._MujocoArm` runs it on the CPU.
+    """
+
+    def __init__(self, env: LARSCaptureEnv):
+        model = copy.deepcopy(env.physics.model)
+        model.geom_contype[:] = 0
+        model.geom_conaffinity[:] = 0
+        self.model = mjx.put_model(model)
+        #: An MJX data of the model at rest (the template a reset fills).
+        self.rest_data = mjx.make_data(model)
+        self.torque_mode = env.control == "torque"
+        self.dt = float(env.dt)
+        self.q_mid = jnp.asarray(env.params.joint_mid, jnp.float32)
+        self.q_half = jnp.asarray(env.params.joint_half, jnp.float32)
+        self.limits = jnp.asarray(env.calibration.torque_limits, jnp.float32)
+        self.kp, self.kd = POSITION_GAINS
+
+    def place(self, q) -> mjx.Data:
+        """The arm at rest at joint angles ``q`` (three scalars)."""
+        return self.rest_data.replace(qpos=jnp.stack([jnp.asarray(v, jnp.float32) for v in q]))
+
+    def advance(self, data: mjx.Data, action, effort):
+        """One control period under ``action`` (3,): ``(data, effort)``, the running
+        control effort with the period's added."""
+        model = self.model
+        if self.torque_mode:
+            data = data.replace(ctrl=action)
+            for _ in range(FRAME_SKIP):
+                data = mjx.step(model, data)
+            return data, effort + jnp.sum(action * action) * self.dt
+        target = self.q_mid + action * self.q_half
+        for _ in range(FRAME_SKIP):
+            now = mjx.forward(model, data)
+            accel = self.kp * (target - data.qpos) - self.kd * data.qvel
+            tau = mjx.mul_m(model, now, accel) + now.qfrc_bias
+            ctrl = jnp.clip(tau / self.limits, -1.0, 1.0)
+            effort = effort + jnp.sum(ctrl * ctrl) * PHYSICS_TIMESTEP
+            data = mjx.step(model, data.replace(ctrl=ctrl))
+        return data, effort
+
+
+class _ArmCursor:
+    """The transition's plant in one traced call: the arm's MJX data, advanced by
+    :class:`ArmPlantMJX`."""
+
+    def __init__(self, plant: ArmPlantMJX, ops, data=None):
+        self.plant, self.ops, self.data = plant, ops, data
+
+    def place(self, q) -> None:
+        self.data = self.plant.place(q)
+
+    def advance(self, action, effort):
+        self.data, effort = self.plant.advance(self.data, action, effort)
+        return effort
+
+    def joints(self) -> tuple:
+        return self.ops.unpack(self.data.qpos), self.ops.unpack(self.data.qvel)
+
+
+class LARSMJX:
+    """The LARS capture environment as pure JAX functions of one episode.
+
+    Args:
+        obs_mode: ``"state"`` or ``"features"``.
+        auto_reset: reset an episode inside :meth:`step` when it ends.
+        **env_kwargs: the CPU environment's arguments (``sea_state``, ``control``,
+            ``image_size``, ``pixel_noise_std``, ``time_limit``, ...); they are checked
+            by building that environment, whose model, calibration and transition
+            parameters this one uses.
+
+    Raises:
+        ValueError: for what is not built yet (module docstring).
+    """
+
+    def __init__(self, obs_mode: str = "features", auto_reset: bool = True, **env_kwargs):
+        if obs_mode not in OBS_MODES:
+            raise ValueError(f"the batched LARS environment builds obs_mode {OBS_MODES}, got "
+                             f"{obs_mode!r}")
+        cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
+        if cpu.params.sea is not None or cpu.params.glint is not None:
+            cpu.close()
+            raise ValueError("the batched LARS environment does not model the irregular sea "
+                             "or the sun glint yet: use difficulty='easy' (the default) "
+                             "without sea= or glint=")
+        self.cpu_env = cpu
+        self.obs_mode = obs_mode
+        self.auto_reset = auto_reset
+        self.params = cpu.params
+        self.calibration = cpu.calibration
+        self.max_episode_steps = cpu.max_episode_steps
+        self.observation_space = cpu.observation_space
+        self.action_space = cpu.action_space
+        self.ops = jax_ops()
+        self.plant = ArmPlantMJX(cpu)
+
+    # ------------------------------------------------------------------ Playground's interface
+    @property
+    def dt(self) -> float:
+        return self.calibration.control_period
+
+    @property
+    def action_size(self) -> int:
+        return 3
+
+    @property
+    def observation_size(self):
+        space = self.observation_space
+        if hasattr(space, "spaces"):
+            return {key: value.shape for key, value in space.spaces.items()}
+        return space.shape[0]
+
+    @property
+    def mj_model(self):
+        return self.cpu_env.physics.model
+
+    @property
+    def mjx_model(self):
+        return self.plant.model
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, rng: jax.Array) -> State:
+        """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
+        rng, key = jax.random.split(rng)
+        plant = _ArmCursor(self.plant, self.ops)
+        episode, truth, obs = transition.reset(
+            self.params, transition.Backend(self.ops, KeyDraws(key), plant))
+        return self._first(rng, plant, episode, truth, obs)
+
+    def reset_to(self, scene: transition.Scene, q, rng: jax.Array) -> State:
+        """An episode in ``scene`` (a CPU environment's
+        :class:`~auv_envs.tasks.lars.transition.Scene`, its numbers in float32) with
+        the arm at rest at joint angles ``q``; the equivalence tests start the CPU and
+        the batched environment alike this way."""
+        ops = self.ops
+        as32 = lambda tree: jax.tree_util.tree_map(  # noqa: E731
+            lambda leaf: jnp.asarray(leaf, jnp.float32), tree)
+        scene = transition.scene_of(self.params, as32(scene.motion), None, as32(scene.wash),
+                                    as32(scene.analogs), ops=ops)
+        plant = _ArmCursor(self.plant, ops)
+        plant.place(tuple(jnp.float32(v) for v in q))
+        truth = transition.truth(self.params, scene, ops.integer(0), *plant.joints(), ops)
+        episode = transition.first_state(scene, truth, ops)
+        episode, obs = transition.observe(
+            self.params, episode, truth, transition.Backend(ops, KeyDraws(rng), plant))
+        return self._first(rng, plant, episode, truth, obs)
+
+    def _first(self, rng, plant, episode, truth, obs) -> State:
+        false = jnp.bool_(False)
+        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
+                "final_obs": obs}
+        zero = jnp.float32(0.0)
+        terms = {term: zero for term in self.cpu_env.reward_terms}
+        return State(plant.data, obs, zero, false, self._metrics(truth, episode, None, terms),
+                     info)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        """One control period under the action (clipped to [-1, 1]):
+        :func:`auv_envs.tasks.lars.transition.step` on JAX."""
+        rng, key, reset_key = jax.random.split(state.info["rng"], 3)
+        action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
+        plant = _ArmCursor(self.plant, self.ops, state.data)
+        episode, truth, obs, judged = transition.step(
+            self.params, state.info["episode"], action,
+            transition.Backend(self.ops, KeyDraws(key), plant))
+        reward = sum(judged.terms.values())
+        terminated = judged.terminated
+        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
+        done = terminated | truncated
+        info = {"rng": rng, "episode": episode, "terminated": terminated,
+                "truncation": truncated, "final_obs": obs}
+        stepped = State(plant.data, obs, reward, done,
+                        self._metrics(truth, episode, judged, judged.terms), info)
+        if not self.auto_reset:
+            return stepped
+        fresh = self.reset(reset_key)
+        fresh = fresh.replace(
+            reward=reward, done=done, metrics=stepped.metrics,
+            info={**fresh.info, "terminated": terminated, "truncation": truncated,
+                  "final_obs": obs})
+        return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), fresh, stepped)
+
+    def truth(self, state: State) -> dict:
+        """The ground truth of ``state`` (:func:`auv_envs.tasks.lars.transition.truth`)."""
+        plant = _ArmCursor(self.plant, self.ops, state.data)
+        return transition.truth_now(self.params, state.info["episode"], plant, self.ops)
+
+    # ------------------------------------------------------------------ internals
+    def _metrics(self, truth: dict, episode, judged, terms: dict) -> dict:
+        """The step's metrics (:data:`STEP_METRICS`), its reward terms (``reward_<term>``)
+        and the episode's summary so far (``episode_<key>``,
+        :func:`~auv_envs.tasks.lars.transition.summary`)."""
+        false = jnp.bool_(False)
+        step = {
+            "capture_error": truth["capture_error"],
+            "relative_speed": truth["relative_speed"],
+            "marker_visible": truth["n_visible"],
+            "marker_occluded": jnp.asarray(truth["occluded"], jnp.bool_),
+            "distractors_in_view": jnp.asarray(truth["distractors"], jnp.int32),
+            "is_success": episode.success,
+            "collision": false if judged is None else judged.collision,
+            "violation_workspace": false if judged is None else judged.workspace,
+        }
+        return {
+            **step,
+            **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},
+            **{f"episode_{key}": value for key, value in
+               transition.summary(self.params, episode, truth, self.ops).items()},
+        }
