@@ -78,11 +78,12 @@ for _env_id, (_entry_point, _kwargs) in {
                  max_episode_steps=max_episode_steps(_env_id), additional_wrappers=(_SUMMARY,))
 
 
-#: The batched JAX twins of the docking environments (``pip install -e ".[jax]"``):
+#: The batched JAX twins of the CPU environments (``pip install -e ".[jax]"``):
 #: ``gym.make_vec(id, num_envs=N)`` only (:mod:`auv_envs.batched.vector`).
 BATCHED_ENVIRONMENTS = {
     "auv_envs/DockingStationMJX-v1": "auv_envs.batched.vector:docking_station",
     "auv_envs/LampArrayDockingMJX-v1": "auv_envs.batched.vector:lamp_array_docking",
+    "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
 }
 for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():
     if _env_id not in registry:

@@ -1,23 +1,25 @@
-"""The batched docking environment and plant on MJX against the CPU ones, in the same run.
+"""The batched environments (and the docking plant) on MJX against the CPU ones, in the same run.
 
 Two tables, each with its reference timed in the same run, so the ratios
 compare them on this machine:
 
-* **environment**: ``features`` env-steps per second of the batched JAX
-  environment (:class:`auv_envs.batched.docking_env.DockingMJX`) against the
-  CPU environment through Gymnasium's ``SyncVectorEnv`` (issue 21's target:
-  >= 3x at the best batch size). Two ways to drive the batch: through
-  ``gym.make_vec("auv_envs/DockingStationMJX-v1")`` (NumPy in and out every
-  step, as a Python learner uses it) and fused, ``steps`` steps in one
-  compiled ``jax.lax.scan`` (as a compiled learner uses it). The action is
-  held (surge 0.3); episodes that end reset themselves.
+* **environment**: ``features`` env-steps per second of a family's batched JAX
+  environment (``--family docking``: :class:`auv_envs.batched.docking_env.DockingMJX`;
+  ``lars``: :class:`auv_envs.batched.lars_env.LARSMJX`) against its CPU
+  environment through Gymnasium's ``SyncVectorEnv`` of 8 (issue 40's target:
+  >= 10x at the best batch size). Two ways to drive the batch: through
+  ``gym.make_vec`` of the batched id (NumPy in and out every step, as a Python
+  learner uses it) and fused, ``steps`` steps in one compiled ``jax.lax.scan``
+  (as a compiled learner uses it). The action is held (docking: surge 0.3;
+  LARS: shoulder 0.3, elbow -0.2 of the torque limits); episodes that end reset
+  themselves.
 * **plant**: the MJX plant (:class:`auv_envs.batched.docking.DockingPlantMJX`)
   one control period (0.1 s, RK4 with the hull wrench at every stage) per
   compiled call against the CPU environment's plant, MuJoCo's ``mj_step`` with
   the hull wrench at every RK4 stage (``env.integrator``), one vehicle at a time.
 
-    python benchmarks/batched_speed.py [--batches 1 64 256 1024 4096] [--steps 50]
-        [--difficulty easy|paper|hard]
+    python benchmarks/batched_speed.py [--family docking|lars] [--batches 1 64 256 1024 4096]
+        [--steps 50] [--difficulty easy|paper|hard]
 
 Runs unchanged on a GPU (JAX picks it): ``pip install -e ".[jax]"`` with a
 CUDA build of jaxlib.
@@ -36,16 +38,23 @@ import numpy as np
 import auv_envs  # noqa: F401
 from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.batched.docking_env import DockingMJX
+from auv_envs.batched.lars_env import LARSMJX
 from auv_envs.core.difficulty import LEVELS
 
 ENV_ID = "auv_envs/DockingStation-v1"
-#: The held action: surge at 30 % of the thrust limit.
-ACTION = (0.3, 0.0, 0.0, 0.0)
+#: Per family: the CPU id, the batched id, the functional env's maker, the held action.
+FAMILIES = {
+    "docking": (ENV_ID, "auv_envs/DockingStationMJX-v1",
+                lambda **kw: DockingMJX(ENV_ID, **kw), (0.3, 0.0, 0.0, 0.0)),
+    "lars": ("auv_envs/LARSCapture-v0", "auv_envs/LARSCaptureMJX-v0", LARSMJX,
+             (0.0, 0.3, -0.2)),
+}
+FAMILY = "docking"
 
 
 def vector_rate(envs, steps: int, repeats: int) -> float:
     """Env-steps per second of a ``VectorEnv`` under the held action (best of ``repeats``)."""
-    actions = np.tile(np.array(ACTION, np.float32), (envs.num_envs, 1))
+    actions = np.tile(np.array(FAMILIES[FAMILY][3], np.float32), (envs.num_envs, 1))
     envs.reset(seed=0)
     envs.step(actions)  # compiles a JAX env
     best = 0.0
@@ -60,19 +69,20 @@ def vector_rate(envs, steps: int, repeats: int) -> float:
 
 def sync_vector_rate(num_envs: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
-    return vector_rate(gym.make_vec(ENV_ID, num_envs=num_envs, vectorization_mode="sync",
-                                    obs_mode="features", difficulty=difficulty), steps, repeats)
+    return vector_rate(gym.make_vec(FAMILIES[FAMILY][0], num_envs=num_envs,
+                                    vectorization_mode="sync", obs_mode="features",
+                                    difficulty=difficulty), steps, repeats)
 
 
 def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """``features`` env-steps per second through ``gym.make_vec`` (NumPy every step)."""
-    return vector_rate(gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=batch,
+    return vector_rate(gym.make_vec(FAMILIES[FAMILY][1], num_envs=batch,
                                     obs_mode="features", difficulty=difficulty), steps, repeats)
 
 
-def fused_rate(env: DockingMJX, batch: int, steps: int, repeats: int) -> float:
+def fused_rate(env, batch: int, steps: int, repeats: int) -> float:
     """``features`` env-steps per second, ``steps`` steps fused in one compiled scan."""
-    action = jnp.tile(jnp.asarray(ACTION, jnp.float32), (batch, 1))
+    action = jnp.tile(jnp.asarray(FAMILIES[FAMILY][3], jnp.float32), (batch, 1))
     step = jax.vmap(env.step)
 
     @jax.jit
@@ -124,6 +134,7 @@ def mjx_plant_rate(plant: DockingPlantMJX, env, batch: int, steps: int, repeats:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--family", default="docking", choices=tuple(FAMILIES))
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 256, 1024, 4096])
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--repeats", type=int, default=3)
@@ -131,9 +142,11 @@ def main(argv=None) -> None:
     parser.add_argument("--difficulty", default="easy", choices=LEVELS,
                         help="the level of the environment table (the plant has none)")
     args = parser.parse_args(argv)
+    global FAMILY
+    FAMILY = args.family
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")
-    print(f"level: {args.difficulty}")
-    batched = DockingMJX(ENV_ID, obs_mode="features", difficulty=args.difficulty)
+    print(f"family: {FAMILY}, level: {args.difficulty}")
+    batched = FAMILIES[FAMILY][2](obs_mode="features", difficulty=args.difficulty)
     print("\n| batch | make_vec env-steps/s | fused scan env-steps/s | SyncVectorEnv env-steps/s "
           "(same run) | ratio make_vec | ratio fused |")
     print("|---|---|---|---|---|---|")
@@ -143,7 +156,7 @@ def main(argv=None) -> None:
         reference = sync_vector_rate(8, max(50, args.steps * 2), args.repeats, args.difficulty)
         print(f"| {batch} | {via_numpy:,.0f} | {fused:,.0f} | {reference:,.0f} | "
               f"{via_numpy / reference:.2f} | {fused / reference:.2f} |", flush=True)
-    if args.no_plant:
+    if args.no_plant or FAMILY != "docking":
         return
     env = gym.make(ENV_ID).unwrapped
     plant = DockingPlantMJX(env)

@@ -46,10 +46,9 @@ def pages() -> dict[str, str]:
     """``{path under docs/: Markdown}``: the overview and one page per id of
     :data:`auv_envs.ENVIRONMENTS`."""
     gallery = _gallery()
-    batched_modes = _batched_obs_modes()
     out = {f"{FOLDER}/index.md": _overview()}
     for env_id in auv_envs.ENVIRONMENTS:
-        out[page_path(env_id)] = _page(env_id, gallery.get(env_id), batched_modes)
+        out[page_path(env_id)] = _page(env_id, gallery.get(env_id))
     return out
 
 
@@ -82,7 +81,7 @@ def _overview() -> str:
     return "\n".join(lines)
 
 
-def _page(env_id: str, picture: dict | None, batched_modes: tuple[str, ...]) -> str:
+def _page(env_id: str, picture: dict | None) -> str:
     cls = auv_envs.env_class(env_id)
     name = env_id.split("/")[-1]
     spec = gym.spec(env_id)
@@ -97,7 +96,7 @@ def _page(env_id: str, picture: dict | None, batched_modes: tuple[str, ...]) -> 
     lines += _rewards(cls)
     lines += _arguments(cls)
     lines += _levels(cls)
-    lines += _versions(env_id, spec, batched_modes)
+    lines += _versions(env_id, spec)
     return "\n".join(lines)
 
 
@@ -211,7 +210,7 @@ def _levels(cls: type) -> list[str]:
     return lines + [""]
 
 
-def _versions(env_id: str, spec, batched_modes: tuple[str, ...]) -> list[str]:
+def _versions(env_id: str, spec) -> list[str]:
     family = env_id.split("/")[-1].rsplit("-v", 1)[0]
     lines = ["## Versions", "",
              "| id | how to make it | `max_episode_steps` | differs by |",
@@ -224,11 +223,11 @@ def _versions(env_id: str, spec, batched_modes: tuple[str, ...]) -> list[str]:
                          f"superseded, still registered: {differs} |")
     for batched_id in auv_envs.BATCHED_ENVIRONMENTS:
         if batched_id.replace("MJX", "") == env_id:
-            modes = _codes(batched_modes)
+            modes, levels = (_codes(v) for v in _batched_declarations(batched_id))
             lines.append(f"| `{batched_id}` | `gym.make_vec(id, num_envs=N)` "
                          f"(`pip install -e \".[jax]\"`) | "
                          f"{gym.spec(batched_id).max_episode_steps} | "
-                         f"batched on JAX / MuJoCo MJX, obs modes {modes} "
+                         f"batched on JAX / MuJoCo MJX, obs modes {modes}, levels {levels} "
                          "([tutorial](../tutorials/batched.md)) |")
     lines += ["", "The version history is in the class docstring above; the measurements "
               "behind each change are in the [changelog](../changelog.md).", ""]
@@ -249,10 +248,14 @@ def _gallery() -> dict[str, dict]:
     return out
 
 
-def _batched_obs_modes() -> tuple[str, ...]:
-    """``OBS_MODES`` of :mod:`auv_envs.batched.docking_env`, read without importing JAX."""
-    source = Path(auv_envs.__file__).parent / "batched" / "docking_env.py"
-    return tuple(_module_constant(source, "OBS_MODES"))
+def _batched_declarations(batched_id: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``OBS_MODES`` and ``LEVELS`` of the batched id's module
+    (:mod:`auv_envs.batched.docking_env` or :mod:`auv_envs.batched.lars_env`), read
+    without importing JAX."""
+    module = "lars_env.py" if "LARS" in batched_id else "docking_env.py"
+    source = Path(auv_envs.__file__).parent / "batched" / module
+    return (tuple(_module_constant(source, "OBS_MODES")),
+            tuple(_module_constant(source, "LEVELS")))
 
 
 def _module_constant(path: Path, name: str):

@@ -109,6 +109,15 @@ def fuzz_env(env_id: str, obs_mode: str, level: str, steps: int, seed: int) -> d
     return {"steps": done_steps, "episodes": episodes, "failures": failures}
 
 
+def batched_levels(env_id: str) -> tuple[str, ...]:
+    """The ``difficulty`` levels a batched id builds (its module's ``LEVELS``)."""
+    if "LARS" in env_id:
+        from auv_envs.batched.lars_env import LEVELS
+    else:
+        from auv_envs.batched.docking_env import LEVELS
+    return LEVELS
+
+
 def fuzz_batched(env_id: str, obs_mode: str, level: str, steps: int, seed: int,
                  num_envs: int = 64) -> dict:
     """The action mix through ``gym.make_vec``: ``steps`` batch steps of ``num_envs``."""
@@ -158,7 +167,7 @@ def main(argv=None) -> int:
              for level in args.levels]
     if not args.no_batched:
         cases += [(env_id, "features", level, True) for env_id in auv_envs.BATCHED_ENVIRONMENTS
-                  for level in args.levels]
+                  for level in args.levels if level in batched_levels(env_id)]
     for index, (env_id, mode, level, batched) in enumerate(cases):
         start = time.perf_counter()
         seed = args.first_seed + 1000 * index

@@ -110,3 +110,35 @@ def test_what_is_not_built_is_refused():
     with pytest.raises(ValueError, match="obs_mode"):
         LARSMJX(obs_mode="stereo")
 
+
+
+def test_make_vec_runs_episodes_and_reports_them_in_the_cpu_envs_names():
+    """``gym.make_vec("auv_envs/LARSCaptureMJX-v0")``: observations inside the space, the
+    episodes that end (random torques fail within seconds) summarised with the CPU env's
+    ``episode_metrics`` keys and failure names, bad actions refused."""
+    import gymnasium as gym
+
+    envs = gym.make_vec("auv_envs/LARSCaptureMJX-v0", num_envs=8, obs_mode="features",
+                        sea_state="severe")
+    cpu = LARSCaptureEnv(obs_mode="features", sea_state="severe")
+    cpu.reset(seed=0)
+    cpu_keys = set(cpu.episode_metrics())
+    cpu.close()
+    obs, _ = envs.reset(seed=3)
+    envs.action_space.seed(3)
+    ended = 0
+    for _ in range(40):
+        obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
+        assert envs.observation_space.contains(obs)
+        assert np.isfinite(reward).all()
+        done = terminated | truncated
+        if done.any():
+            ended += int(done.sum())
+            metrics = info["episode_metrics"]
+            assert set(metrics) == cpu_keys
+            reasons = set(metrics["failure_reason"][info["_episode_metrics"]])
+            assert reasons <= {"collision", "workspace", "time_limit", ""}
+    assert ended > 0
+    with pytest.raises(ValueError, match="finite"):
+        envs.step(np.full((8, 3), np.nan))
+    envs.close()

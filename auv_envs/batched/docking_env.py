@@ -49,6 +49,8 @@ from auv_envs.tasks.docking.rules import failure_reason  # noqa: F401  (re-expor
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
+#: The ``difficulty`` levels it builds.
+LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
 STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
                 "heading_error", "lights_visible", "is_success")

@@ -38,9 +38,20 @@ from auv_envs.tasks.lars.scene import AUVMotion
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
+#: The ``difficulty`` levels it builds (``paper`` and ``hard`` need the irregular sea).
+LEVELS = ("easy",)
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
+
+
+def failure_reason(code, success) -> str:
+    """The CPU env's ``failure_reason`` of an episode that ended with failure ``code`` (0:
+    none; ``"time_limit"`` when it neither captured nor failed)."""
+    code = int(code)
+    if code:
+        return transition.FAILURE_REASONS[code - 1]
+    return "" if success else "time_limit"
 
 
 def _register(cls, meta=()) -> None:

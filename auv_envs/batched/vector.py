@@ -1,4 +1,4 @@
-"""The batched JAX docking environments as a Gymnasium ``VectorEnv``, NumPy in and out.
+"""The batched JAX environments as a Gymnasium ``VectorEnv``, NumPy in and out.
 
 ::
 
@@ -6,10 +6,11 @@
     obs, info = envs.reset(seed=0)
     obs, reward, terminated, truncated, info = envs.step(actions)   # (1024, 4) float32
 
-The ids ``auv_envs/DockingStationMJX-v1`` and ``auv_envs/LampArrayDockingMJX-v1``
-have only a ``vector_entry_point``: Gymnasium refuses that mode for an id
-registered with additional wrappers, and the CPU ids carry one (their episode
-summary). Episodes reset themselves on the step that ends them
+Each batched id is its CPU id with ``MJX`` after the family's name
+(``auv_envs/DockingStationMJX-v1``, ``auv_envs/LampArrayDockingMJX-v1``,
+``auv_envs/LARSCaptureMJX-v0``) and has only a ``vector_entry_point``: Gymnasium
+refuses that mode for an id registered with additional wrappers, and the CPU ids
+carry one (their episode summary). Episodes reset themselves on the step that ends them
 (``AutoresetMode.SAME_STEP``): that step returns the new episode's first
 observation; ``info["final_obs"]`` holds the observation that ended each
 episode and ``info["episode_metrics"]`` its summary, each with a mask
@@ -26,38 +27,45 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from auv_envs.batched.compile_cache import use_compilation_cache
-from auv_envs.batched.docking_env import STEP_METRICS, DockingMJX
+from auv_envs.batched.docking_env import STEP_METRICS as DOCKING_METRICS
+from auv_envs.batched.docking_env import DockingMJX
+from auv_envs.batched.lars_env import LARSMJX
+from auv_envs.batched.lars_env import STEP_METRICS as LARS_METRICS
+from auv_envs.batched.lars_env import failure_reason as lars_failure_reason
 from auv_envs.core.env import action_array, clip_actions
 from auv_envs.tasks.docking.rules import failure_reason
 
 
-class DockingVectorEnv(VectorEnv):
-    """``num_envs`` docking environments stepped in one compiled JAX call.
+class TransitionVectorEnv(VectorEnv):
+    """``num_envs`` environments of one batched family stepped in one compiled JAX call.
 
     Args:
+        env: the family's functional environment (:class:`DockingMJX`, :class:`LARSMJX`),
+            built with ``auto_reset=True``; its module's ``STEP_METRICS`` are the
+            ``info`` keys of every step.
         num_envs: the batch size.
-        env_id: the CPU environment it twins (``auv_envs/DockingStation-v1`` or
-            ``auv_envs/LampArrayDocking-v1``).
-        obs_mode: ``"state"`` or ``"features"``.
+        step_metrics: the metrics every step's ``info`` carries.
+        failure_reason: ``failure_reason(code, success) -> str``, the CPU env's name of
+            an episode's end.
         max_episode_steps: episode length in steps (Gymnasium passes the
             registered one); None: the env's ``time_limit``.
-        **env_kwargs: the environment's arguments (:class:`DockingMJX`).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v1",
-                 obs_mode: str = "features", max_episode_steps: int | None = None,
-                 **env_kwargs):
+    def __init__(self, env, num_envs: int, step_metrics: tuple, failure_reason,
+                 max_episode_steps: int | None = None):
         if not (isinstance(num_envs, int) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
-        self.env = DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs)
+        self.env = env
         if max_episode_steps is not None:
             if not (isinstance(max_episode_steps, int) and max_episode_steps >= 1):
                 raise ValueError(f"max_episode_steps must be a positive int, got "
                                  f"{max_episode_steps!r}")
             self.env.max_episode_steps = max_episode_steps
         self.num_envs = num_envs
+        self.step_metrics = step_metrics
+        self.failure_reason = failure_reason
         self.single_observation_space = self.env.observation_space
         self.single_action_space = self.env.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
@@ -92,7 +100,7 @@ class DockingVectorEnv(VectorEnv):
         truncated = np.asarray(info["truncation"])
         done = terminated | truncated
         metrics = {key: np.asarray(value) for key, value in state.metrics.items()}
-        infos = {key: metrics[key] for key in STEP_METRICS}
+        infos = {key: metrics[key] for key in self.step_metrics}
         infos.update({key: metrics[key] for key in metrics if key.startswith("reward_")})
         if done.any():
             infos["final_obs"] = self._numpy(info["final_obs"])
@@ -110,7 +118,7 @@ class DockingVectorEnv(VectorEnv):
             key = key.removeprefix("episode_")
             if key == "failure":
                 key, value = "failure_reason", np.array([
-                    failure_reason(code, ok) for code, ok in
+                    self.failure_reason(code, ok) for code, ok in
                     zip(value, metrics["episode_success"], strict=True)])
             out[key] = value
         return out
@@ -118,6 +126,46 @@ class DockingVectorEnv(VectorEnv):
     @staticmethod
     def _numpy(tree):
         return jax.tree_util.tree_map(np.asarray, tree)
+
+
+class DockingVectorEnv(TransitionVectorEnv):
+    """``num_envs`` docking environments stepped in one compiled JAX call.
+
+    Args:
+        num_envs: the batch size.
+        env_id: the CPU environment it twins (``auv_envs/DockingStation-v1`` or
+            ``auv_envs/LampArrayDocking-v1``).
+        obs_mode: ``"state"`` or ``"features"``.
+        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
+        **env_kwargs: the environment's arguments (:class:`DockingMJX`).
+    """
+
+    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v1",
+                 obs_mode: str = "features", max_episode_steps: int | None = None,
+                 **env_kwargs):
+        if not (isinstance(num_envs, int) and num_envs >= 1):
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        super().__init__(DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs), num_envs,
+                         DOCKING_METRICS, failure_reason, max_episode_steps)
+
+
+class LARSVectorEnv(TransitionVectorEnv):
+    """``num_envs`` LARS capture environments stepped in one compiled JAX call
+    (:class:`~auv_envs.batched.lars_env.LARSMJX`: what is built and what is not).
+
+    Args:
+        num_envs: the batch size.
+        obs_mode: ``"state"`` or ``"features"``.
+        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
+        **env_kwargs: the environment's arguments (:class:`LARSMJX`).
+    """
+
+    def __init__(self, num_envs: int, obs_mode: str = "features",
+                 max_episode_steps: int | None = None, **env_kwargs):
+        if not (isinstance(num_envs, int) and num_envs >= 1):
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        super().__init__(LARSMJX(obs_mode=obs_mode, **env_kwargs), num_envs, LARS_METRICS,
+                         lars_failure_reason, max_episode_steps)
 
 
 def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
@@ -128,3 +176,8 @@ def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
 def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
     """``auv_envs/LampArrayDockingMJX-v1``: :class:`DockingVectorEnv` of the lamp array."""
     return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v1", **kwargs)
+
+
+def lars_capture(num_envs: int, **kwargs) -> LARSVectorEnv:
+    """``auv_envs/LARSCaptureMJX-v0``: :class:`LARSVectorEnv`."""
+    return LARSVectorEnv(num_envs, **kwargs)

@@ -106,10 +106,10 @@ def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, 
     """The pinhole projection of one world offset from the camera centre, in scalar arithmetic.
 
     The model of :func:`points_in_camera`, :func:`project` and
-    :func:`inside_image` (tested equal to them), written once for every
-    backend of :mod:`auv_envs.core.ops`: Python floats (:func:`project_few`,
-    an environment's per-step path) or JAX arrays (the batched environments,
-    a batch of points elementwise).
+    :func:`inside_image` (tested equal to them), written once (in
+    :func:`project_few`) for every backend of :mod:`auv_envs.core.ops`: Python
+    floats (an environment's per-step path) or JAX arrays (the batched
+    environments, a batch of points elementwise).
 
     Args:
         intrinsics: camera intrinsics.
@@ -122,35 +122,30 @@ def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, 
         ``(u, v, in_image)``: the pixel (NaN behind the camera) and whether
         the point is in front of the camera and inside the image.
     """
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cam_rotation_world
-    depth = dx * r02 + dy * r12 + dz * r22
-    front = depth > 1e-6
-    depth = ops.where(front, depth, 1.0)
-    u = (dx * r00 + dy * r10 + dz * r20) / depth * intrinsics.fx + intrinsics.cx
-    v = (dx * r01 + dy * r11 + dz * r21) / depth * intrinsics.fy + intrinsics.cy
-    inside = front & (0.0 <= u) & (u < intrinsics.width) & (0.0 <= v) & (v < intrinsics.height)
-    return ops.where(front, u, math.nan), ops.where(front, v, math.nan), inside
+    (pixel,), (inside,) = project_few(intrinsics, ((dx, dy, dz),), (0.0, 0.0, 0.0),
+                                      cam_rotation_world, ops)
+    return (*pixel, inside)
 
 
 def project_few(
     intrinsics: CameraIntrinsics,
-    points_world: list,
+    points_world,
     cam_position_world: tuple,
-    cam_rotation_world: list,
+    cam_rotation_world,
     ops=FLOATS,
 ) -> tuple[list, list]:
     """Project a handful of world points into the image: an environment's per-step path.
 
-    :func:`project_point` in Python floats, point by point: for the few
-    points an environment projects every step (six lights, say), NumPy's
-    per-call overhead is several times the arithmetic.
+    Scalar arithmetic point by point (for the few points an environment projects
+    every step, six lights say, NumPy's per-call overhead is several times the
+    arithmetic); the camera's numbers are read once.
 
     Args:
         intrinsics: camera intrinsics.
-        points_world: the points as ``(x, y, z)`` float sequences.
-        cam_position_world: camera centre in the world, 3 floats.
+        points_world: the points as ``(x, y, z)`` scalar sequences.
+        cam_position_world: camera centre in the world, 3 scalars.
         cam_rotation_world: rotation from the OpenCV camera frame to the
-            world as 3 rows of 3 floats.
+            world as 3 rows of 3 scalars.
         ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
 
     Returns:
@@ -159,12 +154,20 @@ def project_few(
         and inside the image.
     """
     px, py, pz = cam_position_world
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cam_rotation_world
+    fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
+    width, height = intrinsics.width, intrinsics.height
+    where = ops.where
     pixels, in_image = [], []
     for x, y, z in points_world:
-        u, v, inside = project_point(intrinsics, x - px, y - py, z - pz, cam_rotation_world,
-                                     ops)
-        pixels.append((u, v))
-        in_image.append(inside)
+        dx, dy, dz = x - px, y - py, z - pz
+        depth = dx * r02 + dy * r12 + dz * r22
+        front = depth > 1e-6
+        depth = where(front, depth, 1.0)
+        u = (dx * r00 + dy * r10 + dz * r20) / depth * fx + cx
+        v = (dx * r01 + dy * r11 + dz * r21) / depth * fy + cy
+        pixels.append((where(front, u, math.nan), where(front, v, math.nan)))
+        in_image.append(front & (0.0 <= u) & (u < width) & (0.0 <= v) & (v < height))
     return pixels, in_image
 
 

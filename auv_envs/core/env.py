@@ -23,6 +23,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
+from auv_envs.core.ops import FLOATS, Backend
 
 #: Everything mj_step reads that is not derived: time, qpos, qvel, act,
 #: qacc_warmstart, ctrl, applied forces, mocap poses, equality flags, userdata.
@@ -272,6 +273,10 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     difficulty_presets: ClassVar[dict[str, dict[str, Any]]]
     #: Attributes holding renderers or plots, closed (and set to None) by :meth:`close`.
     _closeables: ClassVar[tuple[str, ...]] = ()
+    #: The task's plant on the CPU (the transition's ``Backend.plant``).
+    _plant: Any = None
+    #: :meth:`_backend`'s last value (rebuilt when the generator changes).
+    _backend_cache: Backend | None = None
 
     #: What an agent may know about the task (camera, layout, nominal model...), read-only.
     calibration: Any
@@ -362,6 +367,14 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
         (``gym.make(..., max_episode_steps=N)``) truncates the episode.
         """
         return self._episode_metrics(self._truth())
+
+    def _backend(self, rng: np.random.Generator) -> Backend:
+        """The CPU backend of the task's transition: Python floats, ``rng`` (the env's
+        generator) and ``_plant``; built once per generator."""
+        backend = self._backend_cache
+        if backend is None or backend.draws is not rng:
+            backend = self._backend_cache = Backend(FLOATS, rng, self._plant)
+        return backend
 
     # ------------------------------------------------------------------ the hooks
     @abc.abstractmethod

@@ -29,8 +29,25 @@ from __future__ import annotations
 
 import math
 import types
+from typing import Any, NamedTuple
 
 import numpy as np
+
+
+class Backend(NamedTuple):
+    """How a task's transition (``auv_envs/tasks/<family>/transition.py``) is evaluated.
+
+    Attributes:
+        ops: a namespace of this module (:data:`FLOATS`, :func:`jax_ops`).
+        draws: the episode's random draws with NumPy ``Generator``'s interface: the
+            environment's generator on the CPU, a JAX key's
+            (:class:`auv_envs.batched.functional.KeyDraws`) in the batched envs.
+        plant: the task's simulator (the methods each transition's module lists).
+    """
+
+    ops: Any
+    draws: Any
+    plant: Any
 
 
 def _where(condition, a, b):

@@ -36,7 +36,6 @@ from auv_envs.core.env import (
     check_image_size,
     check_positive_int,
 )
-from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.bound import EpisodeRecord, MotionPrior, bound_rmse
 from auv_envs.tasks.acoustic.transition import (
@@ -392,6 +391,7 @@ class AcousticTrackingEnv(TaskEnv):
         self._dt = 1.0 / config.sample_rate
         self.physics.model.opt.timestep = self._dt / physics_substeps
         self.physics.substeps = physics_substeps
+        self._plant = self.physics
         self._horizon = int(round(time_limit * config.sample_rate))
         #: Step period, s (one env step).
         self.dt = self._dt
@@ -449,9 +449,6 @@ class AcousticTrackingEnv(TaskEnv):
         return spaces.Dict(entries)
 
     # ------------------------------------------------------------------ episode hooks
-    def _backend(self, rng: np.random.Generator) -> transition.Backend:
-        return transition.Backend(FLOATS, rng, self.physics)
-
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         state, truth, obs = transition.reset(self.params, self._backend(rng))
         self._episode = ShellEpisode(state, obs)

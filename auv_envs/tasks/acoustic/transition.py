@@ -5,10 +5,14 @@ carrier's route, the arm's sweep, the current, the clocks and the water,
 drawn at reset), the current :class:`Block` of simulated and measured sample
 periods, and the record of the agent's estimates. The static
 :class:`AcousticParams` say which task it is. Both functions take a
-:class:`Backend`: the arithmetic, the episode's random draws (NumPy
-``Generator``'s interface) and the plant (the carrier and arm in MuJoCo on
-the CPU). The start draw, the step's order (score the estimate, move on one
-period, measure the next block when this one is served), the reward, the
+:class:`~auv_envs.core.ops.Backend`: the arithmetic, the episode's random
+draws (NumPy ``Generator``'s interface) and the plant (the carrier and arm in
+MuJoCo on the CPU), whose methods are ``place(carrier, arm)`` (the rig at rest
+at those joint positions), ``advance(carrier_ref, carrier_vel, arm_ref,
+current)`` (one sample period towards the references in the current) and
+``source()`` (the source's position and velocity, (3,) each). The start
+draw, the step's order (score the estimate, move on one period, measure the
+next block when this one is served), the reward, the
 observations, ``info`` and the episode summary exist here only;
 :class:`auv_envs.tasks.acoustic.env.AcousticTrackingEnv` is the Gymnasium
 shell around them (it renders and computes the bound).
@@ -36,6 +40,7 @@ import numpy as np
 
 from auv_envs import metrics
 from auv_envs.core.acoustics import HydrophoneArray, Measurements
+from auv_envs.core.ops import Backend
 
 #: Current speed ranges in m/s ([GMPHD] §3.4's disturbance levels).
 DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
@@ -145,23 +150,6 @@ class EpisodeState(NamedTuple):
     squared_error_sum: float
     estimates: np.ndarray
     truths: np.ndarray
-
-
-class Backend(NamedTuple):
-    """How a transition is evaluated.
-
-    Attributes:
-        ops: a namespace of :mod:`auv_envs.core.ops`.
-        draws: the episode's random draws (NumPy ``Generator``'s interface).
-        plant: ``place(carrier, arm)`` (the rig at rest at those joint positions),
-            ``advance(carrier_ref, carrier_vel, arm_ref, current)`` (one sample period
-            towards the references in the current) and ``source()`` -> the source's
-            ``(position, velocity)`` (3,) each.
-    """
-
-    ops: Any
-    draws: Any
-    plant: Any
 
 
 # ------------------------------------------------------------------ the plan

@@ -588,9 +588,6 @@ class DockingEnv(TaskEnv):
         )
 
     # ------------------------------------------------------------------ episode hooks
-    def _backend(self, rng: np.random.Generator) -> transition.Backend:
-        return transition.Backend(FLOATS, rng, self._plant)
-
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         state, truth, obs = transition.reset(self.params, self._backend(rng))
         self._episode = ShellEpisode(state, obs)

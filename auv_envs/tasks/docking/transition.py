@@ -2,12 +2,16 @@
 
 An episode is :func:`reset` then :func:`step` over a typed, immutable
 :class:`EpisodeState`; the static :class:`DockingParams` say which task it is.
-Both take a :class:`Backend`: the arithmetic (:mod:`auv_envs.core.ops`:
+Both take a :class:`~auv_envs.core.ops.Backend`: the arithmetic (:mod:`auv_envs.core.ops`:
 Python floats and NumPy on the CPU, ``jax.numpy`` in the batched env), the
 episode's random draws (anything with NumPy ``Generator``'s ``uniform``,
 ``standard_normal`` and ``random``: the env's own generator on the CPU,
 :class:`auv_envs.batched.functional.KeyDraws` over a JAX key), and the
-plant (MuJoCo on the CPU, MJX batched). The start draw, the order of the
+plant (MuJoCo on the CPU, MJX batched), whose methods are ``place(start,
+vehicle_draws, failed)``, ``advance(tau, current, vehicle_draws)`` and
+``truth()`` (the kinematics of :meth:`DockingRules.kinematics` with
+``pixels`` (n, 2), ``visible`` (n,), ``visible_pixels`` and ``n_visible``,
+:func:`truth_with_lights`). The start draw, the order of the
 step (thrusters, current, plant, judgement, water, observation), the reward,
 the termination, the observation and the episode summary exist here only;
 :class:`auv_envs.tasks.docking.env.DockingEnv` (Gymnasium) and
@@ -27,6 +31,7 @@ import math
 from typing import Any, NamedTuple
 
 from auv_envs.core.camera import add_pixel_noise
+from auv_envs.core.ops import Backend
 from auv_envs.core.sea import current_components
 from auv_envs.core.vehicle import lagged_thrust
 from auv_envs.tasks.docking.optics import LampOutages, WaterOptics, detect_lamps
@@ -132,24 +137,6 @@ class Start(NamedTuple):
     surge: Any
     current_polar: tuple
     current_mean: tuple
-
-
-class Backend(NamedTuple):
-    """How a transition is evaluated.
-
-    Attributes:
-        ops: a namespace of :mod:`auv_envs.core.ops` (with ``xp``, its array module).
-        draws: the episode's random draws (NumPy ``Generator``'s interface).
-        plant: ``place(start, vehicle_draws, failed)``, ``advance(tau, current,
-            vehicle_draws)`` and ``truth()`` -> the kinematics of
-            :meth:`DockingRules.kinematics` with ``pixels`` (n, 2), ``visible``
-            (n,), ``visible_pixels`` and ``n_visible`` (see
-            :func:`truth_with_lights`).
-    """
-
-    ops: Any
-    draws: Any
-    plant: Any
 
 
 class Assessment(NamedTuple):

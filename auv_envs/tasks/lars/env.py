@@ -26,7 +26,6 @@ from auv_envs.core.env import (
     check_choice,
     check_image_size,
 )
-from auv_envs.core.ops import FLOATS
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.arm import ArmModel
@@ -452,9 +451,6 @@ class LARSCaptureEnv(TaskEnv):
         return spaces.Dict({"left": image, "right": image, **joints})
 
     # ------------------------------------------------------------------ episode hooks
-    def _backend(self, rng: np.random.Generator) -> transition.Backend:
-        return transition.Backend(FLOATS, rng, self._plant)
-
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
         state, truth, obs = transition.reset(self.params, self._backend(rng), options)
         self._episode = ShellEpisode(state, obs)

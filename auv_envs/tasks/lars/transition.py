@@ -3,9 +3,13 @@
 An episode is an immutable :class:`EpisodeState` (what the episode's record
 holds, and its :class:`Scene`: the AUV's motion, the sea and the sun drawn at
 reset); the static :class:`LARSParams` say which task it is. Both functions
-take a :class:`Backend`: the arithmetic (:data:`auv_envs.core.ops.FLOATS` on
-the CPU), the episode's random draws (NumPy ``Generator``'s interface) and
-the arm's plant (MuJoCo on the CPU). The start draw, the order of the step
+take a :class:`~auv_envs.core.ops.Backend`: the arithmetic (Python floats on
+the CPU, ``jax.numpy`` in :mod:`auv_envs.batched.lars_env`), the episode's
+random draws (NumPy ``Generator``'s interface) and the arm's plant (MuJoCo on
+the CPU, MJX batched), whose methods are ``place(q)`` (the arm at rest at
+joint angles ``q``), ``advance(action, effort) -> effort`` (one control
+period under the checked action, the running control effort updated) and
+``joints() -> (q, qd)`` (three scalars each). The start draw, the order of the step
 (arm, truth, judgement, observation), the reward terms, the episode's end,
 the ``state``/``features`` observations, ``info`` and the episode summary
 exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
@@ -13,8 +17,9 @@ Gymnasium shell around them (it renders the ``stereo`` images).
 
 The draws come in the order the environment has always made them
 (``docs/environments.md``), so its episodes are the released ones, bit for
-bit. The truth is plain-float arithmetic on purpose: three corners in two
-cameras cost less as scalars than as many tiny NumPy operations.
+bit. The truth is scalar arithmetic on purpose: three corners in two cameras
+cost less as Python floats than as many tiny NumPy operations, and the same
+code evaluates JAX arrays.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ import numpy as np
 
 from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics, project_few
-from auv_envs.core.ops import FLOATS
+from auv_envs.core.ops import FLOATS, Backend
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
 from auv_envs.tasks.lars.scene import (
     AUV_DIAMETER,
@@ -149,22 +154,6 @@ class EpisodeState(NamedTuple):
     glint_steps: int
     control_effort: float
     glint_frame: dict | None = None
-
-
-class Backend(NamedTuple):
-    """How a transition is evaluated.
-
-    Attributes:
-        ops: a namespace of :mod:`auv_envs.core.ops`.
-        draws: the episode's random draws (NumPy ``Generator``'s interface).
-        plant: ``place(q)`` (the arm at rest at joint angles ``q``), ``advance(action,
-            effort) -> effort`` (one control period under the checked ``action``, the
-            running control effort updated) and ``joints() -> (q, qd)`` (lists).
-    """
-
-    ops: Any
-    draws: Any
-    plant: Any
 
 
 class Assessment(NamedTuple):
