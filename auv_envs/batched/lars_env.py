@@ -10,9 +10,11 @@ model on MJX (:class:`ArmPlantMJX`), and the episode's draws come from a JAX key
 
 Built: ``state`` and ``features``, ``sea_state`` ``"calm"`` and ``"severe"``
 (wash-over occlusion, the analogs), both ``control`` modes, the [LTAT]
-sinusoidal sea of the ``easy`` level. Not built yet, and refused with a
-``ValueError``: the irregular ``sea`` and the sun ``glint`` (the ``paper`` and
-``hard`` levels), and the rendered ``stereo`` mode.
+sinusoidal sea of the ``easy`` level and the irregular ``sea`` of ``paper``
+(its realisation drawn from the key, the AUV, the analogs and the ship moving
+with it). Not built yet, and refused with a ``ValueError``: the sun ``glint``
+(the ``hard`` level has one; ``difficulty="hard", glint=False`` builds), and
+the rendered ``stereo`` mode.
 
 What differs from the CPU environment: a seed gives other episodes (JAX's
 generator; the distributions are the same); everything runs in float32; MJX's
@@ -35,11 +37,13 @@ from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.env import FRAME_SKIP, PHYSICS_TIMESTEP, POSITION_GAINS, LARSCaptureEnv
 from auv_envs.tasks.lars.scene import AUVMotion
+from auv_envs.tasks.lars.sea import EpisodeSea
+from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
-#: The ``difficulty`` levels it builds (``paper`` and ``hard`` need the irregular sea).
-LEVELS = ("easy",)
+#: The ``difficulty`` levels it builds (``hard`` has the sun glint, not built yet).
+LEVELS = ("easy", "paper")
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
@@ -61,9 +65,30 @@ def _register(cls, meta=()) -> None:
                                      meta_fields=list(meta))
 
 
+def _register_attributes(cls, children: tuple, aux: tuple = ()) -> None:
+    """Make a class of an episode's sea a JAX pytree of its attributes ``children``
+    (``aux``: static), rebuilt without running its constructor."""
+
+    def flatten(obj):
+        return (tuple(getattr(obj, name) for name in children),
+                tuple(getattr(obj, name) for name in aux))
+
+    def unflatten(static, leaves):
+        obj = object.__new__(cls)
+        for name, value in (*zip(children, leaves, strict=True),
+                            *zip(aux, static, strict=True)):
+            object.__setattr__(obj, name, value)
+        return obj
+
+    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
+
+
 for _cls, _meta in ((AUVMotion, ()), (FloatingAnalog, ()),
                     (WashOver, ("sweep", "overtop", "half_size"))):
     _register(_cls, _meta)
+_register_attributes(WaveRealisation, ("omega", "amplitude", "phase", "heading", "wavenumber"))
+_register_attributes(HarmonicSeries, ("omega", "_matrix"), ("n_channels", "_xp", "_buffer"))
+_register_attributes(EpisodeSea, ("_series",), ("_n_analogs",))
 
 
 class ArmPlantMJX:
@@ -151,11 +176,10 @@ class LARSMJX:
             raise ValueError(f"the batched LARS environment builds obs_mode {OBS_MODES}, got "
                              f"{obs_mode!r}")
         cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
-        if cpu.params.sea is not None or cpu.params.glint is not None:
+        if cpu.params.glint is not None:
             cpu.close()
-            raise ValueError("the batched LARS environment does not model the irregular sea "
-                             "or the sun glint yet: use difficulty='easy' (the default) "
-                             "without sea= or glint=")
+            raise ValueError("the batched LARS environment does not model the sun glint yet: "
+                             "use difficulty 'easy' or 'paper', or glint=False")
         self.cpu_env = cpu
         self.obs_mode = obs_mode
         self.auto_reset = auto_reset
@@ -208,7 +232,11 @@ class LARSMJX:
         ops = self.ops
         as32 = lambda tree: jax.tree_util.tree_map(  # noqa: E731
             lambda leaf: jnp.asarray(leaf, jnp.float32), tree)
-        scene = transition.scene_of(self.params, as32(scene.motion), None, as32(scene.wash),
+        waves = scene.waves
+        if waves is not None:
+            waves = WaveRealisation(*(jnp.asarray(getattr(waves, name), jnp.float32)
+                                      for name in ("omega", "amplitude", "phase", "heading")))
+        scene = transition.scene_of(self.params, as32(scene.motion), waves, as32(scene.wash),
                                     as32(scene.analogs), ops=ops)
         plant = _ArmCursor(self.plant, ops)
         plant.place(tuple(jnp.float32(v) for v in q))

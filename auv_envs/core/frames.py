@@ -100,11 +100,12 @@ def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
     return np.array(euler_floats(r))
 
 
-def rotation_rows(roll: float, pitch: float, yaw: float) -> tuple:
-    """:func:`rotation_from_euler` as rows of Python floats (per-step use)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
+def rotation_rows(roll: float, pitch: float, yaw: float, ops=FLOATS) -> tuple:
+    """:func:`rotation_from_euler` as rows of scalars (per-step use): Python floats, or
+    any backend of :mod:`auv_envs.core.ops`."""
+    cr, sr = ops.cos(roll), ops.sin(roll)
+    cp, sp = ops.cos(pitch), ops.sin(pitch)
+    cy, sy = ops.cos(yaw), ops.sin(yaw)
     return (
         (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
         (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from auv_envs.core.frames import GRAVITY
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH, uniform_draws
 from auv_envs.tasks.lars.waves import (
     DEFAULT_BAND,
@@ -157,19 +158,20 @@ class EpisodeSea:
     """
 
     def __init__(self, model: LARSSeaModel, waves: WaveRealisation, x0: float, y0: float,
-                 surge: float, yaw: float, analog_tracks=()):
+                 surge: float, yaw: float, analog_tracks=(), ops=FLOATS):
         k = waves.wavenumber
-        encounter, c = waves.along_track(x0, y0, surge)
-        heave, roll, pitch = model.auv.transfer(encounter, k, waves.heading - yaw)
+        encounter, c = waves.along_track(x0, y0, surge, ops=ops)
+        heave, roll, pitch = model.auv.transfer(encounter, k, waves.heading - yaw, ops)
         blocks = [(encounter, [c * heave, c * roll, c * pitch, c])]
         ox, oy, _ = model.ship_origin
-        omega, c = waves.along_track(ox, oy)
-        blocks.append((omega, [c * h for h in model.ship.transfer(omega, k, waves.heading)]))
+        omega, c = waves.along_track(ox, oy, ops=ops)
+        blocks.append((omega, [c * h for h in model.ship.transfer(omega, k, waves.heading,
+                                                                  ops)]))
         for ax, ay, speed in analog_tracks:
-            encounter, c = waves.along_track(ax, ay, speed)
-            heave = model.analog.transfer(encounter, k, waves.heading - yaw)[0]
+            encounter, c = waves.along_track(ax, ay, speed, ops=ops)
+            heave = model.analog.transfer(encounter, k, waves.heading - yaw, ops)[0]
             blocks.append((encounter, [c * heave]))
-        self._series = HarmonicSeries(blocks)
+        self._series = HarmonicSeries(blocks, ops.xp)
         self._n_analogs = len(analog_tracks)
 
     def __call__(self, t: float) -> SeaSample:
@@ -185,9 +187,9 @@ class ShipPose:
 
     __slots__ = ("_origin", "_rows", "_heave", "_omega", "_heave_rate")
 
-    def __init__(self, origin, sample: SeaSample):
-        cr, sr = math.cos(sample.ship_roll), math.sin(sample.ship_roll)
-        cp, sp = math.cos(sample.ship_pitch), math.sin(sample.ship_pitch)
+    def __init__(self, origin, sample: SeaSample, ops=FLOATS):
+        cr, sr = ops.cos(sample.ship_roll), ops.sin(sample.ship_roll)
+        cp, sp = ops.cos(sample.ship_pitch), ops.sin(sample.ship_pitch)
         self._origin = origin
         self._rows = ((cp, sp * sr, sp * cr), (0.0, cr, -sr), (-sp, cp * sr, cp * cr))
         self._heave = sample.ship_heave
@@ -212,11 +214,13 @@ class ShipPose:
             self._heave_rate + wx * ry - wy * rx + r20 * vx + r21 * vy + r22 * vz,
         )
 
-    def to_ship(self, point) -> np.ndarray:
-        """The ship-frame point (3,) that is at world ``point`` now."""
-        origin = np.asarray(self._origin)
-        offset = np.asarray(point, dtype=float) - origin - (0.0, 0.0, self._heave)
-        return origin + np.array(self._rows).T @ offset
+    def to_ship(self, point, xp=np) -> np.ndarray:
+        """The ship-frame point (3,) that is at world ``point`` now (``xp``: NumPy, or
+        ``jax.numpy``)."""
+        origin = xp.asarray(self._origin)
+        offset = ((np.asarray(point, dtype=float) if xp is np else xp.stack(list(point)))
+                  - origin - xp.stack([0.0, 0.0, self._heave]))
+        return origin + xp.asarray(self._rows).T @ offset
 
     def transform(self) -> tuple[np.ndarray, np.ndarray]:
         """``(R, t)`` with ``p_world = R p_ship + t``."""
@@ -417,8 +421,10 @@ class GlintField:
         return np.where(down > 0.0, density * area, 0.0)
 
 
-def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveRealisation:
-    """The episode's wave direction (drawn even when ``heading`` pins it) and realisation."""
+def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading,
+                 xp=np) -> WaveRealisation:
+    """The episode's wave direction (drawn even when ``heading`` pins it) and realisation
+    (``xp``: NumPy, or ``jax.numpy`` with a JAX key's draws)."""
     drawn = rng.uniform(*sea.heading_range)
     if heading is None:
         heading = drawn
@@ -426,4 +432,6 @@ def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading) -> WaveRe
         isinstance(heading, int | float) and math.isfinite(heading)
     ):
         raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
-    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, float(heading), sea.band)
+    else:
+        heading = float(heading)
+    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, heading, sea.band, xp)

@@ -175,7 +175,7 @@ def scene_of(params: LARSParams, motion: AUVMotion, waves=None, wash=None, analo
         tracks = [(motion.x0 + a.dx0, motion.y0 + a.dy, motion.surge + a.drift)
                   for a in analogs]
         sea = EpisodeSea(params.sea, waves, motion.x0, motion.y0, motion.surge, motion.yaw,
-                         tracks)
+                         tracks, ops)
     corners = ops.xp.asarray(params.corners_body) @ rot.T
     return Scene(motion=motion, wash=wash, analogs=analogs, waves=waves, glint=glint, sea=sea,
                  corners=[ops.unpack(row) for row in corners],
@@ -187,9 +187,9 @@ def sea_sample(scene: Scene, t: float) -> SeaSample | None:
     return None if scene.sea is None else scene.sea(t)
 
 
-def ship_pose(params: LARSParams, sample: SeaSample) -> ShipPose:
+def ship_pose(params: LARSParams, sample: SeaSample, ops=FLOATS) -> ShipPose:
     """The ship's displacement in the sea state ``sample``."""
-    return ShipPose(params.sea.ship_origin, sample)
+    return ShipPose(params.sea.ship_origin, sample, ops)
 
 
 def auv_position(scene: Scene, t: float, sample: SeaSample | None, ops=FLOATS) -> tuple:
@@ -241,11 +241,11 @@ def camera_rows(c: float, s: float) -> tuple:
     return ((c, s, 0.0), (s, -c, 0.0), (0.0, 0.0, -1.0))
 
 
-def _body_to_world(params: LARSParams, roll: float, pitch: float, yaw: float) -> tuple:
+def _body_to_world(params: LARSParams, roll, pitch, yaw, ops) -> tuple:
     """Marker corners (3 points), capture point and hull axis of the AUV at an
-    attitude, in world axes (floats): the per-step twin of :func:`scene_of`'s
+    attitude, in world axes (scalars): the per-step twin of :func:`scene_of`'s
     geometry for a rolling, pitching AUV."""
-    rows = frames.rotation_rows(roll, -pitch, yaw)  # frames' ZYX pitch is nose-down
+    rows = frames.rotation_rows(roll, -pitch, yaw, ops)  # frames' ZYX pitch is nose-down
     corners = [frames.rotate_rows(rows, p) for p in params.corners_body]
     capture = frames.rotate_rows(rows, params.capture_point.tolist())
     return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
@@ -288,9 +288,11 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
         level, rate = sample.level, sample.auv_heave_rate
         px, py, pz = m.x0 + m.surge * t, m.y0, sample.auv_heave + Z_CENTRE
         roll, pitch = sample.auv_roll, m.pitch + sample.auv_pitch
-        body_corners, (kx, ky, kz), (ax, ay, az) = _body_to_world(params, roll, pitch, m.yaw)
+        body_corners, (kx, ky, kz), (ax, ay, az) = _body_to_world(params, roll, pitch, m.yaw,
+                                                                  ops)
         # The arm's end is a point of the moving ship; the levelled head hangs from it.
-        ex, ey, ez, evx, evy, evz = ship_pose(params, sample).carry(ex, ey, ez, evx, evy, evz)
+        ex, ey, ez, evx, evy, evz = ship_pose(params, sample, ops).carry(ex, ey, ez, evx, evy,
+                                                                         evz)
     lx, ly, lz = params.left_in_end
     camx, camy, camz = ex + c * lx - s * ly, ey + s * lx + c * ly, ez + lz
 
@@ -384,7 +386,8 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOAT
     if unknown:
         raise ValueError(f"unknown reset option(s) {sorted(unknown)}; valid: {sorted(valid)}")
     motion = sample_motion(draws, options.get("motion"), ops)
-    waves = None if sea is None else sample_waves(draws, sea, options.get("wave_heading"))
+    waves = (None if sea is None
+             else sample_waves(draws, sea, options.get("wave_heading"), ops.xp))
     wash, analogs = None, ()
     if params.sea_state == "severe":
         if sea is None:
@@ -405,7 +408,7 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOAT
     end = (motion.x0 + offset[0], motion.y0 - params.left_in_end[1] + offset[1],
            top + START_HEIGHT)
     if sample is not None:  # the joint angles that put the end there on the moved ship
-        end = tuple(ship_pose(params, sample).to_ship(np.array(end)).tolist())
+        end = ops.unpack(ship_pose(params, sample, ops).to_ship(end, ops.xp))
     return scene, end
 
 

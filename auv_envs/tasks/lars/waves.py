@@ -47,6 +47,7 @@ import numpy as np
 from scipy.integrate import trapezoid
 
 from auv_envs.core.frames import GRAVITY
+from auv_envs.core.ops import FLOATS
 
 SPECTRUM_KINDS = ("jonswap", "pierson-moskowitz")
 
@@ -86,16 +87,16 @@ def _finite_positive(name: str, value) -> float:
     return float(value)
 
 
-def _pm_shape(x: np.ndarray) -> np.ndarray:
+def _pm_shape(x: np.ndarray, xp=np) -> np.ndarray:
     """``S_PM(w) wp / Hs^2`` at ``x = w / wp`` (integrates to 1/16)."""
     with np.errstate(divide="ignore", over="ignore"):
-        x = np.maximum(np.asarray(x, dtype=float), 1e-3)
-        return 0.3125 * x**-5 * np.exp(-1.25 * x**-4)
+        x = xp.maximum(np.asarray(x, dtype=float) if xp is np else x, 1e-3)
+        return 0.3125 * x**-5 * xp.exp(-1.25 * x**-4)
 
 
-def _peak_factor(x: np.ndarray, gamma: float) -> np.ndarray:
-    sigma = np.where(x <= 1.0, 0.07, 0.09)
-    return gamma ** np.exp(-0.5 * ((x - 1.0) / sigma) ** 2)
+def _peak_factor(x: np.ndarray, gamma: float, xp=np) -> np.ndarray:
+    sigma = xp.where(x <= 1.0, 0.07, 0.09)
+    return gamma ** xp.exp(-0.5 * ((x - 1.0) / sigma) ** 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,15 +161,16 @@ class SeaSpectrum:
         """``A(gamma)``: the factor that keeps ``m0 = Hs^2 / 16`` (1 for PM)."""
         return _normalisation(self.effective_gamma)
 
-    def density(self, omega) -> np.ndarray:
-        """``S(w)``, m^2 s/rad, at angular frequencies ``omega`` (0 where ``w <= 0``)."""
-        w = np.asarray(omega, dtype=float)
+    def density(self, omega, xp=np) -> np.ndarray:
+        """``S(w)``, m^2 s/rad, at angular frequencies ``omega`` (0 where ``w <= 0``;
+        ``xp``: NumPy, or ``jax.numpy`` for a JAX array)."""
+        w = np.asarray(omega, dtype=float) if xp is np else omega
         x = w / self.peak_frequency
-        shape = _pm_shape(x)
+        shape = _pm_shape(x, xp)
         gamma = self.effective_gamma
         if gamma != 1.0:
-            shape = self.normalisation * shape * _peak_factor(x, gamma)
-        return np.where(w > 0.0, self.hs**2 / self.peak_frequency * shape, 0.0)
+            shape = self.normalisation * shape * _peak_factor(x, gamma, xp)
+        return xp.where(w > 0.0, self.hs**2 / self.peak_frequency * shape, 0.0)
 
     def moment(self, n: int) -> float:
         """Spectral moment ``m_n = int w^n S(w) dw`` for ``n`` in 0..3 (quadrature)."""
@@ -257,6 +259,9 @@ class WaveRealisation:
     heading: float = 0.0
 
     def __post_init__(self):
+        if not isinstance(self.omega, np.ndarray):  # JAX arrays (the batched env): as given
+            object.__setattr__(self, "wavenumber", self.omega ** 2 / GRAVITY)
+            return
         arrays = [_read_only(getattr(self, n)) for n in ("omega", "amplitude", "phase")]
         if any(a.ndim != 1 or a.shape != arrays[0].shape for a in arrays) or not arrays[0].size:
             raise ValueError("omega, amplitude and phase must be non-empty (N,) arrays")
@@ -277,6 +282,7 @@ class WaveRealisation:
         n_components: int = DEFAULT_COMPONENTS,
         heading: float = 0.0,
         band: tuple[float, float] = DEFAULT_BAND,
+        xp=np,
     ) -> WaveRealisation:
         """Draw a realisation of ``spectrum`` from ``rng`` (``2 n_components`` uniforms).
 
@@ -286,6 +292,7 @@ class WaveRealisation:
             n_components: number of harmonic components ``N``.
             heading: travel direction, rad.
             band: (low, high) frequency band in units of the peak frequency.
+            xp: NumPy, or ``jax.numpy`` (``rng`` a JAX key's draws).
         """
         if isinstance(n_components, bool) or not isinstance(n_components, int) or n_components < 1:
             raise ValueError(f"n_components must be a positive int, got {n_components!r}")
@@ -295,8 +302,8 @@ class WaveRealisation:
         wp = spectrum.peak_frequency
         width = (high - low) * wp / n_components
         u = rng.random((2, n_components))
-        omega = low * wp + width * (np.arange(n_components) + u[0])
-        amplitude = np.sqrt(2.0 * spectrum.density(omega) * width)
+        omega = low * wp + width * (xp.arange(n_components) + u[0])
+        amplitude = xp.sqrt(2.0 * spectrum.density(omega, xp) * width)
         return cls(omega, amplitude, 2.0 * math.pi * u[1], heading)
 
     @property
@@ -329,33 +336,45 @@ class WaveRealisation:
         a = self.amplitude
         return float(np.cos(arg) @ a), float(-(np.sin(arg) @ (a * self.omega)))
 
-    def along_track(self, x0: float, y0: float, vx: float = 0.0, vy: float = 0.0):
-        """The elevation seen from a point moving as ``(x0 + vx t, y0 + vy t)``.
+    def along_track(self, x0: float, y0: float, vx: float = 0.0, vy: float = 0.0,
+                    ops=FLOATS):
+        """The elevation seen from a point moving as ``(x0 + vx t, y0 + vy t)`` (``ops``:
+        a backend of :mod:`auv_envs.core.ops`).
 
         Returns:
             ``(omega_e, c)``: encounter frequencies (N,) and complex amplitudes
             (N,) with ``eta = Re sum c exp(i omega_e t)`` along the track.
         """
-        cb, sb = math.cos(self.heading), math.sin(self.heading)
+        cb, sb = ops.cos(self.heading), ops.sin(self.heading)
         k = self.wavenumber
         encounter = self.omega - k * (vx * cb + vy * sb)
-        c = self.amplitude * np.exp(1j * (self.phase - k * (x0 * cb + y0 * sb)))
+        c = self.amplitude * ops.xp.exp(1j * (self.phase - k * (x0 * cb + y0 * sb)))
         return encounter, c
 
 
-def plane_average(x) -> np.ndarray:
+def _floats(x, xp):
+    """``x`` as a float array of ``xp`` (NumPy: float64; JAX arrays as they are)."""
+    return np.asarray(x, dtype=float) if xp is np else x
+
+
+def _complex(x, xp):
+    """``x`` as a complex array of ``xp`` (NumPy: complex128; JAX: complex64)."""
+    return x.astype(complex if xp is np else xp.complex64)
+
+
+def plane_average(x, xp=np) -> np.ndarray:
     """Mean of ``exp(-i k s)`` over ``s`` in ``[-l, l]`` at ``x = k l``: ``sin(x) / x``."""
-    return np.sinc(np.asarray(x, dtype=float) / math.pi)
+    return xp.sinc(_floats(x, xp) / math.pi)
 
 
-def slope_average(x) -> np.ndarray:
+def slope_average(x, xp=np) -> np.ndarray:
     """Least-squares slope of ``exp(-i k s)`` over ``[-l, l]``, over the point slope
     ``-i k``, at ``x = k l``: ``3 (sin x - x cos x) / x^3`` (-> 1 - x^2 / 10)."""
-    x = np.abs(np.asarray(x, dtype=float))
+    x = xp.abs(_floats(x, xp))
     small = x < 1e-3
-    safe = np.where(small, 1.0, x)
-    exact = 3.0 * (np.sin(safe) - safe * np.cos(safe)) / safe**3
-    return np.where(small, 1.0 - x * x / 10.0, exact)
+    safe = xp.where(small, 1.0, x)
+    exact = 3.0 * (xp.sin(safe) - safe * xp.cos(safe)) / safe**3
+    return xp.where(small, 1.0 - x * x / 10.0, exact)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -387,28 +406,31 @@ class FloaterResponse:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
-    def transfer(self, omega, wavenumber, relative_heading) -> tuple[np.ndarray, ...]:
+    def transfer(self, omega, wavenumber, relative_heading,
+                 ops=FLOATS) -> tuple[np.ndarray, ...]:
         """Complex ``(heave, roll, pitch)`` responses per unit wave amplitude.
 
         Args:
             omega: (N,) encounter frequencies, rad/s.
             wavenumber: (N,) rad/m.
             relative_heading: wave travel direction minus the body's heading, rad.
+            ops: a backend of :mod:`auv_envs.core.ops`.
 
         Returns:
             heave (m/m), roll (rad/m, right-handed about the bow axis: port
             side up) and pitch (rad/m, nose up), each (N,), referred to the
             elevation at the body's centre.
         """
-        w = np.asarray(omega, dtype=float)
-        k_along = wavenumber * math.cos(relative_heading)
-        k_across = wavenumber * math.sin(relative_heading)
-        mean_along = plane_average(0.5 * k_along * self.length)
-        mean_across = plane_average(0.5 * k_across * self.beam)
-        heave = (mean_along * mean_across).astype(complex)
-        pitch = (-1j * k_along * slope_average(0.5 * k_along * self.length) * mean_across
+        xp = ops.xp
+        w = _floats(omega, xp)
+        k_along = wavenumber * ops.cos(relative_heading)
+        k_across = wavenumber * ops.sin(relative_heading)
+        mean_along = plane_average(0.5 * k_along * self.length, xp)
+        mean_across = plane_average(0.5 * k_across * self.beam, xp)
+        heave = _complex(mean_along * mean_across, xp)
+        pitch = (-1j * k_along * slope_average(0.5 * k_along * self.length, xp) * mean_across
                  / (1.0 + 1j * w * self.pitch_time_constant))
-        roll = (-1j * k_across * slope_average(0.5 * k_across * self.beam) * mean_along
+        roll = (-1j * k_across * slope_average(0.5 * k_across * self.beam, xp) * mean_along
                 / (1.0 + 1j * w * self.roll_time_constant))
         return heave, roll, pitch
 
@@ -452,13 +474,14 @@ class ShipResponse:
         r = w * period / (2.0 * math.pi)
         return 1.0 / (1.0 - r * r + 2j * damping * r)
 
-    def transfer(self, omega, wavenumber, heading) -> tuple[np.ndarray, ...]:
+    def transfer(self, omega, wavenumber, heading, ops=FLOATS) -> tuple[np.ndarray, ...]:
         """Complex ``(heave, roll, pitch)`` responses per unit wave amplitude.
 
         Args:
             omega: (N,) frequencies, rad/s.
             wavenumber: (N,) rad/m.
             heading: wave travel direction relative to the bow, rad.
+            ops: a backend of :mod:`auv_envs.core.ops`.
 
         Returns:
             heave (m/m), roll (rad/m, right-handed about the bow axis: the
@@ -466,15 +489,16 @@ class ShipResponse:
             down), each (N,), referred to the elevation at the ship's centre
             of rotation.
         """
-        w = np.asarray(omega, dtype=float)
-        kx = wavenumber * math.cos(heading)
-        ky = wavenumber * math.sin(heading)
-        mean_x = plane_average(0.5 * kx * self.length)
-        mean_y = plane_average(0.5 * ky * self.beam)
+        xp = ops.xp
+        w = _floats(omega, xp)
+        kx = wavenumber * ops.cos(heading)
+        ky = wavenumber * ops.sin(heading)
+        mean_x = plane_average(0.5 * kx * self.length, xp)
+        mean_y = plane_average(0.5 * ky * self.beam, xp)
         heave = mean_x * mean_y * self._mode(w, self.heave_period, self.heave_damping)
-        roll = (-1j * ky * slope_average(0.5 * ky * self.beam) * mean_x
+        roll = (-1j * ky * slope_average(0.5 * ky * self.beam, xp) * mean_x
                 * self._mode(w, self.roll_period, self.roll_damping))
-        pitch = (1j * kx * slope_average(0.5 * kx * self.length) * mean_y
+        pitch = (1j * kx * slope_average(0.5 * kx * self.length, xp) * mean_y
                  * self._mode(w, self.pitch_period, self.pitch_damping))
         return heave, roll, pitch
 
@@ -484,45 +508,50 @@ class HarmonicSeries:
 
     The per-step evaluator of linear responses to a wave realisation: one
     ``cos``/``sin`` of the ``N`` frequencies and one matrix product give every
-    channel and its time derivative as Python floats.
+    channel and its time derivative, as Python floats with NumPy, or as a JAX
+    array (``xp=jax.numpy``: the batched environment, where the series is a pytree).
     """
 
-    def __init__(self, blocks):
+    def __init__(self, blocks, xp=np):
         """Args:
             blocks: ``(omega, coefficients)`` pairs, ``omega`` (N_b,) and
                 ``coefficients`` (M_b, N_b) complex; channels are listed block
                 after block, each block with its own frequencies.
+            xp: NumPy, or ``jax.numpy``.
         """
-        omegas, rows = [], []
-        total = sum(np.size(w) for w, _ in blocks)
+        omegas, values, rates = [], [], []
+        total = sum(int(np.size(w)) for w, _ in blocks)
         start = 0
         for omega, coefficients in blocks:
-            w = np.asarray(omega, dtype=float)
-            c = np.atleast_2d(np.asarray(coefficients, dtype=complex))
+            w = np.asarray(omega, dtype=float) if xp is np else omega
+            c = (np.atleast_2d(np.asarray(coefficients, dtype=complex)) if xp is np
+                 else xp.stack(list(coefficients)))
             n = w.size
             if w.ndim != 1 or c.ndim != 2 or c.shape[1] != n:
                 raise ValueError(f"coefficients must be (M, {n}) for {n} frequencies, "
                                  f"got shape {c.shape}")
-            for row in c:
-                value = np.zeros(2 * total)
-                rate = np.zeros(2 * total)
-                # Re(C e^{iwt}) = Cr cos - Ci sin;
-                # its rate Re(i w C e^{iwt}) = -w Ci cos - w Cr sin.
-                value[start:start + n], value[total + start:total + start + n] = row.real, -row.imag
-                rate[start:start + n] = -w * row.imag
-                rate[total + start:total + start + n] = -w * row.real
-                rows.append((value, rate))
+            # Re(C e^{iwt}) = Cr cos - Ci sin; its rate Re(i w C e^{iwt}) = -w Ci cos - w Cr sin.
+            # Each row spans the 2 total columns: cos of every frequency, then sin.
+            before = xp.zeros((c.shape[0], start))
+            after = xp.zeros((c.shape[0], total - start - n))
+            values.append(xp.concatenate([before, c.real, after, before, -c.imag, after], 1))
+            rates.append(xp.concatenate([before, -w * c.imag, after, before, -w * c.real,
+                                         after], 1))
             omegas.append(w)
             start += n
-        self.omega = np.concatenate(omegas)
-        self.n_channels = len(rows)
-        self._matrix = np.array([v for v, _ in rows] + [r for _, r in rows])
-        self._buffer = np.empty(2 * total)
+        self.omega = xp.concatenate(omegas)
+        self._xp = xp
+        self._matrix = xp.concatenate(values + rates)
+        self.n_channels = self._matrix.shape[0] // 2
+        self._buffer = np.empty(2 * total) if xp is np else None
 
     def __call__(self, t: float) -> list[float]:
-        """Values of all channels, then their rates (``2 n_channels`` floats)."""
-        n = self.omega.size
+        """Values of all channels, then their rates (``2 n_channels`` floats, or a JAX
+        array)."""
         arg = self.omega * t
+        if self._xp is not np:
+            return self._matrix @ self._xp.concatenate([self._xp.cos(arg), self._xp.sin(arg)])
+        n = self.omega.size
         np.cos(arg, out=self._buffer[:n])
         np.sin(arg, out=self._buffer[n:])
         return (self._matrix @ self._buffer).tolist()
@@ -533,4 +562,5 @@ class HarmonicSeries:
     def __setstate__(self, state):
         self.omega, self.n_channels, self._matrix = (
             state["omega"], state["n_channels"], state["matrix"])
+        self._xp = np
         self._buffer = np.empty(self._matrix.shape[1])
