@@ -107,24 +107,22 @@ def test_torque_control_follows_the_cpu_env_until_it_fails():
 
 
 def test_what_is_not_built_is_refused():
-    with pytest.raises(ValueError, match="sun glint"):
-        LARSMJX(difficulty="hard")
     with pytest.raises(ValueError, match="obs_mode"):
         LARSMJX(obs_mode="stereo")
-    # The hard level's sea and noise without its glint build.
-    assert LARSMJX(difficulty="hard", glint=False).params.sea is not None
 
 
 
 def test_make_vec_runs_episodes_and_reports_them_in_the_cpu_envs_names():
-    """``gym.make_vec("auv_envs/LARSCaptureMJX-v0")``: observations inside the space, the
-    episodes that end (random torques fail within seconds) summarised with the CPU env's
-    ``episode_metrics`` keys and failure names, bad actions refused."""
+    """``gym.make_vec("auv_envs/LARSCaptureMJX-v0")`` at ``hard`` (the sea, the glint, the
+    severe sea's wash-over and analogs): observations inside the space, the episodes that
+    end (random torques fail within seconds) summarised with the CPU env's
+    ``episode_metrics`` keys (``glint_fraction`` too) and failure names, bad actions
+    refused."""
     import gymnasium as gym
 
     envs = gym.make_vec("auv_envs/LARSCaptureMJX-v0", num_envs=8, obs_mode="features",
-                        sea_state="severe")
-    cpu = LARSCaptureEnv(obs_mode="features", sea_state="severe")
+                        sea_state="severe", difficulty="hard")
+    cpu = LARSCaptureEnv(obs_mode="features", sea_state="severe", difficulty="hard")
     cpu.reset(seed=0)
     cpu_keys = set(cpu.episode_metrics())
     cpu.close()
@@ -139,10 +137,66 @@ def test_make_vec_runs_episodes_and_reports_them_in_the_cpu_envs_names():
         if done.any():
             ended += int(done.sum())
             metrics = info["episode_metrics"]
-            assert set(metrics) == cpu_keys
+            assert set(metrics) == cpu_keys and "glint_fraction" in metrics
             reasons = set(metrics["failure_reason"][info["_episode_metrics"]])
             assert reasons <= {"collision", "workspace", "time_limit", ""}
     assert ended > 0
     with pytest.raises(ValueError, match="finite"):
         envs.step(np.full((8, 3), np.nan))
     envs.close()
+
+
+class _Uniforms:
+    """Draws that hand out given uniforms (the same numbers to both backends)."""
+
+    def __init__(self, values):
+        self.values = values
+
+    def random(self, size=None):
+        return self.values
+
+
+def test_glint_on_the_corners_is_the_cpu_envs_given_the_same_uniforms():
+    """``hard``'s glint in ``features``: for frames where glints can fall near the corners,
+    the JAX evaluation of :meth:`GlintCamera.on_corners` gives the CPU's probabilities,
+    outcomes (moved, hidden) and reported pixels when both get the same uniforms."""
+    from auv_envs.core.ops import FLOATS, jax_ops
+
+    env = LARSCaptureEnv(obs_mode="features", difficulty="hard")
+    camera = env.params.glint_camera
+    ops = jax_ops()
+    compared = glinted = 0
+    for seed in range(40):
+        env.reset(seed=seed)
+        field = env._episode.state.scene.glint
+        for _ in range(25):
+            _, _, terminated, truncated, info = env.step(
+                env.position_action(env.physics.data.qpos))
+            truth = env._truth()
+            seen = truth["visible"][0] + truth["visible"][1]
+            uniforms = np.random.default_rng(seed).random((6, 4))
+            uniforms[:, 0] *= 0.05  # a glint wherever one can fall
+            cpu = camera.on_corners(field, truth, seen, _Uniforms(uniforms), FLOATS)
+            if not cpu[2]["glint_probability"].any() or terminated or truncated:
+                if terminated or truncated:
+                    break
+                continue
+            as32 = lambda tree: jax.tree_util.tree_map(  # noqa: E731
+                lambda leaf: jnp.asarray(leaf, jnp.float32), tree)
+            keys = ("q", "pixels", "level", "position", "hull_axis", "cameras")
+            jax_truth = {key: as32(truth[key]) for key in keys}
+            out = camera.on_corners(as32(field), jax_truth, [jnp.bool_(s) for s in seen],
+                                    _Uniforms(jnp.asarray(uniforms, jnp.float32)), ops)
+            np.testing.assert_allclose(np.asarray(out[2]["glint_probability"]),
+                                       cpu[2]["glint_probability"], rtol=1e-3, atol=1e-7)
+            np.testing.assert_array_equal(np.asarray(out[2]["glint_corners"]),
+                                          cpu[2]["glint_corners"])
+            assert [bool(s) for s in out[1]] == [bool(s) for s in cpu[1]]
+            np.testing.assert_allclose(np.array([float(p) for p in out[0]]),
+                                       np.array(cpu[0], dtype=float), atol=1e-3)
+            compared += 1
+            glinted += int(cpu[2]["glint_corners"].any())
+        if compared >= 20 and glinted >= 5:
+            break
+    env.close()
+    assert compared >= 20 and glinted >= 5, (compared, glinted)

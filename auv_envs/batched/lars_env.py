@@ -9,12 +9,12 @@ model on MJX (:class:`ArmPlantMJX`), and the episode's draws come from a JAX key
 ``MjxEnv``), with the same auto-reset.
 
 Built: ``state`` and ``features``, ``sea_state`` ``"calm"`` and ``"severe"``
-(wash-over occlusion, the analogs), both ``control`` modes, the [LTAT]
-sinusoidal sea of the ``easy`` level and the irregular ``sea`` of ``paper``
-(its realisation drawn from the key, the AUV, the analogs and the ship moving
-with it). Not built yet, and refused with a ``ValueError``: the sun ``glint``
-(the ``hard`` level has one; ``difficulty="hard", glint=False`` builds), and
-the rendered ``stereo`` mode.
+(wash-over occlusion, the analogs), both ``control`` modes, every
+``difficulty``: the [LTAT] sinusoidal sea of ``easy``, the irregular ``sea``
+of ``paper`` and ``hard`` (its realisation drawn from the key, the AUV, the
+analogs and the ship moving with it) and ``hard``'s sun glint on the marker's
+corners. Not built, and refused with a ``ValueError``: the rendered ``stereo``
+mode.
 
 What differs from the CPU environment: a seed gives other episodes (JAX's
 generator; the distributions are the same); everything runs in float32; MJX's
@@ -37,13 +37,13 @@ from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.env import FRAME_SKIP, PHYSICS_TIMESTEP, POSITION_GAINS, LARSCaptureEnv
 from auv_envs.tasks.lars.scene import AUVMotion
-from auv_envs.tasks.lars.sea import EpisodeSea
+from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
 from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
-#: The ``difficulty`` levels it builds (``hard`` has the sun glint, not built yet).
-LEVELS = ("easy", "paper")
+#: The ``difficulty`` levels it builds.
+LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
@@ -83,7 +83,7 @@ def _register_attributes(cls, children: tuple, aux: tuple = ()) -> None:
     jax.tree_util.register_pytree_node(cls, flatten, unflatten)
 
 
-for _cls, _meta in ((AUVMotion, ()), (FloatingAnalog, ()),
+for _cls, _meta in ((AUVMotion, ()), (FloatingAnalog, ()), (GlintField, ()),
                     (WashOver, ("sweep", "overtop", "half_size"))):
     _register(_cls, _meta)
 _register_attributes(WaveRealisation, ("omega", "amplitude", "phase", "heading", "wavenumber"))
@@ -176,10 +176,6 @@ class LARSMJX:
             raise ValueError(f"the batched LARS environment builds obs_mode {OBS_MODES}, got "
                              f"{obs_mode!r}")
         cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
-        if cpu.params.glint is not None:
-            cpu.close()
-            raise ValueError("the batched LARS environment does not model the sun glint yet: "
-                             "use difficulty 'easy' or 'paper', or glint=False")
         self.cpu_env = cpu
         self.obs_mode = obs_mode
         self.auto_reset = auto_reset
@@ -237,7 +233,7 @@ class LARSMJX:
             waves = WaveRealisation(*(jnp.asarray(getattr(waves, name), jnp.float32)
                                       for name in ("omega", "amplitude", "phase", "heading")))
         scene = transition.scene_of(self.params, as32(scene.motion), waves, as32(scene.wash),
-                                    as32(scene.analogs), ops=ops)
+                                    as32(scene.analogs), as32(scene.glint), ops=ops)
         plant = _ArmCursor(self.plant, ops)
         plant.place(tuple(jnp.float32(v) for v in q))
         truth = transition.truth(self.params, scene, ops.integer(0), *plant.joints(), ops)

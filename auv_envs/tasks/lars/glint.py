@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from auv_envs.core.camera import CameraIntrinsics
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.sea import GlintField, SunGlint
 
 #: A rendered pixel shows the water when its range is within this of the water plane's
@@ -56,15 +57,16 @@ class GlintCamera:
             self._view = tuple((v / length).astype(np.float32) for v in (x, y, 1.0))
 
     @staticmethod
-    def rays(slew: float, x, y, z=1.0) -> np.ndarray:
+    def rays(slew: float, x, y, z=1.0, ops=FLOATS) -> np.ndarray:
         """World directions of camera-frame rays ``(x, y, z)`` of the level head slewed by
         ``slew`` (rad)."""
-        c, s = math.cos(slew), math.sin(slew)
-        x, y, z = np.broadcast_arrays(x, y, z)
-        return np.stack((c * x + s * y, s * x - c * y, -z), axis=-1)
+        xp = ops.xp
+        c, s = ops.cos(slew), ops.sin(slew)
+        x, y, z = xp.broadcast_arrays(x, y, z)
+        return xp.stack((c * x + s * y, s * x - c * y, -z), axis=-1)
 
     def on_corners(self, field: GlintField, truth: dict, seen: list,
-                   rng: np.random.Generator) -> tuple[list, list, dict]:
+                   rng: np.random.Generator, ops=FLOATS) -> tuple[list, list, dict]:
         """``features``: which corners a glint takes this frame (4 uniforms a corner, always).
 
         A corner's mean glint count is that of the water within
@@ -79,53 +81,62 @@ class GlintCamera:
                 ``hull_axis``, ``cameras``).
             seen: the corners visible (left A1-A3, right A1-A3).
             rng: the episode's generator.
+            ops: the backend of :mod:`auv_envs.core.ops` (Python floats and NumPy, or
+                JAX: then every corner's glint is worked out and selected).
 
         Returns:
             ``(pixels, seen, frame)``: the 12 pixel coordinates to report (true
             or glint), the corners still seen, and the frame's outcome
             (``glint_corners``: 0 clear, 1 moved, 2 hidden; ``glint_probability``).
         """
+        xp = ops.xp
         draws = rng.random((6, 4))
         intr = self._intrinsics
-        true_pixels = np.array(truth["pixels"]).reshape(6, 2)
+        true_pixels = xp.asarray(truth["pixels"]).reshape(6, 2)
         points = true_pixels[:, None, :] + self._disc  # (6, M, 2)
         rays = self.rays(truth["q"][0], (points[..., 0] - intr.cx) / intr.fx,
-                         (points[..., 1] - intr.cy) / intr.fy)
+                         (points[..., 1] - intr.cy) / intr.fy, ops=ops)
         level = truth["level"]
         (px, py, _), (ax, ay, _) = truth["position"], truth["hull_axis"]
-        norm = math.hypot(ax, ay)
+        norm = ops.hypot(ax, ay)
         ax, ay = ax / norm, ay / norm
         half = self._hull_half
-        means = np.empty(points.shape[:2])
+        blocks = []
         for k, camera in enumerate(truth["cameras"]):
-            rows = slice(3 * k, 3 * k + 3)
+            camera_rays = rays[3 * k:3 * k + 3]
             height = camera[2] - level
-            means[rows] = field.pixel_means(rays[rows], height, intr.fx)
+            means = field.pixel_means(camera_rays, height, intr.fx, xp)
             # Where each ray meets the water: outside the hull's footprint?
-            dx = camera[0] + height * rays[rows, :, 0] - px
-            dy = camera[1] + height * rays[rows, :, 1] - py
-            along = np.clip(dx * ax + dy * ay, -half, half)
-            means[rows] *= np.hypot(dx - along * ax, dy - along * ay) > self._waterline
-        means *= ((points[..., 0] >= 0.0) & (points[..., 0] < intr.width)
-                  & (points[..., 1] >= 0.0) & (points[..., 1] < intr.height))
-        means[~np.array(seen)] = 0.0
+            dx = camera[0] + height * camera_rays[..., 0] - px
+            dy = camera[1] + height * camera_rays[..., 1] - py
+            along = xp.clip(dx * ax + dy * ay, -half, half)
+            blocks.append(means * (xp.hypot(dx - along * ax, dy - along * ay) > self._waterline))
+        means = xp.concatenate(blocks) * (
+            (points[..., 0] >= 0.0) & (points[..., 0] < intr.width)
+            & (points[..., 1] >= 0.0) & (points[..., 1] < intr.height))
+        means = xp.where(xp.asarray(seen)[:, None], means, 0.0)
         total = means.sum(axis=1)
-        probability = -np.expm1(-total)
-        state = np.zeros(6, dtype=np.int8)
+        probability = -xp.expm1(-total)
+        state = [0] * 6
         pixels = list(truth["pixels"])
         seen = list(seen)
         reach = self.glint.bloom + 0.5
-        for k in np.flatnonzero(draws[:, 0] < probability).tolist():
-            cumulative = np.cumsum(means[k])
-            pick = min(int(np.searchsorted(cumulative, draws[k, 1] * cumulative[-1],
-                                           side="right")), len(cumulative) - 1)
-            u, v = (points[k, pick] + draws[k, 2:] - 0.5).tolist()
-            if math.hypot(u - pixels[2 * k], v - pixels[2 * k + 1]) <= reach:
-                state[k], seen[k] = 2, False
-            else:
-                state[k], pixels[2 * k], pixels[2 * k + 1] = 1, u, v
+        glinted = draws[:, 0] < probability
+        for k in range(6):
+            if ops is FLOATS and not glinted[k]:
+                continue  # numbers known: only a glinted corner is worked out
+            cumulative = xp.cumsum(means[k])
+            pick = xp.minimum(xp.searchsorted(cumulative, draws[k, 1] * cumulative[-1],
+                                              side="right"), cumulative.shape[0] - 1)
+            u, v = ops.unpack(points[k, pick] + draws[k, 2:] - 0.5)
+            hidden = ops.hypot(u - pixels[2 * k], v - pixels[2 * k + 1]) <= reach
+            moved = glinted[k] & ops.logical_not(hidden)
+            state[k] = ops.where(glinted[k], ops.where(hidden, 2, 1), 0)
+            seen[k] = seen[k] & ops.logical_not(glinted[k] & hidden)
+            pixels[2 * k] = ops.where(moved, u, pixels[2 * k])
+            pixels[2 * k + 1] = ops.where(moved, v, pixels[2 * k + 1])
         frame = {
-            "glint_corners": state.reshape(2, 3),
+            "glint_corners": xp.asarray(state, dtype=xp.int8).reshape(2, 3),
             "glint_probability": probability.reshape(2, 3),
         }
         return pixels, seen, frame

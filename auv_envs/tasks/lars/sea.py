@@ -359,10 +359,13 @@ class SunGlint:
             wind = fully_developed_wind_speed(hs)
         return cox_munk_slope_variance(wind)
 
-    def sample(self, rng: np.random.Generator, slope_variance: float) -> GlintField:
-        """The episode's field: the sun's elevation and azimuth drawn from ``rng`` (2 uniforms)."""
-        elevation, azimuth = uniform_draws(rng, (self.sun_elevation, self.sun_azimuth))
-        return GlintField.towards(elevation, azimuth, slope_variance, self.curvature_wavenumber)
+    def sample(self, rng: np.random.Generator, slope_variance: float,
+               ops=FLOATS) -> GlintField:
+        """The episode's field: the sun's elevation and azimuth drawn from ``rng`` (2 uniforms;
+        ``ops`` the backend of :mod:`auv_envs.core.ops`)."""
+        elevation, azimuth = uniform_draws(rng, (self.sun_elevation, self.sun_azimuth), ops)
+        return GlintField.towards(elevation, azimuth, slope_variance, self.curvature_wavenumber,
+                                  ops)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -384,22 +387,25 @@ class GlintField:
     azimuth: float
 
     @classmethod
-    def towards(cls, elevation: float, azimuth: float, slope_variance: float,
-                curvature_wavenumber: float) -> GlintField:
-        ce = math.cos(elevation)
-        sun = (ce * math.cos(azimuth), ce * math.sin(azimuth), math.sin(elevation))
+    def towards(cls, elevation, azimuth, slope_variance: float, curvature_wavenumber: float,
+                ops=FLOATS) -> GlintField:
+        """The field of a sun at ``elevation`` and ``azimuth`` (rad; scalars of ``ops``)."""
+        ce = ops.cos(elevation)
+        sun = (ce * ops.cos(azimuth), ce * ops.sin(azimuth), ops.sin(elevation))
         peak = curvature_wavenumber**2 / (2.0 * math.sqrt(3.0) * math.pi)
-        return cls(sun, float(slope_variance), peak, float(elevation), float(azimuth))
+        if ops is FLOATS:
+            elevation, azimuth = float(elevation), float(azimuth)
+        return cls(sun, float(slope_variance), peak, elevation, azimuth)
 
-    def density(self, vx, vy, vz) -> np.ndarray:
+    def density(self, vx, vy, vz, xp=np) -> np.ndarray:
         """Glints per m^2 of level surface seen along the unit view direction ``(vx, vy, vz)``
         (arrays broadcast together), from the surface towards the camera (world, z up)."""
         sx, sy, sz = self.sun
         hx, hy, hz = vx + sx, vy + sy, vz + sz
         tan2 = (hx * hx + hy * hy) / (hz * hz)
-        return self.peak_density * np.exp(-tan2 / self.slope_variance)
+        return self.peak_density * xp.exp(-tan2 / self.slope_variance)
 
-    def pixel_means(self, rays, height: float, focal: float) -> np.ndarray:
+    def pixel_means(self, rays, height: float, focal: float, xp=np) -> np.ndarray:
         """Mean glints in pixels that look along ``rays`` onto water ``height`` below.
 
         Args:
@@ -412,13 +418,14 @@ class GlintField:
             (...) ``n A``, ``A = h^2 / (f^2 |d_z|^3)`` the footprint on the
             water of a pixel whose ray is ``d``; 0 where the ray does not go down.
         """
-        rays = np.asarray(rays, dtype=float)
+        if xp is np:
+            rays = np.asarray(rays, dtype=float)
         down = -rays[..., 2]
-        safe = np.where(down > 0.0, down, 1.0)
-        norm = -np.sqrt(np.sum(rays * rays, axis=-1))
+        safe = xp.where(down > 0.0, down, 1.0)
+        norm = -xp.sqrt(xp.sum(rays * rays, axis=-1))
         area = height**2 / (focal**2 * safe**3)
-        density = self.density(rays[..., 0] / norm, rays[..., 1] / norm, rays[..., 2] / norm)
-        return np.where(down > 0.0, density * area, 0.0)
+        density = self.density(rays[..., 0] / norm, rays[..., 1] / norm, rays[..., 2] / norm, xp)
+        return xp.where(down > 0.0, density * area, 0.0)
 
 
 def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading,

@@ -403,7 +403,8 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOAT
     top = auv_position(scene, 0.0, sample, ops)[2] + AUV_DIAMETER / 2.0
     offset = uniform_draws(draws, START_OFFSET, ops)
     if params.glint is not None:  # drawn last: everything else is drawn as without glint
-        scene = scene._replace(glint=params.glint.sample(draws, params.glint_slope_variance))
+        scene = scene._replace(glint=params.glint.sample(draws, params.glint_slope_variance,
+                                                         ops))
     # The cameras (at y = left_in_end[1] in the end frame) over the AUV's CG line.
     end = (motion.x0 + offset[0], motion.y0 - params.left_in_end[1] + offset[1],
            top + START_HEIGHT)
@@ -513,13 +514,11 @@ def joint_readings(now: dict, xp=np) -> dict:
     }
 
 
-def with_glint_frame(state: EpisodeState, frame: dict | None) -> EpisodeState:
+def with_glint_frame(state: EpisodeState, frame: dict, ops=FLOATS) -> EpisodeState:
     """``state`` with the observation's glint ``frame``, counted when a glint took a corner
     after a step."""
-    glint_steps = state.glint_steps
-    if state.steps and frame is not None:
-        glint_steps += bool(frame["glint_corners"].any())
-    return state._replace(glint_frame=frame, glint_steps=glint_steps)
+    took = (state.steps > 0) & frame["glint_corners"].any()
+    return state._replace(glint_frame=frame, glint_steps=state.glint_steps + ops.integer(took))
 
 
 def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend):
@@ -547,9 +546,9 @@ def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend
     seen = vis_left + vis_right
     field = state.scene.glint
     if field is not None:
-        true_pixels, seen, frame = params.glint_camera.on_corners(field, now, seen, draws)
+        true_pixels, seen, frame = params.glint_camera.on_corners(field, now, seen, draws, ops)
         visible = [seen[:3], seen[3:]]
-        state = with_glint_frame(state, frame)
+        state = with_glint_frame(state, frame, ops)
     # The noisy pixel clipped to the space's bounds where its corner is seen, zero elsewhere.
     seen_uv = list(itertools.chain.from_iterable(zip(seen, seen, strict=True)))
     pixels = ops.masked_clip(list(map(operator.add, true_pixels, noise)), seen_uv,
