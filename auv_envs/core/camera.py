@@ -183,6 +183,35 @@ def pixel_space(width: int, height: int, shape: tuple[int, ...]) -> spaces.Box:
                       np.broadcast_to(2 * bound, full).copy(), dtype=np.float32)
 
 
+def seen_pixels(pixels, noise, seen, low, high, ops=FLOATS) -> list:
+    """The noisy pixels of the points seen, clipped to their bounds; zero for the others.
+
+    Args:
+        pixels: ``u, v`` of every point, flat (2 n scalars).
+        noise: the noise to add, flat (2 n), or None.
+        seen: per point, whether it is seen (n).
+        low, high: bounds of ``u, v`` of every point, flat (2 n floats each).
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS`: Python floats, a loop over
+            the seen points; JAX: arrays, selected).
+
+    Returns:
+        2 n scalars: a list of Python floats, or a JAX array.
+    """
+    if ops is not FLOATS:
+        xp = ops.xp
+        values = xp.stack(list(pixels)) + (0.0 if noise is None else noise)
+        mask = xp.repeat(xp.stack(list(seen)), 2)
+        return xp.where(mask, xp.clip(values, xp.asarray(low), xp.asarray(high)), 0.0)
+    noise = [0.0] * len(pixels) if noise is None else noise.tolist()
+    out = [0.0] * len(pixels)
+    for k, point_seen in enumerate(seen):
+        if point_seen:  # clipped by comparisons (cheaper than min/max)
+            for i in (2 * k, 2 * k + 1):
+                x, lo, hi = pixels[i] + noise[i], low[i], high[i]
+                out[i] = lo if x < lo else (hi if x > hi else x)
+    return out
+
+
 def add_pixel_noise(pixels, std: float, rng):
     """Zero-mean Gaussian pixel noise drawn from the episode's draws (NumPy's ``Generator``,
     or a JAX key's): ``std`` times standard normals, the numbers ``normal(0, std)`` gives."""

@@ -10,19 +10,15 @@ the same code then evaluates a batch of JAX arrays elementwise, inside
 modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``, ``acos``,
-``hypot``,
-``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
-and ``logical_not``. Comparisons combine with ``&`` and
-``|``, which serve Python bools and boolean arrays alike. For a transition's
-state (:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its
-array module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean``
-(a scalar of the backend's type: Python's, or float32/int32/bool arrays),
-``vector`` (a few scalars as one value: a tuple, or a float32 array),
-``masked_clip(values, mask, low, high)`` (sequences of scalars: each value clipped to
-its bounds where its mask is true, zero elsewhere; a list of Python floats, or an
-array),
-``unpack`` (a 1-D array as a tuple of scalars: Python floats, or array
-elements) and ``count`` (the true entries of a boolean array).
+``hypot``, ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``,
+``maximum``, and ``logical_not``. Comparisons combine with ``&`` and ``|``,
+which serve Python bools and boolean arrays alike. For a transition's state
+(:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its array
+module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean`` (a scalar
+of the backend's type: Python's, or float32/int32/bool arrays), ``vector`` (a
+few scalars as one value: a tuple, or a float32 array), ``unpack`` (a 1-D array
+as a tuple of scalars: Python floats, or array elements) and ``count`` (the
+true entries of a boolean array).
 """
 
 from __future__ import annotations
@@ -54,11 +50,6 @@ def _where(condition, a, b):
     return a if condition else b
 
 
-def _masked_clip(values, mask, low, high) -> list:
-    return [(lo if v < lo else (hi if v > hi else v)) if m else 0.0
-            for v, m, lo, hi in zip(values, mask, low, high, strict=True)]
-
-
 def _clip(x, low, high):
     # Comparisons, not min/max (which are slower and turn NaN into a bound): NaN stays NaN,
     # as NumPy's and JAX's clip leave it.
@@ -75,7 +66,6 @@ FLOATS = types.SimpleNamespace(
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
     count=lambda array: int(np.count_nonzero(array)),
-    masked_clip=_masked_clip,
 )
 
 
@@ -95,7 +85,4 @@ def jax_ops() -> types.SimpleNamespace:
         vector=lambda values: jnp.asarray(values, jnp.float32),
         unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
         count=lambda array: jnp.sum(array.astype(jnp.int32)),
-        masked_clip=lambda values, mask, low, high: jnp.where(
-            jnp.asarray(mask), jnp.clip(jnp.stack(list(values)), jnp.asarray(low),
-                                        jnp.asarray(high)), 0.0),
     )

@@ -34,7 +34,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from auv_envs.core import frames
-from auv_envs.core.camera import CameraIntrinsics, project_few
+from auv_envs.core.camera import CameraIntrinsics, project_few, seen_pixels
 from auv_envs.core.ops import FLOATS, Backend
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
 from auv_envs.tasks.lars.scene import (
@@ -299,13 +299,13 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
     # The right camera sits one baseline along the left camera's x axis.
     rows = camera_rows(c, s)
     points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in body_corners]
-    corners = [x for point in points for x in point]
+    corners = list(itertools.chain.from_iterable(points))
     b = params.baseline
     left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
     left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows, ops)
     right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows, ops)
-    left = [x for uv in left_px for x in uv]
-    right = [x for uv in right_px for x in uv]
+    left = list(itertools.chain.from_iterable(left_px))
+    right = list(itertools.chain.from_iterable(right_px))
 
     occluded = False
     distractors = 0
@@ -542,17 +542,14 @@ def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend
     true_pixels = now["pixels"]
     std = params.pixel_noise_std
     # Drawn always, whatever is visible: the same noise stream every step.
-    noise = ops.unpack(draws.normal(0.0, std, 12)) if std > 0 else (0.0,) * 12
+    noise = draws.normal(0.0, std, 12) if std > 0 else None
     seen = vis_left + vis_right
     field = state.scene.glint
     if field is not None:
         true_pixels, seen, frame = params.glint_camera.on_corners(field, now, seen, draws, ops)
         visible = [seen[:3], seen[3:]]
         state = with_glint_frame(state, frame, ops)
-    # The noisy pixel clipped to the space's bounds where its corner is seen, zero elsewhere.
-    seen_uv = list(itertools.chain.from_iterable(zip(seen, seen, strict=True)))
-    pixels = ops.masked_clip(list(map(operator.add, true_pixels, noise)), seen_uv,
-                             *params.pixel_bounds)
+    pixels = seen_pixels(true_pixels, noise, seen, *params.pixel_bounds, ops)
     return state, {
         "pixels": xp.asarray(pixels, dtype=xp.float32).reshape(2, 3, 2),
         "visible": xp.asarray(visible, dtype=xp.int8),
