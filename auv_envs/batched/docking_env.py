@@ -39,7 +39,7 @@ import numpy as np
 from mujoco import mjx
 
 from auv_envs.batched.docking import DockingPlantMJX
-from auv_envs.batched.functional import KeyDraws, State
+from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
 from auv_envs.core import frames
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
@@ -56,7 +56,7 @@ STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "
                 "heading_error", "lights_visible", "is_success")
 
 
-class DockingMJX:
+class DockingMJX(FunctionalEnv):
     """A docking environment as pure JAX functions of one episode.
 
     Args:
@@ -106,30 +106,6 @@ class DockingMJX:
         self._ray_data = jax.jit(mjx.forward)(self.plant.model, self.plant.rest_data)
         self._ray_groups = tuple(int(g) for g in physics.ray_groups)
         self._hull_body = int(physics.hull_body)
-
-    # ------------------------------------------------------------------ Playground's interface
-    @property
-    def dt(self) -> float:
-        return self.calibration.control_period
-
-    @property
-    def action_size(self) -> int:
-        return 4
-
-    @property
-    def observation_size(self):
-        space = self.observation_space
-        if isinstance(space, gym.spaces.Dict):
-            return {key: value.shape for key, value in space.items()}
-        return space.shape[0]
-
-    @property
-    def mj_model(self):
-        return self.cpu_env.physics.model
-
-    @property
-    def mjx_model(self):
-        return self.plant.model
 
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
@@ -192,22 +168,9 @@ class DockingMJX:
         episode, truth, obs, judged = transition.step(
             self.params, state.info["episode"], self.ops.unpack(action),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        reward = sum(judged.terms.values())
-        terminated = judged.terminated
-        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
-        done = terminated | truncated
-        info = {"rng": rng, "episode": episode, "terminated": terminated,
-                "truncation": truncated, "final_obs": obs}
-        stepped = State({"qpos": plant.qpos, "qvel": plant.qvel}, obs, reward, done,
-                        self._metrics(truth, episode, judged.terms), info)
-        if not self.auto_reset:
-            return stepped
-        fresh = self.reset(reset_key)
-        fresh = fresh.replace(
-            reward=reward, done=done, metrics=stepped.metrics,
-            info={**fresh.info, "terminated": terminated, "truncation": truncated,
-                  "final_obs": obs})
-        return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), fresh, stepped)
+        return self._conclude(rng, reset_key, {"qpos": plant.qpos, "qvel": plant.qvel},
+                              episode, obs, judged.terms, judged.terminated,
+                              self._metrics(truth, episode, judged.terms))
 
     # ------------------------------------------------------------------ internals
     def _truth(self, qpos, qvel) -> dict:

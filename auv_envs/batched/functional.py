@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 
 
 @jax.tree_util.register_dataclass
@@ -70,3 +71,65 @@ class KeyDraws:
 
     def random(self, size=None) -> jax.Array:
         return jax.random.uniform(self._next(), self._shape(size))
+
+
+class FunctionalEnv:
+    """What every batched environment's shell shares: MuJoCo Playground's interface,
+    read off the CPU environment (``cpu_env``: its spaces, calibration and model) and the
+    plant (``plant.model``, the MJX model), and the end of a step (the time limit and the
+    auto-reset).
+
+    A subclass sets ``cpu_env``, ``plant``, ``calibration``, ``observation_space``,
+    ``action_space``, ``max_episode_steps`` and ``auto_reset``, and defines ``reset``.
+    """
+
+    cpu_env = plant = calibration = observation_space = action_space = None
+    max_episode_steps: int
+    auto_reset: bool = True
+
+    @property
+    def dt(self) -> float:
+        return self.calibration.control_period
+
+    @property
+    def action_size(self) -> int:
+        return self.action_space.shape[0]
+
+    @property
+    def observation_size(self):
+        space = self.observation_space
+        if hasattr(space, "spaces"):
+            return {key: value.shape for key, value in space.spaces.items()}
+        return space.shape[0]
+
+    @property
+    def mj_model(self):
+        return self.cpu_env.physics.model
+
+    @property
+    def mjx_model(self):
+        return self.plant.model
+
+    def reset(self, rng: jax.Array) -> State:
+        raise NotImplementedError
+
+    def _conclude(self, rng, reset_key, data, episode, obs, terms: dict, terminated,
+                  metrics: dict) -> State:
+        """The state a step returns: its reward (the terms' sum), ``done`` at termination
+        or the time limit (``info["truncation"]``), and, with ``auto_reset``, the episode
+        that ended replaced by a fresh one from ``reset_key`` (its ``reward``, ``done``,
+        ``metrics``, ``terminated``, ``truncation`` and ``final_obs`` kept)."""
+        reward = sum(terms.values())
+        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
+        done = terminated | truncated
+        info = {"rng": rng, "episode": episode, "terminated": terminated,
+                "truncation": truncated, "final_obs": obs}
+        stepped = State(data, obs, reward, done, metrics, info)
+        if not self.auto_reset:
+            return stepped
+        fresh = self.reset(reset_key)
+        fresh = fresh.replace(
+            reward=reward, done=done, metrics=stepped.metrics,
+            info={**fresh.info, "terminated": terminated, "truncation": truncated,
+                  "final_obs": obs})
+        return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), fresh, stepped)

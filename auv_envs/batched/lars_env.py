@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-from auv_envs.batched.functional import KeyDraws, State
+from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
@@ -156,7 +156,7 @@ class _ArmCursor:
         return self.ops.unpack(self.data.qpos), self.ops.unpack(self.data.qvel)
 
 
-class LARSMJX:
+class LARSMJX(FunctionalEnv):
     """The LARS capture environment as pure JAX functions of one episode.
 
     Args:
@@ -186,30 +186,6 @@ class LARSMJX:
         self.action_space = cpu.action_space
         self.ops = jax_ops()
         self.plant = ArmPlantMJX(cpu)
-
-    # ------------------------------------------------------------------ Playground's interface
-    @property
-    def dt(self) -> float:
-        return self.calibration.control_period
-
-    @property
-    def action_size(self) -> int:
-        return 3
-
-    @property
-    def observation_size(self):
-        space = self.observation_space
-        if hasattr(space, "spaces"):
-            return {key: value.shape for key, value in space.spaces.items()}
-        return space.shape[0]
-
-    @property
-    def mj_model(self):
-        return self.cpu_env.physics.model
-
-    @property
-    def mjx_model(self):
-        return self.plant.model
 
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
@@ -260,22 +236,9 @@ class LARSMJX:
         episode, truth, obs, judged = transition.step(
             self.params, state.info["episode"], action,
             transition.Backend(self.ops, KeyDraws(key), plant))
-        reward = sum(judged.terms.values())
-        terminated = judged.terminated
-        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
-        done = terminated | truncated
-        info = {"rng": rng, "episode": episode, "terminated": terminated,
-                "truncation": truncated, "final_obs": obs}
-        stepped = State(plant.data, obs, reward, done,
-                        self._metrics(truth, episode, judged, judged.terms), info)
-        if not self.auto_reset:
-            return stepped
-        fresh = self.reset(reset_key)
-        fresh = fresh.replace(
-            reward=reward, done=done, metrics=stepped.metrics,
-            info={**fresh.info, "terminated": terminated, "truncation": truncated,
-                  "final_obs": obs})
-        return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), fresh, stepped)
+        return self._conclude(rng, reset_key, plant.data, episode, obs, judged.terms,
+                              judged.terminated, self._metrics(truth, episode, judged,
+                                                               judged.terms))
 
     def truth(self, state: State) -> dict:
         """The ground truth of ``state`` (:func:`auv_envs.tasks.lars.transition.truth`)."""

@@ -377,6 +377,18 @@ def slope_average(x, xp=np) -> np.ndarray:
     return xp.where(small, 1.0 - x * x / 10.0, exact)
 
 
+def _waterplane(omega, wavenumber, heading, length, beam, ops) -> tuple:
+    """``(w, k_along, k_across, mean_along, mean_across)`` of a waterplane ``length`` x
+    ``beam`` met by waves travelling ``heading`` from its long axis: the frequencies as
+    floats, the wavenumbers along and across it, and the elevation averaged along and
+    across it (:func:`plane_average`)."""
+    xp = ops.xp
+    k_along = wavenumber * ops.cos(heading)
+    k_across = wavenumber * ops.sin(heading)
+    return (_floats(omega, xp), k_along, k_across,
+            plane_average(0.5 * k_along * length, xp), plane_average(0.5 * k_across * beam, xp))
+
+
 @dataclasses.dataclass(frozen=True)
 class FloaterResponse:
     """A small floating body that follows the surface (the surfaced AUV).
@@ -422,11 +434,8 @@ class FloaterResponse:
             elevation at the body's centre.
         """
         xp = ops.xp
-        w = _floats(omega, xp)
-        k_along = wavenumber * ops.cos(relative_heading)
-        k_across = wavenumber * ops.sin(relative_heading)
-        mean_along = plane_average(0.5 * k_along * self.length, xp)
-        mean_across = plane_average(0.5 * k_across * self.beam, xp)
+        w, k_along, k_across, mean_along, mean_across = _waterplane(
+            omega, wavenumber, relative_heading, self.length, self.beam, ops)
         heave = _complex(mean_along * mean_across, xp)
         pitch = (-1j * k_along * slope_average(0.5 * k_along * self.length, xp) * mean_across
                  / (1.0 + 1j * w * self.pitch_time_constant))
@@ -490,11 +499,8 @@ class ShipResponse:
             of rotation.
         """
         xp = ops.xp
-        w = _floats(omega, xp)
-        kx = wavenumber * ops.cos(heading)
-        ky = wavenumber * ops.sin(heading)
-        mean_x = plane_average(0.5 * kx * self.length, xp)
-        mean_y = plane_average(0.5 * ky * self.beam, xp)
+        w, kx, ky, mean_x, mean_y = _waterplane(omega, wavenumber, heading, self.length,
+                                                self.beam, ops)
         heave = mean_x * mean_y * self._mode(w, self.heave_period, self.heave_damping)
         roll = (-1j * ky * slope_average(0.5 * ky * self.beam, xp) * mean_x
                 * self._mode(w, self.roll_period, self.roll_damping))
