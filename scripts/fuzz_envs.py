@@ -10,8 +10,8 @@ every ``observation`` must lie in its space and every reward be finite, and no
 step may raise. Each episode is also pickled mid-way and the copy stepped on
 beside the original: their next observations must be equal. Bad actions (NaN,
 inf, ``None``, complex, wrong shape) must raise ``ValueError`` and leave the
-episode steppable. The batched docking envs (``pip install -e ".[jax]"``) get
-the same action mix through ``gym.make_vec``.
+episode steppable. The batched envs (``pip install -e ".[jax]"``) get the same
+action mix through ``gym.make_vec``, at the levels each builds.
 
 Prints one line per (id, obs mode, level): steps, episodes, failures; exits 1
 when any failed. Seeds default to 930000+ (clear of every seed range in
