@@ -35,7 +35,7 @@ from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
-from auv_envs.tasks.lars.env import FRAME_SKIP, PHYSICS_TIMESTEP, POSITION_GAINS, LARSCaptureEnv
+from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureEnv
 from auv_envs.tasks.lars.scene import AUVMotion
 from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
 from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
@@ -47,15 +47,6 @@ LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
-
-
-def failure_reason(code, success) -> str:
-    """The CPU env's ``failure_reason`` of an episode that ended with failure ``code`` (0:
-    none; ``"time_limit"`` when it neither captured nor failed)."""
-    code = int(code)
-    if code:
-        return transition.FAILURE_REASONS[code - 1]
-    return "" if success else "time_limit"
 
 
 def _register(cls, meta=()) -> None:
@@ -112,7 +103,8 @@ class ArmPlantMJX:
         self.q_mid = jnp.asarray(env.params.joint_mid, jnp.float32)
         self.q_half = jnp.asarray(env.params.joint_half, jnp.float32)
         self.limits = jnp.asarray(env.calibration.torque_limits, jnp.float32)
-        self.kp, self.kd = POSITION_GAINS
+        self.kp, self.kd = env.calibration.position_gains
+        self.timestep = float(model.opt.timestep)
 
     def place(self, q) -> mjx.Data:
         """The arm at rest at joint angles ``q`` (three scalars)."""
@@ -133,7 +125,7 @@ class ArmPlantMJX:
             accel = self.kp * (target - data.qpos) - self.kd * data.qvel
             tau = mjx.mul_m(model, now, accel) + now.qfrc_bias
             ctrl = jnp.clip(tau / self.limits, -1.0, 1.0)
-            effort = effort + jnp.sum(ctrl * ctrl) * PHYSICS_TIMESTEP
+            effort = effort + jnp.sum(ctrl * ctrl) * self.timestep
             data = mjx.step(model, data.replace(ctrl=ctrl))
         return data, effort
 

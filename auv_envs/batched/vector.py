@@ -31,9 +31,9 @@ from auv_envs.batched.docking_env import STEP_METRICS as DOCKING_METRICS
 from auv_envs.batched.docking_env import DockingMJX
 from auv_envs.batched.lars_env import LARSMJX
 from auv_envs.batched.lars_env import STEP_METRICS as LARS_METRICS
-from auv_envs.batched.lars_env import failure_reason as lars_failure_reason
 from auv_envs.core.env import action_array, clip_actions
 from auv_envs.tasks.docking.rules import failure_reason
+from auv_envs.tasks.lars import transition as lars_transition
 
 
 class TransitionVectorEnv(VectorEnv):
@@ -165,7 +165,7 @@ class LARSVectorEnv(TransitionVectorEnv):
         if not (isinstance(num_envs, int) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
         super().__init__(LARSMJX(obs_mode=obs_mode, **env_kwargs), num_envs, LARS_METRICS,
-                         lars_failure_reason, max_episode_steps)
+                         lars_transition.end_reason, max_episode_steps)
 
 
 def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:

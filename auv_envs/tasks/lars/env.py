@@ -380,8 +380,6 @@ class LARSCaptureEnv(TaskEnv):
             pixel_noise_std=float(pixel_noise_std),
             sea=sea_model,
         )
-        self._q_mid = arm.joint_limits.mean(axis=1)
-        self._q_half = 0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0])
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(width, height)
@@ -405,14 +403,15 @@ class LARSCaptureEnv(TaskEnv):
             glint_camera=self._glint_camera, intrinsics=intr, baseline=float(baseline),
             left_in_end=tuple(left_t.tolist()), tip_z=CAPTURE_TIP_IN_END[2],
             corners_body=tuple(tuple(v) for v in marker.corners.tolist()),
-            capture_point=self.calibration.capture_point_body,
+            capture_point=tuple(self.calibration.capture_point_body.tolist()),
             tolerance=(tol.position, tol.speed),
             workspace=(tuple(workspace[:, 0].tolist()), tuple(workspace[:, 1].tolist())),
             pixel_noise_std=float(pixel_noise_std), pixel_bounds=pixel_bounds,
             hull_half=hull_half,
             analog_centre=(float(analog_marker.corners[:, 0].mean()),
                            float(analog_marker.corners[:, 2].mean())),
-            joint_mid=self._q_mid, joint_half=self._q_half)
+            joint_mid=arm.joint_limits.mean(axis=1),
+            joint_half=0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0]))
         self._plant = _MujocoArm(self)
         # One renderer for the stereo observation, one for render().
         self.camera_renderer: CameraRenderer | None = None
@@ -514,7 +513,7 @@ class LARSCaptureEnv(TaskEnv):
     def position_action(self, q) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
         the inverse of the action's linear map onto the joint limits (not clipped)."""
-        return (np.asarray(q, dtype=float) - self._q_mid) / self._q_half
+        return (np.asarray(q, dtype=float) - self.params.joint_mid) / self.params.joint_half
 
     def _pose_scene(self) -> None:
         """Pose the kinematic bodies (AUV, sea, head, analogs) for rendering.
@@ -574,8 +573,8 @@ class _MujocoArm:
         self.physics = env.physics
         self.torque_mode = env.control == "torque"
         self.dt = env.dt
-        self.q_mid, self.q_half = env._q_mid, env._q_half
-        self.kp, self.kd = POSITION_GAINS
+        self.q_mid, self.q_half = env.params.joint_mid, env.params.joint_half
+        self.kp, self.kd = env.calibration.position_gains
         self.limits = env.calibration.torque_limits
         self.tau = np.zeros(3)
 

@@ -76,7 +76,7 @@ class LARSParams:
         intrinsics: each camera's; ``baseline`` m; ``left_in_end`` the left camera's
             centre in the arm-end frame; ``tip_z`` the capture tip's height in it.
         corners_body: the marker's corners A1, A2, A3 in the AUV's body frame;
-            ``capture_point`` the lifting eye's (3,) NumPy.
+            ``capture_point`` the lifting eye's (3 floats).
         tolerance: ``(position m, speed m/s)`` of a capture.
         workspace: ``(low, high)`` corners of the arm end's box in the ship's frame.
         pixel_noise_std: ``features`` noise, px; ``pixel_bounds`` ``(low, high)``, 12
@@ -179,7 +179,8 @@ def scene_of(params: LARSParams, motion: AUVMotion, waves=None, wash=None, analo
     corners = ops.xp.asarray(params.corners_body) @ rot.T
     return Scene(motion=motion, wash=wash, analogs=analogs, waves=waves, glint=glint, sea=sea,
                  corners=[ops.unpack(row) for row in corners],
-                 capture=ops.unpack(rot @ params.capture_point), axis=ops.unpack(rot[:, 0]))
+                 capture=ops.unpack(rot @ ops.xp.asarray(params.capture_point)),
+                 axis=ops.unpack(rot[:, 0]))
 
 
 def sea_sample(scene: Scene, t: float) -> SeaSample | None:
@@ -247,7 +248,7 @@ def _body_to_world(params: LARSParams, roll, pitch, yaw, ops) -> tuple:
     geometry for a rolling, pitching AUV."""
     rows = frames.rotation_rows(roll, -pitch, yaw, ops)  # frames' ZYX pitch is nose-down
     corners = [frames.rotate_rows(rows, p) for p in params.corners_body]
-    capture = frames.rotate_rows(rows, params.capture_point.tolist())
+    capture = frames.rotate_rows(rows, params.capture_point)
     return corners, capture, (rows[0][0], rows[1][0], rows[2][0])
 
 
@@ -563,6 +564,15 @@ def failure_reason(state: EpisodeState) -> str:
     return FAILURE_REASONS[state.failure - 1] if state.failure else ""
 
 
+def end_reason(failure, success) -> str:
+    """How an episode ended, by name: its failure's (``failure`` the code of
+    :class:`EpisodeState`), ``""`` when it captured, ``"time_limit"`` otherwise."""
+    failure = int(failure)
+    if failure:
+        return FAILURE_REASONS[failure - 1]
+    return "" if success else "time_limit"
+
+
 def info(params: LARSParams, state: EpisodeState, now: dict,
          judged: Assessment | None) -> dict:
     """The step's ``info`` without the reward terms (see the environment's docstring)."""
@@ -628,8 +638,7 @@ def episode_metrics(params: LARSParams, state: EpisodeState, now: dict) -> dict:
     out = {}
     for key, value in summary(params, state, now).items():
         if key == "failure":
-            key, value = "failure_reason", failure_reason(state) or (
-                "" if state.success else "time_limit")
+            key, value = "failure_reason", end_reason(state.failure, state.success)
         elif key == "capture_time" and math.isnan(value):
             value = None
         out[key] = value
