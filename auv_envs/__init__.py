@@ -25,14 +25,17 @@ __version__ = "0.1.0"
 
 #: Every environment id this package registers, with its entry point.
 ENVIRONMENTS = {
-    "auv_envs/DockingStation-v1": "auv_envs.tasks.docking.env:DockingStationEnv",
-    "auv_envs/LampArrayDocking-v1": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
+    "auv_envs/DockingStation-v2": "auv_envs.tasks.docking.env:DockingStationEnv",
+    "auv_envs/LampArrayDocking-v2": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
     "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
 }
 
 #: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
-_DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2}
+_DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2, "plant": "mujoco"}
+#: The v1 docking plant: MuJoCo's RK4 staged with the hull wrench at every stage,
+#: throughout (v2 compiles the hull away from the scenery: the same equations).
+_DOCKING_V1_PLANT = {"plant": "mujoco"}
 
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
@@ -43,6 +46,12 @@ PREVIOUS_VERSIONS = {
     ),
     "auv_envs/LampArrayDocking-v0": (
         "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V0_PLANT
+    ),
+    "auv_envs/DockingStation-v1": (
+        "auv_envs.tasks.docking.env:DockingStationEnv", _DOCKING_V1_PLANT
+    ),
+    "auv_envs/LampArrayDocking-v1": (
+        "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V1_PLANT
     ),
 }
 
@@ -81,8 +90,8 @@ for _env_id, (_entry_point, _kwargs) in {
 #: The batched JAX twins of the CPU environments (``pip install -e ".[jax]"``):
 #: ``gym.make_vec(id, num_envs=N)`` only (:mod:`auv_envs.batched.vector`).
 BATCHED_ENVIRONMENTS = {
-    "auv_envs/DockingStationMJX-v1": "auv_envs.batched.vector:docking_station",
-    "auv_envs/LampArrayDockingMJX-v1": "auv_envs.batched.vector:lamp_array_docking",
+    "auv_envs/DockingStationMJX-v2": "auv_envs.batched.vector:docking_station",
+    "auv_envs/LampArrayDockingMJX-v2": "auv_envs.batched.vector:lamp_array_docking",
     "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
 }
 for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():

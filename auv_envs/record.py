@@ -1,6 +1,6 @@
 """Record episodes as MP4 and GIF clips, and a command that records one episode of an agent.
 
-    python -m auv_envs.record --env DockingStation-v1 --agent ofnmpc-ekf --seed 100000
+    python -m auv_envs.record --env DockingStation-v2 --agent ofnmpc-ekf --seed 100000
     auv-record --env LARSCapture-v0 --agent ckf-pd --seed 7 --out videos --size 640x480
 
 :class:`EpisodeRecorder` is Gymnasium's ``RecordVideo`` (which writes the MP4

@@ -36,8 +36,8 @@ from baselines.stats import BOOTSTRAP_SEED, CONFIDENCE, RESAMPLES
 
 #: The privileged reference of each success-ranked environment: score 1.
 REFERENCES = {
-    "auv_envs/DockingStation-v1": "pd-state",
-    "auv_envs/LampArrayDocking-v1": "pd-state",
+    "auv_envs/DockingStation-v2": "pd-state",
+    "auv_envs/LampArrayDocking-v2": "pd-state",
     "auv_envs/LARSCapture-v0": "ckf-pd-state",
 }
 #: The anchor of score 0 in every task.

@@ -41,10 +41,10 @@ from auv_envs.batched.docking_env import DockingMJX
 from auv_envs.batched.lars_env import LARSMJX
 from auv_envs.core.difficulty import LEVELS
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 #: Per family: the CPU id, the batched id, the functional env's maker, the held action.
 FAMILIES = {
-    "docking": (ENV_ID, "auv_envs/DockingStationMJX-v1",
+    "docking": (ENV_ID, "auv_envs/DockingStationMJX-v2",
                 lambda **kw: DockingMJX(ENV_ID, **kw), (0.3, 0.0, 0.0, 0.0)),
     "lars": ("auv_envs/LARSCapture-v0", "auv_envs/LARSCaptureMJX-v0", LARSMJX,
              (0.0, 0.3, -0.2)),

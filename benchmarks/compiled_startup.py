@@ -1,6 +1,6 @@
 """Where the compiled PPO's start-up time goes, part by part.
 
-Builds the batched ``DockingStation-v1`` environment at ``paper`` and a
+Builds the batched ``DockingStation-v2`` environment at ``paper`` and a
 :class:`baselines.rl.compiled.Trainer` with the default settings, then times
 (seconds, wall clock): building the environment, the first reset, tracing and
 compiling one iteration, running it twice, and compiling and running the
@@ -38,7 +38,7 @@ def main(argv=None) -> None:
         clock[0] = now
 
     start = clock[0]
-    env = DockingMJX("auv_envs/DockingStation-v1", obs_mode="features", difficulty="paper")
+    env = DockingMJX("auv_envs/DockingStation-v2", obs_mode="features", difficulty="paper")
     trainer = Trainer(env, DEFAULT_SETTINGS, 100)
     lap("build the batched env and trainer")
     state = jax.block_until_ready(trainer.init(jax.random.PRNGKey(0)))

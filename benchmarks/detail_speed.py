@@ -20,7 +20,7 @@ from throughput import Stepper  # benchmarks/ is the script's path
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
 from auv_envs.record import parse_image_size
 
-ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+ENV_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 
 
 def paired_rates(env_id: str, size: tuple[int, int], steps: int, pairs: int):

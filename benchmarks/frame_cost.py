@@ -10,7 +10,7 @@ cost. Issue 21 item 5 (84x84 >= 4x as fast as 320x240) depends on it. The
 scene is drawn as the observation draws it, far parts with their coarser
 meshes (``DetailLevels``), unless ``--finest``.
 
-    python benchmarks/frame_cost.py [--env auv_envs/DockingStation-v1] [--frames 200] [--finest]
+    python benchmarks/frame_cost.py [--env auv_envs/DockingStation-v2] [--frames 200] [--finest]
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def frame_costs(env_id: str, size: tuple[int, int], frames: int, repeats: int,
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="auv_envs/DockingStation-v1")
+    parser.add_argument("--env", default="auv_envs/DockingStation-v2")
     parser.add_argument("--frames", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--finest", action="store_true",

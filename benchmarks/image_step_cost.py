@@ -19,7 +19,7 @@ Prints the median of each part over the passes, in microseconds a step, and
 the bound: the 84x84 step would have to cost at most a quarter of the
 320x240 one.
 
-    python benchmarks/image_step_cost.py [--env auv_envs/DockingStation-v1] [--steps 500]
+    python benchmarks/image_step_cost.py [--env auv_envs/DockingStation-v2] [--steps 500]
         [--passes 7] [--sizes 84x84 320x240]
 """
 
@@ -129,7 +129,7 @@ def report(env_id: str, costs: dict) -> str:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", default="auv_envs/DockingStation-v1")
+    parser.add_argument("--env", default="auv_envs/DockingStation-v2")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--passes", type=int, default=7)
     parser.add_argument("--sizes", type=parse_image_size, nargs=2,

@@ -27,7 +27,7 @@ from baselines.docking.perception.segmentation import segment_lamps
 from baselines.registry import make_agent
 
 TARGET_FPS = 100.0
-ENV_IDS = ("auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1")
+ENV_IDS = ("auv_envs/LampArrayDocking-v2", "auv_envs/DockingStation-v2")
 
 
 def approach_frames(env_id: str, frames: int, seed: int = 100_000) -> tuple[list[dict], object]:

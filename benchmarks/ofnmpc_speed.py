@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/ofnmpc_speed.py [--steps 150] [--no-vm] [--ipopt]
 
-Each agent flies one episode of ``DockingStation-v1`` in [OFNMPC]'s Scenario 2
+Each agent flies one episode of ``DockingStation-v2`` in [OFNMPC]'s Scenario 2
 (``scenario="current"``, current towards 90 deg, 5 px / 0.02 m/s noise) and
 ``agent.act`` is timed per step (the environment step is excluded; the first
 step, which initialises the pose and builds the warm start, is dropped). Both
@@ -31,7 +31,7 @@ import auv_envs  # noqa: F401
 from baselines.docking.agents import OFNMPCAgent
 from baselines.docking.control.ofnmpc import OFNMPCConfig
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 TARGETS_MS = {"ekf": (10.0, 25.0), "mhe": (30.0, None)}
 
 

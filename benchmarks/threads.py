@@ -23,8 +23,8 @@ from throughput import Stepper  # benchmarks/ is the script's path
 import auv_envs  # noqa: F401  (registers the environments)
 
 DEFAULT_ENVS = (
-    "auv_envs/DockingStation-v1:features",
-    "auv_envs/DockingStation-v1:image",
+    "auv_envs/DockingStation-v2:features",
+    "auv_envs/DockingStation-v2:image",
     "auv_envs/LARSCapture-v0:features",
     "auv_envs/AcousticTracking-v0:measurements",
 )

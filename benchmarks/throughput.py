@@ -12,8 +12,8 @@ alternately, with their ratio (issue 21: 84x84 >= 4x as fast as 320x240 and
 
     python benchmarks/throughput.py [--steps N] [--repeats R] [--envs ID ...]
 
-The issue's check: ``--steps 2000 --envs auv_envs/DockingStation-v1
-auv_envs/LampArrayDocking-v1``.
+The issue's check: ``--steps 2000 --envs auv_envs/DockingStation-v2
+auv_envs/LampArrayDocking-v2``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The README's batched snippet, timed from a fresh process: cold, then warm cache.
 
-Runs the snippet (``gym.make_vec`` of ``auv_envs/DockingStationMJX-v1``, reset,
+Runs the snippet (``gym.make_vec`` of ``auv_envs/DockingStationMJX-v2``, reset,
 one step) twice, each in a new Python process with the same empty
 ``XDG_CACHE_HOME``: the first compiles and fills ``auv_envs/jax`` there, the
 second loads the compiled programs. Prints the seconds from ``import`` to the
@@ -24,7 +24,7 @@ start = time.perf_counter()
 import gymnasium as gym
 import numpy as np
 import auv_envs  # registers the ids
-envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs={n}, obs_mode="features",
+envs = gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs={n}, obs_mode="features",
                     difficulty="{level}")
 obs, info = envs.reset(seed=0)
 obs, reward, terminated, truncated, info = envs.step(np.zeros(({n}, 4)))

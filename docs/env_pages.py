@@ -38,7 +38,7 @@ FOLDER = "env"
 
 
 def page_path(env_id: str) -> str:
-    """The page of ``env_id`` under ``docs/``: ``env/DockingStation-v1.md``."""
+    """The page of ``env_id`` under ``docs/``: ``env/DockingStation-v2.md``."""
     return f"{FOLDER}/{env_id.split('/')[-1]}.md"
 
 

@@ -27,7 +27,7 @@ import numpy as np
 import auv_envs  # noqa: F401
 from auv_envs.batched.docking_env import DockingMJX, failure_reason
 
-LAYOUTS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+LAYOUTS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 
 
 def line_of_sight_policy(obs: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Docking success rates of named agents at a difficulty level, with 95 % Wilson intervals.
 
-    PYTHONPATH=. python scripts/docking_headroom.py --env auv_envs/DockingStation-v1
+    PYTHONPATH=. python scripts/docking_headroom.py --env auv_envs/DockingStation-v2
         --difficulty hard --agents ofnmpc-ekf ofnmpc-state [--episodes 20]
         [--first-seed 620000] [--json PATH]
 
@@ -50,7 +50,7 @@ def success_rate(env_id: str, agent: str, difficulty: str, scenario: str, seeds:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--env", default="auv_envs/DockingStation-v1")
+    parser.add_argument("--env", default="auv_envs/DockingStation-v2")
     parser.add_argument("--difficulty", choices=LEVELS, default="hard")
     parser.add_argument("--scenario", choices=("mismatch", "current"), default="current")
     parser.add_argument("--agents", nargs="+", default=["ofnmpc-ekf", "ofnmpc-state"])

@@ -22,7 +22,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 
-IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v0")
+IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2", "auv_envs/DockingStation-v0")
 
 
 def _feed(digest, value) -> None:

@@ -37,7 +37,7 @@ import auv_envs  # noqa: E402
 from tests.plant_reference import LIMITS, acoustic_truth, env_plant_error  # noqa: E402
 
 DEFAULT_ENVS = (
-    "auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v0",
+    "auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2", "auv_envs/DockingStation-v0",
 )
 
 

@@ -22,7 +22,7 @@ from baselines.registry import agent_spec
 
 #: file name -> (env id, env arguments, agent, seed, fraction of the episode).
 GALLERY = {
-    "docking_chase.png": ("auv_envs/DockingStation-v1", {}, "pd-state", 100_000, 0.75),
+    "docking_chase.png": ("auv_envs/DockingStation-v2", {}, "pd-state", 100_000, 0.75),
     "lars_side.png": ("auv_envs/LARSCapture-v0", {"sea_state": "severe"}, "ltat-ckf-pd",
                       100_001, 0.5),
     "acoustic.png": ("auv_envs/AcousticTracking-v0", {"time_limit": 12.0}, "gmphd-gci",

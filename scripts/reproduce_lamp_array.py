@@ -2,12 +2,12 @@
 
     PYTHONPATH=. python scripts/reproduce_lamp_array.py [--difficulty paper] [--seeds 5]
         [--first-seed 0] [--frames 600] [--scenario mismatch] [--threshold 20]
-        [--env auv_envs/LampArrayDocking-v1] [--json PATH]
+        [--env auv_envs/LampArrayDocking-v2] [--json PATH]
 
 [LAMP] §3 tracked its four lamps through ~300 frames in which 33.06 % of the lamp-frames
 were out of view and reported PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px (Table 4).
 
-Here each sequence is a seeded ``LampArrayDocking-v1`` episode in ``image`` mode (640x480).
+Here each sequence is a seeded ``LampArrayDocking-v2`` episode in ``image`` mode (640x480).
 A privileged pilot -- the ``pd-state`` reference controller steered to seeded waypoints and
 headings (see :func:`pilot_action`) -- first closes to the array from above, then makes
 excursions that turn and drop the camera so that lamps leave the view and come back. The
@@ -22,7 +22,7 @@ ids.
 
 Two scores are printed: from the frame where the front end initialised its tracks ([LAMP]
 starts tracking when the four lamps are first all seen, §2.2.1) and over every frame
-(the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v1``
+(the frames before initialisation then count as misses). ``--env auv_envs/DockingStation-v2``
 runs the same evaluation on the six docking lights (the ring identity rule).
 
 The environment runs at ``--difficulty`` (default ``paper``: the water and camera of the
@@ -49,8 +49,8 @@ from baselines.docking.perception.front_end import LampArrayFrontEnd
 from baselines.evaluation import write_figures
 from baselines.stats import bootstrap_interval
 
-ENV_ID = "auv_envs/LampArrayDocking-v1"
-ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v1")
+ENV_ID = "auv_envs/LampArrayDocking-v2"
+ENV_IDS = (ENV_ID, "auv_envs/DockingStation-v2")
 #: [LAMP] Table 4 (targets) and its precision-plot threshold (Fig. 11: > 90 % at 13 px).
 PAPER = {"prcn": 0.9976, "mota": 0.8465, "motp_px": 13.24, "occluded": 0.3306}
 PRECISION_PLOT_PX = 13.0

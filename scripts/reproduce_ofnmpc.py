@@ -10,7 +10,7 @@ Wilson interval, docking times with a 95 % bootstrap interval of the mean, and w
 ``--json`` the figures are written under the same names as the tables.
 
 Scenario 1 (``scenario="mismatch"``: damping mismatch only, no noise, no
-current), ``DockingStation-v1`` (``--env`` picks ``LampArrayDocking-v1``):
+current), ``DockingStation-v2`` (``--env`` picks ``LampArrayDocking-v2``):
 
 * both agents dock; plots of the 3-D trajectories, the outputs (x, y, z, psi
   against time, with the allowable deviations) and the disturbance estimates
@@ -61,7 +61,7 @@ from baselines.evaluation import write_figures  # noqa: E402
 from baselines.registry import agent_names, make_agent  # noqa: E402
 from baselines.stats import bootstrap_interval, wilson_interval  # noqa: E402
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 OBSERVERS = ("ekf", "mhe")
 DIRECTIONS = (0.0, 45.0, 90.0, 135.0, 180.0)
 
@@ -319,7 +319,7 @@ def plot_disturbances(traces: dict, path: Path,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/ofnmpc"))
-    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v1"])
+    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v2"])
     parser.add_argument("--difficulty", choices=DIFFICULTIES, default="paper")
     parser.add_argument("--first-seed", "--seed", dest="seed", type=int, default=100_000,
                         help="episodes use seeds N, N+1, ... (default %(default)s)")

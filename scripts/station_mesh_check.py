@@ -26,7 +26,7 @@ import numpy as np
 import auv_envs  # noqa: F401  (registers the ids; chooses the GL backend before mujoco loads)
 from auv_envs.record import parse_image_size
 
-ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+ENV_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 
 
 def compare(env_id: str, size: tuple[int, int], poses: int, seed: int = 11,

@@ -13,7 +13,7 @@ import pytest
 import auv_envs
 
 ENV_IDS = tuple(auv_envs.ENVIRONMENTS)
-DOCKING_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+DOCKING_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 #: Observation modes that render images; the tests shrink them.
 IMAGE_MODES = ("image", "stereo")
 #: Small images keep the image-mode tests fast; the pipeline is the same.

@@ -8,7 +8,7 @@ import pytest
 from baselines import aggregate
 from baselines.evaluation import EpisodeRow
 
-DOCK, LARS, ACOUSTIC = ("auv_envs/DockingStation-v1", "auv_envs/LARSCapture-v0",
+DOCK, LARS, ACOUSTIC = ("auv_envs/DockingStation-v2", "auv_envs/LARSCapture-v0",
                         "auv_envs/AcousticTracking-v0")
 
 
@@ -60,7 +60,7 @@ def test_scores_run_from_random_to_the_reference():
     scores = aggregate.normalised_scores(episodes, [bound], {"mine-s0": "mine",
                                                              "mine-s1": "mine"})
     paper = scores["paper"]
-    task = "DockingStation-v1 (difficulty=paper)"
+    task = "DockingStation-v2 (difficulty=paper)"
     assert paper["random"][task] == [-0.1, 0.1]  # (-10 + 8) / 20, (-6 + 8) / 20
     assert paper["pd-state"][task] == [1.0, 1.0]
     assert paper["mine"][task] == [0.5, 0.75]  # the seeds pooled under their group

@@ -54,8 +54,8 @@ def _cpu_episode(env_id: str, seed: int, **kwargs):
 
 
 @pytest.mark.parametrize("env_id, kwargs", [
-    ("auv_envs/DockingStation-v1", {"scenario": "current", "current_direction": 60.0}),
-    ("auv_envs/LampArrayDocking-v1", {}),
+    ("auv_envs/DockingStation-v2", {"scenario": "current", "current_direction": 60.0}),
+    ("auv_envs/LampArrayDocking-v2", {}),
 ])
 def test_float32_plant_follows_the_cpu_plant_for_20_s(env_id, kwargs):
     """Same start, same forces and current: positions within 1 cm (issue 21 asks 1 cm in
@@ -78,7 +78,7 @@ def test_float32_plant_follows_the_cpu_plant_for_20_s(env_id, kwargs):
 
 
 def test_a_batch_steps_each_vehicle_as_alone():
-    env = gym.make("auv_envs/DockingStation-v1").unwrapped
+    env = gym.make("auv_envs/DockingStation-v2").unwrapped
     plant = _plant(env)
     rng = np.random.default_rng(0)
     env.reset(seed=0)

@@ -45,7 +45,7 @@ def test_same_start_and_actions_stay_within_1cm_and_1px_over_20s(env_id):
 
 
 def test_a_fixed_policy_docks_or_fails_alike_on_95_of_100_seeds():
-    outcomes = outcome_agreement("auv_envs/DockingStation-v1", range(700, 800))
+    outcomes = outcome_agreement("auv_envs/DockingStation-v2", range(700, 800))
     # A sharp test: the policy neither always docks nor always fails.
     assert 10 <= outcomes["cpu_successes"] <= 90
     assert outcomes["success_agreement"] >= 95
@@ -56,7 +56,7 @@ def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():
     disturbances = DockingDisturbances(
         plant=PlantPerturbation(mass=0.1, damping=0.3, net_buoyancy=5.0),
         thruster_time_constant=0.5)
-    env_id = "auv_envs/DockingStation-v1"
+    env_id = "auv_envs/DockingStation-v2"
     cpu = gym.make(env_id, obs_mode="state", disturbances=disturbances).unwrapped
     batched = DockingMJX(env_id, obs_mode="state", disturbances=disturbances,
                          auto_reset=False)
@@ -91,8 +91,8 @@ def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():
 
 
 @pytest.mark.parametrize(("env_id", "level"), [
-    ("auv_envs/DockingStation-v1", "paper"), ("auv_envs/LampArrayDocking-v1", "paper"),
-    ("auv_envs/DockingStation-v1", "hard")])
+    ("auv_envs/DockingStation-v2", "paper"), ("auv_envs/LampArrayDocking-v2", "paper"),
+    ("auv_envs/DockingStation-v2", "hard")])
 def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level):
     """Random draws differ between the two generators; their effects must not.
 
@@ -143,7 +143,7 @@ def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level
 
 
 def test_make_vec_speaks_numpy_and_resets_finished_episodes():
-    envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=4, obs_mode="features",
+    envs = gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=4, obs_mode="features",
                         max_episode_steps=30)
     assert isinstance(envs, gym.vector.VectorEnv)
     # Compiled programs go to a persistent cache (a later process loads them).
@@ -191,13 +191,13 @@ def test_make_vec_speaks_numpy_and_resets_finished_episodes():
 
 def test_refuses_what_it_does_not_build():
     with pytest.raises(ValueError, match="difficulty"):
-        DockingMJX("auv_envs/DockingStation-v1", difficulty="extreme")
+        DockingMJX("auv_envs/DockingStation-v2", difficulty="extreme")
     with pytest.raises(ValueError, match="obs_mode"):
-        DockingMJX("auv_envs/DockingStation-v1", obs_mode="image")
+        DockingMJX("auv_envs/DockingStation-v2", obs_mode="image")
     with pytest.raises(ValueError, match="rk4"):
         DockingMJX("auv_envs/DockingStation-v0")
     with pytest.raises(TypeError):
-        DockingMJX("auv_envs/DockingStation-v1", no_such_argument=1)
+        DockingMJX("auv_envs/DockingStation-v2", no_such_argument=1)
     assert failure_reason(0, True) == "" and failure_reason(0, False) == "time_limit"
     assert failure_reason(2, False) == "seabed"
 

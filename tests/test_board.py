@@ -10,7 +10,7 @@ import pytest
 import evaluate
 from baselines.evaluation import EpisodeTask, board
 
-DOCK, LARS = "auv_envs/DockingStation-v1", "auv_envs/LARSCapture-v0"
+DOCK, LARS = "auv_envs/DockingStation-v2", "auv_envs/LARSCapture-v0"
 COMMON = ["--difficulty", "easy", "--env-kwargs", "time_limit=1", "--workers", "1",
           "--no-progress", "--no-video"]
 
@@ -33,7 +33,7 @@ def test_merge_replaces_the_rows_a_run_evaluates_and_keeps_the_others():
 
 def test_a_second_run_merges_into_the_board(tmp_path, capsys):
     out = tmp_path / "board"
-    assert evaluate.main(["--envs", "DockingStation-v1", "LARSCapture-v0", "--agents", "random",
+    assert evaluate.main(["--envs", "DockingStation-v2", "LARSCapture-v0", "--agents", "random",
                           "pd-state", "ckf-pd-state", "--seeds", "100000,100001", *COMMON,
                           "--out", str(out)]) == 0
     first = _rows(out)
@@ -41,7 +41,7 @@ def test_a_second_run_merges_into_the_board(tmp_path, capsys):
             (LARS, "ckf-pd-state")} <= set(first)
     assert (out / "plots" / "LARSCapture-v0.png").exists()
     # A narrower run: one row replaced (its new seed only), the others kept from the cache.
-    assert evaluate.main(["--envs", "DockingStation-v1", "--agents", "random", "--seeds",
+    assert evaluate.main(["--envs", "DockingStation-v2", "--agents", "random", "--seeds",
                           "100005", *COMMON, "--out", str(out)]) == 0
     assert "0 failed" in capsys.readouterr().err
     second = _rows(out)
@@ -55,7 +55,7 @@ def test_a_second_run_merges_into_the_board(tmp_path, capsys):
     episodes = json.loads((out / "episodes.json").read_text())
     assert len(episodes) == len(json.loads((out / board.BOARD_FILE).read_text())["tasks"])
     # --new-board: only this run's rows, and no plot of an environment it did not run.
-    assert evaluate.main(["--envs", "DockingStation-v1", "--agents", "random", "--seeds",
+    assert evaluate.main(["--envs", "DockingStation-v2", "--agents", "random", "--seeds",
                           "100005", *COMMON, "--out", str(out), "--new-board"]) == 0
     assert set(_rows(out)) == {(DOCK, "random")}
     assert not (out / "plots" / "LARSCapture-v0.png").exists()
@@ -66,7 +66,7 @@ def test_a_board_that_cannot_be_read_is_a_usage_error_and_gone_agents_are_droppe
     out = tmp_path / "board"
     out.mkdir()
     (out / board.BOARD_FILE).write_text('{"format": 1, "tasks": [')
-    argv = ["--envs", "DockingStation-v1", "--agents", "random", "--seeds", "100000", *COMMON,
+    argv = ["--envs", "DockingStation-v2", "--agents", "random", "--seeds", "100000", *COMMON,
             "--out", str(out)]
     with pytest.raises(SystemExit) as exc:
         evaluate.main(argv)

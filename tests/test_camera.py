@@ -26,8 +26,8 @@ from auv_envs.core.camera import (
 )
 from auv_envs.core.frames import rotation_from_euler
 
-SIX = "auv_envs/DockingStation-v1"
-LAMPS = "auv_envs/LampArrayDocking-v1"
+SIX = "auv_envs/DockingStation-v2"
+LAMPS = "auv_envs/LampArrayDocking-v2"
 #: Camera tilt below the body x axis per layout (deg) and the hull half length.
 CAMERA_PITCH_DEG = {SIX: 0.0, LAMPS: 20.0}
 NOSE = 0.9  # 1.8 m hull

@@ -39,7 +39,7 @@ def test_installed_evaluate_lists_environments_and_agents():
     result = subprocess.run([str(Path(sys.executable).parent / "auv-evaluate"), "--list"],
                             capture_output=True, text=True, timeout=120, cwd="/")
     assert result.returncode == 0, result.stderr
-    assert "auv_envs/DockingStation-v1" in result.stdout and "ofnmpc-ekf" in result.stdout
+    assert "auv_envs/DockingStation-v2" in result.stdout and "ofnmpc-ekf" in result.stdout
 
 
 @pytest.mark.parametrize("script, usage", [("evaluate.py", "python evaluate.py"),
@@ -112,13 +112,13 @@ def test_default_run_leaves_out_heavy_agents_and_says_so(tmp_path, capsys):
     assert build_parser().parse_args([]).difficulty is None  # scenario_groups adds the levels
     heavy_everywhere = sorted(n for n in agent_names() if agent_spec(n).heavy)
     assert {"ofnmpc-ekf-image", "ofnmpc-mhe-image"} <= set(heavy_everywhere)
-    agents, heavy = default_agents(["auv_envs/DockingStation-v1"])
+    agents, heavy = default_agents(["auv_envs/DockingStation-v2"])
     assert heavy == heavy_everywhere and not set(agents) & set(heavy)
     assert set(agents) | set(heavy) == set(agent_names())
     assert default_agents(["auv_envs/LARSCapture-v0"])[1] == []
     import evaluate
 
-    code = evaluate.main(["--envs", "DockingStation-v1", "--seeds", "100000",
+    code = evaluate.main(["--envs", "DockingStation-v2", "--seeds", "100000",
                           "--env-kwargs", "time_limit=0.5", "--difficulty", "easy",
                           "--workers", "1", "--no-progress", "--no-video",
                           "--out", str(tmp_path)])

@@ -23,7 +23,7 @@ from baselines.rl import compiled  # noqa: E402
 from baselines.rl.agents import load_policy_agent, register_external_policy  # noqa: E402
 from baselines.rl.policy import PolicyFileError  # noqa: E402
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 
 
 def _features_observations(n: int, **kwargs) -> tuple[gym.Env, list]:
@@ -99,7 +99,7 @@ def test_train_py_trains_writes_exports_and_ranks_a_cppo_run(tmp_path, capsys):
     import train as train_cli
 
     run_dir = tmp_path / "run"
-    argv = ["--algo", "cppo", "--env", "DockingStation-v1", "--seed", "3", "--run-dir",
+    argv = ["--algo", "cppo", "--env", "DockingStation-v2", "--seed", "3", "--run-dir",
             str(run_dir), *TINY, "--set", "evals=2", "--set", "checkpoints=true"]
     assert train_cli.main(argv) == 0
     info = json.loads((run_dir / "run.json").read_text())
@@ -165,14 +165,14 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
 
     monkeypatch.setattr(compiled, "train", signalled)
     run_dir = tmp_path / "run"
-    code = train_cli.main(["--algo", "cppo", "--env", "LampArrayDocking-v1", "--run-dir",
+    code = train_cli.main(["--algo", "cppo", "--env", "LampArrayDocking-v2", "--run-dir",
                            str(run_dir), *TINY, "--set", "evals=1"])
     assert code == 128 + signal.SIGTERM
     info = json.loads((run_dir / "run.json").read_text())
     assert (info["status"], info["steps"]) == ("interrupted", 64)
     manifest = json.loads((run_dir / "final" / "policy.json").read_text())
     assert manifest["n_timesteps"] == 64
-    env = gym.make("auv_envs/LampArrayDocking-v1", obs_mode="features")
+    env = gym.make("auv_envs/LampArrayDocking-v2", obs_mode="features")
     agent = load_policy_agent(run_dir / "final", env)  # the policy so far acts
     obs, info = env.reset(seed=2)
     assert env.action_space.contains(agent.act(obs, info))
@@ -205,7 +205,7 @@ def test_cppo_configs_are_checked(overrides, message):
 def test_cppo_yml_holds_the_trainers_defaults_and_only_batched_envs():
     from baselines.rl.config import ConfigError, resolve_config
 
-    budgets = {"auv_envs/DockingStation-v1": 1_500_000, "auv_envs/LampArrayDocking-v1": 3_000_000}
+    budgets = {"auv_envs/DockingStation-v2": 1_500_000, "auv_envs/LampArrayDocking-v2": 3_000_000}
     for env_id, budget in budgets.items():  # the shipped policies' recipes
         config = resolve_config("cppo", env_id, 7)
         assert compiled.Settings(**config.hyperparams) == compiled.DEFAULT_SETTINGS
@@ -255,8 +255,8 @@ def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
 
 @pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize("family, env_id, steps", [
-    ("docking", "auv_envs/DockingStation-v1", 4_000_000),
-    ("lamp-array", "auv_envs/LampArrayDocking-v1", 6_000_000),
+    ("docking", "auv_envs/DockingStation-v2", 4_000_000),
+    ("lamp-array", "auv_envs/LampArrayDocking-v2", 6_000_000),
 ])
 def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, seed):
     # cppo-*-features-hard: the shipped recipe with two overrides, as

@@ -17,7 +17,7 @@ from baselines.registry import make_agent  # noqa: E402
 
 #: (env id, agent, obs mode, env kwargs): a Box and a Dict observation mode, short episodes.
 CASES = {
-    "docking-state": ("auv_envs/DockingStation-v1", "pd-state", "state", {"time_limit": 2.0}),
+    "docking-state": ("auv_envs/DockingStation-v2", "pd-state", "state", {"time_limit": 2.0}),
     "acoustic-measurements": ("auv_envs/AcousticTracking-v0", "ls-kf", "measurements",
                               {"time_limit": 0.5}),
 }
@@ -160,7 +160,7 @@ def test_default_seeds_are_training_seeds():
     ({"env_kwargs": {"no_such_argument": 1}}, ValueError, "rejects arguments"),
 ])
 def test_bad_requests_are_refused_before_anything_is_written(tmp_path, kwargs, error, match):
-    request = {"agent": "pd-state", "env_id": "DockingStation-v1", "episodes": 1,
+    request = {"agent": "pd-state", "env_id": "DockingStation-v2", "episodes": 1,
                "out": tmp_path / "out", **kwargs}
     with pytest.raises(error, match=match):
         datasets.record_dataset(**request)
@@ -185,7 +185,7 @@ def test_a_failing_episode_leaves_nothing_behind(tmp_path, monkeypatch):
                         lambda name, env: FailsInSecondEpisode(make_agent(name, env)))
     out = tmp_path / "new" / "datasets"
     with pytest.raises(datasets.RecordingError, match=r"episode 1 \(seed 11\).*diverged"):
-        datasets.record_dataset("pd-state", "DockingStation-v1", episodes=2, first_seed=10,
+        datasets.record_dataset("pd-state", "DockingStation-v2", episodes=2, first_seed=10,
                                 out=out, env_kwargs={"time_limit": 0.5})
     assert not (tmp_path / "new").exists()
 
@@ -193,8 +193,8 @@ def test_a_failing_episode_leaves_nothing_behind(tmp_path, monkeypatch):
 def test_command_line_refuses_an_existing_dataset_unless_overwrite(tmp_path, capsys,
                                                                    monkeypatch):
     out = tmp_path / "datasets"
-    dataset_id = "auv_envs/DockingStation-v1/pd-state-state-paper-v0"
-    command = ["record", "--agent", "pd-state", "--env", "auv_envs/DockingStation-v1",
+    dataset_id = "auv_envs/DockingStation-v2/pd-state-state-paper-v0"
+    command = ["record", "--agent", "pd-state", "--env", "auv_envs/DockingStation-v2",
                "--episodes", "1", "--env-kwargs", "time_limit=0.5", "--out", str(out)]
     assert datasets.main(command) == 0
     assert f"wrote 1 episodes (5 steps) as {dataset_id}" in capsys.readouterr().err
@@ -213,11 +213,11 @@ def test_command_line_refuses_an_existing_dataset_unless_overwrite(tmp_path, cap
     assert dataset.storage.metadata["auv_envs"]["first_seed"] == last - 1
     assert sorted(p.name for p in out.iterdir()) == ["auv_envs"]  # no staging left
     for argv, match in [(["--agent", "pd-state", "--env", "NoSuchEnv-v0"], "unknown env"),
-                        (["--agent", "pd-state", "--env", "DockingStation-v1", "--obs-mode",
+                        (["--agent", "pd-state", "--env", "DockingStation-v2", "--obs-mode",
                           "features"], "does not apply"),
-                        (["--agent", "pd-state", "--env", "DockingStation-v1", "--episodes",
+                        (["--agent", "pd-state", "--env", "DockingStation-v2", "--episodes",
                           "0"], "positive"),
-                        (["--agent", "pd-state", "--env", "DockingStation-v1",
+                        (["--agent", "pd-state", "--env", "DockingStation-v2",
                           "--env-kwargs", "colour=red"], "colour")]:
         with pytest.raises(SystemExit) as exit_info:
             datasets.main(["record", *argv, "--out", str(tmp_path / "other")])

@@ -107,3 +107,20 @@ def test_bad_level_is_a_clear_error():
     env_id = LEVELLED[0][0]
     with pytest.raises(ValueError, match="difficulty"):
         gym.make(env_id, difficulty="Paper")
+
+
+#: The release cases of the superseded ``-v1`` docking ids (MuJoCo's staged plant throughout).
+V1_CASES = sorted(k for k in RELEASE if "-v1|" in k and k.endswith(f"|{SEEDS[0]}"))
+
+
+@pytest.mark.parametrize("case", V1_CASES, ids=lambda k: "-".join(k.split("|")[:3]))
+def test_v1_ids_keep_their_plant(case):
+    """``-v1`` (``plant="mujoco"``) is still the released plant; ``-v2``'s compiled plant
+    gives the same fingerprints to round-off (``test_default_is_the_release``, whose
+    ``-v2`` records are ``-v1``'s)."""
+    env_id, mode, kwargs, seed = case.split("|")
+    env = gym.make(env_id)
+    assert env.unwrapped._init_kwargs["plant"] == "mujoco"
+    env.close()
+    rows = fingerprint(env_id, mode, int(seed), **json.loads(kwargs))
+    assert rows == RELEASE[case]

@@ -15,7 +15,7 @@ from baselines.rl import distill
 from baselines.rl.agents import register_external_policy
 from baselines.rl.manifest import policies_root
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 
 
 def test_the_teacher_sees_what_a_features_env_reports_at_the_same_state():

@@ -10,7 +10,7 @@ import auv_envs  # noqa: F401
 from auv_envs.tasks.docking.env import DockingDisturbances
 from auv_envs.tasks.docking.optics import WaterOptics
 
-DOCKING_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1",
+DOCKING_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2",
                "auv_envs/DockingStation-v0", "auv_envs/LampArrayDocking-v0")
 
 

@@ -82,7 +82,7 @@ def test_evaluate_is_deterministic_and_summarises():
 
 
 def test_evaluate_rejects_unknown_names_naming_valid_ones():
-    with pytest.raises(ValueError, match="registered: .*DockingStation-v1"):
+    with pytest.raises(ValueError, match="registered: .*DockingStation-v2"):
         run_evaluation(["auv_envs/Nope-v0"], ["random"], [1])
     with pytest.raises(ValueError, match="did you mean pd-state"):
         run_evaluation([DOCK], ["pd-stat"], [1])
@@ -156,7 +156,7 @@ def test_resolve_env_kwargs_routes_keys_and_rejects_bad_ones():
     assert resolve_env_kwargs([LARS], ["image_size=(64, 48)"])[LARS] == {"image_size": (64, 48)}
     for bad, match in [("nope=1", "no selected environment takes 'nope'"),
                        ("LARSCapture-v0:time_limit=1", "not among the selected"),
-                       ("DockingStation-v1:disturbance=high", "no selected environment"),
+                       ("DockingStation-v2:disturbance=high", "no selected environment"),
                        ("time_limit", "KEY=VALUE")]:
         with pytest.raises(ValueError, match=match):
             resolve_env_kwargs([DOCK, ACOUSTIC], [bad])

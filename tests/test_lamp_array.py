@@ -28,7 +28,7 @@ from baselines.kalman import kalman_gain
 from baselines.registry import agent_spec, make_agent
 from tests.conftest import DOCKING_IDS
 
-LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v1", "auv_envs/DockingStation-v1"
+LAMP_ID, RING_ID = "auv_envs/LampArrayDocking-v2", "auv_envs/DockingStation-v2"
 N_FRAMES = 24
 
 

@@ -78,8 +78,8 @@ def test_tiny_run_writes_every_output(tiny_run):
     assert f"| pd-state | state | {TINY_SCENARIO} | 2 |" in md
     # 0/2 successes for both docking agents: Wilson [0 %, 66 %] each, a tie.
     assert "| 1 (tie) | pd-state |" in md and "0% (0/2) [0%, 66%]" in md
-    assert "supports only" in md and "(plots/DockingStation-v1.png)" in md
-    png = tiny_run / "plots" / "DockingStation-v1.png"
+    assert "supports only" in md and "(plots/DockingStation-v2.png)" in md
+    png = tiny_run / "plots" / "DockingStation-v2.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # LARS has one agent: nothing varies between agents, so no plot.
     assert not (tiny_run / "plots" / "LARSCapture-v0.png").exists()
@@ -394,9 +394,9 @@ def test_plots_leave_out_metrics_that_are_the_same_for_every_agent(tmp_path):
     stale.parent.mkdir()
     stale.write_bytes(b"an earlier run's plot")
     paths = leaderboard.write(tmp_path, rows + same)
-    assert "plots/DockingStation-v1.png" in paths and not stale.exists()
+    assert "plots/DockingStation-v2.png" in paths and not stale.exists()
     page = (tmp_path / "leaderboard.html").read_text()
-    assert page.count("<img") == 1 and 'src="plots/DockingStation-v1.png"' in page
+    assert page.count("<img") == 1 and 'src="plots/DockingStation-v2.png"' in page
 
 
 def _overview(page: str) -> str:

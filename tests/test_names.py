@@ -14,7 +14,7 @@ from baselines.commands.evaluate import listing
 from baselines.evaluation import evaluate_all
 from baselines.registry import agent_groups, agent_spec, group_members, resolve_agent_names
 
-DOCK = "auv_envs/DockingStation-v1"
+DOCK = "auv_envs/DockingStation-v2"
 
 
 @pytest.fixture

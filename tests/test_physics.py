@@ -31,7 +31,7 @@ from auv_envs.core.vehicle import (
 )
 from auv_envs.tasks.docking import env as docking
 
-ENV_ID = "auv_envs/DockingStation-v1"
+ENV_ID = "auv_envs/DockingStation-v2"
 ZERO6 = (0.0,) * 6
 
 

@@ -55,7 +55,7 @@ def test_shipped_plant_stays_within_limits_of_the_converged_solution(env_id, sce
 
 def test_plant_error_falls_at_the_order_of_its_integrator():
     """Halving the plant's step: the v0 plant (semi-implicit Euler) is first order
-    (error / 2 per halving); the v1 plant (MuJoCo's RK4) at least second order.
+    (error / 2 per halving); the RK4 plant (v1, and v2 compiled) at least second order.
 
     MuJoCo's RK4 is fourth order for the velocities but composes the stages'
     angular velocities in the quaternion update, which is second order when the
@@ -66,7 +66,9 @@ def test_plant_error_falls_at_the_order_of_its_integrator():
     errors = {}
     for integrator, substeps in (("rk4", 1), ("rk4", 2), ("rk4", 4),
                                  ("euler", 2), ("euler", 4), ("euler", 8)):
-        env = _make(DOCKING_IDS[0], "current", integrator=integrator, physics_substeps=substeps)
+        plant = "compiled" if integrator == "rk4" else "mujoco"  # the v0 plant is MuJoCo's
+        env = _make(DOCKING_IDS[0], "current", integrator=integrator, physics_substeps=substeps,
+                    plant=plant)
         try:
             error = env_plant_error(env, seed=91003, command_seed=91020, duration=5.0)
         finally:

@@ -12,7 +12,7 @@ from baselines.evaluation import plan, quick
 from baselines.registry import agent_groups, group_members
 from baselines.seeds import default_seeds
 
-DOCK = "auv_envs/DockingStation-v1"
+DOCK = "auv_envs/DockingStation-v2"
 ACOUSTIC = "auv_envs/AcousticTracking-v0"
 
 

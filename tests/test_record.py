@@ -36,7 +36,7 @@ def test_clip_timing():
 
 
 def test_auto_speed_plays_a_full_episode_in_20_s():
-    for env_id, expected in ((LARS, 1.5), ("auv_envs/DockingStation-v1", 5.0)):
+    for env_id, expected in ((LARS, 1.5), ("auv_envs/DockingStation-v2", 5.0)):
         env = gym.make(env_id)
         assert record.auto_speed(env) == pytest.approx(expected)
         env.close()

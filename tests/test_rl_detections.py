@@ -90,7 +90,7 @@ def test_fixes_refuse_other_environments():
     with pytest.raises(ConfigError, match="measurements"):
         DetectionFixes(make_env(ACOUSTIC, "state"))
     with pytest.raises(ConfigError, match="AcousticTracking"):
-        wrap_env(make_env("auv_envs/DockingStation-v1", "features").unwrapped,
+        wrap_env(make_env("auv_envs/DockingStation-v2", "features").unwrapped,
                  front_ends=("detection_fixes",))
 
 

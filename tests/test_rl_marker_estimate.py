@@ -70,7 +70,7 @@ def test_front_end_needs_lars_features():
     with pytest.raises(ConfigError, match="marker_estimate"):
         MarkerEstimate(make_env(LARS, "state"))
     with pytest.raises(ConfigError, match="marker_estimate"):
-        MarkerEstimate(make_env("auv_envs/DockingStation-v1", "features"))
+        MarkerEstimate(make_env("auv_envs/DockingStation-v2", "features"))
     with pytest.raises(ConfigError, match="unknown front end"):
         wrap_env(make_env(LARS, "features").unwrapped, front_ends=("kalman",))
 

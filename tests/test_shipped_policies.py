@@ -72,6 +72,6 @@ def test_a_shipped_policy_still_does_its_task(group):
 
 def test_the_check_fails_for_random():
     """The thresholds separate a working policy from one that does nothing useful."""
-    episodes = [_episode("random", "paper", {}, seed, "auv_envs/DockingStation-v1")
+    episodes = [_episode("random", "paper", {}, seed, "auv_envs/DockingStation-v2")
                 for seed in SEEDS]
     assert statistics.median(e["final_distance"] for e in episodes) > 1.0

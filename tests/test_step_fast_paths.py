@@ -26,8 +26,8 @@ from auv_envs.core.camera import (
 from auv_envs.core.env import validate_action
 from tests.conftest import make_env
 
-SIX = "auv_envs/DockingStation-v1"
-LAMPS = "auv_envs/LampArrayDocking-v1"
+SIX = "auv_envs/DockingStation-v2"
+LAMPS = "auv_envs/LampArrayDocking-v2"
 
 
 def _random_rotation(rng):

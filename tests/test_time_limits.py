@@ -63,7 +63,7 @@ def test_max_episode_steps_override_truncates_with_the_episode_summary(env_id):
         env.close()
 
 
-@pytest.mark.parametrize("env_id", ["auv_envs/DockingStation-v1", "auv_envs/LARSCapture-v0"])
+@pytest.mark.parametrize("env_id", ["auv_envs/DockingStation-v2", "auv_envs/LARSCapture-v0"])
 def test_time_limit_keyword_still_sets_the_episode_length(env_id):
     default = gym.spec(env_id).max_episode_steps
     longer = gym.make(env_id, obs_mode="state", time_limit=2 * default * 0.1)

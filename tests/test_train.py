@@ -34,7 +34,7 @@ from baselines.rl.policy import PolicyAgent, PolicyFileError, load_model
 from tests.conftest import ENV_IDS, make_env
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCKING = "auv_envs/DockingStation-v1"
+DOCKING = "auv_envs/DockingStation-v2"
 
 #: A few hundred PPO steps on short docking episodes (10 s = 100 steps).
 PPO_SMALL = {
@@ -145,10 +145,10 @@ def test_bad_input_clear_errors(tmp_path, capsys):
     (tmp_path / "ppo.yml").write_text("default: {learning_rate: 3e-4}\n")
     with pytest.raises(ConfigError, match="write 3.0e-4"):
         resolve_config("ppo", DOCKING, hyperparams_dir=tmp_path)
-    rc = train_cli.main(["--algo", "ppo", "--env", "DockingStation-v1", "--set", "bogus=1",
+    rc = train_cli.main(["--algo", "ppo", "--env", "DockingStation-v2", "--set", "bogus=1",
                          "--run-dir", str(tmp_path / "run")])
     assert rc == 2 and "unknown setting 'bogus'" in capsys.readouterr().err
-    rc = train_cli.main(["--algo", "ppo", "--env", "DockingStation-v1", "--set",
+    rc = train_cli.main(["--algo", "ppo", "--env", "DockingStation-v2", "--set",
                          "env_kwargs.bogus=1", "--run-dir", str(tmp_path / "run")])
     assert rc == 2 and "unknown argument(s) bogus" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
@@ -252,7 +252,7 @@ def test_evaluate_ranks_a_run_directory_beside_the_built_in_agents(ppo_runs, tmp
     _, whole, _, _ = ppo_runs
     name = agents.external_policy_name(whole.run_dir)
     assert name.startswith("whole@") and len(name) == len("whole@") + 8
-    code = evaluate.main(["--envs", "DockingStation-v1", "--agents", "random", "--policy",
+    code = evaluate.main(["--envs", "DockingStation-v2", "--agents", "random", "--policy",
                           str(whole.run_dir), "--seeds", "100000", "--workers", "1",
                           "--difficulty", "easy", "--no-progress", "--no-video",
                           "--out", str(tmp_path / "lb")])

@@ -41,7 +41,7 @@ from baselines.rl.config import (
 from baselines.rl.policy import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCKING = "auv_envs/DockingStation-v1"
+DOCKING = "auv_envs/DockingStation-v2"
 ACOUSTIC = "auv_envs/AcousticTracking-v0"
 
 #: One ``--set`` per out-of-range value: (algo, env, setting, the key the error names).
@@ -205,7 +205,7 @@ def test_shipped_policies_configs_validate():
 
 # ---------------------------------------------------------------- divergence
 #: A tiny PPO: 64-step rollouts on 5 s docking episodes, a checkpoint every rollout.
-TINY = ["--algo", "ppo", "--env", "DockingStation-v1", "--seed", "3", "--n-timesteps", "384",
+TINY = ["--algo", "ppo", "--env", "DockingStation-v2", "--seed", "3", "--n-timesteps", "384",
         "--set", "n_envs=1", "--set", "n_steps=64", "--set", "batch_size=32",
         "--set", "n_epochs=2", "--set", "checkpoint_freq=64", "--set", "keep_checkpoints=5",
         "--set", "n_eval_episodes=0", "--set", "env_kwargs={time_limit: 5.0}",

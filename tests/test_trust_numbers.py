@@ -208,7 +208,7 @@ def test_a_keyword_set_twice_is_refused_and_levels_follow_one_rule():
 ])
 def test_evaluate_refuses_conflicting_duplicate_and_negative_arguments(tmp_path, capsys, argv,
                                                                       message):
-    base = ["--envs", "DockingStation-v1", "--agents", "random", "--seeds", "8611",
+    base = ["--envs", "DockingStation-v2", "--agents", "random", "--seeds", "8611",
             "--no-progress", "--no-video", "--out", str(tmp_path)]
     with pytest.raises(SystemExit) as exc:
         evaluate.main([*base, *argv])

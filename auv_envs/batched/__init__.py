@@ -1,13 +1,13 @@
 """Batched, compiled simulation on JAX and MuJoCo MJX (``pip install -e ".[jax]"``).
 
 * :mod:`auv_envs.batched.docking`: the docking plant (the same MJCF and the
-  same hydrodynamics code as ``auv_envs/DockingStation-v1``) for a batch of
+  same hydrodynamics code as ``auv_envs/DockingStation-v2``) for a batch of
   vehicles in one compiled call;
 * :mod:`auv_envs.batched.docking_env`: the docking environments as pure JAX
   functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
   interface), ``state`` and ``features`` at the ``easy`` level;
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,
-  ``gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=N)``, whose compiled
+  ``gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=N)``, whose compiled
   programs are kept on disk (:mod:`auv_envs.batched.compile_cache`).
 """
 

@@ -1,6 +1,6 @@
 """The docking environments in JAX: ``reset(rng) -> state``, ``step(state, action) -> state``.
 
-The transition of ``auv_envs/DockingStation-v1`` and ``auv_envs/LampArrayDocking-v1``
+The transition of ``auv_envs/DockingStation-v2`` and ``auv_envs/LampArrayDocking-v2``
 (:mod:`auv_envs.tasks.docking.transition`, the very functions the CPU environment
 calls) evaluated on JAX arrays for ``jit`` and ``vmap``: one environment's
 functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingVectorEnv`
@@ -60,7 +60,7 @@ class DockingMJX(FunctionalEnv):
     """A docking environment as pure JAX functions of one episode.
 
     Args:
-        env_id: ``"auv_envs/DockingStation-v1"`` or ``"auv_envs/LampArrayDocking-v1"``
+        env_id: ``"auv_envs/DockingStation-v2"`` or ``"auv_envs/LampArrayDocking-v2"``
             (the RK4 plant; the v0 ids integrate with Euler and are refused).
         obs_mode: ``"state"`` or ``"features"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
@@ -70,7 +70,7 @@ class DockingMJX(FunctionalEnv):
             rules this one uses.
     """
 
-    def __init__(self, env_id: str = "auv_envs/DockingStation-v1", obs_mode: str = "features",
+    def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
                  auto_reset: bool = True, **env_kwargs):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"the batched environment builds obs_mode {OBS_MODES}, got "

@@ -2,12 +2,12 @@
 
 ::
 
-    envs = gym.make_vec("auv_envs/DockingStationMJX-v1", num_envs=1024, obs_mode="features")
+    envs = gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=1024, obs_mode="features")
     obs, info = envs.reset(seed=0)
     obs, reward, terminated, truncated, info = envs.step(actions)   # (1024, 4) float32
 
 Each batched id is its CPU id with ``MJX`` after the family's name
-(``auv_envs/DockingStationMJX-v1``, ``auv_envs/LampArrayDockingMJX-v1``,
+(``auv_envs/DockingStationMJX-v2``, ``auv_envs/LampArrayDockingMJX-v2``,
 ``auv_envs/LARSCaptureMJX-v0``) and has only a ``vector_entry_point``: Gymnasium
 refuses that mode for an id registered with additional wrappers, and the CPU ids
 carry one (their episode summary). Episodes reset themselves on the step that ends them
@@ -133,14 +133,14 @@ class DockingVectorEnv(TransitionVectorEnv):
 
     Args:
         num_envs: the batch size.
-        env_id: the CPU environment it twins (``auv_envs/DockingStation-v1`` or
-            ``auv_envs/LampArrayDocking-v1``).
+        env_id: the CPU environment it twins (``auv_envs/DockingStation-v2`` or
+            ``auv_envs/LampArrayDocking-v2``).
         obs_mode: ``"state"`` or ``"features"``.
         max_episode_steps: episode length in steps; None: the env's ``time_limit``.
         **env_kwargs: the environment's arguments (:class:`DockingMJX`).
     """
 
-    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v1",
+    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v2",
                  obs_mode: str = "features", max_episode_steps: int | None = None,
                  **env_kwargs):
         if not (isinstance(num_envs, int) and num_envs >= 1):
@@ -169,13 +169,13 @@ class LARSVectorEnv(TransitionVectorEnv):
 
 
 def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
-    """``auv_envs/DockingStationMJX-v1``: :class:`DockingVectorEnv` of the six-light station."""
-    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingStation-v1", **kwargs)
+    """``auv_envs/DockingStationMJX-v2``: :class:`DockingVectorEnv` of the six-light station."""
+    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingStation-v2", **kwargs)
 
 
 def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
-    """``auv_envs/LampArrayDockingMJX-v1``: :class:`DockingVectorEnv` of the lamp array."""
-    return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v1", **kwargs)
+    """``auv_envs/LampArrayDockingMJX-v2``: :class:`DockingVectorEnv` of the lamp array."""
+    return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v2", **kwargs)
 
 
 def lars_capture(num_envs: int, **kwargs) -> LARSVectorEnv:

@@ -167,7 +167,7 @@ def project_few(
         u = (dx * r00 + dy * r10 + dz * r20) / depth * fx + cx
         v = (dx * r01 + dy * r11 + dz * r21) / depth * fy + cy
         pixels.append((where(front, u, math.nan), where(front, v, math.nan)))
-        in_image.append(front & (0.0 <= u) & (u < width) & (0.0 <= v) & (v < height))
+        in_image.append(ops.all_of(front, 0.0 <= u, u < width, 0.0 <= v, v < height))
     return pixels, in_image
 
 

@@ -76,22 +76,31 @@ def quat_integrate(quat, omega_body, h, ops=np):
     """The unit quaternion ``quat`` (w, x, y, z) turned by the body-frame angular velocity
     ``omega_body`` for ``h`` seconds: ``quat * exp(omega h / 2)``, normalised (MuJoCo's
     free-joint position update). ``ops``: ``numpy`` or ``jax.numpy``; the last axis holds
-    the components, leading axes are a batch."""
-    angle = ops.linalg.norm(omega_body, axis=-1, keepdims=True) * h
+    the components, leading axes are a batch (:func:`quat_turned` on each)."""
+    turned = quat_turned(tuple(quat[..., k] for k in range(4)),
+                         tuple(omega_body[..., k] for k in range(3)), h, ops)
+    return ops.stack(turned, axis=-1)
+
+
+def quat_turned(quat, omega_body, h, ops=FLOATS) -> tuple:
+    """:func:`quat_integrate` in scalar arithmetic: the 4 components of ``quat`` turned by
+    the 3 of ``omega_body`` for ``h`` s, normalised. Scalars of any backend of
+    :mod:`auv_envs.core.ops` (floats, JAX or NumPy arrays elementwise, CasADi symbols)."""
+    wx, wy, wz = omega_body
+    angle = ops.sqrt(wx * wx + wy * wy + wz * wz) * h
     half = 0.5 * angle
     # sin(a/2)/a, with its limit 1/2 at a = 0 (the series keeps it smooth there).
-    safe = ops.where(angle > 1e-8, angle, 1.0)
-    scale = ops.where(angle > 1e-8, ops.sin(half) / safe, 0.5 - angle * angle / 48.0)
-    dq = ops.concatenate([ops.cos(half), omega_body * h * scale], axis=-1)
-    w1, x1, y1, z1 = (quat[..., k] for k in range(4))
-    w2, x2, y2, z2 = (dq[..., k] for k in range(4))
-    product = ops.stack([
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ], axis=-1)
-    return product / ops.linalg.norm(product, axis=-1, keepdims=True)
+    small = angle > 1e-8
+    scale = ops.where(small, ops.sin(half) / ops.where(small, angle, 1.0),
+                      0.5 - angle * angle / 48.0)
+    w2, x2, y2, z2 = ops.cos(half), wx * h * scale, wy * h * scale, wz * h * scale
+    w1, x1, y1, z1 = quat
+    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+    x = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
+    y = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
+    z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+    norm = ops.sqrt(w * w + x * x + y * y + z * z)
+    return w / norm, x / norm, y / norm, z / norm
 
 
 def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:

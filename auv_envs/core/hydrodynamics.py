@@ -223,6 +223,32 @@ class HullForceModel:
         )
 
 
+def free_body_acceleration(hull: HullForceModel, rotation: Sequence, qvel6: Sequence,
+                           tau_body: Sequence, current_world: Sequence) -> tuple:
+    """The free joint's acceleration ``qacc`` (world linear, body angular; 6 scalars) of the
+    hull under the wrench of :meth:`HullForceModel.wrench`: what MuJoCo's free body
+    computes with the body's inertia at its origin (the CG), principal axes along the
+    body's and ``gravcomp="1"``: ``m a = R f`` and ``I w_dot = t - w x I w``.
+
+    Scalar arithmetic: floats, JAX arrays elementwise or CasADi symbols (the
+    compiled plant, :class:`auv_envs.core.plant.FreeBodyPlant`).
+    """
+    f0, f1, f2, m0, m1, m2 = hull.wrench(rotation, qvel6, tau_body, current_world)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation
+    params = hull.params
+    mass = params.mass
+    ix, iy, iz = params.inertia
+    _, _, _, k3, k4, k5 = rigid_body_coriolis(params, (0.0, 0.0, 0.0, *qvel6[3:]))
+    return (
+        (r00 * f0 + r01 * f1 + r02 * f2) / mass,
+        (r10 * f0 + r11 * f1 + r12 * f2) / mass,
+        (r20 * f0 + r21 * f1 + r22 * f2) / mass,
+        (m0 - k3) / ix,
+        (m1 - k4) / iy,
+        (m2 - k5) / iz,
+    )
+
+
 #: Indices of the controlled degrees of freedom (surge, sway, heave, yaw) in a 6-vector.
 DOF4 = (0, 1, 2, 5)
 

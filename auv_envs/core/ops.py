@@ -11,18 +11,29 @@ modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``, ``acos``,
 ``hypot``, ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``,
-``maximum``, and ``logical_not``. Comparisons combine with ``&`` and ``|``,
-which serve Python bools and boolean arrays alike. For a transition's state
+``maximum``, ``logical_not``, ``all_of(*conditions)`` and ``barrier(values)`` (a
+tuple of scalars materialised as one array where XLA would otherwise fuse them into
+what follows, recomputing a deep expression as a tree: JAX's
+``optimization_barrier``; the identity elsewhere). Comparisons combine with
+``&`` and ``|``, which serve Python bools and boolean arrays alike (``all_of``
+serves CasADi's expressions too). For a transition's state
 (:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its array
 module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean`` (a scalar
 of the backend's type: Python's, or float32/int32/bool arrays), ``vector`` (a
 few scalars as one value: a tuple, or a float32 array), ``unpack`` (a 1-D array
 as a tuple of scalars: Python floats, or array elements) and ``count`` (the
 true entries of a boolean array).
+
+:func:`casadi_ops` evaluates the arithmetic parts (the plant, the
+kinematics, a projection) on CasADi symbols, which
+:class:`auv_envs.core.plant.CompiledFunction` compiles into one call; its
+comparisons are CasADi expressions, which do not combine with ``&``/``|``
+(use ``where``).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import types
 from typing import Any, NamedTuple
@@ -62,7 +73,8 @@ FLOATS = types.SimpleNamespace(
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
     asin=math.asin, acos=math.acos, hypot=math.hypot, clip=_clip, where=_where,
     minimum=min, maximum=max,
-    logical_not=lambda x: not x,
+    logical_not=lambda x: not x, all_of=lambda *conditions: all(conditions),
+    barrier=lambda values: values,
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
     count=lambda array: int(np.count_nonzero(array)),
@@ -71,6 +83,7 @@ FLOATS = types.SimpleNamespace(
 
 def jax_ops() -> types.SimpleNamespace:
     """``jax.numpy`` under the names of :data:`FLOATS` (imports JAX on first use)."""
+    import jax
     import jax.numpy as jnp
 
     return types.SimpleNamespace(
@@ -79,10 +92,31 @@ def jax_ops() -> types.SimpleNamespace:
         asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, clip=jnp.clip, where=jnp.where,
         minimum=jnp.minimum,
         maximum=jnp.maximum, logical_not=jnp.logical_not,
+        all_of=lambda *conditions: functools.reduce(jnp.logical_and, conditions),
+        barrier=lambda values: tuple(jax.lax.optimization_barrier(jnp.stack(values))),
         xp=jnp, real=lambda value: jnp.asarray(value, jnp.float32),
         integer=lambda value: jnp.asarray(value, jnp.int32),
         boolean=lambda value: jnp.asarray(value, jnp.bool_),
         vector=lambda values: jnp.asarray(values, jnp.float32),
         unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
         count=lambda array: jnp.sum(array.astype(jnp.int32)),
+    )
+
+
+def casadi_ops() -> types.SimpleNamespace:
+    """CasADi's scalar functions under the names of :data:`FLOATS` (no array module:
+    expressions on ``SX`` symbols, compiled by :class:`auv_envs.core.plant.CompiledFunction`)."""
+    import casadi
+
+    def clip(x, low, high):  # comparisons, as FLOATS: NaN stays NaN
+        return casadi.if_else(x < low, low, casadi.if_else(x > high, high, x))
+
+    return types.SimpleNamespace(
+        name="casadi",
+        sqrt=casadi.sqrt, sin=casadi.sin, cos=casadi.cos, exp=casadi.exp,
+        atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
+        hypot=lambda x, y: casadi.sqrt(x * x + y * y), clip=clip, where=casadi.if_else,
+        minimum=casadi.fmin, maximum=casadi.fmax, logical_not=casadi.logic_not,
+        all_of=lambda *conditions: functools.reduce(casadi.logic_and, conditions),
+        barrier=lambda values: values,
     )

@@ -1,6 +1,6 @@
 """Train a Stable-Baselines3 agent on an ``auv_envs`` environment.
 
-    python train.py --algo ppo --env DockingStation-v1 [--obs-mode state] [--seed 0]
+    python train.py --algo ppo --env DockingStation-v2 [--obs-mode state] [--seed 0]
                     [--n-envs N] [--n-timesteps N] [--set KEY=VALUE ...]
                     [--run-dir DIR] [--no-progress-bar] [--export-policy NAME]
     python train.py --resume RUN_DIR [--n-timesteps N] [--set learning_rate=VALUE]

@@ -19,8 +19,8 @@ environment through :class:`baselines.rl.policy.PolicyAgent`, and
 ``evaluate.py --policy DIR`` ranks it beside every other agent. ``train.py``
 runs it from ``baselines/rl/hyperparams/cppo.yml`` (:func:`train_run`)::
 
-    python train.py --algo cppo --env DockingStation-v1 --seed 0 --run-dir runs/cppo-s0
-    python evaluate.py --policy runs/cppo-s0 --envs DockingStation-v1 \\
+    python train.py --algo cppo --env DockingStation-v2 --seed 0 --run-dir runs/cppo-s0
+    python evaluate.py --policy runs/cppo-s0 --envs DockingStation-v2 \\
         --difficulty paper --seeds 300000-300019
 """
 

@@ -64,7 +64,7 @@ COMPILED = "cppo"
 #: Every ``--algo`` train.py accepts.
 TRAINERS = (*ALGORITHMS, COMPILED)
 #: The environments the compiled PPO has a batched JAX version of.
-COMPILED_ENV_IDS = ("auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1")
+COMPILED_ENV_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 

@@ -23,9 +23,9 @@ ordinary policy directory: ``evaluate.py --policy DIR`` ranks it, and
 ``--group`` pools training seeds on the leaderboard::
 
     python -m baselines.rl.distill --teacher cppo-docking-features-s0 \\
-        --env DockingStation-v1 --difficulty paper --image-size 84 63 --seed 0 \\
+        --env DockingStation-v2 --difficulty paper --image-size 84 63 --seed 0 \\
         --out runs/pixels-s0
-    python evaluate.py --policy runs/pixels-s0 --envs DockingStation-v1 --difficulty paper \\
+    python evaluate.py --policy runs/pixels-s0 --envs DockingStation-v2 --difficulty paper \\
         --seeds 300000-300019
 
 Episode seeds come from :data:`baselines.seeds.DISTILL_SEED_BASE` (training
@@ -291,7 +291,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--teacher", required=True,
                         help="a features policy: a name under assets/policies or a directory")
-    parser.add_argument("--env", default="DockingStation-v1")
+    parser.add_argument("--env", default="DockingStation-v2")
     parser.add_argument("--difficulty", default="paper", choices=LEVELS)
     parser.add_argument("--image-size", type=int, nargs=2, default=(84, 63), metavar=("W", "H"))
     parser.add_argument("--seed", type=int, default=0)

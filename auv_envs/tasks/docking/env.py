@@ -2,15 +2,16 @@
 
 Two registered layouts share this file:
 
-* ``auv_envs/DockingStation-v1``: six lights symmetric around the entrance
+* ``auv_envs/DockingStation-v2``: six lights symmetric around the entrance
   [OFNMPC].
-* ``auv_envs/LampArrayDocking-v1``: asymmetric L-shaped array of four lamps
+* ``auv_envs/LampArrayDocking-v2``: asymmetric L-shaped array of four lamps
   under a recovery fork [LAMP].
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import mujoco
@@ -18,6 +19,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
+from auv_envs.core import frames
 from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
@@ -33,8 +35,8 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
-from auv_envs.core.ops import FLOATS
-from auv_envs.core.plant import StagedIntegrator
+from auv_envs.core.ops import FLOATS, casadi_ops
+from auv_envs.core.plant import CompiledFunction, FreeBodyPlant, StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import GaussMarkovCurrent
 from auv_envs.core.vehicle import (
@@ -91,6 +93,9 @@ CONTROL_PERIOD = 0.1
 #: Euler, the v0 plant: first order, centimetres and degrees from the converged
 #: solution after 10 s at its 0.05 s step; ``docs/physics.md``).
 INTEGRATORS = {"rk4": mujoco.mjtIntegrator.mjINT_RK4, "euler": mujoco.mjtIntegrator.mjINT_EULER}
+#: ``plant``: the hull compiled away from the scenery (``-v2``), or MuJoCo's staged
+#: integrator throughout (``-v1``, ``-v0``).
+PLANTS = ("compiled", "mujoco")
 
 @dataclasses.dataclass(frozen=True)
 class DockingDisturbances:
@@ -256,6 +261,92 @@ class _MujocoPlant:
         return self.env._truth()
 
 
+class _CompiledPlant(_MujocoPlant):
+    """The plant of ``plant="compiled"`` (the ``-v2`` ids): the hull compiled
+    (:class:`auv_envs.core.plant.FreeBodyPlant`) wherever no contact can act in the coming
+    period, MuJoCo's staged RK4 (:class:`_MujocoPlant`) where one can; the truth's
+    kinematics and the lights' projection compiled too (:class:`_CompiledTruth`), the lines
+    of sight MuJoCo's ray casts. The same equations as ``plant="mujoco"``, to round-off."""
+
+    def __init__(self, env: DockingEnv):
+        super().__init__(env)
+        self.free_body = FreeBodyPlant(env._params, float(env.physics.model.opt.timestep),
+                                       env._physics_substeps)
+        self.kinematics = _CompiledTruth(env.rules)
+        self._vehicle = None
+
+    def advance(self, tau, current, vehicle) -> None:
+        env = self.env
+        if vehicle is not self._vehicle:
+            self.free_body.vehicle(vehicle)
+            self._vehicle = vehicle
+        physics = env.physics
+        if not physics.skip_contacts_if_clear(env.dt):
+            super().advance(tau, current, vehicle)
+            return
+        self.free_body.advance(physics.qpos, physics.qvel, tau, current)
+        physics.data.time += env.dt
+
+    def truth(self) -> dict:
+        return self.kinematics(self.env.physics)
+
+
+class _CompiledTruth:
+    """:meth:`DockingRules.kinematics` of the hull's free joint and the lights' pixels
+    (:func:`~auv_envs.core.camera.project_few`) as one compiled call
+    (:class:`auv_envs.core.plant.CompiledFunction`, built from the same code on CasADi
+    symbols); the lines of sight are :meth:`DockingPhysics.unoccluded`'s."""
+
+    def __init__(self, rules: DockingRules):
+        function, self._layout, self._pixels = _truth_function(rules)
+        self._call = CompiledFunction(function)
+        self.rules = rules
+
+    def __call__(self, physics: DockingPhysics) -> dict:
+        qpos, qvel = self._call.inputs
+        qpos[:] = physics.qpos
+        qvel[:] = physics.qvel
+        (out,) = self._call()
+        values = out.tolist()
+        truth = {key: tuple(values[part]) if many else values[part.start]
+                 for key, part, many in self._layout}
+        pixels = values[self._pixels]
+        width, height = self.rules.intrinsics.width, self.rules.intrinsics.height
+        # NaN (behind the camera) compares False: not in the image, as project_few says.
+        in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
+                    for k in range(0, len(pixels), 2)]
+        visible = physics.unoccluded(truth["camera_position"], self.rules.lights, in_image)
+        return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
+                                            np.array(visible), FLOATS)
+
+
+@functools.lru_cache(maxsize=32)
+def _truth_function(rules: DockingRules):
+    """:class:`_CompiledTruth`'s CasADi function of ``(qpos, qvel)``, with the truth's keys
+    (each with its slice of the output and whether it is a tuple) and the pixels' slice;
+    built once per task's rules (a CasADi function is immutable)."""
+    import casadi
+
+    ops = casadi_ops()
+    qpos, qvel = casadi.SX.sym("qpos", 7), casadi.SX.sym("qvel", 6)
+    rotation = frames.rotation_rows_from_quat(*(qpos[k] for k in range(3, 7)))
+    truth = rules.kinematics([qpos[k] for k in range(3)], rotation,
+                             [qvel[k] for k in range(6)], ops)
+    pixels, _ = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
+                            truth.pop("camera_rows"), ops)
+    layout, flat = [], []
+    for key, value in truth.items():
+        many = isinstance(value, tuple | list)
+        values = list(value) if many else [value]
+        layout.append((key, slice(len(flat), len(flat) + len(values)), many))
+        flat.extend(values)
+    pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
+    flat.extend(c for pixel in pixels for c in pixel)
+    function = casadi.Function("docking_truth", [qpos, qvel], [casadi.vertcat(*flat)],
+                               {"cse": True})
+    return function, tuple(layout), pixel_slice
+
+
 class DockingEnv(TaskEnv):
     """AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).
 
@@ -348,6 +439,8 @@ class DockingEnv(TaskEnv):
     ``min_visible_lights``       (3)
     ``integrator``               ``"rk4"``; ``"euler"``: the v0 plant
     ``physics_substeps``         plant steps per 0.1 s (1)
+    ``plant``                    ``"compiled"`` (the hull compiled away from
+                                 the scenery) or ``"mujoco"`` (the v1 plant)
     ``render_mode``              ``"rgb_array"`` or None
     ``render_camera``            ``"chase"`` or ``"onboard"``
     ``render_size``              (W, H) of ``render()`` (640x480)
@@ -360,10 +453,12 @@ class DockingEnv(TaskEnv):
                                  ``docs/difficulty.md``)
     ===========================  ==============================================
 
-    **Version history.** v1: the plant integrates with classical RK4 (0.1 s,
-    the hull wrench at every stage). v0: semi-implicit Euler at 0.05 s; still
-    registered. Changes within a version (rendering, opt-in arguments) with
-    their measurements: ``CHANGELOG.md``.
+    **Version history.** v2: the same plant, compiled (CasADi) wherever no
+    contact can act, MuJoCo's near the scenery: equal to v1 to round-off. v1:
+    the plant integrates with classical RK4 (0.1 s, the hull wrench at every
+    stage). v0: semi-implicit Euler at 0.05 s. v0 and v1 are still registered.
+    Changes within a version (rendering, opt-in arguments) with their
+    measurements: ``CHANGELOG.md``.
     """
 
     metadata = {
@@ -405,6 +500,7 @@ class DockingEnv(TaskEnv):
         min_visible_lights: int = 3,
         integrator: str = "rk4",
         physics_substeps: int = 1,
+        plant: str = "compiled",
         render_mode: str | None = None,
         render_camera: str = "chase",
         render_size: tuple[int, int] = (640, 480),
@@ -420,7 +516,7 @@ class DockingEnv(TaskEnv):
             damping_mismatch=tuple(damping_mismatch), tolerances=tolerances,
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, integrator=integrator,
-            physics_substeps=physics_substeps, render_mode=render_mode,
+            physics_substeps=physics_substeps, plant=plant, render_mode=render_mode,
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
             optics=optics, difficulty=difficulty,
         )
@@ -437,6 +533,10 @@ class DockingEnv(TaskEnv):
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
         check_choice("integrator", integrator, INTEGRATORS)
+        check_choice("plant", plant, PLANTS)
+        if plant == "compiled" and integrator != "rk4":
+            raise ValueError(f"the compiled plant integrates with RK4, not {integrator!r}: "
+                             "pass plant='mujoco' with integrator='euler'")
         width, height = check_image_size(image_size)
         for name, value in (("time_limit", time_limit),
                             ("lights_lost_timeout", lights_lost_timeout)):
@@ -547,7 +647,7 @@ class DockingEnv(TaskEnv):
                    cal.attitude_noise_std),
             pixel_bounds=pixel_bounds, focal_px=cal.intrinsics.fy,
             max_episode_steps=self.max_episode_steps)
-        self._plant = _MujocoPlant(self)
+        self._plant = _CompiledPlant(self) if plant == "compiled" else _MujocoPlant(self)
         # One renderer for the image observation, one for render(): they differ
         # in camera, size or lighting.
         self.camera_renderer: CameraRenderer | None = None
@@ -681,7 +781,7 @@ class DockingEnv(TaskEnv):
         image) and a clear line of sight to it inside the image; what
         ``info["true_pixels"]`` and ``info["true_visible"]`` report after a step (there
         zero where not visible). Draws nothing from the generator."""
-        truth = self._truth()
+        truth = self._plant.truth()
         return truth["pixels"], truth["visible"]
 
     def lamps_in_image(self) -> tuple[np.ndarray, np.ndarray]:

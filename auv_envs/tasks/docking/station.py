@@ -337,6 +337,8 @@ class DockingPhysics:
         self._pos = self.data.qpos[adr : adr + 3]
         self._quat = self.data.qpos[adr + 3 : adr + 7]
         self._qvel = self.data.qvel[vadr : vadr + 6]
+        #: The hull's free joint in ``data``: position and quaternion, velocity (views).
+        self.qpos, self.qvel = self.data.qpos[adr : adr + 7], self._qvel
         self._rot = np.empty(9)
         self._ray_origin = np.empty(3)
         self._ray_vec = np.empty(3)
@@ -344,10 +346,10 @@ class DockingPhysics:
         self._scenery = _StaticScenery(model, self.data, hull)
         self._constraint_bit = int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
 
-    def skip_contacts_if_clear(self, duration: float) -> None:
+    def skip_contacts_if_clear(self, duration: float) -> bool:
         """Turn MuJoCo's collision and constraint stages off for the next
         ``duration`` seconds when the hull cannot reach any static geometry in
-        that time, on otherwise.
+        that time, on otherwise; returns whether it cannot (clear).
 
         With no contact possible the constraint stage has nothing to do: the
         step is the same to the bit, and each of RK4's four stages skips
@@ -361,10 +363,12 @@ class DockingPhysics:
         )
         reach = scenery.hull_radius + (speed + _SPEED_MARGIN) * duration + _DISTANCE_MARGIN
         opt = self.model.opt
-        if scenery.clear(x, y, z, reach):
+        clear = scenery.clear(x, y, z, reach)
+        if clear:
             opt.disableflags |= self._constraint_bit
         else:
             opt.disableflags &= ~self._constraint_bit
+        return clear
 
     def show_lamps(self, failed: np.ndarray | None) -> None:
         """Draw the ``failed`` lamps unlit (no material, grey), the others as built."""

@@ -8,7 +8,7 @@ of §2.1.1 / §2.2.3 1): centre, radius, area and bounding box of each lamp blob
 Our choice where [LAMP] is silent: the lamp centre is the centre of the blob's minimum
 enclosing circle, not its first moment. A lamp is a sphere whose silhouette is a disc, and the
 circle through its outermost points is unchanged when a structure hides less than half of it
-(the rail under the lamps of ``LampArrayDocking-v1`` clips their lower edge; the first moment
+(the rail under the lamps of ``LampArrayDocking-v2`` clips their lower edge; the first moment
 was then 1.1-1.2 px off the projected centre, the circle centre <= 0.5 px).
 """
 
