@@ -133,6 +133,7 @@ def project_few(
     cam_position_world: tuple,
     cam_rotation_world,
     ops=FLOATS,
+    inside: bool = True,
 ) -> tuple[list, list]:
     """Project a handful of world points into the image: an environment's per-step path.
 
@@ -147,6 +148,9 @@ def project_few(
         cam_rotation_world: rotation from the OpenCV camera frame to the
             world as 3 rows of 3 scalars.
         ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
+        inside: whether to say which points are in the image (False: ``in_image``
+            is empty; for CasADi's symbols, whose comparisons do not combine with
+            ``&``: a NaN pixel or one outside the image is not in it).
 
     Returns:
         ``(pixels, in_image)``: a ``(u, v)`` tuple per point (NaN for points
@@ -167,7 +171,8 @@ def project_few(
         u = (dx * r00 + dy * r10 + dz * r20) / depth * fx + cx
         v = (dx * r01 + dy * r11 + dz * r21) / depth * fy + cy
         pixels.append((where(front, u, math.nan), where(front, v, math.nan)))
-        in_image.append(ops.all_of(front, 0.0 <= u, u < width, 0.0 <= v, v < height))
+        if inside:
+            in_image.append(front & (0.0 <= u) & (u < width) & (0.0 <= v) & (v < height))
     return pixels, in_image
 
 

@@ -11,12 +11,11 @@ modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``, ``acos``,
 ``hypot``, ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``,
-``maximum``, ``logical_not``, ``all_of(*conditions)`` and ``barrier(values)`` (a
+``maximum``, ``logical_not`` and ``barrier(values)`` (a
 tuple of scalars materialised as one array where XLA would otherwise fuse them into
 what follows, recomputing a deep expression as a tree: JAX's
-``optimization_barrier``; the identity elsewhere). Comparisons combine with
-``&`` and ``|``, which serve Python bools and boolean arrays alike (``all_of``
-serves CasADi's expressions too). For a transition's state
+``optimization_barrier``; the identity elsewhere). Comparisons combine with ``&``
+and ``|``, which serve Python bools and boolean arrays alike. For a transition's state
 (:mod:`auv_envs.tasks.docking.transition`) each also has ``xp`` (its array
 module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean`` (a scalar
 of the backend's type: Python's, or float32/int32/bool arrays), ``vector`` (a
@@ -33,7 +32,6 @@ comparisons are CasADi expressions, which do not combine with ``&``/``|``
 
 from __future__ import annotations
 
-import functools
 import math
 import types
 from typing import Any, NamedTuple
@@ -73,7 +71,7 @@ FLOATS = types.SimpleNamespace(
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
     asin=math.asin, acos=math.acos, hypot=math.hypot, clip=_clip, where=_where,
     minimum=min, maximum=max,
-    logical_not=lambda x: not x, all_of=lambda *conditions: all(conditions),
+    logical_not=lambda x: not x,
     barrier=lambda values: values,
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
@@ -92,7 +90,6 @@ def jax_ops() -> types.SimpleNamespace:
         asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, clip=jnp.clip, where=jnp.where,
         minimum=jnp.minimum,
         maximum=jnp.maximum, logical_not=jnp.logical_not,
-        all_of=lambda *conditions: functools.reduce(jnp.logical_and, conditions),
         barrier=lambda values: tuple(jax.lax.optimization_barrier(jnp.stack(values))),
         xp=jnp, real=lambda value: jnp.asarray(value, jnp.float32),
         integer=lambda value: jnp.asarray(value, jnp.int32),
@@ -117,6 +114,5 @@ def casadi_ops() -> types.SimpleNamespace:
         atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
         hypot=lambda x, y: casadi.sqrt(x * x + y * y), clip=clip, where=casadi.if_else,
         minimum=casadi.fmin, maximum=casadi.fmax, logical_not=casadi.logic_not,
-        all_of=lambda *conditions: functools.reduce(casadi.logic_and, conditions),
         barrier=lambda values: values,
     )

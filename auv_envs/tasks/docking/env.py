@@ -333,7 +333,7 @@ def _truth_function(rules: DockingRules):
     truth = rules.kinematics([qpos[k] for k in range(3)], rotation,
                              [qvel[k] for k in range(6)], ops)
     pixels, _ = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
-                            truth.pop("camera_rows"), ops)
+                            truth.pop("camera_rows"), ops, inside=False)
     layout, flat = [], []
     for key, value in truth.items():
         many = isinstance(value, tuple | list)
