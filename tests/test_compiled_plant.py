@@ -22,6 +22,7 @@ from auv_envs.core import frames
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
 from auv_envs.core.vehicle import PlantPerturbation
+from auv_envs.tasks.docking import station
 
 CONSTRAINT = int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
 
@@ -95,20 +96,33 @@ def test_v2_episodes_stay_on_v1s_to_round_off_and_hand_contacts_to_mujoco():
     assert worst < 1e-9, worst
 
 
-def test_compiled_truth_equals_the_float_truth():
-    env = _unwrapped(obs_mode="features")
+@pytest.mark.parametrize("env_id", ["auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2"])
+def test_compiled_truth_equals_the_float_truth(env_id):
+    """Kinematics and pixels to round-off, the same lights seen: over poses in front of the
+    station and in it, with lamps hidden by its structure, lines of sight cast by one
+    ``mj_multiRay`` (five candidates or more) and by ``mj_ray`` each."""
+    env = _unwrapped(env_id, obs_mode="features")
+    intrinsics = env.rules.intrinsics
     rng = np.random.default_rng(3)
-    for _ in range(20):
-        env.physics.set_state(rng.uniform([-9, -2, -2], [-2, 2, 2]), rng.uniform(-0.3, 0.3, 3),
-                              rng.uniform(-0.5, 0.5, 6))
+    hidden = many = few = 0
+    for _ in range(400):
+        env.physics.set_state(rng.uniform([-12, -3, -3], [0.5, 3, 2]),
+                              rng.uniform(-0.5, 0.5, 3), rng.uniform(-0.5, 0.5, 6))
         compiled, floats = env._plant.truth(), env._truth()
         assert compiled.keys() == floats.keys()
         for key, value in floats.items():
             np.testing.assert_allclose(np.asarray(compiled[key], float),
-                                       np.asarray(value, float), rtol=0, atol=1e-9,
+                                       np.asarray(value, float), rtol=1e-12, atol=1e-9,
                                        err_msg=key)
             np.testing.assert_array_equal(np.isnan(np.asarray(compiled[key], float)),
                                           np.isnan(np.asarray(value, float)))
+        u, v = floats["pixels"][:, 0], floats["pixels"][:, 1]
+        in_image = (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
+        hidden += int(np.sum(in_image & ~floats["visible"]))
+        many += in_image.sum() >= station.MULTI_RAY_FROM
+        few += 0 < in_image.sum() < station.MULTI_RAY_FROM
+    assert hidden > 0 and few > 0
+    assert many > 0 or len(env.rules.lights) < station.MULTI_RAY_FROM
 
 
 def test_quat_turned_is_mujocos_quat_integrate_on_every_backend():

@@ -295,7 +295,8 @@ class _CompiledTruth:
     """:meth:`DockingRules.kinematics` of the hull's free joint and the lights' pixels
     (:func:`~auv_envs.core.camera.project_few`) as one compiled call
     (:class:`auv_envs.core.plant.CompiledFunction`, built from the same code on CasADi
-    symbols); the lines of sight are :meth:`DockingPhysics.unoccluded`'s."""
+    symbols), with the camera centre and its offsets to the lights; the lines of sight
+    are MuJoCo's ray casts (:meth:`DockingPhysics.unoccluded_along`)."""
 
     def __init__(self, rules: DockingRules):
         function, self._layout, self._pixels = _truth_function(rules)
@@ -306,7 +307,7 @@ class _CompiledTruth:
         qpos, qvel = self._call.inputs
         qpos[:] = physics.qpos
         qvel[:] = physics.qvel
-        (out,) = self._call()
+        out, camera, rays = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
@@ -315,14 +316,15 @@ class _CompiledTruth:
         # NaN (behind the camera) compares False: not in the image, as project_few says.
         in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
                     for k in range(0, len(pixels), 2)]
-        visible = physics.unoccluded(truth["camera_position"], self.rules.lights, in_image)
+        visible = physics.unoccluded_along(camera, self.rules.lights, rays, in_image)
         return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
                                             np.array(visible), FLOATS)
 
 
 @functools.lru_cache(maxsize=32)
 def _truth_function(rules: DockingRules):
-    """:class:`_CompiledTruth`'s CasADi function of ``(qpos, qvel)``, with the truth's keys
+    """:class:`_CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, the
+    camera centre, the offsets from it to the lights), with the truth's keys
     (each with its slice of the output and whether it is a tuple) and the pixels' slice;
     built once per task's rules (a CasADi function is immutable)."""
     import casadi
@@ -342,8 +344,11 @@ def _truth_function(rules: DockingRules):
         flat.extend(values)
     pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
     flat.extend(c for pixel in pixels for c in pixel)
-    function = casadi.Function("docking_truth", [qpos, qvel], [casadi.vertcat(*flat)],
-                               {"cse": True})
+    camera = truth["camera_position"]
+    rays = [light[k] - camera[k] for light in rules.lights for k in range(3)]
+    function = casadi.Function("docking_truth", [qpos, qvel],
+                               [casadi.vertcat(*flat), casadi.vertcat(*camera),
+                                casadi.vertcat(*rays)], {"cse": True})
     return function, tuple(layout), pixel_slice
 
 
