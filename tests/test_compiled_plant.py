@@ -108,7 +108,7 @@ def test_compiled_truth_equals_the_float_truth(env_id):
     for _ in range(400):
         env.physics.set_state(rng.uniform([-12, -3, -3], [0.5, 3, 2]),
                               rng.uniform(-0.5, 0.5, 3), rng.uniform(-0.5, 0.5, 6))
-        compiled, floats = env._plant.truth(), env._truth()
+        compiled, floats = env._plant.truth(), env._float_truth()
         assert compiled.keys() == floats.keys()
         for key, value in floats.items():
             np.testing.assert_allclose(np.asarray(compiled[key], float),

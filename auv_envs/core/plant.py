@@ -241,8 +241,8 @@ class FreeBodyPlant:
     The same equations as MuJoCo's free body stepped by :class:`StagedIntegrator`
     with the hull wrench at every stage (equal to round-off where no contact
     acts, ``tests/test_compiled_plant.py``), compiled by CasADi from the scalar code that
-    the batched plant evaluates on JAX: about a tenth of the staged
-    integrator's cost, and no Python in the loop.
+    the batched plant evaluates on JAX: one call of about 10 us where the staged
+    integrator takes 60-75 us of Python calls into MuJoCo (2-core machine).
 
     Args:
         params: the nominal vehicle (:class:`~auv_envs.core.vehicle.VehicleParams`).
@@ -270,7 +270,7 @@ class FreeBodyPlant:
         self._call.inputs[4][:] = (mass, *damping, buoyancy)
 
     def advance(self, qpos: np.ndarray, qvel: np.ndarray, tau, current) -> None:
-        """Step ``qpos`` (7) and ``qvel`` (6), in place, one :meth:`advance` on under the
+        """Step ``qpos`` (7) and ``qvel`` (6) in place by ``substeps`` RK4 steps under the
         body-frame generalized force ``tau`` (6) and the world current (3), held."""
         qpos_in, qvel_in, tau_in, current_in, _ = self._call.inputs
         qpos_in[:] = qpos

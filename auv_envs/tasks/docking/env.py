@@ -258,7 +258,7 @@ class _MujocoPlant:
         env.integrator.step(env._physics_substeps)
 
     def truth(self) -> dict:
-        return self.env._truth()
+        return self.env._float_truth()
 
 
 class _CompiledPlant(_MujocoPlant):
@@ -757,8 +757,12 @@ class DockingEnv(TaskEnv):
 
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
+        """Ground truth now (the plant's: compiled or in Python floats)."""
+        return self._plant.truth()
+
+    def _float_truth(self) -> dict:
         """Ground truth now, computed once a step and shared by obs, reward and info
-        (:func:`~auv_envs.tasks.docking.transition.truth_with_lights`).
+        (:func:`~auv_envs.tasks.docking.transition.truth_with_lights`); ``plant="mujoco"``'s.
 
         Python floats throughout: with a handful of lights, NumPy's per-call
         overhead would cost several times the arithmetic.
@@ -786,7 +790,7 @@ class DockingEnv(TaskEnv):
         image) and a clear line of sight to it inside the image; what
         ``info["true_pixels"]`` and ``info["true_visible"]`` report after a step (there
         zero where not visible). Draws nothing from the generator."""
-        truth = self._plant.truth()
+        truth = self._truth()
         return truth["pixels"], truth["visible"]
 
     def lamps_in_image(self) -> tuple[np.ndarray, np.ndarray]:
