@@ -319,7 +319,10 @@ def plot_disturbances(traces: dict, path: Path,
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/ofnmpc"))
-    parser.add_argument("--env", default=ENV_ID, choices=[ENV_ID, "auv_envs/LampArrayDocking-v2"])
+    parser.add_argument("--env", default=ENV_ID,
+                        choices=[ENV_ID, "auv_envs/LampArrayDocking-v2",
+                                 # the -v1 plant (MuJoCo's staged RK4), for comparison
+                                 "auv_envs/DockingStation-v1", "auv_envs/LampArrayDocking-v1"])
     parser.add_argument("--difficulty", choices=DIFFICULTIES, default="paper")
     parser.add_argument("--first-seed", "--seed", dest="seed", type=int, default=100_000,
                         help="episodes use seeds N, N+1, ... (default %(default)s)")
