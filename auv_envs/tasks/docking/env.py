@@ -11,7 +11,6 @@ Two registered layouts share this file:
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 
 import mujoco
@@ -19,7 +18,6 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core import frames
 from auv_envs.core.camera import (
     CameraExtrinsics,
     CameraIntrinsics,
@@ -35,8 +33,8 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
-from auv_envs.core.ops import FLOATS, casadi_ops
-from auv_envs.core.plant import CompiledFunction, FreeBodyPlant, StagedIntegrator
+from auv_envs.core.ops import FLOATS
+from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.core.sea import GaussMarkovCurrent
 from auv_envs.core.vehicle import (
@@ -48,6 +46,7 @@ from auv_envs.core.vehicle import (
 )
 from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.optics import WaterOptics, degrade_image
+from auv_envs.tasks.docking.plant import CompiledPlant, MujocoPlant
 from auv_envs.tasks.docking.rules import (
     FAILURE_REASONS,
     DockingRules,
@@ -234,122 +233,6 @@ class DockingCalibration:
     attitude_noise_std: float
     disturbances: DockingDisturbances = DockingDisturbances()
     optics: WaterOptics | None = None
-
-
-class _MujocoPlant:
-    """The docking transition's plant on the CPU: the env's MuJoCo model and data, the hull
-    wrench at every integrator stage (:class:`auv_envs.core.plant.StagedIntegrator`)."""
-
-    def __init__(self, env: DockingEnv):
-        self.env = env
-
-    def place(self, start: transition.Start, vehicle, failed) -> None:
-        env = self.env
-        env._use_vehicle(env.vehicle_of(vehicle))
-        env.physics.set_state([start.x, start.y, start.z], [0.0, 0.0, start.yaw],
-                              [start.surge, 0, 0, 0, 0, 0])
-        if failed is not None:  # the episode's failed lamps are drawn unlit
-            env.physics.show_lamps(failed)
-
-    def advance(self, tau, current, vehicle) -> None:
-        env = self.env
-        env.hull.command(tau, [float(c) for c in current])
-        env.physics.skip_contacts_if_clear(env.dt)
-        env.integrator.step(env._physics_substeps)
-
-    def truth(self) -> dict:
-        return self.env._float_truth()
-
-
-class _CompiledPlant(_MujocoPlant):
-    """The plant of ``plant="compiled"`` (the ``-v2`` ids): the hull compiled
-    (:class:`auv_envs.core.plant.FreeBodyPlant`) wherever no contact can act in the coming
-    period, MuJoCo's staged RK4 (:class:`_MujocoPlant`) where one can; the truth's
-    kinematics and the lights' projection compiled too (:class:`_CompiledTruth`), the lines
-    of sight MuJoCo's ray casts. The same equations as ``plant="mujoco"``, to round-off."""
-
-    def __init__(self, env: DockingEnv):
-        super().__init__(env)
-        self.free_body = FreeBodyPlant(env._params, float(env.physics.model.opt.timestep),
-                                       env._physics_substeps)
-        self.kinematics = _CompiledTruth(env.rules)
-        self._vehicle = None
-
-    def advance(self, tau, current, vehicle) -> None:
-        env = self.env
-        if vehicle is not self._vehicle:
-            self.free_body.vehicle(vehicle)
-            self._vehicle = vehicle
-        physics = env.physics
-        if not physics.skip_contacts_if_clear(env.dt):
-            super().advance(tau, current, vehicle)
-            return
-        self.free_body.advance(physics.qpos, physics.qvel, tau, current)
-        physics.data.time += env.dt
-
-    def truth(self) -> dict:
-        return self.kinematics(self.env.physics)
-
-
-class _CompiledTruth:
-    """:meth:`DockingRules.kinematics` of the hull's free joint and the lights' pixels
-    (:func:`~auv_envs.core.camera.project_few`) as one compiled call
-    (:class:`auv_envs.core.plant.CompiledFunction`, built from the same code on CasADi
-    symbols), with the camera centre and its offsets to the lights; the lines of sight
-    are MuJoCo's ray casts (:meth:`DockingPhysics.unoccluded_along`)."""
-
-    def __init__(self, rules: DockingRules):
-        function, self._layout, self._pixels = _truth_function(rules)
-        self._call = CompiledFunction(function)
-        self.rules = rules
-
-    def __call__(self, physics: DockingPhysics) -> dict:
-        qpos, qvel = self._call.inputs
-        qpos[:] = physics.qpos
-        qvel[:] = physics.qvel
-        out, camera, rays = self._call()
-        values = out.tolist()
-        truth = {key: tuple(values[part]) if many else values[part.start]
-                 for key, part, many in self._layout}
-        pixels = values[self._pixels]
-        width, height = self.rules.intrinsics.width, self.rules.intrinsics.height
-        # NaN (behind the camera) compares False: not in the image, as project_few says.
-        in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
-                    for k in range(0, len(pixels), 2)]
-        visible = physics.unoccluded_along(camera, self.rules.lights, rays, in_image)
-        return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
-                                            np.array(visible), FLOATS)
-
-
-@functools.lru_cache(maxsize=32)
-def _truth_function(rules: DockingRules):
-    """:class:`_CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, the
-    camera centre, the offsets from it to the lights), with the truth's keys
-    (each with its slice of the output and whether it is a tuple) and the pixels' slice;
-    built once per task's rules (a CasADi function is immutable)."""
-    import casadi
-
-    ops = casadi_ops()
-    qpos, qvel = casadi.SX.sym("qpos", 7), casadi.SX.sym("qvel", 6)
-    rotation = frames.rotation_rows_from_quat(*(qpos[k] for k in range(3, 7)))
-    truth = rules.kinematics([qpos[k] for k in range(3)], rotation,
-                             [qvel[k] for k in range(6)], ops)
-    pixels, _ = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
-                            truth.pop("camera_rows"), ops, inside=False)
-    layout, flat = [], []
-    for key, value in truth.items():
-        many = isinstance(value, tuple | list)
-        values = list(value) if many else [value]
-        layout.append((key, slice(len(flat), len(flat) + len(values)), many))
-        flat.extend(values)
-    pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
-    flat.extend(c for pixel in pixels for c in pixel)
-    camera = truth["camera_position"]
-    rays = [light[k] - camera[k] for light in rules.lights for k in range(3)]
-    function = casadi.Function("docking_truth", [qpos, qvel],
-                               [casadi.vertcat(*flat), casadi.vertcat(*camera),
-                                casadi.vertcat(*rays)], {"cse": True})
-    return function, tuple(layout), pixel_slice
 
 
 class DockingEnv(TaskEnv):
@@ -652,7 +535,7 @@ class DockingEnv(TaskEnv):
                    cal.attitude_noise_std),
             pixel_bounds=pixel_bounds, focal_px=cal.intrinsics.fy,
             max_episode_steps=self.max_episode_steps)
-        self._plant = _CompiledPlant(self) if plant == "compiled" else _MujocoPlant(self)
+        self._plant = CompiledPlant(self) if plant == "compiled" else MujocoPlant(self)
         # One renderer for the image observation, one for render(): they differ
         # in camera, size or lighting.
         self.camera_renderer: CameraRenderer | None = None

@@ -1,0 +1,140 @@
+"""The docking environment's plants: what :mod:`auv_envs.tasks.docking.transition` calls
+``place``, ``advance`` and ``truth`` on the CPU.
+
+* :class:`MujocoPlant` (``plant="mujoco"``, the ``-v1`` ids): MuJoCo's staged RK4 with
+  the hull wrench at every stage (:class:`auv_envs.core.plant.StagedIntegrator`), the
+  truth in Python floats.
+* :class:`CompiledPlant` (``plant="compiled"``, the ``-v2`` ids): the hull compiled
+  (:class:`auv_envs.core.plant.FreeBodyPlant`) wherever no contact can act, and the
+  truth's arithmetic compiled (:class:`CompiledTruth`); the same equations to round-off.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from auv_envs.core import frames
+from auv_envs.core.camera import project_few
+from auv_envs.core.ops import FLOATS, casadi_ops
+from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
+from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.rules import DockingRules
+from auv_envs.tasks.docking.station import DockingPhysics
+
+
+class MujocoPlant:
+    """The docking transition's plant on the CPU: the env's MuJoCo model and data, the hull
+    wrench at every integrator stage (:class:`auv_envs.core.plant.StagedIntegrator`)."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def place(self, start: transition.Start, vehicle, failed) -> None:
+        env = self.env
+        env._use_vehicle(env.vehicle_of(vehicle))
+        env.physics.set_state([start.x, start.y, start.z], [0.0, 0.0, start.yaw],
+                              [start.surge, 0, 0, 0, 0, 0])
+        if failed is not None:  # the episode's failed lamps are drawn unlit
+            env.physics.show_lamps(failed)
+
+    def advance(self, tau, current, vehicle) -> None:
+        env = self.env
+        env.hull.command(tau, [float(c) for c in current])
+        env.physics.skip_contacts_if_clear(env.dt)
+        env.integrator.step(env._physics_substeps)
+
+    def truth(self) -> dict:
+        return self.env._float_truth()
+
+
+class CompiledPlant(MujocoPlant):
+    """The plant of ``plant="compiled"`` (the ``-v2`` ids): the hull compiled
+    (:class:`auv_envs.core.plant.FreeBodyPlant`) wherever no contact can act in the coming
+    period, MuJoCo's staged RK4 (:class:`MujocoPlant`) where one can; the truth's
+    kinematics and the lights' projection compiled too (:class:`CompiledTruth`), the lines
+    of sight MuJoCo's ray casts. The same equations as ``plant="mujoco"``, to round-off."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.free_body = FreeBodyPlant(env._params, float(env.physics.model.opt.timestep),
+                                       env._physics_substeps)
+        self.kinematics = CompiledTruth(env.rules)
+        self._vehicle = None
+
+    def advance(self, tau, current, vehicle) -> None:
+        env = self.env
+        if vehicle is not self._vehicle:
+            self.free_body.vehicle(vehicle)
+            self._vehicle = vehicle
+        physics = env.physics
+        if not physics.skip_contacts_if_clear(env.dt):
+            super().advance(tau, current, vehicle)
+            return
+        self.free_body.advance(physics.qpos, physics.qvel, tau, current)
+        physics.data.time += env.dt
+
+    def truth(self) -> dict:
+        return self.kinematics(self.env.physics)
+
+
+class CompiledTruth:
+    """:meth:`DockingRules.kinematics` of the hull's free joint and the lights' pixels
+    (:func:`~auv_envs.core.camera.project_few`) as one compiled call
+    (:class:`auv_envs.core.plant.CompiledFunction`, built from the same code on CasADi
+    symbols), with the camera centre and its offsets to the lights; the lines of sight
+    are MuJoCo's ray casts (:meth:`DockingPhysics.unoccluded_along`)."""
+
+    def __init__(self, rules: DockingRules):
+        function, self._layout, self._pixels = _truth_function(rules)
+        self._call = CompiledFunction(function)
+        self.rules = rules
+
+    def __call__(self, physics: DockingPhysics) -> dict:
+        qpos, qvel = self._call.inputs
+        qpos[:] = physics.qpos
+        qvel[:] = physics.qvel
+        out, camera, rays = self._call()
+        values = out.tolist()
+        truth = {key: tuple(values[part]) if many else values[part.start]
+                 for key, part, many in self._layout}
+        pixels = values[self._pixels]
+        width, height = self.rules.intrinsics.width, self.rules.intrinsics.height
+        # NaN (behind the camera) compares False: not in the image, as project_few says.
+        in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
+                    for k in range(0, len(pixels), 2)]
+        visible = physics.unoccluded_along(camera, self.rules.lights, rays, in_image)
+        return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
+                                            np.array(visible), FLOATS)
+
+
+@functools.lru_cache(maxsize=32)
+def _truth_function(rules: DockingRules):
+    """:class:`CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, the
+    camera centre, the offsets from it to the lights), with the truth's keys
+    (each with its slice of the output and whether it is a tuple) and the pixels' slice;
+    built once per task's rules (a CasADi function is immutable)."""
+    import casadi
+
+    ops = casadi_ops()
+    qpos, qvel = casadi.SX.sym("qpos", 7), casadi.SX.sym("qvel", 6)
+    rotation = frames.rotation_rows_from_quat(*(qpos[k] for k in range(3, 7)))
+    truth = rules.kinematics([qpos[k] for k in range(3)], rotation,
+                             [qvel[k] for k in range(6)], ops)
+    pixels, _ = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
+                            truth.pop("camera_rows"), ops, inside=False)
+    layout, flat = [], []
+    for key, value in truth.items():
+        many = isinstance(value, tuple | list)
+        values = list(value) if many else [value]
+        layout.append((key, slice(len(flat), len(flat) + len(values)), many))
+        flat.extend(values)
+    pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
+    flat.extend(c for pixel in pixels for c in pixel)
+    camera = truth["camera_position"]
+    rays = [light[k] - camera[k] for light in rules.lights for k in range(3)]
+    function = casadi.Function("docking_truth", [qpos, qvel],
+                               [casadi.vertcat(*flat), casadi.vertcat(*camera),
+                                casadi.vertcat(*rays)], {"cse": True})
+    return function, tuple(layout), pixel_slice
