@@ -1,4 +1,4 @@
-"""What the staged integrator costs against MuJoCo's step with a global callback.
+"""What the docking plants cost: staged, compiled, and MuJoCo's step with a global callback.
 
 The docking plant steps with :class:`auv_envs.core.plant.StagedIntegrator`
 (MuJoCo's RK4 written out, the hull wrench added at every stage, no
@@ -7,7 +7,10 @@ issue 39: MuJoCo's own ``mj_step`` with the same wrench in the global
 ``mjcb_passive`` callback, installed here only for the timing and removed
 after. Both step one docking env's model from the same state with the same
 held command, alternately in one process (best of ``--repeats`` each), and
-give the same bits; also timed: the wrench alone and ``mj_forward`` alone.
+give the same bits. Also timed, alternately with them: ``-v2``'s compiled plant
+(:class:`auv_envs.core.plant.FreeBodyPlant`, the same equations compiled by
+CasADi, equal to round-off where no contact acts) on the same state and command;
+and the wrench alone and ``mj_forward`` alone.
 
     python benchmarks/plant_cost.py [--steps N] [--repeats R] [--env ID]
 """
@@ -21,6 +24,7 @@ import gymnasium as gym
 import mujoco
 
 import auv_envs  # noqa: F401  (registers the environments)
+from auv_envs.core.plant import FreeBodyPlant
 
 
 def _best_us(function, steps: int, repeats: int, reset) -> float:
@@ -58,9 +62,17 @@ def main(argv=None) -> None:
         def callback_step():
             mujoco.mj_step(model, data)
 
-        staged, callback = float("inf"), float("inf")
+        compiled_plant = FreeBodyPlant(unwrapped.vehicle, float(model.opt.timestep), 1)
+        qpos, qvel = start[0].copy(), start[1].copy()
+        tau, current = hull._tau, hull._current
+
+        def compiled_step():
+            compiled_plant.advance(qpos, qvel, tau, current)
+
+        staged, callback, compiled = float("inf"), float("inf"), float("inf")
         for _ in range(args.repeats):  # alternately
             staged = min(staged, _best_us(unwrapped.integrator.step, args.steps, 1, reset))
+            compiled = min(compiled, _best_us(compiled_step, args.steps, 1, reset))
             mujoco.set_mjcb_passive(hull.passive_force)
             try:
                 callback = min(callback, _best_us(callback_step, args.steps, 1, reset))
@@ -77,6 +89,8 @@ def main(argv=None) -> None:
     print(f"| StagedIntegrator.step (no global state) | {staged:.1f} |")
     print(f"| mj_step + global mjcb_passive (reference) | {callback:.1f} |")
     print(f"| ratio staged / reference | {staged / callback:.2f} |")
+    print(f"| FreeBodyPlant.advance (compiled, -v2 away from contacts) | {compiled:.1f} |")
+    print(f"| ratio compiled / staged | {compiled / staged:.2f} |")
     print(f"| hull wrench alone (x4 a step) | {wrench:.1f} |")
     print(f"| mj_forward alone (x4 a step) | {forward:.1f} |")
 

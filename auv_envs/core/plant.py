@@ -241,8 +241,9 @@ class FreeBodyPlant:
     The same equations as MuJoCo's free body stepped by :class:`StagedIntegrator`
     with the hull wrench at every stage (equal to round-off where no contact
     acts, ``tests/test_compiled_plant.py``), compiled by CasADi from the scalar code that
-    the batched plant evaluates on JAX: one call of about 10 us where the staged
-    integrator takes 60-75 us of Python calls into MuJoCo (2-core machine).
+    the batched plant evaluates on JAX: one call of 11 us where the staged
+    integrator takes 78-80 us of Python calls into MuJoCo (``python
+    benchmarks/plant_cost.py``, 2-core machine).
 
     Args:
         params: the nominal vehicle (:class:`~auv_envs.core.vehicle.VehicleParams`).
