@@ -746,8 +746,12 @@ class HydrophoneArray:
             valid &= working.any(axis=-1)[:, None, None]
         keys = np.where(valid, rng.random(valid.shape), 2.0)
         order = np.argsort(keys, axis=-1, kind="stable")[..., :k]
-        mask = np.take_along_axis(valid, order, axis=-1)
-        picked = np.take_along_axis(candidates, order[..., None], axis=-2)
+        # The first k of each (period, band) row, gathered over the rows flattened: the
+        # same entries as np.take_along_axis, which indexes all four axes (5x slower here).
+        rows, flat_order = np.arange(b * q)[:, None], order.reshape(b * q, k)
+        mask = valid.reshape(b * q, p + k)[rows, flat_order].reshape(b, q, k)
+        picked = candidates.reshape(b * q, p + k, 3 * n - 1)[rows, flat_order]
+        picked = picked.reshape(b, q, k, 3 * n - 1)
         picked *= mask[..., None]
         if working is not None:  # an out node measures nothing; without node 1, no TDOA
             columns = np.concatenate([working[:, 1:] & working[:, :1], working, working], -1)
