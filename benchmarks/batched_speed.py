@@ -13,10 +13,11 @@ compare them on this machine:
   (as a compiled learner uses it). The action is held (docking: surge 0.3;
   LARS: shoulder 0.3, elbow -0.2 of the torque limits); episodes that end reset
   themselves.
-* **plant**: the MJX plant (:class:`auv_envs.batched.docking.DockingPlantMJX`)
-  one control period (0.1 s, RK4 with the hull wrench at every stage) per
-  compiled call against the CPU environment's plant, MuJoCo's ``mj_step`` with
-  the hull wrench at every RK4 stage (``env.integrator``), one vehicle at a time.
+* **plant**: the batched docking plant (:class:`auv_envs.batched.docking.DockingPlantMJX`,
+  :func:`auv_envs.core.plant.hull_advance` on JAX since ``-v2``) one control
+  period (0.1 s, RK4 with the hull wrench at every stage) per compiled call
+  against MuJoCo's staged RK4 with the hull wrench at every stage
+  (``env.integrator``, the ``-v1`` plant), one vehicle at a time.
 
     python benchmarks/batched_speed.py [--family docking|lars] [--batches 1 64 256 1024 4096]
         [--steps 50] [--difficulty easy|paper|hard]
@@ -113,8 +114,8 @@ def cpu_plant_rate(env, steps: int, repeats: int) -> float:
     return best
 
 
-def mjx_plant_rate(plant: DockingPlantMJX, env, batch: int, steps: int, repeats: int) -> float:
-    """Vehicle control periods per second of the MJX plant at ``batch`` vehicles."""
+def batched_plant_rate(plant: DockingPlantMJX, env, batch: int, steps: int, repeats: int) -> float:
+    """Vehicle control periods per second of the batched plant at ``batch`` vehicles."""
     env.reset(seed=0)
     qpos = jnp.tile(jnp.asarray(env.physics.data.qpos, jnp.float32), (batch, 1))
     qvel = jnp.zeros((batch, 6), jnp.float32)
@@ -161,10 +162,11 @@ def main(argv=None) -> None:
     env = gym.make(ENV_ID).unwrapped
     plant = DockingPlantMJX(env)
     print()
-    print("| batch | MJX plant vehicle-steps/s | CPU plant steps/s (same run) | ratio |")
+    print("| batch | batched plant vehicle-steps/s | CPU staged plant steps/s (same run) "
+          "| ratio |")
     print("|---|---|---|---|")
     for batch in args.batches:
-        rate = mjx_plant_rate(plant, env, batch, args.steps, args.repeats)
+        rate = batched_plant_rate(plant, env, batch, args.steps, args.repeats)
         reference = cpu_plant_rate(env, max(200, args.steps * 4), args.repeats)
         print(f"| {batch} | {rate:,.0f} | {reference:,.0f} | {rate / reference:.2f} |")
     env.close()

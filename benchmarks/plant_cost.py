@@ -53,7 +53,8 @@ def main(argv=None) -> None:
         physics, hull = unwrapped.physics, unwrapped.hull
         model, data = physics.model, physics.data
         start = (data.qpos.copy(), data.qvel.copy())
-        hull.command((20.0, 5.0, -3.0, 0.0, 0.0, 2.0), (0.1, 0.0, 0.0))
+        tau, current = (20.0, 5.0, -3.0, 0.0, 0.0, 2.0), (0.1, 0.0, 0.0)
+        hull.command(tau, current)
 
         def reset():
             data.qpos[:], data.qvel[:] = start
@@ -64,7 +65,6 @@ def main(argv=None) -> None:
 
         compiled_plant = FreeBodyPlant(unwrapped.vehicle, float(model.opt.timestep), 1)
         qpos, qvel = start[0].copy(), start[1].copy()
-        tau, current = hull._tau, hull._current
 
         def compiled_step():
             compiled_plant.advance(qpos, qvel, tau, current)

@@ -176,3 +176,17 @@ def test_perturbed_vehicle_reaches_the_compiled_plant():
                                   [mass, *damping, buoyancy])
     vehicle = PlantPerturbation.apply(env._params, mass, damping.tolist(), buoyancy)
     assert env.vehicle.mass == vehicle.mass
+
+
+def test_compiled_function_reads_bound_inputs_and_refuses_ones_it_cannot_bind():
+    import casadi
+
+    x = casadi.SX.sym("x", 3)
+    function = casadi.Function("f", [x], [2.0 * x])
+    memory = np.zeros(6)
+    call = CompiledFunction(function, (memory[1:4],))
+    memory[1:4] = (1.0, 2.0, 3.0)  # written after binding: read at the next call
+    np.testing.assert_array_equal(call()[0], (2.0, 4.0, 6.0))
+    for bad in (np.zeros(4), np.zeros(3, np.float32), np.zeros(6)[::2]):
+        with pytest.raises(ValueError, match="contiguous float64"):
+            CompiledFunction(function, (bad,))

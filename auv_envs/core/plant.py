@@ -206,11 +206,22 @@ class CompiledFunction:
 
     Args:
         function: a ``casadi.Function`` of dense column-vector inputs and outputs.
+        inputs: arrays to read the inputs from, bound once (e.g. views into a
+            ``MjData``: then nothing is copied per call); None: new arrays. Each must
+            be a contiguous float64 array of its input's size.
     """
 
-    def __init__(self, function):
+    def __init__(self, function, inputs=None):
         self.function = function
-        self.inputs = tuple(np.zeros(function.nnz_in(i)) for i in range(function.n_in()))
+        if inputs is None:
+            inputs = tuple(np.zeros(function.nnz_in(i)) for i in range(function.n_in()))
+        for i, array in enumerate(inputs):
+            if (array.dtype != np.float64 or not array.flags.c_contiguous
+                    or array.size != function.nnz_in(i)):
+                raise ValueError(f"input {i} must be a contiguous float64 array of "
+                                 f"{function.nnz_in(i)} entries, got {array.dtype} "
+                                 f"{array.shape}")
+        self.inputs = tuple(inputs)
         self.outputs = tuple(np.zeros(function.nnz_out(i)) for i in range(function.n_out()))
         buffer, self._evaluate = function.buffer()
         for i, array in enumerate(self.inputs):

@@ -40,9 +40,13 @@ class MujocoPlant:
             env.physics.show_lamps(failed)
 
     def advance(self, tau, current, vehicle) -> None:
+        self.env.physics.skip_contacts_if_clear(self.env.dt)
+        self._staged(tau, current)
+
+    def _staged(self, tau, current) -> None:
+        """One control period of MuJoCo's staged RK4 (the contact gate already set)."""
         env = self.env
         env.hull.command(tau, [float(c) for c in current])
-        env.physics.skip_contacts_if_clear(env.dt)
         env.integrator.step(env._physics_substeps)
 
     def truth(self) -> dict:
@@ -60,7 +64,7 @@ class CompiledPlant(MujocoPlant):
         super().__init__(env)
         self.free_body = FreeBodyPlant(env._params, float(env.physics.model.opt.timestep),
                                        env._physics_substeps)
-        self.kinematics = CompiledTruth(env.rules)
+        self.kinematics = CompiledTruth(env.rules, env.physics)
         self._vehicle = None
 
     def advance(self, tau, current, vehicle) -> None:
@@ -70,13 +74,13 @@ class CompiledPlant(MujocoPlant):
             self._vehicle = vehicle
         physics = env.physics
         if not physics.skip_contacts_if_clear(env.dt):
-            super().advance(tau, current, vehicle)
+            self._staged(tau, current)
             return
         self.free_body.advance(physics.qpos, physics.qvel, tau, current)
         physics.data.time += env.dt
 
     def truth(self) -> dict:
-        return self.kinematics(self.env.physics)
+        return self.kinematics()
 
 
 class CompiledTruth:
@@ -86,25 +90,24 @@ class CompiledTruth:
     symbols), with the camera centre and its offsets to the lights; the lines of sight
     are MuJoCo's ray casts (:meth:`DockingPhysics.unoccluded_along`)."""
 
-    def __init__(self, rules: DockingRules):
+    def __init__(self, rules: DockingRules, physics: DockingPhysics):
         function, self._layout, self._pixels = _truth_function(rules)
-        self._call = CompiledFunction(function)
-        self.rules = rules
+        # The inputs are the hull's free joint in MjData itself: nothing copied per call.
+        self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
+        self.physics, self.lights = physics, rules.lights
+        self._size = (rules.intrinsics.width, rules.intrinsics.height)
 
-    def __call__(self, physics: DockingPhysics) -> dict:
-        qpos, qvel = self._call.inputs
-        qpos[:] = physics.qpos
-        qvel[:] = physics.qvel
+    def __call__(self) -> dict:
         out, camera, rays = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
         pixels = values[self._pixels]
-        width, height = self.rules.intrinsics.width, self.rules.intrinsics.height
+        width, height = self._size
         # NaN (behind the camera) compares False: not in the image, as project_few says.
         in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
                     for k in range(0, len(pixels), 2)]
-        visible = physics.unoccluded_along(camera, self.rules.lights, rays, in_image)
+        visible = self.physics.unoccluded_along(camera, self.lights, rays, in_image)
         return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
                                             np.array(visible), FLOATS)
 
