@@ -4,7 +4,7 @@ Importing the package registers every environment::
 
     import gymnasium as gym
     import auv_envs  # noqa: F401
-    env = gym.make("auv_envs/DockingStation-v1", obs_mode="features")
+    env = gym.make("auv_envs/DockingStation-v2", obs_mode="features")
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ __version__ = "0.1.0"
 ENVIRONMENTS = {
     "auv_envs/DockingStation-v2": "auv_envs.tasks.docking.env:DockingStationEnv",
     "auv_envs/LampArrayDocking-v2": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
-    "auv_envs/AcousticTracking-v0": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
+    "auv_envs/AcousticTracking-v1": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
 }
 
@@ -36,6 +36,9 @@ _DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2, "plant": "muj
 #: The v1 docking plant: MuJoCo's RK4 staged with the hull wrench at every stage,
 #: throughout (v2 compiles the hull away from the scenery: the same equations).
 _DOCKING_V1_PLANT = {"plant": "mujoco"}
+#: Acoustic tracking v0: the rig integrated implicitly (v1: Euler) and the measurement
+#: noise drawn for every path before the detections (v1: for the kept detections only).
+_ACOUSTIC_V0 = {"integrator": "implicitfast", "noise_draws": "all"}
 
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
@@ -52,6 +55,9 @@ PREVIOUS_VERSIONS = {
     ),
     "auv_envs/LampArrayDocking-v1": (
         "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V1_PLANT
+    ),
+    "auv_envs/AcousticTracking-v0": (
+        "auv_envs.tasks.acoustic.env:AcousticTrackingEnv", _ACOUSTIC_V0
     ),
 }
 

@@ -344,7 +344,7 @@ def acoustic_truth(disturbance: str, seed: int, duration: float, substeps: int) 
     """
     import gymnasium as gym
 
-    env = gym.make("auv_envs/AcousticTracking-v0", obs_mode="state", disturbance=disturbance,
+    env = gym.make("auv_envs/AcousticTracking-v1", obs_mode="state", disturbance=disturbance,
                    time_limit=duration, physics_substeps=substeps)
     try:
         _, info = env.reset(seed=seed)

@@ -21,7 +21,7 @@ from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPosit
 from baselines.evaluation import run_episode
 from baselines.registry import make_agent
 
-ENV_ID = "auv_envs/AcousticTracking-v0"
+ENV_ID = "auv_envs/AcousticTracking-v1"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 #: No noise, no misses, no ghosts: the measurements are the geometry (false alarms on).
 EXACT = AcousticConfig(noise_scale=0.0, clock_offset_std=0.0, ideal_detection=True,

@@ -109,18 +109,30 @@ def test_bad_level_is_a_clear_error():
         gym.make(env_id, difficulty="Paper")
 
 
-#: The release cases of the superseded ``-v1`` docking ids (MuJoCo's staged plant throughout).
-V1_CASES = sorted(k for k in RELEASE if "-v1|" in k and k.endswith(f"|{SEEDS[0]}"))
+#: The first seed's release and level records of the superseded ids
+#: (``auv_envs.PREVIOUS_VERSIONS``): ``-v1`` docking, ``AcousticTracking-v0``.
+RECORDS = {**RELEASE, **LEVELS}
+SUPERSEDED_CASES = sorted(k for k in RECORDS if k.split("|")[0] in auv_envs.PREVIOUS_VERSIONS
+                          and k.endswith(f"|{SEEDS[0]}"))
 
 
-@pytest.mark.parametrize("case", V1_CASES, ids=lambda k: "-".join(k.split("|")[:3]))
-def test_v1_ids_keep_their_plant(case):
-    """``-v1`` (``plant="mujoco"``) is still the released plant; ``-v2``'s compiled plant
-    gives the same fingerprints to round-off (``test_default_is_the_release``, whose
-    ``-v2`` records are ``-v1``'s)."""
+@pytest.mark.parametrize("case", SUPERSEDED_CASES,
+                         ids=lambda k: "-".join([*k.split("|")[:2], k.split("|")[2][:40]]))
+def test_superseded_ids_keep_their_behaviour(case):
+    """A superseded id is built with the keywords that give its old behaviour and still
+    makes its recorded episodes: ``-v1`` docking (``plant="mujoco"``, MuJoCo's staged
+    plant throughout) exactly, ``-v2``'s compiled plant the same to round-off
+    (``test_default_is_the_release``, whose ``-v2`` records are ``-v1``'s);
+    ``AcousticTracking-v0`` (``integrator="implicitfast"``, ``noise_draws="all"``) to
+    round-off: the measurement noise's deviations have been computed with ``exp`` and
+    ``sqrt`` instead of a power and ``hypot`` since v1 (8.9e-16 in the observations)."""
     env_id, mode, kwargs, seed = case.split("|")
     env = gym.make(env_id)
-    assert env.unwrapped._init_kwargs["plant"] == "mujoco"
+    for name, value in auv_envs.PREVIOUS_VERSIONS[env_id][1].items():
+        assert env.unwrapped._init_kwargs[name] == value
     env.close()
     rows = fingerprint(env_id, mode, int(seed), **json.loads(kwargs))
-    assert rows == RELEASE[case]
+    if "Docking" in env_id:
+        assert rows == RECORDS[case]
+    else:
+        _assert_release(rows, RECORDS[case])

@@ -133,8 +133,8 @@ its fields):
 
 Each band's detections are shuffled and at most ``max_detections`` kept (the
 excess, if any, is dropped at random and counted). Everything is vectorised
-over bands x paths x nodes: one step draws a fixed number of random numbers
-whatever happens, so seeded runs are bit-identical.
+over periods, bands, paths and nodes, and drawn from the episode's generator,
+so seeded runs are bit-identical.
 """
 
 from __future__ import annotations
@@ -277,17 +277,35 @@ class Measurements:
     """One sample period's detections, padded to ``max_detections`` per band.
 
     Arrays are (Q, K, ...) with ``mask`` (Q, K) marking real detections;
-    padded entries are zero. ``origin`` (ground truth, for metrics and tests
-    only) holds the ``ORIGIN_*`` code of each entry; ``dropped`` (Q,) counts
-    detections that did not fit.
+    padded entries are zero. ``values`` (Q, K, 3N - 1) holds each detection's
+    N - 1 TDOAs (s), N azimuths and N elevations (rad), of which ``tdoa``,
+    ``azimuth`` and ``elevation`` are views. ``origin`` (ground truth, for
+    metrics and tests only) holds the ``ORIGIN_*`` code of each entry;
+    ``dropped`` (Q,) counts detections that did not fit. Every array may have
+    leading axes (periods) before these.
     """
 
-    tdoa: np.ndarray
-    azimuth: np.ndarray
-    elevation: np.ndarray
+    values: np.ndarray
     mask: np.ndarray
     origin: np.ndarray
     dropped: np.ndarray
+
+    @property
+    def n_nodes(self) -> int:
+        return (self.values.shape[-1] + 1) // 3
+
+    @property
+    def tdoa(self) -> np.ndarray:
+        return self.values[..., : self.n_nodes - 1]
+
+    @property
+    def azimuth(self) -> np.ndarray:
+        n = self.n_nodes
+        return self.values[..., n - 1 : 2 * n - 1]
+
+    @property
+    def elevation(self) -> np.ndarray:
+        return self.values[..., 2 * self.n_nodes - 1 :]
 
 
 def unit_gauss_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...],
@@ -325,6 +343,13 @@ def two_state_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...
         state = np.where(state, u[j] >= p_fail, u[j] < p_repair)
         out[j] = state
     return out
+
+
+#: The two orders of :meth:`HydrophoneArray.measure`'s draws.
+NOISE_DRAWS = ("kept", "all")
+#: ``10 ** (x / -20) = exp(x * _MINUS_LN10_OVER_20)`` (NumPy's ``exp`` is several times
+#: faster than its ``power``).
+_MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -378,9 +403,7 @@ class HydrophoneArray:
         self.max_tdoa.setflags(write=False)
         self._n_paths = 3 if c.multipath else 1
         k = c.max_detections
-        self._origin_template = np.concatenate(
-            [np.arange(self._n_paths), np.full(k, ORIGIN_CLUTTER)]
-        ).astype(np.int8)
+        self._candidate_index = np.arange(self._n_paths + k)
         self._clutter_slot = np.arange(k)
         # Image sources as scale * p + shift: direct, surface mirror, bottom mirror.
         self._mirror_scale = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, 1.0, -1.0]])
@@ -403,11 +426,14 @@ class HydrophoneArray:
         """The source and its surface and bottom mirror images: (..., 3, 3) for (..., 3)."""
         return np.asarray(position, dtype=np.float64) * self._mirror_scale + self._mirror_shift
 
-    def geometry(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
+    def geometry(self, sources, angles: bool = True):
+        """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3); the
+        ranges alone when not ``angles``."""
         d = np.asarray(sources, dtype=np.float64)[..., None, :] - self.positions
         horizontal = np.hypot(d[..., 0], d[..., 1])
         ranges = np.hypot(horizontal, d[..., 2])
+        if not angles:
+            return ranges
         return ranges, np.arctan2(d[..., 1], d[..., 0]), np.arctan2(horizontal, d[..., 2])
 
     def noise_free(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -443,12 +469,19 @@ class HydrophoneArray:
         return snr
 
     def noise_std(self, snr_db: np.ndarray, elevation: np.ndarray):
-        """Arrival-time, azimuth and elevation standard deviations for an SNR array."""
-        inv_root = 10.0 ** (snr_db * -0.05)  # 1 / sqrt(snr), snr linear
-        timing = np.hypot(self._timing_floor, self._timing_k * inv_root)
-        theta = np.hypot(self._angle_floor, self._angle_k * inv_root)
-        azimuth = theta / np.maximum(np.sin(elevation), 0.05)
-        return timing, azimuth, theta
+        """Arrival-time, azimuth and elevation standard deviations for an SNR array
+        (Q, ...) per band."""
+        timing, theta = self._timing_and_angle_std(snr_db, self._angle_k)
+        return timing, theta / np.maximum(np.sin(elevation), 0.05), theta
+
+    def _timing_and_angle_std(self, snr_db: np.ndarray, angle_k):
+        """:meth:`noise_std`'s arrival-time and elevation deviations, with the band's
+        angle constant ``angle_k`` broadcast against ``snr_db``."""
+        inv_root = np.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
+        timing = self._timing_k * inv_root
+        timing = np.sqrt(self._timing_floor**2 + timing * timing)
+        theta = angle_k * inv_root
+        return timing, np.sqrt(self._angle_floor**2 + theta * theta)
 
     def detection_probability(self, snr_db: np.ndarray,
                               working: np.ndarray | None = None) -> np.ndarray:
@@ -653,7 +686,8 @@ class HydrophoneArray:
                 current_speed=None, sound_speed: float | None = None,
                 wander: np.ndarray | None = None,
                 fading: np.ndarray | None = None,
-                working: np.ndarray | None = None) -> Measurements:
+                working: np.ndarray | None = None,
+                noise_draws: str = "kept") -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
@@ -678,11 +712,14 @@ class HydrophoneArray:
             an out node's angles and every TDOA involving it (all TDOAs while node 1 is
             out) are zero in every detection, and the detection probability is the working
             nodes'. None: every node works.
+          noise_draws: ``"kept"`` (the default) draws the measurement noise last, for
+            the detections kept only; ``"all"`` first, for every path of every band and
+            period, detected or not (``AcousticTracking-v0``'s random stream). The same
+            model either way: only the order and number of the draws differ.
 
         Returns:
-          :class:`Measurements` with arrays (B, Q, K, ...). The number of
-          variates drawn depends only on B and the Poisson false-alarm
-          counts, so a seeded episode is reproducible.
+          :class:`Measurements` with arrays (B, Q, K, ...). Everything is drawn
+          from ``rng``, so a seeded episode is reproducible.
         """
         positions = np.asarray(positions, dtype=np.float64)
         single = positions.ndim == 1
@@ -702,13 +739,14 @@ class HydrophoneArray:
                 raise ValueError("the config has flow noise: measure() needs current_speed")
             rise = self.flow_noise_rise(np.broadcast_to(current_speed, (b,)))  # (B, Q)
         sources = self.image_sources(positions[:, None, :])[:, :p]  # (B, P, 3)
-        ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
-        if node_positions is not None:
+        if node_positions is None:
+            ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
+        else:
+            ranges = self.geometry(sources, angles=False)
             azimuth, elevation = self._node_angles(node_positions, p)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
         if fading is not None:
             snr = snr + np.asarray(fading)[:, :, None, :]
-        timing, sigma_az, sigma_el = self.noise_std(snr, elevation[:, None])
         if working is not None:
             working = np.atleast_2d(np.asarray(working, dtype=bool))
             if working.shape != (b, n):
@@ -716,53 +754,84 @@ class HydrophoneArray:
             pd = self.detection_probability(snr, working[:, None, None])  # (B, Q, P)
         else:
             pd = self.detection_probability(snr)  # (B, Q, P)
-
-        noise = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
         speed = self.config.sound_speed if sound_speed is None else float(sound_speed)
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"sound_speed must be a positive speed in m/s, got {sound_speed!r}")
-        delays = ranges / speed + clock_offsets
-        if wander is not None:
-            delays = delays + (wander * self.wander_std(ranges[:, 0]))[:, None]
-        arrival = delays[:, None] + timing * noise[0]
-        candidates = np.empty((b, q, p + k, 3 * n - 1))
-        direct = candidates[:, :, :p]
-        np.subtract(arrival[..., 1:], arrival[..., :1], out=direct[..., : n - 1])
-        wrapped = np.subtract(np.pi, azimuth[:, None] + sigma_az * noise[1])
-        np.mod(wrapped, 2.0 * np.pi, out=wrapped)
-        np.subtract(np.pi, wrapped, out=direct[..., n - 1 : 2 * n - 1])
-        np.clip(elevation[:, None] + sigma_el * noise[2], 0.0, np.pi,
-                out=direct[..., 2 * n - 1 :])
-        detected = rng.random((b, q, p)) < pd
+        if noise_draws not in NOISE_DRAWS:
+            raise ValueError(f"noise_draws must be one of {NOISE_DRAWS}, got {noise_draws!r}")
 
+        # The draws, in order: [every path's noise], detections, false-alarm counts and
+        # vectors, the shuffle's keys, [the kept paths' noise].
+        if noise_draws == "all":
+            every = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
+        valid = np.empty((b, q, p + k), dtype=bool)
+        detected = valid[..., :p]
+        np.less(rng.random((b, q, p)), pd, out=detected)
         n_clutter = rng.poisson(self.config.clutter_rate, (b, q))
         slots = self._clutter_slot < n_clutter[..., None]  # (B, Q, K)
-        clutter = candidates[:, :, p:]
-        clutter[...] = 0.0
-        clutter[slots] = rng.random((int(slots.sum()), 3 * n - 1)) * self._clutter_scale + \
+        clutter = rng.random((int(slots.sum()), 3 * n - 1)) * self._clutter_scale + \
             self._clutter_shift
-        valid = np.concatenate([detected, slots], axis=-1)
+        valid[..., p:] = slots
         if working is not None:  # no node working: no false alarm either
             valid &= working.any(axis=-1)[:, None, None]
         keys = np.where(valid, rng.random(valid.shape), 2.0)
-        order = np.argsort(keys, axis=-1, kind="stable")[..., :k]
-        # The first k of each (period, band) row, gathered over the rows flattened: the
-        # same entries as np.take_along_axis, which indexes all four axes (5x slower here).
-        rows, flat_order = np.arange(b * q)[:, None], order.reshape(b * q, k)
-        mask = valid.reshape(b * q, p + k)[rows, flat_order].reshape(b, q, k)
-        picked = candidates.reshape(b * q, p + k, 3 * n - 1)[rows, flat_order]
-        picked = picked.reshape(b, q, k, 3 * n - 1)
-        picked *= mask[..., None]
+        # Each (period, band) row's candidates in the order of their keys (valid ones
+        # first, shuffled; the rest after them, in index order): the rank of each.
+        rank = np.empty(valid.shape, dtype=np.intp)
+        np.put_along_axis(rank, np.argsort(keys, axis=-1, kind="stable"),
+                          self._candidate_index, axis=-1)
+        kept = valid & (rank < k)
+        path_b, path_q, path_p = np.nonzero(kept[..., :p])
+        if noise_draws == "all":
+            noise = every[:, path_b, path_q, path_p]  # (3, D, N)
+        else:
+            noise = rng.standard_normal((3, len(path_b), n), dtype=np.float32)
+        noise = noise.astype(np.float64)  # exactly; float64 arithmetic from here on
+
+        # The kept paths' measurements (D, 3N - 1): TDOAs, azimuths, elevations, from
+        # their rows of the (B * Q * P, N) and (B * P, N) arrays.
+        paths = np.empty((len(path_b), 3 * n - 1))
+        row = path_b * p + path_p
+        timing, sigma_el = self._timing_and_angle_std(
+            snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
+            self._angle_k[path_q, 0])
+        elevation = elevation.reshape(-1, n)
+        sigma_az = sigma_el / np.maximum(np.sin(elevation), 0.05).take(row, axis=0)
+        delays = ranges / speed + clock_offsets
+        if wander is not None:
+            delays = delays + (wander * self.wander_std(ranges[:, 0]))[:, None]
+        arrival = delays.reshape(-1, n).take(row, axis=0) + timing * noise[0]
+        np.subtract(arrival[:, 1:], arrival[:, :1], out=paths[:, : n - 1])
+        wrapped = np.subtract(np.pi, azimuth.reshape(-1, n).take(row, axis=0)
+                              + sigma_az * noise[1])
+        outside = (wrapped < 0.0) | (wrapped >= 2.0 * np.pi)  # np.mod returns the rest as is
+        wrapped[outside] = np.mod(wrapped[outside], 2.0 * np.pi)
+        np.subtract(np.pi, wrapped, out=paths[:, n - 1 : 2 * n - 1])
+        np.clip(elevation.take(row, axis=0) + sigma_el * noise[2], 0.0, np.pi,
+                out=paths[:, 2 * n - 1 :])
+
+        # Each kept candidate into its slot; the rest of the K slots empty.
+        picked = np.zeros((b, q, k, 3 * n - 1))
+        mask = np.zeros((b, q, k), dtype=bool)
+        origin = np.full((b, q, k), ORIGIN_EMPTY, dtype=np.int8)
+        slot = rank[path_b, path_q, path_p]
+        picked[path_b, path_q, slot] = paths
+        origin[path_b, path_q, slot] = path_p
+        false_b, false_q, false_j = np.nonzero(slots)  # the order of ``clutter``'s rows
+        false_kept = kept[false_b, false_q, p + false_j]
+        false_b, false_q = false_b[false_kept], false_q[false_kept]
+        slot = rank[false_b, false_q, p + false_j[false_kept]]
+        picked[false_b, false_q, slot] = clutter[false_kept]
+        origin[false_b, false_q, slot] = ORIGIN_CLUTTER
+        mask[origin != ORIGIN_EMPTY] = True
         if working is not None:  # an out node measures nothing; without node 1, no TDOA
             columns = np.concatenate([working[:, 1:] & working[:, :1], working, working], -1)
             picked *= columns[:, None, None, :]
         result = Measurements(
-            tdoa=picked[..., : n - 1],
-            azimuth=picked[..., n - 1 : 2 * n - 1],
-            elevation=picked[..., 2 * n - 1 :],
+            values=picked,
             mask=mask,
-            origin=np.where(mask, self._origin_template[order], ORIGIN_EMPTY).astype(np.int8),
-            dropped=valid.sum(axis=-1) - mask.sum(axis=-1),
+            origin=origin,
+            dropped=np.maximum(valid.sum(axis=-1, dtype=np.int64) - k, 0),  # beyond the K
         )
         if single:
             return Measurements(*(getattr(result, f.name)[0]

@@ -1,6 +1,6 @@
 """Acoustic tracking of an underwater manipulator's end effector [GMPHD].
 
-``auv_envs/AcousticTracking-v0``: an acoustic source on the end effector of a
+``auv_envs/AcousticTracking-v1``: an acoustic source on the end effector of a
 6-DOF arm, carried through a 300 m x 300 m tank by a neutrally buoyant
 carrier and disturbed by the current, is heard by eight hydrophone nodes. The
 agent estimates the end effector's position from the multi-band detection
@@ -24,6 +24,7 @@ from gymnasium import spaces
 from auv_envs.core import difficulty as levels
 from auv_envs.core.acoustics import (
     GMPHD_FLOW_NOISE_LEVEL,
+    NOISE_DRAWS,
     AcousticConfig,
     HydrophoneArray,
 )
@@ -47,6 +48,11 @@ from auv_envs.tasks.acoustic.transition import (
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
+#: The rig's integrators (``integrator=``): Euler from v1 on, implicitfast in v0. Both are
+#: within 2 cm of a 32x finer implicitfast integration over 20 s in the high current
+#: (``tests/test_plant_convergence.py``).
+INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
+               "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
               "tool_roll")
 CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
@@ -178,24 +184,54 @@ class AcousticPhysics:
         data.qpos[self.arm_qpos] = arm
         mujoco.mj_forward(model, data)
 
-    def advance(self, carrier_ref, carrier_vel, arm_ref, current) -> None:
-        """One sample period (``substeps`` physics steps) with the servos' references and
-        the current (MuJoCo's ``wind``); the kinematics made current."""
-        model, data = self.model, self.data
-        ctrl = data.ctrl
-        ctrl[self.carrier_pos_act] = carrier_ref
-        ctrl[self.carrier_vel_act] = carrier_vel
-        ctrl[self.arm_act] = arm_ref
-        model.opt.wind[:] = current
-        mujoco.mj_step(model, data, self.substeps)
-        mujoco.mj_kinematics(model, data)
+    def follow(self, carrier_ref, carrier_vel, arm_ref, current, start: int):
+        """The source's positions and velocities (count, 3) at sample periods ``start``,
+        ``start + 1``, ...: the rig moved on one period (``substeps`` physics steps)
+        towards each row of the servos' references ((count, 4), (count, 4) and (count,
+        6)) in the current of the period before it (MuJoCo's ``wind``, (count, 3) rows:
+        row ``j`` is the current from period ``start + j - 1`` to ``start + j``).
+        Period 0 is the rig as :meth:`place` left it (row 0 of the references and the
+        current unused); later calls continue from the integration state.
 
-    def source(self) -> tuple[np.ndarray, np.ndarray]:
-        """Source position and velocity at the current state (kinematics must be current)."""
+        Each physics step is MuJoCo's ``mj_step1`` (positions, velocities and the fluid
+        forces in the current) then ``mj_step2`` (the servos' forces, the integration):
+        ``mj_step``'s arithmetic, with the source read from the next step's first half
+        instead of a further pass over the kinematics.
+        """
         model, data = self.model, self.data
+        count = len(current)
+        ctrl = np.empty((count, model.nu))
+        ctrl[:, self.carrier_pos_act] = carrier_ref
+        ctrl[:, self.carrier_vel_act] = carrier_vel
+        ctrl[:, self.arm_act] = arm_ref
+        positions = np.empty((count, 3))
+        velocities = np.empty((count, 3))
+        # Views into this model and data, taken per call (a copied env has its own).
+        wind, data_ctrl, qvel, jac, site = model.opt.wind, data.ctrl, data.qvel, self._jac, \
+            self.source_site
+        xpos = data.site_xpos[site]
+        step1, step2, jac_site = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_jacSite
+        more = range(self.substeps - 1)
+        for j in range(count):
+            if start + j == 0:
+                continue  # period 0: the rig as placed
+            wind[:] = current[j]
+            step1(model, data)
+            if j:  # the state of period start + j - 1, its kinematics current
+                positions[j - 1] = xpos
+                jac_site(model, data, jac, None, site)
+                np.dot(jac, qvel, out=velocities[j - 1])
+            data_ctrl[:] = ctrl[j]
+            step2(model, data)
+            for _ in more:
+                step1(model, data)
+                step2(model, data)
+        mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
-        mujoco.mj_jacSite(model, data, self._jac, None, self.source_site)
-        return data.site_xpos[self.source_site].copy(), self._jac @ data.qvel
+        positions[-1] = xpos
+        jac_site(model, data, jac, None, site)
+        np.dot(jac, qvel, out=velocities[-1])
+        return positions, velocities
 
     def source_offset(self, posture) -> np.ndarray:
         """Source position relative to the carrier at yaw 0 in a given arm posture."""
@@ -302,6 +338,11 @@ class AcousticTrackingEnv(TaskEnv):
     ``track_gate``        m (1)
     ``success_radius``    m (0.5)
     ``physics_substeps``  physics steps per 0.01 s period (1)
+    ``integrator``        MuJoCo's integrator of the rig: ``"euler"`` or
+                          ``"implicitfast"`` (v0's) (``"euler"``)
+    ``noise_draws``       the measurement noise drawn for the kept
+                          detections only (``"kept"``) or first, for every
+                          path (``"all"``, v0's random stream)
     ``render_mode``       ``"rgb_array"`` or None
     ``render_size``       (W, H) of ``render()``, at least 8x8 (640x480)
     ``difficulty``        ``"easy"`` (the release), ``"paper"``
@@ -353,6 +394,8 @@ class AcousticTrackingEnv(TaskEnv):
         track_gate: float = 1.0,
         success_radius: float = 0.5,
         physics_substeps: int = 1,
+        integrator: str = "euler",
+        noise_draws: str = "kept",
         render_mode: str | None = None,
         render_size: tuple[int, int] = (640, 480),
         difficulty: str = levels.DEFAULT_LEVEL,
@@ -363,13 +406,16 @@ class AcousticTrackingEnv(TaskEnv):
             obs_mode=obs_mode, disturbance=disturbance, trajectory=trajectory,
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
-            physics_substeps=physics_substeps, render_mode=render_mode,
+            physics_substeps=physics_substeps, integrator=integrator,
+            noise_draws=noise_draws, render_mode=render_mode,
             render_size=render_size, difficulty=difficulty,
         )
         acoustic = self._apply_difficulty(difficulty, acoustic=acoustic)["acoustic"]
         self._render_size = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = self._render_size
         check_positive_int("physics_substeps", physics_substeps)
+        check_choice("integrator", integrator, tuple(INTEGRATORS))
+        check_choice("noise_draws", noise_draws, NOISE_DRAWS)
         check_choice("disturbance", disturbance, tuple(DISTURBANCES))
         check_choice("trajectory", trajectory, TRAJECTORIES)
         if static_point is not None:
@@ -390,6 +436,7 @@ class AcousticTrackingEnv(TaskEnv):
         self.physics = AcousticPhysics(build_tank_model())
         self._dt = 1.0 / config.sample_rate
         self.physics.model.opt.timestep = self._dt / physics_substeps
+        self.physics.model.opt.integrator = INTEGRATORS[integrator]
         self.physics.substeps = physics_substeps
         self._plant = self.physics
         self._horizon = int(round(time_limit * config.sample_rate))
@@ -425,7 +472,7 @@ class AcousticTrackingEnv(TaskEnv):
             current_range=DISTURBANCES[disturbance], dt=self._dt, horizon=self._horizon,
             array=array, source_offset=self.physics.source_offset(NOMINAL_POSTURE),
             error_clip=self._error_clip, track_gate=self._track_gate,
-            success_radius=self._success_radius)
+            success_radius=self._success_radius, noise_draws=noise_draws)
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)

@@ -8,9 +8,10 @@ periods, and the record of the agent's estimates. The static
 :class:`~auv_envs.core.ops.Backend`: the arithmetic, the episode's random
 draws (NumPy ``Generator``'s interface) and the plant (the carrier and arm in
 MuJoCo on the CPU), whose methods are ``place(carrier, arm)`` (the rig at rest
-at those joint positions), ``advance(carrier_ref, carrier_vel, arm_ref,
-current)`` (one sample period towards the references in the current) and
-``source()`` (the source's position and velocity, (3,) each). The start
+at those joint positions) and ``follow(carrier_ref, carrier_vel, arm_ref,
+current, start)`` (the source's positions and velocities, (count, 3) each, at
+sample periods ``start``, ``start + 1``, ...: the rig moved on one period
+towards each row of references, in each row's current). The start
 draw, the step's order (score the estimate, move on one period, measure the
 next block when this one is served), the reward, the
 observations, ``info`` and the episode summary exist here only;
@@ -87,6 +88,8 @@ class AcousticParams:
             :data:`NOMINAL_POSTURE` (places the static points).
         error_clip, track_gate, success_radius: m (the reward's clip, the tracked
             gate, the success radius of the running RMSE).
+        noise_draws: the order of the measurement model's draws
+            (:meth:`~auv_envs.core.acoustics.HydrophoneArray.measure`).
     """
 
     obs_mode: str
@@ -100,6 +103,7 @@ class AcousticParams:
     error_clip: float
     track_gate: float
     success_radius: float
+    noise_draws: str = "kept"
 
 
 class Plan(NamedTuple):
@@ -265,14 +269,10 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
     and measure them, continuing ``previous`` (None at reset)."""
     _, draws, plant = backend
     count = min(BLOCK, params.horizon + 1 - start)
-    positions = np.empty((count, 3))
-    velocities = np.empty((count, 3))
-    for j in range(count):
-        k = start + j
-        if k > 0:
-            plant.advance(plan.carrier_ref[k], plan.carrier_vel[k], plan.arm_ref[k],
-                          plan.current[k - 1])
-        positions[j], velocities[j] = plant.source()
+    rows = slice(start, start + count)
+    before = np.arange(start - 1, start + count - 1).clip(0)  # the current of the period before
+    positions, velocities = plant.follow(plan.carrier_ref[rows], plan.carrier_vel[rows],
+                                         plan.arm_ref[rows], plan.current[before], start)
     array = params.array
     history = wander = fading = nodes = None
     if previous is not None:
@@ -293,7 +293,7 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
     measurements = array.measure(
         draws, heard, plan.clock_offsets,
         np.linalg.norm(plan.current[start:start + count], axis=1), plan.sound_speed, wanders,
-        fades, nodes,
+        fades, nodes, noise_draws=params.noise_draws,
     )
     return Block(start, positions, velocities, heard, fades, nodes, measurements, history,
                  wander, fading)
@@ -327,7 +327,8 @@ def step(params: AcousticParams, state: EpisodeState, action, backend: Backend):
     k = state.steps  # the estimate is scored against the truth at observation k
     block = state.block
     position = block.positions[k - block.start]
-    error = float(np.linalg.norm(action - position))
+    difference = action - position
+    error = math.sqrt(difference.dot(difference))  # np.linalg.norm's arithmetic, sooner
     state = state._replace(
         steps=k + 1, squared_error_sum=state.squared_error_sum + error * error,
         estimates=record_row(state.estimates, k, action),
@@ -350,10 +351,12 @@ def observe(params: AcousticParams, state: EpisodeState):
         return np.concatenate([block.positions[j], block.velocities[j],
                                state.plan.current[k]]).astype(np.float32)
     m = block.measurements
+    n = m.n_nodes
+    values = m.values[j].copy()  # one copy, then views of it
     obs = {
-        "tdoa": m.tdoa[j].copy(),
-        "azimuth": m.azimuth[j].copy(),
-        "elevation": m.elevation[j].copy(),
+        "tdoa": values[..., : n - 1],
+        "azimuth": values[..., n - 1 : 2 * n - 1],
+        "elevation": values[..., 2 * n - 1 :],
         "mask": m.mask[j].astype(np.int8),
     }
     if block.nodes is not None:
