@@ -36,9 +36,12 @@ _DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2, "plant": "muj
 #: The v1 docking plant: MuJoCo's RK4 staged with the hull wrench at every stage,
 #: throughout (v2 compiles the hull away from the scenery: the same equations).
 _DOCKING_V1_PLANT = {"plant": "mujoco"}
-#: Acoustic tracking v0: the rig integrated implicitly (v1: Euler) and the measurement
-#: noise drawn for every path before the detections (v1: for the kept detections only).
-_ACOUSTIC_V0 = {"integrator": "implicitfast", "noise_draws": "all"}
+#: Acoustic tracking v0: the rig integrated by implicitfast in one step a period (v1: Euler
+#: in two), the measurement noise drawn for every path before the detections (v1: for
+#: the kept detections only) and the detections drawn in every mode (v1: when observed or
+#: rendered).
+_ACOUSTIC_V0 = {"integrator": "implicitfast", "physics_substeps": 1, "noise_draws": "all",
+                "draw_detections": True}
 
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).

@@ -336,16 +336,23 @@ def env_plant_error(env, seed: int, command_seed: int, duration: float = 10.0) -
     )
 
 
-def acoustic_truth(disturbance: str, seed: int, duration: float, substeps: int) -> np.ndarray:
-    """The acoustic end effector's true positions over one episode (``info`` only).
+def acoustic_truth(disturbance: str, seed: int, duration: float,
+                   refinement: int = 1) -> np.ndarray:
+    """The acoustic end effector's true positions over one episode (``info`` only), with
+    ``refinement`` times the shipped physics steps a sample period.
 
     Its plant is MuJoCo's own fluid model, for which this module has no
     independent reference: it is compared with finer steps of itself.
     """
+    import inspect
+
     import gymnasium as gym
 
+    from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+
+    shipped = inspect.signature(AcousticTrackingEnv).parameters["physics_substeps"].default
     env = gym.make("auv_envs/AcousticTracking-v1", obs_mode="state", disturbance=disturbance,
-                   time_limit=duration, physics_substeps=substeps)
+                   time_limit=duration, physics_substeps=refinement * shipped)
     try:
         _, info = env.reset(seed=seed)
         rows = [info["true_position"].copy()]

@@ -48,9 +48,9 @@ from auv_envs.tasks.acoustic.transition import (
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
-#: The rig's integrators (``integrator=``): Euler from v1 on, implicitfast in v0. Both are
-#: within 2 cm of a 32x finer implicitfast integration over 20 s in the high current
-#: (``tests/test_plant_convergence.py``).
+#: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
+#: in v0 implicitfast in one 10 ms step; each within 2 cm of finer integrations of itself
+#: (``tests/test_plant_convergence.py``; ``docs/physics.md``).
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
@@ -337,12 +337,16 @@ class AcousticTrackingEnv(TaskEnv):
     ``error_clip``        m (5)
     ``track_gate``        m (1)
     ``success_radius``    m (0.5)
-    ``physics_substeps``  physics steps per 0.01 s period (1)
+    ``physics_substeps``  physics steps per 0.01 s period (2; v0: 1)
     ``integrator``        MuJoCo's integrator of the rig: ``"euler"`` or
                           ``"implicitfast"`` (v0's) (``"euler"``)
     ``noise_draws``       the measurement noise drawn for the kept
                           detections only (``"kept"``) or first, for every
                           path (``"all"``, v0's random stream)
+    ``draw_detections``   draw the detections in ``state`` mode too, so
+                          that its ``info`` has ``detection_origin`` (v0
+                          did); ``measurements`` mode and rendering always
+                          draw them (False)
     ``render_mode``       ``"rgb_array"`` or None
     ``render_size``       (W, H) of ``render()``, at least 8x8 (640x480)
     ``difficulty``        ``"easy"`` (the release), ``"paper"``
@@ -393,9 +397,10 @@ class AcousticTrackingEnv(TaskEnv):
         error_clip: float = 5.0,
         track_gate: float = 1.0,
         success_radius: float = 0.5,
-        physics_substeps: int = 1,
+        physics_substeps: int = 2,
         integrator: str = "euler",
         noise_draws: str = "kept",
+        draw_detections: bool = False,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (640, 480),
         difficulty: str = levels.DEFAULT_LEVEL,
@@ -407,7 +412,7 @@ class AcousticTrackingEnv(TaskEnv):
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
             physics_substeps=physics_substeps, integrator=integrator,
-            noise_draws=noise_draws, render_mode=render_mode,
+            noise_draws=noise_draws, draw_detections=draw_detections, render_mode=render_mode,
             render_size=render_size, difficulty=difficulty,
         )
         acoustic = self._apply_difficulty(difficulty, acoustic=acoustic)["acoustic"]
@@ -416,6 +421,8 @@ class AcousticTrackingEnv(TaskEnv):
         check_positive_int("physics_substeps", physics_substeps)
         check_choice("integrator", integrator, tuple(INTEGRATORS))
         check_choice("noise_draws", noise_draws, NOISE_DRAWS)
+        if not isinstance(draw_detections, bool):
+            raise TypeError(f"draw_detections must be True or False, got {draw_detections!r}")
         check_choice("disturbance", disturbance, tuple(DISTURBANCES))
         check_choice("trajectory", trajectory, TRAJECTORIES)
         if static_point is not None:
@@ -472,7 +479,8 @@ class AcousticTrackingEnv(TaskEnv):
             current_range=DISTURBANCES[disturbance], dt=self._dt, horizon=self._horizon,
             array=array, source_offset=self.physics.source_offset(NOMINAL_POSTURE),
             error_clip=self._error_clip, track_gate=self._track_gate,
-            success_radius=self._success_radius, noise_draws=noise_draws)
+            success_radius=self._success_radius, noise_draws=noise_draws,
+            draw_detections=bool(draw_detections or obs_mode == "measurements" or render_mode))
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
@@ -549,7 +557,7 @@ class AcousticTrackingEnv(TaskEnv):
         trail_steps = int(round(RENDER_TRAIL / self._dt))
         first = max(0, k - trail_steps)
         trail = np.concatenate([state.truths[first:k], block.positions[j : j + 1]])
-        m = block.measurements
+        m = block.measurements  # drawn whenever rendering
         mask = m.mask[j].ravel()
         n = self.calibration.array.n_nodes
         azimuth = m.azimuth[j].reshape(-1, n)[mask]
@@ -591,12 +599,16 @@ class AcousticTrackingEnv(TaskEnv):
         observations and draws are unchanged. Call it right after ``reset()``.
 
         Raises:
-          RuntimeError: before ``reset()`` or after the first step.
+          RuntimeError: before ``reset()`` or after the first step, or when the episode
+            draws no detections (``state`` mode without ``draw_detections``).
         """
         state = self._episode.state
         if state is None or state.steps:
             raise RuntimeError("episode_record() replays the episode from its start: call it "
                                "right after reset()")
+        if not self.params.draw_detections:
+            raise RuntimeError("this episode draws no detections (obs_mode='state'): make the "
+                               "env with draw_detections=True for its record and bound")
         replay = copy.deepcopy(self)
         backend = replay._backend(replay.np_random)
         t = self.params.horizon

@@ -90,6 +90,10 @@ class AcousticParams:
             gate, the success radius of the running RMSE).
         noise_draws: the order of the measurement model's draws
             (:meth:`~auv_envs.core.acoustics.HydrophoneArray.measure`).
+        draw_detections: whether the blocks draw the detections (and the nuisance
+            behind them: wander, fading, node states); without them a block holds the
+            source's motion only, which is all the ``state`` observation and the reward
+            read.
     """
 
     obs_mode: str
@@ -104,6 +108,7 @@ class AcousticParams:
     track_gate: float
     success_radius: float
     noise_draws: str = "kept"
+    draw_detections: bool = True
 
 
 class Plan(NamedTuple):
@@ -126,7 +131,8 @@ class Block(NamedTuple):
 
     ``positions``/``velocities`` (B, 3) the source's; ``heard`` what the nodes
     heard (propagation delay); ``fades`` (B, Q, N) dB and ``nodes`` (B, N)
-    which work (None when off); ``measurements`` the detection sets. What
+    which work (None when off); ``measurements`` the detection sets (None, as
+    ``heard``, when the task draws no detections). What
     the next block continues: ``history`` (<= :data:`HISTORY`, 3) source
     positions, ``wander`` (N,) and ``fading`` (Q, N) at the last period.
     """
@@ -273,6 +279,8 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
     before = np.arange(start - 1, start + count - 1).clip(0)  # the current of the period before
     positions, velocities = plant.follow(plan.carrier_ref[rows], plan.carrier_vel[rows],
                                          plan.arm_ref[rows], plan.current[before], start)
+    if not params.draw_detections:
+        return Block(start, positions, velocities, None, None, None, None, None, None, None)
     array = params.array
     history = wander = fading = nodes = None
     if previous is not None:
@@ -378,9 +386,10 @@ def info(params: AcousticParams, state: EpisodeState, now: dict) -> dict:
         "true_position": block.positions[j].copy(),
         "true_velocity": block.velocities[j].copy(),
         "current": state.plan.current[k].copy(),
-        "detection_origin": block.measurements.origin[j].copy(),
         "time": k * params.dt,
     }
+    if block.measurements is not None:
+        out["detection_origin"] = block.measurements.origin[j].copy()
     if block.nodes is not None:
         out["nodes_working"] = int(np.count_nonzero(block.nodes[j]))
     return out
