@@ -312,8 +312,10 @@ class AcousticTrackingEnv(TaskEnv):
     ``track_gate``), ``is_success`` (running RMSE within ``success_radius``),
     the reward term, ground truth for metrics (``true_position``,
     ``true_velocity``, ``current``, ``detection_origin`` (Q, K): -1 padding,
-    0 source, 1 surface ghost, 2 bottom ghost, 3 false alarm), ``time``;
-    with node dropouts ``nodes_working``. At reset, with a sound-speed error,
+    0 source, 1 surface ghost, 2 bottom ghost, 3 false alarm; where the
+    detections are drawn: not in ``state`` mode unless rendering or
+    ``draw_detections``), ``time``; with node dropouts ``nodes_working``
+    (likewise). At reset, with a sound-speed error,
     the episode's true ``sound_speed``. At the end ``episode_metrics``:
     ``rmse``, ``max_error``, ``error_bias`` (norm of the mean error),
     ``tfc``, ``tcfe`` ([GMPHD]'s entropy of the estimate's first differences
@@ -367,9 +369,12 @@ class AcousticTrackingEnv(TaskEnv):
     (:class:`auv_envs.tasks.acoustic.render.TankPlot`), drawn from the
     episode's record, so rendering changes no observation, reward or draw.
 
-    **Version history.** v0: initial release. Changes within v0 (added
-    metrics, opt-in arguments and levels, each leaving the default episodes
-    unchanged bit for bit) with their measurements: ``CHANGELOG.md``.
+    **Version history.** v1: the rig in two Euler steps a period, the
+    measurement noise drawn for the kept detections only, no detections drawn
+    in ``state`` mode unless rendered or asked for (the same models; v0 is
+    ``integrator="implicitfast", physics_substeps=1, noise_draws="all",
+    draw_detections=True``). v0: initial release. The changes and their
+    measurements: ``CHANGELOG.md``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
