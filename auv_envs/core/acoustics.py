@@ -721,6 +721,8 @@ class HydrophoneArray:
           :class:`Measurements` with arrays (B, Q, K, ...). Everything is drawn
           from ``rng``, so a seeded episode is reproducible.
         """
+        if noise_draws not in NOISE_DRAWS:
+            raise ValueError(f"noise_draws must be one of {NOISE_DRAWS}, got {noise_draws!r}")
         positions = np.asarray(positions, dtype=np.float64)
         single = positions.ndim == 1
         positions = np.atleast_2d(positions)
@@ -757,8 +759,6 @@ class HydrophoneArray:
         speed = self.config.sound_speed if sound_speed is None else float(sound_speed)
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"sound_speed must be a positive speed in m/s, got {sound_speed!r}")
-        if noise_draws not in NOISE_DRAWS:
-            raise ValueError(f"noise_draws must be one of {NOISE_DRAWS}, got {noise_draws!r}")
 
         # The draws, in order: [every path's noise], detections, false-alarm counts and
         # vectors, the shuffle's keys, [the kept paths' noise].

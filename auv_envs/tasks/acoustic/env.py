@@ -190,8 +190,8 @@ class AcousticPhysics:
         towards each row of the servos' references ((count, 4), (count, 4) and (count,
         6)) in the current of the period before it (MuJoCo's ``wind``, (count, 3) rows:
         row ``j`` is the current from period ``start + j - 1`` to ``start + j``).
-        Period 0 is the rig as :meth:`place` left it (row 0 of the references and the
-        current unused); later calls continue from the integration state.
+        Period 0 is the rig as :meth:`place` left it (that row's references and current
+        are unused); later calls continue from the integration state.
 
         Each physics step is MuJoCo's ``mj_step1`` (positions, velocities and the fluid
         forces in the current) then ``mj_step2`` (the servos' forces, the integration):
@@ -367,7 +367,9 @@ class AcousticTrackingEnv(TaskEnv):
     close-up of the tank with the nodes, the end effector's recent path, the
     latest estimate and the current detections' rays coloured by origin
     (:class:`auv_envs.tasks.acoustic.render.TankPlot`), drawn from the
-    episode's record, so rendering changes no observation, reward or draw.
+    episode's record, so rendering changes no observation or reward (an env
+    made with ``render_mode`` draws the detections it shows, in ``state`` mode
+    too).
 
     **Version history.** v1: the rig in two Euler steps a period, the
     measurement noise drawn for the kept detections only, no detections drawn
@@ -544,7 +546,7 @@ class AcousticTrackingEnv(TaskEnv):
         """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``).
 
         Drawn from the episode's own record (true positions, estimates and the
-        current detections), so rendering changes no observation, reward, info
+        current detections), so calling it changes no observation, reward, info
         or random draw. Before the first reset it draws the empty tank.
         """
         if self._plot is None:
