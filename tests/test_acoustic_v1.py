@@ -22,7 +22,7 @@ def test_follow_is_mj_step(integrator, substeps):
     ``mj_step`` with the period's references and current, then the kinematics and the
     site Jacobian; over two calls, as two blocks."""
     rng = np.random.default_rng(7)
-    count, nu = 30, 14
+    count = 30
     refs = (rng.uniform(40, 60, (2 * count, 4)), rng.uniform(-0.5, 0.5, (2 * count, 4)),
             0.3 * rng.standard_normal((2 * count, 6)))
     current = rng.uniform(-0.4, 0.4, (2 * count, 3))
@@ -35,18 +35,21 @@ def test_follow_is_mj_step(integrator, substeps):
         plant.place(refs[0][0], refs[2][0])
     ours = [plants[0].follow(*(r[rows] for r in refs), current[np.maximum(rows - 1, 0)], start)
             for start, rows in ((0, np.arange(count)), (count, np.arange(count, 2 * count)))]
-    model, data = plants[1].model, plants[1].data
+    reference = plants[1]
+    model, data = reference.model, reference.data
     jac = np.zeros((3, model.nv))
     positions, velocities = [], []
     for k in range(2 * count):
         if k:
-            data.ctrl[:nu] = np.concatenate([refs[0][k], refs[1][k], refs[2][k]])
+            data.ctrl[reference.carrier_pos_act] = refs[0][k]
+            data.ctrl[reference.carrier_vel_act] = refs[1][k]
+            data.ctrl[reference.arm_act] = refs[2][k]
             model.opt.wind[:] = current[k - 1]
             mujoco.mj_step(model, data, substeps)
             mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
-        mujoco.mj_jacSite(model, data, jac, None, plants[1].source_site)
-        positions.append(data.site_xpos[plants[1].source_site].copy())
+        mujoco.mj_jacSite(model, data, jac, None, reference.source_site)
+        positions.append(data.site_xpos[reference.source_site].copy())
         velocities.append(jac @ data.qvel)
     assert np.array_equal(np.concatenate([p for p, _ in ours]), np.array(positions))
     assert np.array_equal(np.concatenate([v for _, v in ours]), np.array(velocities))

@@ -127,7 +127,7 @@ def test_seabed_contact_still_ends_the_episode(env_id):
 def test_acoustic_plant_is_close_to_a_finer_integration_of_itself():
     """The acoustic arm (MuJoCo's own fluid model, Euler in two 5 ms steps a 0.01 s sample
     period) is a hydrodynamic plant too: its end effector stays within the same 2 cm of
-    a 16x finer integration (measured 1.8-11 mm over 20 s in every current level,
+    a 16x finer integration (measured 1.7-11 mm over 20 s in every current level,
     ``docs/physics.md``)."""
     shipped, finer, finest = (acoustic_truth("high", 95002, 10.0, n) for n in (1, 4, 16))
     error = np.linalg.norm(shipped - finest, axis=1).max()

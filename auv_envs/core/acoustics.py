@@ -353,7 +353,12 @@ _MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
+    """``angle`` wrapped into (-pi, pi]; ``np.mod`` only where ``pi - angle`` is outside
+    [0, 2 pi) (it returns the rest unchanged, so the result is the same)."""
+    shifted = np.subtract(np.pi, angle)
+    outside = (shifted < 0.0) | (shifted >= 2.0 * np.pi)
+    shifted[outside] = np.mod(shifted[outside], 2.0 * np.pi)
+    return np.subtract(np.pi, shifted, out=shifted)
 
 
 class HydrophoneArray:
@@ -394,9 +399,9 @@ class HydrophoneArray:
         self._path_loss = np.array([0.0, c.surface_loss, c.bottom_loss])[:, None]
         # Noise-std constants with noise_scale and the sqrt(2 snr) factor folded in.
         s2 = c.noise_scale / math.sqrt(2.0)
-        self._timing_floor = c.noise_scale * c.timing_floor
+        self._timing_floor2 = (c.noise_scale * c.timing_floor) ** 2  # squared: noise_std
         self._timing_k = s2 / (2.0 * math.pi * (c.bandwidth / math.sqrt(12.0)))
-        self._angle_floor = c.noise_scale * c.angle_floor
+        self._angle_floor2 = (c.noise_scale * c.angle_floor) ** 2
         self._angle_k = (s2 * (c.sound_speed / f) / (2.0 * math.pi * c.aperture))[:, None, None]
         baselines = np.linalg.norm(h[1:] - h[0], axis=1) / c.sound_speed
         self.max_tdoa = baselines
@@ -426,14 +431,16 @@ class HydrophoneArray:
         """The source and its surface and bottom mirror images: (..., 3, 3) for (..., 3)."""
         return np.asarray(position, dtype=np.float64) * self._mirror_scale + self._mirror_shift
 
-    def geometry(self, sources, angles: bool = True):
-        """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3); the
-        ranges alone when not ``angles``."""
+    def _offsets(self, sources):
+        """The offsets (..., N, 3) of sources (..., 3) from the nodes, their horizontal
+        lengths and their ranges (each (..., N))."""
         d = np.asarray(sources, dtype=np.float64)[..., None, :] - self.positions
         horizontal = np.hypot(d[..., 0], d[..., 1])
-        ranges = np.hypot(horizontal, d[..., 2])
-        if not angles:
-            return ranges
+        return d, horizontal, np.hypot(horizontal, d[..., 2])
+
+    def geometry(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
+        d, horizontal, ranges = self._offsets(sources)
         return ranges, np.arctan2(d[..., 1], d[..., 0]), np.arctan2(horizontal, d[..., 2])
 
     def noise_free(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -479,9 +486,9 @@ class HydrophoneArray:
         angle constant ``angle_k`` broadcast against ``snr_db``."""
         inv_root = np.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
         timing = self._timing_k * inv_root
-        timing = np.sqrt(self._timing_floor**2 + timing * timing)
+        timing = np.sqrt(self._timing_floor2 + timing * timing)
         theta = angle_k * inv_root
-        return timing, np.sqrt(self._angle_floor**2 + theta * theta)
+        return timing, np.sqrt(self._angle_floor2 + theta * theta)
 
     def detection_probability(self, snr_db: np.ndarray,
                               working: np.ndarray | None = None) -> np.ndarray:
@@ -744,7 +751,7 @@ class HydrophoneArray:
         if node_positions is None:
             ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
         else:
-            ranges = self.geometry(sources, angles=False)
+            ranges = self._offsets(sources)[2]
             azimuth, elevation = self._node_angles(node_positions, p)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
         if fading is not None:
@@ -802,11 +809,8 @@ class HydrophoneArray:
             delays = delays + (wander * self.wander_std(ranges[:, 0]))[:, None]
         arrival = delays.reshape(-1, n).take(row, axis=0) + timing * noise[0]
         np.subtract(arrival[:, 1:], arrival[:, :1], out=paths[:, : n - 1])
-        wrapped = np.subtract(np.pi, azimuth.reshape(-1, n).take(row, axis=0)
-                              + sigma_az * noise[1])
-        outside = (wrapped < 0.0) | (wrapped >= 2.0 * np.pi)  # np.mod returns the rest as is
-        wrapped[outside] = np.mod(wrapped[outside], 2.0 * np.pi)
-        np.subtract(np.pi, wrapped, out=paths[:, n - 1 : 2 * n - 1])
+        paths[:, n - 1 : 2 * n - 1] = _wrap(azimuth.reshape(-1, n).take(row, axis=0)
+                                            + sigma_az * noise[1])
         np.clip(elevation.take(row, axis=0) + sigma_el * noise[2], 0.0, np.pi,
                 out=paths[:, 2 * n - 1 :])
 
