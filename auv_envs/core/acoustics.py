@@ -135,12 +135,19 @@ Each band's detections are shuffled and at most ``max_detections`` kept (the
 excess, if any, is dropped at random and counted). Everything is vectorised
 over periods, bands, paths and nodes, and drawn from the episode's generator,
 so seeded runs are bit-identical.
+
+Each formula is written once and takes the array namespace ``xp``: NumPy (the
+default, the CPU environments) or ``jax.numpy``, whose arrays pass through ``jit``
+and ``vmap`` (the batched environment, its draws from a JAX key). There the
+detection sets are drawn at fixed shapes (:meth:`HydrophoneArray.measure`'s
+``noise_draws="fixed"``): the same model, other draws.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -308,57 +315,80 @@ class Measurements:
         return self.values[..., 2 * self.n_nodes - 1 :]
 
 
-def unit_gauss_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...],
-                      rate: float, previous: np.ndarray | None = None) -> np.ndarray:
+def unit_gauss_markov(rng, count: int, shape: tuple[int, ...], rate: float,
+                      previous=None, xp=np):
     """``count`` steps (count, *shape) of independent first-order Gauss-Markov processes
     with unit variance and ``exp(-rate)`` correlation between steps, continuing
-    ``previous`` (None: the first step drawn from the stationary distribution)."""
+    ``previous`` (None: the first step drawn from the stationary distribution).
+    ``rng`` draws as NumPy's ``Generator`` (a JAX key's draws with ``xp`` ``jax.numpy``);
+    ``count`` is static."""
     a = math.exp(-rate)
     innovation = math.sqrt(1.0 - a * a)
     shocks = rng.standard_normal((count, *shape))
-    out = np.empty_like(shocks)
     state = shocks[0] if previous is None else a * previous + innovation * shocks[0]
-    out[0] = state
-    for j in range(1, count):
-        state = a * state + innovation * shocks[j]
-        out[j] = state
-    return out
+    steps = [state]
+    for shock in shocks[1:]:
+        state = a * state + innovation * shock
+        steps.append(state)
+    return xp.stack(steps)
 
 
-def two_state_markov(rng: np.random.Generator, count: int, shape: tuple[int, ...],
-                     p_fail: float, p_repair: float,
-                     previous: np.ndarray | None = None) -> np.ndarray:
+def two_state_markov(rng, count: int, shape: tuple[int, ...], p_fail: float,
+                     p_repair: float, previous=None, xp=np):
     """``count`` steps (count, *shape) of independent two-state Markov chains, True in the
     good state: per step a good chain turns bad with probability ``p_fail`` and a bad one
     good with ``p_repair``. Continues ``previous`` (None: the first step drawn from the
-    stationary distribution, bad with probability ``p_fail / (p_fail + p_repair)``)."""
+    stationary distribution, bad with probability ``p_fail / (p_fail + p_repair)``).
+    ``rng`` and ``xp`` as :func:`unit_gauss_markov`'s."""
     u = rng.random((count, *shape))
-    out = np.empty(u.shape, dtype=bool)
     if previous is None:
         state = u[0] >= p_fail / (p_fail + p_repair)
     else:
-        state = np.where(previous, u[0] >= p_fail, u[0] < p_repair)
-    out[0] = state
-    for j in range(1, count):
-        state = np.where(state, u[j] >= p_fail, u[j] < p_repair)
-        out[j] = state
-    return out
+        state = xp.where(previous, u[0] >= p_fail, u[0] < p_repair)
+    steps = [state]
+    for draw in u[1:]:
+        state = xp.where(state, draw >= p_fail, draw < p_repair)
+        steps.append(state)
+    return xp.stack(steps)
 
 
-#: The two orders of :meth:`HydrophoneArray.measure`'s draws.
+#: The two orders of :meth:`HydrophoneArray.measure`'s draws on NumPy (the CPU
+#: environment's choices); ``FIXED_DRAWS`` is the third, of fixed shapes, that every
+#: backend runs.
 NOISE_DRAWS = ("kept", "all")
+FIXED_DRAWS = "fixed"
 #: ``10 ** (x / -20) = exp(x * _MINUS_LN10_OVER_20)`` (NumPy's ``exp`` is several times
 #: faster than its ``power``).
 _MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """``angle`` wrapped into (-pi, pi]; ``np.mod`` only where ``pi - angle`` is outside
-    [0, 2 pi) (it returns the rest unchanged, so the result is the same)."""
-    shifted = np.subtract(np.pi, angle)
+def _wrap(angle, xp=np):
+    """``angle`` wrapped into (-pi, pi]. On NumPy ``np.mod`` runs only where ``pi - angle``
+    is outside [0, 2 pi) (it returns the rest unchanged, so the result is the same, several
+    times faster)."""
+    shifted = xp.subtract(xp.pi, angle)
+    if xp is not np:
+        return xp.pi - xp.mod(shifted, 2.0 * xp.pi)
     outside = (shifted < 0.0) | (shifted >= 2.0 * np.pi)
     shifted[outside] = np.mod(shifted[outside], 2.0 * np.pi)
     return np.subtract(np.pi, shifted, out=shifted)
+
+
+def _all_finite(x, xp) -> bool:
+    """Whether every entry of ``x`` is finite; True off NumPy (traced values go unchecked)."""
+    return xp is not np or bool(np.all(np.isfinite(x)))
+
+
+class _Paths(NamedTuple):
+    """What :meth:`HydrophoneArray.measure` draws a period's detections from, per period,
+    band, path and node: detection probabilities (B, Q, P), SNRs (B, Q, P, N) dB, and the
+    true arrival times (s), azimuths and elevations (B, P, N)."""
+
+    pd: object
+    snr: object
+    delays: object
+    azimuth: object
+    elevation: object
 
 
 class HydrophoneArray:
@@ -410,6 +440,14 @@ class HydrophoneArray:
         k = c.max_detections
         self._candidate_index = np.arange(self._n_paths + k)
         self._clutter_slot = np.arange(k)
+        # The fixed-shape draw's candidates are the paths and then K false-alarm slots;
+        # slot j holds a false alarm when a uniform exceeds P(count <= j), the Poisson
+        # count's distribution function (by inverse transform: min(count, K) of them).
+        self._candidate_origin = np.concatenate(
+            [np.arange(self._n_paths), np.full(k, ORIGIN_CLUTTER)]).astype(np.int8)
+        rate = c.clutter_rate
+        self._clutter_cdf = np.cumsum(
+            [math.exp(-rate) * rate**j / math.factorial(j) for j in range(k)])
         # Image sources as scale * p + shift: direct, surface mirror, bottom mirror.
         self._mirror_scale = np.array([[1.0, 1.0, 1.0], [1.0, 1.0, -1.0], [1.0, 1.0, -1.0]])
         self._mirror_shift = np.array(
@@ -427,71 +465,72 @@ class HydrophoneArray:
         return len(self.positions)
 
     # ------------------------------------------------------------ geometry
-    def image_sources(self, position) -> np.ndarray:
+    # Every method that computes takes the array namespace ``xp``: NumPy (the default) or
+    # ``jax.numpy``, whose arrays then pass through (under ``jit`` and ``vmap`` too).
+    def image_sources(self, position, xp=np):
         """The source and its surface and bottom mirror images: (..., 3, 3) for (..., 3)."""
-        return np.asarray(position, dtype=np.float64) * self._mirror_scale + self._mirror_shift
+        return xp.asarray(position, dtype=float) * self._mirror_scale + self._mirror_shift
 
-    def _offsets(self, sources):
+    def _offsets(self, sources, xp=np):
         """The offsets (..., N, 3) of sources (..., 3) from the nodes, their horizontal
         lengths and their ranges (each (..., N))."""
-        d = np.asarray(sources, dtype=np.float64)[..., None, :] - self.positions
-        horizontal = np.hypot(d[..., 0], d[..., 1])
-        return d, horizontal, np.hypot(horizontal, d[..., 2])
+        d = xp.asarray(sources, dtype=float)[..., None, :] - self.positions
+        horizontal = xp.hypot(d[..., 0], d[..., 1])
+        return d, horizontal, xp.hypot(horizontal, d[..., 2])
 
-    def geometry(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def geometry(self, sources, xp=np):
         """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
-        d, horizontal, ranges = self._offsets(sources)
-        return ranges, np.arctan2(d[..., 1], d[..., 0]), np.arctan2(horizontal, d[..., 2])
+        d, horizontal, ranges = self._offsets(sources, xp)
+        return ranges, xp.arctan2(d[..., 1], d[..., 0]), xp.arctan2(horizontal, d[..., 2])
 
-    def noise_free(self, sources) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def noise_free(self, sources, xp=np):
         """Exact (tdoa (..., N-1), azimuth (..., N), elevation (..., N)) of sources (..., 3)."""
-        ranges, azimuth, elevation = self.geometry(sources)
+        ranges, azimuth, elevation = self.geometry(sources, xp)
         tdoa = (ranges[..., 1:] - ranges[..., :1]) / self.config.sound_speed
         return tdoa, azimuth, elevation
 
     # ------------------------------------------------------------ noise model
-    def flow_noise_rise(self, current_speed) -> np.ndarray:
+    def flow_noise_rise(self, current_speed, xp=np):
         """How much the flow noise raises each band's noise, dB: (..., Q) for speeds (...).
 
         Zero everywhere when the config has no ``flow_noise_level``.
         """
-        u = np.asarray(current_speed, dtype=np.float64)
-        if not np.all(np.isfinite(u)) or np.any(u < 0):
+        u = xp.asarray(current_speed, dtype=float)
+        if not _all_finite(u, xp) or (xp is np and np.any(u < 0)):
             raise ValueError(f"current_speed must be finite and >= 0, got {current_speed!r}")
         if self._flow_ratio is None:
-            return np.zeros(u.shape + self.band_centres.shape)
+            return xp.zeros(u.shape + self.band_centres.shape, dtype=u.dtype)
         u = u[..., None] / FLOW_NOISE_REF_SPEED
-        return 10.0 * np.log10(1.0 + self._flow_ratio * u**6)
+        return 10.0 * xp.log10(1.0 + self._flow_ratio * u**6)
 
-    def snr_db(self, ranges: np.ndarray, path_loss, noise_rise=None) -> np.ndarray:
+    def snr_db(self, ranges, path_loss, noise_rise=None, xp=np):
         """Per-band SNR (Q, P, N) in dB for path ranges (P, N) with boundary losses (P, 1).
 
         ``noise_rise`` (Q,) dB, e.g. :meth:`flow_noise_rise`, lowers every SNR
         of its band (broadcast against (..., Q) leading axes as (..., Q, 1, 1)).
         """
-        spreading = 20.0 * np.log10(np.maximum(ranges, 1.0))
+        spreading = 20.0 * xp.log10(xp.maximum(ranges, 1.0))
         snr = self._snr_offset - spreading - self._absorption * ranges - path_loss
         if noise_rise is not None:
-            snr = snr - np.asarray(noise_rise)[..., None, None]
+            snr = snr - xp.asarray(noise_rise)[..., None, None]
         return snr
 
-    def noise_std(self, snr_db: np.ndarray, elevation: np.ndarray):
+    def noise_std(self, snr_db, elevation, xp=np):
         """Arrival-time, azimuth and elevation standard deviations for an SNR array
         (Q, ...) per band."""
-        timing, theta = self._timing_and_angle_std(snr_db, self._angle_k)
-        return timing, theta / np.maximum(np.sin(elevation), 0.05), theta
+        timing, theta = self._timing_and_angle_std(snr_db, self._angle_k, xp)
+        return timing, theta / xp.maximum(xp.sin(elevation), 0.05), theta
 
-    def _timing_and_angle_std(self, snr_db: np.ndarray, angle_k):
+    def _timing_and_angle_std(self, snr_db, angle_k, xp=np):
         """:meth:`noise_std`'s arrival-time and elevation deviations, with the band's
         angle constant ``angle_k`` broadcast against ``snr_db``."""
-        inv_root = np.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
+        inv_root = xp.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
         timing = self._timing_k * inv_root
-        timing = np.sqrt(self._timing_floor2 + timing * timing)
+        timing = xp.sqrt(self._timing_floor2 + timing * timing)
         theta = angle_k * inv_root
-        return timing, np.sqrt(self._angle_floor2 + theta * theta)
+        return timing, xp.sqrt(self._angle_floor2 + theta * theta)
 
-    def detection_probability(self, snr_db: np.ndarray,
-                              working: np.ndarray | None = None) -> np.ndarray:
+    def detection_probability(self, snr_db, working=None, xp=np):
         """Per band and path: logistic in the array SNR (mean over nodes, dB).
 
         ``working`` (bool, broadcast against ``snr_db``'s (..., N)) restricts the mean to
@@ -500,15 +539,15 @@ class HydrophoneArray:
         c = self.config
         if working is None:
             if c.ideal_detection:
-                return np.ones(snr_db.shape[:-1])
+                return xp.ones(snr_db.shape[:-1], dtype=snr_db.dtype)
             array_snr = snr_db.mean(axis=-1)
-            return 1.0 / (1.0 + np.exp(-(array_snr - c.snr50) / c.snr_slope))
-        count = np.sum(np.broadcast_to(working, snr_db.shape), axis=-1)
+            return 1.0 / (1.0 + xp.exp(-(array_snr - c.snr50) / c.snr_slope))
+        count = xp.sum(xp.broadcast_to(working, snr_db.shape), axis=-1)
         if c.ideal_detection:
-            return (count > 0).astype(np.float64)
-        array_snr = np.sum(np.where(working, snr_db, 0.0), axis=-1) / np.maximum(count, 1)
-        pd = 1.0 / (1.0 + np.exp(-(array_snr - c.snr50) / c.snr_slope))
-        return np.where(count > 0, pd, 0.0)
+            return (count > 0).astype(snr_db.dtype)
+        array_snr = xp.sum(xp.where(working, snr_db, 0.0), axis=-1) / xp.maximum(count, 1)
+        pd = 1.0 / (1.0 + xp.exp(-(array_snr - c.snr50) / c.snr_slope))
+        return xp.where(count > 0, pd, 0.0)
 
     def model(self, position, current_speed: float = 0.0) -> dict[str, np.ndarray]:
         """The documented noise model at a source position, per band (for users and tests).
@@ -584,14 +623,12 @@ class HydrophoneArray:
                 jacobian.T @ precision @ jacobian)
         return float(np.sqrt(np.trace(np.linalg.inv(periods * information))))
 
-    def draw_clock_offsets(self, rng: np.random.Generator) -> np.ndarray:
+    def draw_clock_offsets(self, rng, xp=np):
         """Per-episode clock offsets (N,), node 1's zero."""
         offsets = rng.normal(0.0, 1.0, self.n_nodes) * self.config.clock_offset_std
-        offsets[0] = 0.0
-        return offsets
+        return xp.where(xp.arange(self.n_nodes) == 0, 0.0, offsets)
 
-    def emission_positions(self, track, count: int, dt: float,
-                           sound_speed: float | None = None) -> np.ndarray:
+    def emission_positions(self, track, count: int, dt: float, sound_speed=None, xp=np):
         """Where the source was when the sound each node hears now left it (propagation delay).
 
         Args:
@@ -608,32 +645,31 @@ class HydrophoneArray:
           iteration (three passes; each cuts the error by v / c ~ 1e-3) with linear
           interpolation between periods.
         """
-        track = np.asarray(track, dtype=np.float64)
+        track = xp.asarray(track, dtype=float)
         if track.ndim != 2 or track.shape[1] != 3 or not 1 <= count <= len(track):
             raise ValueError(f"need a (M >= count, 3) track, got {track.shape} for {count}")
-        c = self.config.sound_speed if sound_speed is None else float(sound_speed)
-        now = np.arange(len(track) - count, len(track), dtype=np.float64)[:, None]  # (B, 1)
-        emitted = np.broadcast_to(track[-count:, None, :], (count, self.n_nodes, 3))
+        c = self.config.sound_speed if sound_speed is None else sound_speed
+        now = xp.arange(len(track) - count, len(track), dtype=track.dtype)[:, None]  # (B, 1)
+        emitted = xp.broadcast_to(track[-count:, None, :], (count, self.n_nodes, 3))
         for _ in range(3):
-            ranges = np.linalg.norm(emitted - self.positions, axis=-1)  # (B, N)
-            index = np.clip(now - ranges / (c * dt), 0.0, len(track) - 1.0)
-            low = np.floor(index).astype(np.int64)
-            high = np.minimum(low + 1, len(track) - 1)
+            ranges = xp.linalg.norm(emitted - self.positions, axis=-1)  # (B, N)
+            index = xp.clip(now - ranges / (c * dt), 0.0, len(track) - 1.0)
+            low = xp.floor(index).astype(int)
+            high = xp.minimum(low + 1, len(track) - 1)
             frac = (index - low)[..., None]
             emitted = track[low] * (1.0 - frac) + track[high] * frac
         return emitted
 
-    def _node_angles(self, node_positions: np.ndarray, paths: int):
+    def _node_angles(self, node_positions, paths: int, xp=np):
         """Azimuths and elevations (B, P, N), node ``i`` seeing its own row of (B, N, 3)."""
-        sources = self.image_sources(node_positions[:, :, None, :])[:, :, :paths]  # (B, N, P, 3)
-        d = sources - self.positions[None, :, None, :]
-        horizontal = np.hypot(d[..., 0], d[..., 1])
-        azimuth = np.arctan2(d[..., 1], d[..., 0]).transpose(0, 2, 1)
-        elevation = np.arctan2(horizontal, d[..., 2]).transpose(0, 2, 1)
+        sources = self.image_sources(node_positions[:, :, None, :], xp)[:, :, :paths]
+        d = sources - self.positions[None, :, None, :]  # (B, N, P, 3)
+        horizontal = xp.hypot(d[..., 0], d[..., 1])
+        azimuth = xp.arctan2(d[..., 1], d[..., 0]).transpose(0, 2, 1)
+        elevation = xp.arctan2(horizontal, d[..., 2]).transpose(0, 2, 1)
         return azimuth, elevation
 
-    def draw_wander(self, rng: np.random.Generator, count: int,
-                    previous: np.ndarray | None = None) -> np.ndarray | None:
+    def draw_wander(self, rng, count: int, previous=None, xp=np):
         """``count`` periods of the nodes' unit travel-time wander (count, N), continuing
         ``previous`` (N,) (None: drawn from the stationary distribution). Scale it with
         :meth:`wander_std`. No draw when the wander is off (returns None)."""
@@ -641,10 +677,9 @@ class HydrophoneArray:
         if c.fluctuation_intensity == 0.0:
             return None
         return unit_gauss_markov(rng, count, (self.n_nodes,),
-                                 1.0 / (c.sample_rate * c.fluctuation_time), previous)
+                                 1.0 / (c.sample_rate * c.fluctuation_time), previous, xp)
 
-    def draw_fading(self, rng: np.random.Generator, count: int,
-                    previous: np.ndarray | None = None) -> np.ndarray | None:
+    def draw_fading(self, rng, count: int, previous=None, xp=np):
         """``count`` periods of every band's and node's fading (count, Q, N) in dB,
         continuing ``previous`` (Q, N) dB. No draw when fading is off (returns None)."""
         c = self.config
@@ -652,10 +687,10 @@ class HydrophoneArray:
             return None
         unit = None if previous is None else previous / c.fading_std
         return c.fading_std * unit_gauss_markov(
-            rng, count, (c.n_bands, self.n_nodes), 1.0 / (c.sample_rate * c.fading_time), unit)
+            rng, count, (c.n_bands, self.n_nodes), 1.0 / (c.sample_rate * c.fading_time), unit,
+            xp)
 
-    def draw_node_states(self, rng: np.random.Generator, count: int,
-                         previous: np.ndarray | None = None) -> np.ndarray | None:
+    def draw_node_states(self, rng, count: int, previous=None, xp=np):
         """``count`` periods of which nodes work (count, N) bool, continuing ``previous``
         (N,) (None: drawn from the stationary distribution). No draw when dropouts are off
         (returns None).
@@ -673,32 +708,32 @@ class HydrophoneArray:
         moves = -math.expm1(-total / c.sample_rate)
         out = c.node_dropout_rate / total
         return two_state_markov(rng, count, (self.n_nodes,), out * moves, (1.0 - out) * moves,
-                                previous)
+                                previous, xp)
 
-    def wander_std(self, ranges: np.ndarray) -> np.ndarray:
+    def wander_std(self, ranges, xp=np):
         """Travel-time wander's standard deviation, s, over ranges (m): mu sqrt(L_p R) / c."""
         c = self.config
-        return c.fluctuation_intensity * np.sqrt(c.fluctuation_length * ranges) / c.sound_speed
+        return c.fluctuation_intensity * xp.sqrt(c.fluctuation_length * ranges) / c.sound_speed
 
-    def draw_sound_speed(self, rng: np.random.Generator) -> float:
-        """The water's true sound speed for an episode, m/s (no draw when the error is off)."""
+    def draw_sound_speed(self, rng, xp=np):
+        """The water's true sound speed for an episode, m/s (no draw when the error is off;
+        a float on NumPy, a scalar array on other backends)."""
         c = self.config
         if c.sound_speed_error_std == 0.0:
             return c.sound_speed
-        error = c.sound_speed_error_std * float(rng.standard_normal())
         limit = SOUND_SPEED_ERROR_LIMIT * c.sound_speed
-        return c.sound_speed + min(max(error, -limit), limit)
+        error = xp.clip(c.sound_speed_error_std * rng.standard_normal(), -limit, limit)
+        return c.sound_speed + (float(error) if xp is np else error)
 
-    def measure(self, rng: np.random.Generator, positions, clock_offsets,
-                current_speed=None, sound_speed: float | None = None,
-                wander: np.ndarray | None = None,
-                fading: np.ndarray | None = None,
-                working: np.ndarray | None = None,
-                noise_draws: str = "kept") -> Measurements:
+    def measure(self, rng, positions, clock_offsets, current_speed=None, sound_speed=None,
+                wander=None, fading=None, working=None, noise_draws: str = "kept",
+                xp=np) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
-          rng: the episode's generator (the only source of randomness).
+          rng: the episode's draws: its NumPy generator (the only source of randomness),
+            or an object with the same ``random`` and ``standard_normal`` (a JAX key's,
+            :class:`auv_envs.batched.functional.KeyDraws`).
           positions: (B, 3) source positions, one per sample period (or (3,)
             for a single period; the result then has no leading axis); or
             (B, N, 3) per-node emission positions (:meth:`emission_positions`):
@@ -721,63 +756,144 @@ class HydrophoneArray:
             nodes'. None: every node works.
           noise_draws: ``"kept"`` (the default) draws the measurement noise last, for
             the detections kept only; ``"all"`` first, for every path of every band and
-            period, detected or not (``AcousticTracking-v0``'s random stream). The same
-            model either way: only the order and number of the draws differ.
+            period, detected or not (``AcousticTracking-v0``'s random stream); both on
+            NumPy only. ``"fixed"`` (``FIXED_DRAWS``, any ``xp``) draws at fixed shapes:
+            noise for every path, a vector for each of the K false-alarm slots (the
+            Poisson count by inverse transform from one uniform per band), keys for the
+            shuffle of every candidate. The same model in all three: only the order and
+            number of the draws differ.
+          xp: the array namespace, NumPy or ``jax.numpy`` (then the inputs may be traced:
+            only their shapes are checked).
 
         Returns:
           :class:`Measurements` with arrays (B, Q, K, ...). Everything is drawn
           from ``rng``, so a seeded episode is reproducible.
         """
-        if noise_draws not in NOISE_DRAWS:
-            raise ValueError(f"noise_draws must be one of {NOISE_DRAWS}, got {noise_draws!r}")
-        positions = np.asarray(positions, dtype=np.float64)
+        if noise_draws not in (*NOISE_DRAWS, FIXED_DRAWS):
+            raise ValueError(f"noise_draws must be one of {(*NOISE_DRAWS, FIXED_DRAWS)}, "
+                             f"got {noise_draws!r}")
+        if xp is not np and noise_draws != FIXED_DRAWS:
+            raise ValueError(f"noise_draws={noise_draws!r} draws sets of varying size: "
+                             f"NumPy only (use {FIXED_DRAWS!r})")
+        positions = xp.asarray(positions, dtype=float)
         single = positions.ndim == 1
-        positions = np.atleast_2d(positions)
-        n, p, k = self.n_nodes, self._n_paths, self.config.max_detections
+        positions = xp.atleast_2d(positions)
+        n, p = self.n_nodes, self._n_paths
         per_node = positions.shape[1:] == (n, 3)
-        if not (per_node or positions.shape[1:] == (3,)) or not np.all(np.isfinite(positions)):
+        if not (per_node or positions.shape[1:] == (3,)) or not _all_finite(positions, xp):
             raise ValueError(f"positions must be finite (B, 3) or (B, {n}, 3), "
                              f"got shape {positions.shape}")
         node_positions = positions if per_node else None
         if per_node:
             positions = positions[:, 0]
-        q, b = self.config.n_bands, len(positions)
+        b = len(positions)
         rise = None
         if self._flow_ratio is not None:
             if current_speed is None:
                 raise ValueError("the config has flow noise: measure() needs current_speed")
-            rise = self.flow_noise_rise(np.broadcast_to(current_speed, (b,)))  # (B, Q)
-        sources = self.image_sources(positions[:, None, :])[:, :p]  # (B, P, 3)
+            rise = self.flow_noise_rise(xp.broadcast_to(current_speed, (b,)), xp)  # (B, Q)
+        sources = self.image_sources(positions[:, None, :], xp)[:, :p]  # (B, P, 3)
         if node_positions is None:
-            ranges, azimuth, elevation = self.geometry(sources)  # (B, P, N)
+            ranges, azimuth, elevation = self.geometry(sources, xp)  # (B, P, N)
         else:
-            ranges = self._offsets(sources)[2]
-            azimuth, elevation = self._node_angles(node_positions, p)
-        snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise)  # (B, Q, P, N)
+            ranges = self._offsets(sources, xp)[2]
+            azimuth, elevation = self._node_angles(node_positions, p, xp)
+        snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise, xp)  # (B, Q, P, N)
         if fading is not None:
-            snr = snr + np.asarray(fading)[:, :, None, :]
+            snr = snr + xp.asarray(fading)[:, :, None, :]
         if working is not None:
-            working = np.atleast_2d(np.asarray(working, dtype=bool))
+            working = xp.atleast_2d(xp.asarray(working, dtype=bool))
             if working.shape != (b, n):
                 raise ValueError(f"working must be ({b}, {n}) node states, got {working.shape}")
-            pd = self.detection_probability(snr, working[:, None, None])  # (B, Q, P)
+            pd = self.detection_probability(snr, working[:, None, None], xp)  # (B, Q, P)
         else:
-            pd = self.detection_probability(snr)  # (B, Q, P)
-        speed = self.config.sound_speed if sound_speed is None else float(sound_speed)
-        if not (math.isfinite(speed) and speed > 0):
-            raise ValueError(f"sound_speed must be a positive speed in m/s, got {sound_speed!r}")
+            pd = self.detection_probability(snr, xp=xp)  # (B, Q, P)
+        speed = self.config.sound_speed if sound_speed is None else sound_speed
+        if xp is np:
+            speed = float(speed)
+            if not (math.isfinite(speed) and speed > 0):
+                raise ValueError(f"sound_speed must be a positive speed in m/s, "
+                                 f"got {sound_speed!r}")
+        delays = ranges / speed + clock_offsets  # (B, P, N) true arrival times
+        if wander is not None:
+            delays = delays + (wander * self.wander_std(ranges[:, 0], xp))[:, None]
 
+        paths = _Paths(pd, snr, delays, azimuth, elevation)
+        if noise_draws == FIXED_DRAWS:
+            values, mask, origin, dropped = self._draw_fixed(rng, paths, working, xp)
+        else:
+            values, mask, origin, dropped = self._draw_sized(rng, paths, working, noise_draws)
+        if working is not None:  # an out node measures nothing; without node 1, no TDOA
+            columns = xp.concatenate([working[:, 1:] & working[:, :1], working, working], -1)
+            values = values * columns[:, None, None, :]
+        result = Measurements(values=values, mask=mask, origin=origin, dropped=dropped)
+        if single:
+            return Measurements(*(getattr(result, f.name)[0]
+                                  for f in dataclasses.fields(Measurements)))
+        return result
+
+    def _noisy(self, delays, azimuth, elevation, snr, angle_k, noise, xp=np):
+        """Detection vectors (..., 3N - 1) of paths: their true arrival times (s), azimuths
+        and elevations, and SNRs (dB) (each (..., N)) with their bands' angle constants
+        ``angle_k`` (broadcast against them), plus the noise of the module docstring from
+        unit draws ``noise`` (3, ..., N)."""
+        timing, sigma_el = self._timing_and_angle_std(snr, angle_k, xp)
+        sigma_az = sigma_el / xp.maximum(xp.sin(elevation), 0.05)
+        arrival = delays + timing * noise[0]
+        return xp.concatenate([arrival[..., 1:] - arrival[..., :1],
+                               _wrap(azimuth + sigma_az * noise[1], xp),
+                               xp.clip(elevation + sigma_el * noise[2], 0.0, xp.pi)], axis=-1)
+
+    def _false_alarms(self, uniform):
+        """False-alarm vectors (..., 3N - 1) from uniforms (..., 3N - 1) on [0, 1)."""
+        return uniform * self._clutter_scale + self._clutter_shift
+
+    def _draw_fixed(self, rng, paths: _Paths, working, xp):
+        """:meth:`measure`'s sets drawn at fixed shapes (``noise_draws="fixed"``): returns
+        (values, mask, origin, dropped).
+
+        The draws, in order: detections, the false alarms' slots and vectors, the
+        shuffle's keys, every path's noise. The candidates of a (period, band) are its P
+        paths and K false-alarm slots; the first K in the order of the keys (the valid
+        ones shuffled, then the others) fill the K slots, an invalid one leaving its slot
+        empty.
+        """
+        b, q, p = paths.pd.shape
+        n, k = self.n_nodes, self.config.max_detections
+        detected = rng.random((b, q, p)) < paths.pd
+        slots = rng.random((b, q))[..., None] > self._clutter_cdf  # (B, Q, K)
+        clutter = self._false_alarms(rng.random((b, q, k, 3 * n - 1)))
+        valid = xp.concatenate([detected, slots], axis=-1)  # (B, Q, P + K)
+        if working is not None:  # no node working: no false alarm either
+            valid = valid & xp.any(working, axis=-1)[:, None, None]
+        keys = xp.where(valid, rng.random(valid.shape), 2.0)
+        noise = rng.standard_normal((3, b, q, p, n))
+        detections = self._noisy(paths.delays[:, None], paths.azimuth[:, None],
+                                 paths.elevation[:, None], paths.snr, self._angle_k, noise, xp)
+        candidates = xp.concatenate([detections, clutter], axis=-2)  # (B, Q, P + K, 3N - 1)
+        order = xp.argsort(keys, axis=-1)[..., :k]  # (B, Q, K): the candidate in each slot
+        mask = xp.take_along_axis(valid, order, axis=-1)
+        values = xp.where(mask[..., None],
+                          xp.take_along_axis(candidates, order[..., None], axis=-2), 0.0)
+        origin = xp.where(mask, xp.asarray(self._candidate_origin)[order], ORIGIN_EMPTY)
+        dropped = xp.maximum(xp.sum(valid, axis=-1, dtype=int) - k, 0)  # beyond the K
+        return values, mask, origin.astype(xp.int8), dropped
+
+    def _draw_sized(self, rng: np.random.Generator, paths: _Paths, working, noise_draws: str):
+        """:meth:`measure`'s sets drawn on NumPy with as many draws as there are detections
+        and false alarms (``"kept"``, ``"all"``): returns (values, mask, origin, dropped)."""
+        b, q, p = paths.pd.shape
+        n, k = self.n_nodes, self.config.max_detections
         # The draws, in order: [every path's noise], detections, false-alarm counts and
         # vectors, the shuffle's keys, [the kept paths' noise].
         if noise_draws == "all":
             every = rng.standard_normal((3, b, q, p, n), dtype=np.float32)
         valid = np.empty((b, q, p + k), dtype=bool)
         detected = valid[..., :p]
-        np.less(rng.random((b, q, p)), pd, out=detected)
+        np.less(rng.random((b, q, p)), paths.pd, out=detected)
         n_clutter = rng.poisson(self.config.clutter_rate, (b, q))
         slots = self._clutter_slot < n_clutter[..., None]  # (B, Q, K)
-        clutter = rng.random((int(slots.sum()), 3 * n - 1)) * self._clutter_scale + \
-            self._clutter_shift
+        clutter = self._false_alarms(rng.random((int(slots.sum()), 3 * n - 1)))
         valid[..., p:] = slots
         if working is not None:  # no node working: no false alarm either
             valid &= working.any(axis=-1)[:, None, None]
@@ -795,31 +911,21 @@ class HydrophoneArray:
             noise = rng.standard_normal((3, len(path_b), n), dtype=np.float32)
         noise = noise.astype(np.float64)  # exactly; float64 arithmetic from here on
 
-        # The kept paths' measurements (D, 3N - 1): TDOAs, azimuths, elevations, from
-        # their rows of the (B * Q * P, N) and (B * P, N) arrays.
-        paths = np.empty((len(path_b), 3 * n - 1))
+        # The kept paths' detections (D, 3N - 1), from their rows of the (B * Q * P, N)
+        # and (B * P, N) arrays.
         row = path_b * p + path_p
-        timing, sigma_el = self._timing_and_angle_std(
-            snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
-            self._angle_k[path_q, 0])
-        elevation = elevation.reshape(-1, n)
-        sigma_az = sigma_el / np.maximum(np.sin(elevation), 0.05).take(row, axis=0)
-        delays = ranges / speed + clock_offsets
-        if wander is not None:
-            delays = delays + (wander * self.wander_std(ranges[:, 0]))[:, None]
-        arrival = delays.reshape(-1, n).take(row, axis=0) + timing * noise[0]
-        np.subtract(arrival[:, 1:], arrival[:, :1], out=paths[:, : n - 1])
-        paths[:, n - 1 : 2 * n - 1] = _wrap(azimuth.reshape(-1, n).take(row, axis=0)
-                                            + sigma_az * noise[1])
-        np.clip(elevation.take(row, axis=0) + sigma_el * noise[2], 0.0, np.pi,
-                out=paths[:, 2 * n - 1 :])
+        detections = self._noisy(
+            paths.delays.reshape(-1, n).take(row, axis=0),
+            paths.azimuth.reshape(-1, n).take(row, axis=0),
+            paths.elevation.reshape(-1, n).take(row, axis=0),
+            paths.snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
+            self._angle_k[path_q, 0], noise)
 
         # Each kept candidate into its slot; the rest of the K slots empty.
         picked = np.zeros((b, q, k, 3 * n - 1))
-        mask = np.zeros((b, q, k), dtype=bool)
         origin = np.full((b, q, k), ORIGIN_EMPTY, dtype=np.int8)
         slot = rank[path_b, path_q, path_p]
-        picked[path_b, path_q, slot] = paths
+        picked[path_b, path_q, slot] = detections
         origin[path_b, path_q, slot] = path_p
         false_b, false_q, false_j = np.nonzero(slots)  # the order of ``clutter``'s rows
         false_kept = kept[false_b, false_q, p + false_j]
@@ -827,17 +933,6 @@ class HydrophoneArray:
         slot = rank[false_b, false_q, p + false_j[false_kept]]
         picked[false_b, false_q, slot] = clutter[false_kept]
         origin[false_b, false_q, slot] = ORIGIN_CLUTTER
-        mask[origin != ORIGIN_EMPTY] = True
-        if working is not None:  # an out node measures nothing; without node 1, no TDOA
-            columns = np.concatenate([working[:, 1:] & working[:, :1], working, working], -1)
-            picked *= columns[:, None, None, :]
-        result = Measurements(
-            values=picked,
-            mask=mask,
-            origin=origin,
-            dropped=np.maximum(valid.sum(axis=-1, dtype=np.int64) - k, 0),  # beyond the K
-        )
-        if single:
-            return Measurements(*(getattr(result, f.name)[0]
-                                  for f in dataclasses.fields(Measurements)))
-        return result
+        dropped = np.maximum(valid.sum(axis=-1, dtype=np.int64) - k, 0)  # beyond the K
+        return picked, origin != ORIGIN_EMPTY, origin, dropped
+
