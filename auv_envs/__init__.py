@@ -27,7 +27,7 @@ __version__ = "0.1.0"
 ENVIRONMENTS = {
     "auv_envs/DockingStation-v2": "auv_envs.tasks.docking.env:DockingStationEnv",
     "auv_envs/LampArrayDocking-v2": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
-    "auv_envs/AcousticTracking-v1": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
+    "auv_envs/AcousticTracking-v2": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
 }
 
@@ -41,7 +41,10 @@ _DOCKING_V1_PLANT = {"plant": "mujoco"}
 #: the kept detections only) and the detections drawn in every mode (v1: when observed or
 #: rendered).
 _ACOUSTIC_V0 = {"integrator": "implicitfast", "physics_substeps": 1, "noise_draws": "all",
-                "draw_detections": True}
+                "draw_detections": True, "planner": "tabulated"}
+#: Acoustic tracking v1: the carrier's route drawn by the sequential planner (v2: drawn
+#: per segment, every draw made, by the same code on NumPy and JAX).
+_ACOUSTIC_V1 = {"planner": "tabulated"}
 
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
@@ -61,6 +64,9 @@ PREVIOUS_VERSIONS = {
     ),
     "auv_envs/AcousticTracking-v0": (
         "auv_envs.tasks.acoustic.env:AcousticTrackingEnv", _ACOUSTIC_V0
+    ),
+    "auv_envs/AcousticTracking-v1": (
+        "auv_envs.tasks.acoustic.env:AcousticTrackingEnv", _ACOUSTIC_V1
     ),
 }
 
@@ -102,6 +108,7 @@ BATCHED_ENVIRONMENTS = {
     "auv_envs/DockingStationMJX-v2": "auv_envs.batched.vector:docking_station",
     "auv_envs/LampArrayDockingMJX-v2": "auv_envs.batched.vector:lamp_array_docking",
     "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
+    "auv_envs/AcousticTrackingMJX-v2": "auv_envs.batched.vector:acoustic_tracking",
 }
 for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():
     if _env_id not in registry:

@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/gmphd_speed.py [--steps 1000] [--seed 0] [--updates 200]
 
-1. **Full step.** One seeded ``AcousticTracking-v1`` episode (Q = 10 bands,
+1. **Full step.** One seeded ``AcousticTracking-v2`` episode (Q = 10 bands,
    the environment's default clutter) is recorded first; then each agent's
    ``act`` is timed on those observations (the environment is not timed),
    after 100 warm-up steps. Printed: median, mean and 90th percentile in
@@ -44,7 +44,7 @@ from auv_envs.core.acoustics import AcousticConfig
 from baselines.acoustic.estimation.gmphd import compact_fixes, gmphd_update
 from baselines.registry import make_agent
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 WARMUP = 100
 #: Interleaved rounds of Stone Soup and ours per step of the update comparison.

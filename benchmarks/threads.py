@@ -26,7 +26,7 @@ DEFAULT_ENVS = (
     "auv_envs/DockingStation-v2:features",
     "auv_envs/DockingStation-v2:image",
     "auv_envs/LARSCapture-v0:features",
-    "auv_envs/AcousticTracking-v1:measurements",
+    "auv_envs/AcousticTracking-v2:measurements",
 )
 #: Image modes are timed at a small size, as an RL pixel agent uses them.
 IMAGE_KWARGS = {"image": {"image_size": (84, 84)}, "stereo": {"image_size": (84, 84)}}

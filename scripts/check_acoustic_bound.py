@@ -42,7 +42,7 @@ from baselines.evaluation import evaluate_all  # noqa: E402
 from baselines.registry import agent_names, agent_spec  # noqa: E402
 from baselines.stats import bootstrap_interval  # noqa: E402
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 
 
 def acoustic_agents() -> list[str]:

@@ -25,7 +25,7 @@ GALLERY = {
     "docking_chase.png": ("auv_envs/DockingStation-v2", {}, "pd-state", 100_000, 0.75),
     "lars_side.png": ("auv_envs/LARSCapture-v0", {"sea_state": "severe"}, "ltat-ckf-pd",
                       100_001, 0.5),
-    "acoustic.png": ("auv_envs/AcousticTracking-v1", {"time_limit": 12.0}, "gmphd-gci",
+    "acoustic.png": ("auv_envs/AcousticTracking-v2", {"time_limit": 12.0}, "gmphd-gci",
                      100_000, 1.0),
 }
 

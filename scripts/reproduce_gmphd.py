@@ -49,7 +49,7 @@ from baselines.evaluation import run_episode, write_figures
 from baselines.registry import agent_spec
 from baselines.stats import bootstrap_interval
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 LEVELS = ("low", "medium", "high")
 SECTIONS = ("static", "dynamic", "variants", "tcfe")

@@ -67,7 +67,7 @@ def array_of():
     configuration (:class:`auv_envs.core.acoustics.AcousticConfig`)."""
     from auv_envs.core.acoustics import HydrophoneArray
 
-    env = gym.make("auv_envs/AcousticTracking-v1")
+    env = gym.make("auv_envs/AcousticTracking-v2")
     base = env.unwrapped.calibration.array
     env.close()
 

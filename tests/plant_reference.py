@@ -351,7 +351,7 @@ def acoustic_truth(disturbance: str, seed: int, duration: float,
     from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
 
     shipped = inspect.signature(AcousticTrackingEnv).parameters["physics_substeps"].default
-    env = gym.make("auv_envs/AcousticTracking-v1", obs_mode="state", disturbance=disturbance,
+    env = gym.make("auv_envs/AcousticTracking-v2", obs_mode="state", disturbance=disturbance,
                    time_limit=duration, physics_substeps=refinement * shipped)
     try:
         _, info = env.reset(seed=seed)

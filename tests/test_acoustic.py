@@ -23,7 +23,7 @@ from auv_envs.core.acoustics import (
 )
 from auv_envs.tasks.acoustic import transition
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 
 
 def make(**kwargs) -> gym.Env:

@@ -21,7 +21,7 @@ from auv_envs.tasks.acoustic.bound import (
 from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS
 from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 #: Fresh seeds: clear of the leaderboard's (from 100000) and of the calibration runs.
 FRESH_SEEDS = (913000, 913001, 913002)
 

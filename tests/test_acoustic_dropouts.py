@@ -21,7 +21,7 @@ from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPosit
 from baselines.evaluation import run_episode
 from baselines.registry import make_agent
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 #: No noise, no misses, no ghosts: the measurements are the geometry (false alarms on).
 EXACT = AcousticConfig(noise_scale=0.0, clock_offset_std=0.0, ideal_detection=True,
@@ -267,11 +267,12 @@ def test_agents_track_through_outages_of_any_node(name):
     assert any(node_one_out) and not all(node_one_out)
     errors = np.array(errors)
     assert np.all(np.isfinite(errors))
-    # After the first second the estimate stays on the source, node 1 out or not (about
-    # 0.1-0.4 m here; without the node mask no fix passes the gates and every agent
-    # stays at its fallback, 45 m off).
-    assert np.sqrt(np.mean(errors[100:] ** 2)) < 1.0
-    assert np.sqrt(np.mean(errors[100:][np.array(node_one_out[100:])] ** 2)) < 1.0
+    # After the first second the estimate stays on the source, node 1 out or not (an RMSE
+    # of 0.1-2.3 m on seeds 21-26 of AcousticTracking-v2, gmphd-single the least steady;
+    # without the node mask no fix passes the gates and every agent stays at its
+    # fallback, 45 m off).
+    assert np.sqrt(np.mean(errors[100:] ** 2)) < 3.0
+    assert np.sqrt(np.mean(errors[100:][np.array(node_one_out[100:])] ** 2)) < 3.0
 
 
 def test_agents_run_a_seeded_hard_episode():

@@ -16,7 +16,7 @@ from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.tasks.acoustic.env import HARD_ACOUSTICS, PAPER_ACOUSTICS
 from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 #: No noise, no misses, no clutter, no ghosts: measurements are the geometry.
 EXACT = AcousticConfig(noise_scale=0.0, clock_offset_std=0.0, clutter_rate=0.0,
                        ideal_detection=True, multipath=False, max_detections=1)

@@ -12,7 +12,7 @@ import pytest
 from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
 from auv_envs.tasks.acoustic.render import TankPlot
 
-ENV_ID = "auv_envs/AcousticTracking-v1"
+ENV_ID = "auv_envs/AcousticTracking-v2"
 #: Where test_sample_frame_is_not_blank leaves a frame for a person to look at.
 SAMPLE_FRAME = "/tmp/acoustic_render.png"
 

@@ -9,7 +9,7 @@ from baselines import aggregate
 from baselines.evaluation import EpisodeRow
 
 DOCK, LARS, ACOUSTIC = ("auv_envs/DockingStation-v2", "auv_envs/LARSCapture-v0",
-                        "auv_envs/AcousticTracking-v1")
+                        "auv_envs/AcousticTracking-v2")
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
@@ -65,7 +65,7 @@ def test_scores_run_from_random_to_the_reference():
     assert paper["pd-state"][task] == [1.0, 1.0]
     assert paper["mine"][task] == [0.5, 0.75]  # the seeds pooled under their group
     # log(100 / 1) / log(100 / 0.01) = 2 / 4.
-    assert paper["tracker"]["AcousticTracking-v1 (difficulty=paper)"] == pytest.approx([0.5])
+    assert paper["tracker"]["AcousticTracking-v2 (difficulty=paper)"] == pytest.approx([0.5])
     assert all("LARSCapture" not in t for agent in paper.values() for t in agent)
     view = aggregate.level_view(paper)
     assert view["agents"]["pd-state"]["iqm"] == 1.0

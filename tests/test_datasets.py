@@ -18,7 +18,7 @@ from baselines.registry import make_agent  # noqa: E402
 #: (env id, agent, obs mode, env kwargs): a Box and a Dict observation mode, short episodes.
 CASES = {
     "docking-state": ("auv_envs/DockingStation-v2", "pd-state", "state", {"time_limit": 2.0}),
-    "acoustic-measurements": ("auv_envs/AcousticTracking-v1", "ls-kf", "measurements",
+    "acoustic-measurements": ("auv_envs/AcousticTracking-v2", "ls-kf", "measurements",
                               {"time_limit": 0.5}),
 }
 EPISODES = 2
@@ -150,7 +150,7 @@ def test_default_seeds_are_training_seeds():
 @pytest.mark.parametrize("kwargs, error, match", [
     ({"agent": "no-such-agent"}, ValueError, "unknown agent"),
     ({"env_id": "NoSuchEnv-v0"}, ValueError, "unknown env"),
-    ({"env_id": "AcousticTracking-v1"}, ValueError, "does not apply to auv_envs/Acoustic"),
+    ({"env_id": "AcousticTracking-v2"}, ValueError, "does not apply to auv_envs/Acoustic"),
     ({"obs_mode": "features"}, ValueError, "does not apply .* obs mode 'features'"),
     ({"episodes": 0}, ValueError, "episodes must be a positive integer"),
     ({"first_seed": -1}, ValueError, "first_seed"),

@@ -110,7 +110,7 @@ def test_bad_level_is_a_clear_error():
 
 
 #: The first seed's release and level records of the superseded ids
-#: (``auv_envs.PREVIOUS_VERSIONS``): ``-v1`` docking, ``AcousticTracking-v0``.
+#: (``auv_envs.PREVIOUS_VERSIONS``): ``-v1`` docking, ``AcousticTracking-v0`` and ``-v1``.
 RECORDS = {**RELEASE, **LEVELS}
 SUPERSEDED_CASES = sorted(k for k in RECORDS if k.split("|")[0] in auv_envs.PREVIOUS_VERSIONS
                           and k.endswith(f"|{SEEDS[0]}"))
@@ -125,7 +125,9 @@ def test_superseded_ids_keep_their_behaviour(case):
     (``test_default_is_the_release``, whose ``-v2`` records are ``-v1``'s);
     ``AcousticTracking-v0`` (``integrator="implicitfast"``, ``noise_draws="all"``) to
     round-off: the measurement noise's deviations have been computed with ``exp`` and
-    ``sqrt`` instead of a power and ``hypot`` since v1 (8.9e-16 in the observations)."""
+    ``sqrt`` instead of a power and ``hypot`` since v1 (8.9e-16 in the observations);
+    ``AcousticTracking-v1`` (``planner="tabulated"``) likewise (identical to the byte
+    when v2 came)."""
     env_id, mode, kwargs, seed = case.split("|")
     env = gym.make(env_id)
     for name, value in auv_envs.PREVIOUS_VERSIONS[env_id][1].items():

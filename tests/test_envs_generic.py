@@ -98,7 +98,7 @@ ACCEPTED_CHECK_ENV_WARNINGS = {
     # AcousticTracking's action is a position estimate in tank coordinates (metres),
     # documented in its class docstring; rescaling it would change the published id.
     "For Box action spaces, we recommend using a symmetric and normalized space": (
-        lambda env_id, env: env_id == "auv_envs/AcousticTracking-v1"
+        lambda env_id, env: env_id == "auv_envs/AcousticTracking-v2"
     ),
 }
 

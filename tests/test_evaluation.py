@@ -32,7 +32,7 @@ from tests.test_stats import wilson_closed_form
 
 DOCK = DOCKING_IDS[0]
 LARS = "auv_envs/LARSCapture-v0"
-ACOUSTIC = "auv_envs/AcousticTracking-v1"
+ACOUSTIC = "auv_envs/AcousticTracking-v2"
 TEST_AGENTS = ("tests.leaderboard_agents",)
 
 
@@ -148,7 +148,7 @@ def test_agent_env_kwargs_build_its_env_and_conflicting_runs_are_skipped():
 def test_resolve_env_kwargs_routes_keys_and_rejects_bad_ones():
     out = resolve_env_kwargs(
         [DOCK, ACOUSTIC],
-        ["time_limit=5", "AcousticTracking-v1:disturbance=high", "scenario=current"],
+        ["time_limit=5", "AcousticTracking-v2:disturbance=high", "scenario=current"],
         defaults={ACOUSTIC: {"time_limit": 30.0, "trajectory": "static"}},
     )
     assert out[DOCK] == {"time_limit": 5, "scenario": "current"}

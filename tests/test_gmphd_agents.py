@@ -1,4 +1,4 @@
-"""The [GMPHD] tracking agents on AcousticTracking-v1."""
+"""The [GMPHD] tracking agents on AcousticTracking-v2."""
 
 import dataclasses
 
@@ -15,7 +15,7 @@ AGENTS = ("gmphd-gci", "gmphd-single", "ls-kf")
 
 
 def episode_metrics(name, seed, **kwargs):
-    env_id = "auv_envs/AcousticTracking-v1"
+    env_id = "auv_envs/AcousticTracking-v2"
     env = gym.make(env_id, **kwargs)
     try:
         return run_episode(env, make_agent(name, env), seed, env_id, name).metrics
@@ -29,14 +29,14 @@ def test_registered():
 
 @pytest.mark.parametrize("name", AGENTS)
 def test_wrong_obs_mode_raises(name):
-    env = gym.make("auv_envs/AcousticTracking-v1", obs_mode="state")
+    env = gym.make("auv_envs/AcousticTracking-v2", obs_mode="state")
     with pytest.raises(ValueError, match="obs_mode='measurements'"):
         make_agent(name, env)
 
 
 @pytest.mark.parametrize("name", AGENTS)
 def test_bad_observation_raises(name):
-    env = gym.make("auv_envs/AcousticTracking-v1")
+    env = gym.make("auv_envs/AcousticTracking-v2")
     agent = make_agent(name, env)
     agent.reset(0)
     with pytest.raises(ValueError, match="measurements"):
@@ -69,7 +69,7 @@ def test_clock_calibration_reduces_the_shared_bias():
     """
     from baselines.acoustic.agents import GMPHDGCIAgent
 
-    env_id = "auv_envs/AcousticTracking-v1"
+    env_id = "auv_envs/AcousticTracking-v2"
     metrics = {}
     for calibrate in (True, False):
         env = gym.make(env_id, time_limit=5.0)
@@ -90,7 +90,7 @@ def test_ls_kf_covariance_stays_positive_definite():
     """
     from baselines.acoustic.agents import LSKalmanAgent
 
-    env = gym.make("auv_envs/AcousticTracking-v1", time_limit=24.0)
+    env = gym.make("auv_envs/AcousticTracking-v2", time_limit=24.0)
     try:
         agent = LSKalmanAgent(env.unwrapped)
         obs, info = env.reset(seed=1000)

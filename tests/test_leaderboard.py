@@ -405,7 +405,7 @@ def _overview(page: str) -> str:
 
 
 def test_overview_comes_first_and_ranks_every_agent_of_every_environment():
-    acoustic = "auv_envs/AcousticTracking-v1"
+    acoustic = "auv_envs/AcousticTracking-v2"
     summary = [_summary_row(DOCK, "a", 30, 30), _summary_row(DOCK, "b", 28, 30),
                _summary_row(DOCK, "c", 5, 30), _summary_row(DOCK, "d", 0, 30, status="failed"),
                _summary_row(acoustic, "slow", 3, 3, rmse=(0.05, 0.04, 0.06)),
@@ -513,11 +513,11 @@ def test_list_shows_environments_and_where_each_agent_applies(capsys):
 
 
 def test_a_run_where_nothing_applies_says_why(tmp_path, capsys):
-    code = evaluate.main(["--envs", "AcousticTracking-v1", "--agents", "pd-state", "--seeds", "1",
+    code = evaluate.main(["--envs", "AcousticTracking-v2", "--agents", "pd-state", "--seeds", "1",
                           "--no-progress", "--out", str(tmp_path)])
     assert code == 1
     err = capsys.readouterr().err
-    assert "skipped pd-state on auv_envs/AcousticTracking-v1: supports only" in err
+    assert "skipped pd-state on auv_envs/AcousticTracking-v2: supports only" in err
     assert "nothing evaluated" in err
 
 
@@ -540,7 +540,7 @@ def test_ranks_tie_where_intervals_overlap_and_tracking_ranks_by_rmse():
     # 30/30 and 28/30 overlap (a tie); 5/30 is clearly below; a failed row has no rank.
     assert leaderboard.rank_labels(rows) == ["1 (tie)", "1 (tie)", "3", "–"]
 
-    acoustic = "auv_envs/AcousticTracking-v1"
+    acoustic = "auv_envs/AcousticTracking-v2"
     tracking = [_summary_row(acoustic, "slow", 3, 3, rmse=(0.05, 0.04, 0.06)),
                 _summary_row(acoustic, "best", 3, 3, rmse=(0.006, 0.005, 0.008)),
                 _summary_row(acoustic, "close", 3, 3, rmse=(0.045, 0.035, 0.05))]

@@ -304,7 +304,7 @@ def test_other_mujoco_code_in_threads_is_untouched_and_so_are_our_envs():
         "user": _users_own_mujoco,
         "docking": lambda: _our_env(DOCKING_IDS[0], 71, scenario="current"),
         "lars": lambda: _our_env("auv_envs/LARSCapture-v0", 72),
-        "acoustic": lambda: _our_env("auv_envs/AcousticTracking-v1", 73),
+        "acoustic": lambda: _our_env("auv_envs/AcousticTracking-v2", 73),
     }
     alone = {name: job() for name, job in jobs.items()}
     together = _run_threads(jobs)

@@ -13,7 +13,7 @@ from baselines.registry import agent_groups, group_members
 from baselines.seeds import default_seeds
 
 DOCK = "auv_envs/DockingStation-v2"
-ACOUSTIC = "auv_envs/AcousticTracking-v1"
+ACOUSTIC = "auv_envs/AcousticTracking-v2"
 
 
 def _planned(env_ids, agents, levels=("paper", "hard")):

@@ -189,7 +189,7 @@ def test_interpreter_exit_without_close_prints_no_egl_traceback():
 
 
 @pytest.mark.parametrize("env_id", [DOCKING_IDS[0], "auv_envs/LARSCapture-v0",
-                                    "auv_envs/AcousticTracking-v1"])
+                                    "auv_envs/AcousticTracking-v2"])
 def test_human_mode_shows_the_rgb_frames_in_a_window(env_id, monkeypatch):
     # gym.make wraps an rgb_array env in Gymnasium's HumanRendering (a pygame
     # window); SDL's dummy driver gives it a window without a display.

@@ -19,7 +19,7 @@ from tests.conftest import make_env
 from tests.rl_helpers import train_and_export
 
 ROOT = Path(__file__).resolve().parents[1]
-ACOUSTIC = "auv_envs/AcousticTracking-v1"
+ACOUSTIC = "auv_envs/AcousticTracking-v2"
 CONFIG_DIR = ROOT / "baselines/rl/hyperparams/acoustic-measurements"
 
 
@@ -160,7 +160,7 @@ def test_config_checks_policy_and_fixes_together():
 def test_trains_exports_and_acts_as_in_training(tmp_path):
     """A tiny run from the shipped YAML: the untrained policy starts from the pooled fix, and
     the exported agent reproduces training's final held-out evaluation."""
-    path, manifest = train_and_export(tmp_path, "AcousticTracking-v1", CONFIG_DIR, 256,
+    path, manifest = train_and_export(tmp_path, "AcousticTracking-v2", CONFIG_DIR, 256,
                                       "{difficulty: paper, time_limit: 1.0}", "ppo-acoustic-test")
     assert manifest["detection_fixes"] is True and manifest["obs_mode"] == "measurements"
     spec = agents.policy_spec(path)

@@ -102,7 +102,7 @@ def test_wrap_env_uses_the_flatten_wrapper():
 
 
 @pytest.mark.parametrize(("env_id", "obs_mode", "front_end", "wrapper"), [
-    ("auv_envs/AcousticTracking-v1", "measurements", "detection_fixes", DetectionFixes),
+    ("auv_envs/AcousticTracking-v2", "measurements", "detection_fixes", DetectionFixes),
     ("auv_envs/LARSCapture-v0", "features", "marker_estimate", MarkerEstimate),
 ])
 def test_configs_written_before_a_front_end_read_with_it_off(env_id, obs_mode, front_end,

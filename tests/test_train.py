@@ -194,7 +194,7 @@ def test_off_policy_resume_restores_replay_buffer_and_rescaled_actions(tmp_path)
         "env_kwargs": {"time_limit": 0.5, "error_clip": 400.0},
         "policy_kwargs": {"net_arch": [16, 16]},
     }
-    config = resolve_config("sac", "auv_envs/AcousticTracking-v1", 1, overrides)
+    config = resolve_config("sac", "auv_envs/AcousticTracking-v2", 1, overrides)
     whole = training.train(config, tmp_path / "whole", progress_bar=False, echo=False)
     stopped = training.train(config, tmp_path / "split", progress_bar=False, echo=False,
                              callbacks=[SignalAt(70, signal.SIGTERM)])

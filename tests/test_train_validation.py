@@ -42,7 +42,7 @@ from baselines.rl.policy import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKING = "auv_envs/DockingStation-v2"
-ACOUSTIC = "auv_envs/AcousticTracking-v1"
+ACOUSTIC = "auv_envs/AcousticTracking-v2"
 
 #: One ``--set`` per out-of-range value: (algo, env, setting, the key the error names).
 INVALID = [

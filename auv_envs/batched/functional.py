@@ -45,7 +45,8 @@ class State:
 
 
 class KeyDraws:
-    """NumPy ``Generator``'s draws (``uniform``, ``standard_normal``, ``normal``, ``random``)
+    """NumPy ``Generator``'s draws (``uniform``, ``standard_normal``, ``normal``, ``random``,
+    ``integers``, ``permutation``)
     over a JAX key: each call splits a fresh key off, so a transition draws as it does on
     the CPU."""
 
@@ -71,6 +72,14 @@ class KeyDraws:
 
     def random(self, size=None) -> jax.Array:
         return jax.random.uniform(self._next(), self._shape(size))
+
+    def integers(self, low, high=None, size=None) -> jax.Array:
+        """Integers in ``[low, high)`` (``[0, low)`` without ``high``), as NumPy's."""
+        low, high = (0, low) if high is None else (low, high)
+        return jax.random.randint(self._next(), self._shape(size), low, high)
+
+    def permutation(self, x) -> jax.Array:
+        return jax.random.permutation(self._next(), x)
 
 
 class FunctionalEnv:
@@ -112,6 +121,14 @@ class FunctionalEnv:
 
     def reset(self, rng: jax.Array) -> State:
         raise NotImplementedError
+
+    def _started(self, rng, data, episode, obs, metrics: dict) -> State:
+        """The state of an episode just begun: no reward yet, not done, its first
+        observation as ``final_obs``."""
+        false = jnp.bool_(False)
+        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
+                "final_obs": obs}
+        return State(data, obs, jnp.float32(0.0), false, metrics, info)
 
     def _conclude(self, rng, reset_key, data, episode, obs, terms: dict, terminated,
                   metrics: dict) -> State:

@@ -21,7 +21,9 @@ module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean`` (a scalar
 of the backend's type: Python's, or float32/int32/bool arrays), ``vector`` (a
 few scalars as one value: a tuple, or a float32 array), ``unpack`` (a 1-D array
 as a tuple of scalars: Python floats, or array elements) and ``count`` (the
-true entries of a boolean array).
+true entries of a boolean array), and ``scan(body, carry, xs)``, JAX's ``lax.scan``
+over a tuple of arrays ``xs`` and tuples of outputs (a Python loop on the CPU; one
+traced body under JAX, however many rows).
 
 :func:`casadi_ops` evaluates the arithmetic parts (the plant, the
 kinematics, a projection) on CasADi symbols, which
@@ -55,6 +57,16 @@ class Backend(NamedTuple):
     plant: Any
 
 
+def _scan(body, carry, xs: tuple):
+    """``lax.scan``'s semantics for tuples: ``body(carry, row) -> (carry, outputs)`` over
+    the rows of ``xs``; returns the last carry and each output stacked over the rows."""
+    outputs = []
+    for row in zip(*xs, strict=True):
+        carry, out = body(carry, row)
+        outputs.append(out)
+    return carry, tuple(np.stack(column) for column in zip(*outputs, strict=True))
+
+
 def _where(condition, a, b):
     return a if condition else b
 
@@ -76,6 +88,7 @@ FLOATS = types.SimpleNamespace(
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
     count=lambda array: int(np.count_nonzero(array)),
+    scan=_scan,
 )
 
 
@@ -97,6 +110,7 @@ def jax_ops() -> types.SimpleNamespace:
         vector=lambda values: jnp.asarray(values, jnp.float32),
         unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
         count=lambda array: jnp.sum(array.astype(jnp.int32)),
+        scan=jax.lax.scan,
     )
 
 

@@ -1,4 +1,4 @@
-"""[GMPHD]'s tracking agents for ``auv_envs/AcousticTracking-v1``.
+"""[GMPHD]'s tracking agents for ``auv_envs/AcousticTracking-v2``.
 
 * ``gmphd-gci``: fused TDOA-DOA fixes -> one GM-PHD filter per sub-band with
   DBSCAN adaptive birth -> GCI of the Q mixtures (omega_q = 1/Q) -> labelled
@@ -55,7 +55,7 @@ from baselines.acoustic.perception.positioning import (
 )
 from baselines.kalman import joseph_covariance, kalman_gain
 
-ENV_IDS = ("auv_envs/AcousticTracking-v1",)
+ENV_IDS = ("auv_envs/AcousticTracking-v2",)
 OBS_KEYS = ("tdoa", "azimuth", "elevation", "mask")
 #: Floor added to each fix covariance's diagonal (m^2): the clock offsets (or,
 #: with the clock calibration, the error left in their estimates) bias all

@@ -78,7 +78,7 @@ from baselines.seeds import EVAL_SEED_BASE, check_seeds, default_seeds
 #: key by key. The acoustic episodes are 60 s (6000 steps) by default, which
 #: makes the GM-PHD trackers the bulk of the run; 30 s keeps the default run
 #: to a few minutes on 2 cores.
-DEFAULT_ENV_KWARGS = {"auv_envs/AcousticTracking-v1": {"time_limit": 30.0}}
+DEFAULT_ENV_KWARGS = {"auv_envs/AcousticTracking-v2": {"time_limit": 30.0}}
 #: Difficulty levels of the default run (``--difficulty``): the papers' water and beyond.
 DEFAULT_LEVELS: tuple[str, ...] = ("paper", "hard")
 

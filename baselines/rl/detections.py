@@ -1,4 +1,4 @@
-"""A set encoder over the acoustic detections, for RL on ``AcousticTracking-v1`` ``measurements``.
+"""A set encoder over the acoustic detections, for RL on ``AcousticTracking-v2`` ``measurements``.
 
 The ``measurements`` observation is a padded set per band: K detections of the
 source, its boundary ghosts and clutter in an order that carries no meaning, and
@@ -77,7 +77,7 @@ class DetectionFixes(gym.ObservationWrapper):
         base = env.unwrapped
         if getattr(base, "obs_mode", None) != "measurements" or not hasattr(base,
                                                                             "calibration"):
-            raise ConfigError("detection_fixes needs auv_envs/AcousticTracking-v1 with "
+            raise ConfigError("detection_fixes needs auv_envs/AcousticTracking-v2 with "
                               f"obs_mode='measurements', got {env.spec.id if env.spec else env}"
                               f" with obs_mode={getattr(base, 'obs_mode', None)!r}")
         self._positioner = LeastSquaresPositioner(base.calibration, method="fused")

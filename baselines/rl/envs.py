@@ -5,7 +5,7 @@ Training and the policy agent build the *same* Gymnasium wrappers through
 environment's action exactly as it did in training:
 
 * ``RescaleAction(-1, 1)`` when the action space is a Box with other bounds
-  (``AcousticTracking-v1`` acts with a position in the tank);
+  (``AcousticTracking-v2`` acts with a position in the tank);
 * the classical front ends the config asks for (:data:`FRONT_ENDS`):
   :class:`~baselines.rl.detections.DetectionFixes` (``detection_fixes``: one
   least-squares fix per acoustic detection) and

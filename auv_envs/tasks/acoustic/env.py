@@ -1,6 +1,6 @@
 """Acoustic tracking of an underwater manipulator's end effector [GMPHD].
 
-``auv_envs/AcousticTracking-v1``: an acoustic source on the end effector of a
+``auv_envs/AcousticTracking-v2``: an acoustic source on the end effector of a
 6-DOF arm, carried through a 300 m x 300 m tank by a neutrally buoyant
 carrier and disturbed by the current, is heard by eight hydrophone nodes. The
 agent estimates the end effector's position from the multi-band detection
@@ -48,6 +48,10 @@ from auv_envs.tasks.acoustic.transition import (
 
 OBS_MODES = ("state", "measurements")
 TRAJECTORIES = ("dynamic", "static")
+#: The carrier route's planners (``planner=``): from v2 on ``"segments"``
+#: (:func:`~auv_envs.tasks.acoustic.transition.draw_route`, the same code on NumPy and
+#: JAX), in v0/v1 ``"tabulated"`` (:func:`~auv_envs.tasks.acoustic.transition.plan_route`).
+PLANNERS = ("segments", "tabulated")
 #: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
 #: in v0 implicitfast in one 10 ms step; each within 2 cm of finer integrations of itself
 #: (``tests/test_plant_convergence.py``; ``docs/physics.md``).
@@ -295,13 +299,13 @@ class AcousticTrackingEnv(TaskEnv):
     **Starting state.** ``trajectory="dynamic"``: the carrier starts at rest
     at a random point of its route area (x, y in [65, 265] m, z in [-20, -8]
     m) and follows a seeded route
-    (:func:`~auv_envs.tasks.acoustic.transition.plan_route`); the arm's joints sweep
+    (:func:`~auv_envs.tasks.acoustic.transition.draw_route`); the arm's joints sweep
     sinusoidally about ``NOMINAL_POSTURE`` (amplitudes 0.1-0.35 rad for the
     first three joints, 0.05-0.2 rad for the wrist, periods 12-40 s).
     ``trajectory="static"``: the carrier holds the end effector at one of
     [GMPHD] Table 1's five points (``static_point``; drawn when None) in the
     nominal posture. The current
-    (:func:`~auv_envs.tasks.acoustic.transition.current_profile`) sweeps the
+    (:class:`~auv_envs.tasks.acoustic.transition.Flow`) sweeps the
     ``disturbance`` level's speed range with a veering direction.
 
     **Episode end.** No terminal state; truncated after ``time_limit`` s
@@ -349,6 +353,10 @@ class AcousticTrackingEnv(TaskEnv):
                           that its ``info`` has ``detection_origin`` (v0
                           did); ``measurements`` mode and rendering always
                           draw them (False)
+    ``planner``           the carrier's route: ``"segments"`` (drawn per
+                          segment, the same code on NumPy and JAX) or
+                          ``"tabulated"`` (v0/v1's sequential planner)
+                          (``"segments"``)
     ``render_mode``       ``"rgb_array"`` or None
     ``render_size``       (W, H) of ``render()``, at least 8x8 (640x480)
     ``difficulty``        ``"easy"`` (the release), ``"paper"``
@@ -371,9 +379,12 @@ class AcousticTrackingEnv(TaskEnv):
     made with ``render_mode`` draws the detections it shows, in ``state`` mode
     too).
 
-    **Version history.** v1: the rig in two Euler steps a period, the
-    measurement noise drawn for the kept detections only, no detections drawn
-    in ``state`` mode unless rendered or asked for (the same models; v0 is
+    **Version history.** v2: the route drawn per segment with every draw made
+    (the same model, other episodes; v1 is ``planner="tabulated"``), so that
+    the batched environment draws it with the same code. v1: the rig in two
+    Euler steps a period, the measurement noise drawn for the kept detections
+    only, no detections drawn in ``state`` mode unless rendered or asked for
+    (the same models; v0 is
     ``integrator="implicitfast", physics_substeps=1, noise_draws="all",
     draw_detections=True``). v0: initial release. The changes and their
     measurements: ``CHANGELOG.md``.
@@ -408,6 +419,7 @@ class AcousticTrackingEnv(TaskEnv):
         integrator: str = "euler",
         noise_draws: str = "kept",
         draw_detections: bool = False,
+        planner: str = "segments",
         render_mode: str | None = None,
         render_size: tuple[int, int] = (640, 480),
         difficulty: str = levels.DEFAULT_LEVEL,
@@ -419,7 +431,8 @@ class AcousticTrackingEnv(TaskEnv):
             static_point=static_point, time_limit=time_limit, acoustic=acoustic,
             error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
             physics_substeps=physics_substeps, integrator=integrator,
-            noise_draws=noise_draws, draw_detections=draw_detections, render_mode=render_mode,
+            noise_draws=noise_draws, draw_detections=draw_detections, planner=planner,
+            render_mode=render_mode,
             render_size=render_size, difficulty=difficulty,
         )
         acoustic = self._apply_difficulty(difficulty, acoustic=acoustic)["acoustic"]
@@ -428,6 +441,7 @@ class AcousticTrackingEnv(TaskEnv):
         check_positive_int("physics_substeps", physics_substeps)
         check_choice("integrator", integrator, tuple(INTEGRATORS))
         check_choice("noise_draws", noise_draws, NOISE_DRAWS)
+        check_choice("planner", planner, PLANNERS)
         if not isinstance(draw_detections, bool):
             raise TypeError(f"draw_detections must be True or False, got {draw_detections!r}")
         check_choice("disturbance", disturbance, tuple(DISTURBANCES))
@@ -486,7 +500,7 @@ class AcousticTrackingEnv(TaskEnv):
             current_range=DISTURBANCES[disturbance], dt=self._dt, horizon=self._horizon,
             array=array, source_offset=self.physics.source_offset(NOMINAL_POSTURE),
             error_clip=self._error_clip, track_gate=self._track_gate,
-            success_radius=self._success_radius, noise_draws=noise_draws,
+            success_radius=self._success_radius, noise_draws=noise_draws, planner=planner,
             draw_detections=bool(draw_detections or obs_mode == "measurements" or render_mode))
         self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
                                        dtype=np.float32)
@@ -632,7 +646,7 @@ class AcousticTrackingEnv(TaskEnv):
         heard = joined("heard") if self.calibration.config.propagation_delay else None
         return EpisodeRecord(
             positions=joined("positions"), dt=self._dt, sound_speed=state.plan.sound_speed,
-            current_speed=np.linalg.norm(state.plan.current[:t], axis=1), heard=heard,
+            current_speed=np.linalg.norm(joined("current"), axis=1), heard=heard,
             fading=joined("fades"), working=joined("nodes"),
         )
 

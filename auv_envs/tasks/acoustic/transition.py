@@ -25,6 +25,11 @@ period at a time (the blocks are a computational device, not a change of
 model) and many times faster. The draws come in the order the environment
 has always made them, so its episodes are the released ones, bit for bit.
 
+The same functions run on JAX arrays (:class:`auv_envs.batched.acoustic_env.AcousticMJX`):
+with ``ops`` :func:`~auv_envs.core.ops.jax_ops`, a JAX key's draws and the rig on MJX,
+blocks of one period (``params.block``: every step simulates its own period, so the
+state keeps fixed shapes) and no record of the estimates (``params.record``).
+
 On the CPU the record's arrays (``estimates``, ``truths``) are written in
 place, row by row (:func:`record_row`): a copy per step would cost more than
 the step, so a state is current until the next step (the shell keeps only the
@@ -41,7 +46,7 @@ import numpy as np
 
 from auv_envs import metrics
 from auv_envs.core.acoustics import HydrophoneArray, Measurements
-from auv_envs.core.ops import Backend
+from auv_envs.core.ops import FLOATS, Backend
 
 #: Current speed ranges in m/s ([GMPHD] §3.4's disturbance levels).
 DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
@@ -94,6 +99,12 @@ class AcousticParams:
             behind them: wander, fading, node states); without them a block holds the
             source's motion only, which is all the ``state`` observation and the reward
             read.
+        planner: ``"segments"`` (:func:`draw_route`) or ``"tabulated"``
+            (:func:`plan_route`, ``AcousticTracking-v0``/``-v1``).
+        block: sample periods simulated and measured at a time (module docstring):
+            :data:`BLOCK` on the CPU, 1 under JAX (every step simulates its period).
+        record: whether the state keeps every estimate and truth (the summary's
+            record; the batched environment keeps the running sum only).
     """
 
     obs_mode: str
@@ -109,27 +120,31 @@ class AcousticParams:
     success_radius: float
     noise_draws: str = "kept"
     draw_detections: bool = True
+    planner: str = "segments"
+    block: int = BLOCK
+    record: bool = True
 
 
 class Plan(NamedTuple):
-    """An episode's draws at reset, fixed through it: the carrier's reference (T+1, 4) x,
-    y, z, yaw and its rate, the arm's joint references (T+1, 6), the current (T+1, 3),
-    the nodes' clock offsets (N,), the water's true sound speed (m/s) and the static
-    point (None on a dynamic route)."""
+    """An episode's draws at reset, fixed through it: the carrier's route (a
+    :class:`Route`, :class:`StillRoute` or :class:`TabulatedRoute`), the arm's
+    :class:`Sweep`, the current's :class:`Flow`, the nodes' clock offsets (N,), the
+    water's true sound speed (m/s) and the static point (None on a dynamic route).
+    :func:`references` gives the servos' references and the current at any periods."""
 
-    carrier_ref: np.ndarray
-    carrier_vel: np.ndarray
-    arm_ref: np.ndarray
-    current: np.ndarray
-    clock_offsets: np.ndarray
-    sound_speed: float | None
-    static_point: int | None
+    route: Any
+    sweep: Sweep
+    flow: Flow
+    clock_offsets: Any
+    sound_speed: Any
+    static_point: Any
 
 
 class Block(NamedTuple):
     """Sample periods ``[start, start + B)`` simulated and measured.
 
-    ``positions``/``velocities`` (B, 3) the source's; ``heard`` what the nodes
+    ``positions``/``velocities`` (B, 3) the source's; ``current`` (B, 3) the
+    current at those periods; ``heard`` what the nodes
     heard (propagation delay); ``fades`` (B, Q, N) dB and ``nodes`` (B, N)
     which work (None when off); ``measurements`` the detection sets (None, as
     ``heard``, when the task draws no detections). What
@@ -140,6 +155,7 @@ class Block(NamedTuple):
     start: int
     positions: np.ndarray
     velocities: np.ndarray
+    current: np.ndarray
     heard: np.ndarray
     fades: np.ndarray | None
     nodes: np.ndarray | None
@@ -221,66 +237,254 @@ def plan_route(rng: np.random.Generator, n: int, dt: float):
     return reference, velocity
 
 
-def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) -> np.ndarray:
-    """A horizontal current (n, 3): speed sweeping ``speed_range``, direction veering.
+class TabulatedRoute(NamedTuple):
+    """A route as :func:`plan_route` draws it (``AcousticTracking-v0``/``-v1``): the
+    carrier's reference (n, 4) and its rate (n, 4) at every period."""
 
-    ``speed(t) = lo + (hi - lo) (1 + sin(2 pi t / T_s + phi)) / 2`` with
-    ``T_s`` uniform in 20-60 s, and direction ``theta0 + 0.3 sin(2 pi t / T_d
-    + psi)`` with ``T_d`` uniform in 30-90 s.
+    reference: np.ndarray
+    velocity: np.ndarray
+
+    def at(self, rows, dt: float, xp):
+        return self.reference[rows], self.velocity[rows]
+
+
+class StillRoute(NamedTuple):
+    """The carrier held at ``position`` (3,), yaw 0 (the static trajectories)."""
+
+    position: Any
+
+    def at(self, rows, dt: float, xp):
+        shape = xp.shape(rows)
+        reference = xp.broadcast_to(xp.append(self.position, 0.0 * self.position[0]),
+                                    (*shape, 4))
+        return reference, xp.zeros((*shape, 4), reference.dtype)
+
+
+class Route(NamedTuple):
+    """A route as :func:`draw_route` draws it: (S,) segments of constant speed, turn
+    rate and climb, segment ``s`` starting at period ``start[s]`` at ``origin[s]`` (3,)
+    heading ``heading[s]`` (segments past the horizon are never reached)."""
+
+    start: Any
+    heading: Any
+    speed: Any
+    turn: Any
+    climb: Any
+    origin: Any
+
+    def at(self, rows, dt: float, xp):
+        """The reference (..., 4) x, y, z, yaw and its rate (..., 4) at periods ``rows``:
+        the segment's start plus its travel so far, in closed form
+        (:func:`_turn_sums`), clipped to the route's limits."""
+        s = xp.searchsorted(self.start, rows, side="right") - 1
+        m = rows - self.start[s]
+        heading, speed, turn, climb = (self.heading[s], self.speed[s], self.turn[s],
+                                       self.climb[s])
+        along_x, along_y = _turn_sums(heading, turn * dt, m, xp)
+        origin = self.origin[s]
+        yaw = heading + turn * dt * m
+        reference = xp.stack([
+            xp.clip(origin[..., 0] + dt * speed * along_x, *ROUTE_XY),
+            xp.clip(origin[..., 1] + dt * speed * along_y, *ROUTE_XY),
+            xp.clip(origin[..., 2] + dt * climb * m, *ROUTE_Z),
+            yaw,
+        ], -1)
+        velocity = xp.stack([speed * xp.cos(yaw), speed * xp.sin(yaw), climb, turn], -1)
+        return reference, velocity
+
+
+def _turn_sums(heading, step, count, xp):
+    """``sum_{j < count} (cos, sin)(heading + step j)``: the sums' closed form
+    ``sin(count step / 2) / sin(step / 2)`` times the (cos, sin) of the middle heading,
+    ``count`` times those of ``heading`` when ``step`` is 0."""
+    straight = step == 0.0
+    half = 0.5 * xp.where(straight, 1.0, step)
+    scale = xp.where(straight, count, xp.sin(count * half) / xp.sin(half))
+    middle = heading + 0.5 * xp.where(straight, 0.0, step) * (count - 1)
+    return scale * xp.cos(middle), scale * xp.sin(middle)
+
+
+#: A route's segment kinds (straight, curve, pause) come from shuffled bags of these.
+ROUTE_BAG = (0, 0, 1, 1, 2)
+#: Each kind's duration range, s.
+SEGMENT_SECONDS = ((4.0, 12.0), (6.0, 15.0), (1.5, 5.0))
+
+
+def route_segments(n: int, dt: float) -> int:
+    """How many segments :func:`draw_route` draws for ``n`` periods: whole bags, enough
+    for a route of the shortest segments."""
+    shortest_bag = sum(SEGMENT_SECONDS[kind][0] for kind in ROUTE_BAG) / dt
+    return len(ROUTE_BAG) * math.ceil(n / shortest_bag)
+
+
+def draw_route(draws, n: int, dt: float, ops) -> Route:
+    """A carrier route of ``n`` periods: straight segments, curves and pauses (the model
+    of :func:`plan_route`, its draws made up front, so that the same code draws on NumPy
+    and under JAX; ``AcousticTracking-v2``).
+
+    Segment kinds come from shuffled bags of two straights, two curves and one pause:
+    straight (4-12 s), curve (6-15 s, turning 30-120 deg), pause (1.5-5 s); speeds
+    uniform in ``CARRIER_SPEED`` and a slow climb or descent (|w| <= 0.05 m/s) while
+    moving, towards mid-depth near the depth limits. Near the route's edges a
+    segment heads back towards the centre. Draws, in order: the start, the heading, the
+    bags, then per segment (:func:`route_segments` of them) three durations, the speed,
+    the turn-back heading, the turn's sign and angle and the climb.
     """
-    lo, hi = speed_range
-    t = dt * np.arange(n)
-    speed = lo + (hi - lo) * 0.5 * (1 + np.sin(2 * np.pi * t / rng.uniform(20, 60)
-                                               + rng.uniform(0, 2 * np.pi)))
-    direction = rng.uniform(-np.pi, np.pi) + 0.3 * np.sin(
-        2 * np.pi * t / rng.uniform(30, 90) + rng.uniform(0, 2 * np.pi)
-    )
-    return np.stack([speed * np.cos(direction), speed * np.sin(direction), np.zeros(n)], 1)
+    xp = ops.xp
+    lo, hi = ROUTE_XY
+    count = route_segments(n, dt)
+    start = draws.uniform(xp.asarray([lo + 20, lo + 20, ROUTE_Z[0]]),
+                          xp.asarray([hi - 20, hi - 20, ROUTE_Z[1]]), 3)
+    heading = draws.uniform(-math.pi, math.pi)
+    kinds = xp.concatenate([draws.permutation(xp.asarray(ROUTE_BAG))
+                            for _ in range(count // len(ROUTE_BAG))])
+    low = xp.asarray([[*(s[0] for s in SEGMENT_SECONDS), CARRIER_SPEED[0], -0.5, 0.0,
+                       math.pi / 6, -0.05]])
+    high = xp.asarray([[*(s[1] for s in SEGMENT_SECONDS), CARRIER_SPEED[1], 0.5, 1.0,
+                        2 * math.pi / 3, 0.05]])
+    uniforms = draws.uniform(low, high, (count, low.shape[1]))
+    (_, _, _), rows = ops.scan(lambda carry, row: _segment(carry, row, dt, xp),
+                               (start, heading, 0), (kinds, uniforms))
+    return Route(*rows)
 
 
-def draw_plan(params: AcousticParams, draws) -> Plan:
-    """The episode's plan. Draws, in order: the route (:func:`plan_route`) and the arm's
-    sweep (amplitudes, periods, phases), or the static point when drawn; the current
-    (:func:`current_profile`); the clock offsets; the sound speed."""
+def _segment(carry, row, dt: float, xp):
+    """One segment of :func:`draw_route`: from ``carry`` (the position (3,), heading and
+    period it starts at) and ``row`` (its kind and its uniform draws), the segment's
+    :class:`Route` row and the next segment's ``carry``."""
+    position, heading, start = carry
+    kind, (*durations, speed, back, side, angle, climb) = row[0], row[1]
+    lo, hi = ROUTE_XY
+    centre = 0.5 * (lo + hi)
+    count = xp.maximum(1, xp.round(xp.stack(durations)[kind] / dt).astype(int))
+    speed = xp.where(kind == 2, 0.0, speed)
+    home = xp.arctan2(centre - position[1], centre - position[0])
+    near_edge = xp.any(position[:2] < lo + 25) | xp.any(position[:2] > hi - 25)
+    heading = xp.where(near_edge & (xp.cos(heading - home) < 0.5), home + back, heading)
+    turn = xp.where(kind == 1, xp.where(side < 0.5, -1.0, 1.0) * angle / (count * dt), 0.0)
+    climb = xp.where(speed > 0, climb, 0.0)
+    level = (ROUTE_Z[0] + 1 < position[2]) & (position[2] < ROUTE_Z[1] - 1)
+    climb = xp.where(level, climb, xp.copysign(xp.abs(climb), 0.5 * sum(ROUTE_Z) - position[2]))
+    along_x, along_y = _turn_sums(heading, turn * dt, count, xp)
+    travelled = position + dt * xp.stack([speed * along_x, speed * along_y, climb * count])
+    return ((travelled, heading + turn * dt * count, start + count),
+            (start, heading, speed, turn, climb, position))
+
+
+class Sweep(NamedTuple):
+    """The arm's joint references: ``NOMINAL_POSTURE + amplitude (sin(2 pi t / period +
+    phase) - sin(phase))`` per joint ((6,) each; amplitude 0 holds the posture)."""
+
+    amplitude: Any
+    period: Any
+    phase: Any
+
+    def at(self, t, xp):
+        """The references (..., 6) at times ``t`` (..., 1) s."""
+        return xp.asarray(NOMINAL_POSTURE) + self.amplitude * (
+            xp.sin(2 * np.pi * t / self.period + self.phase) - xp.sin(self.phase))
+
+
+def draw_sweep(draws) -> Sweep:
+    """Amplitudes 0.1-0.35 rad (first three joints), 0.05-0.2 rad (wrist), periods
+    12-40 s, phases uniform."""
+    amplitude = draws.uniform(np.array([0.1] * 3 + [0.05] * 3),
+                              np.array([0.35] * 3 + [0.2] * 3), 6)
+    return Sweep(amplitude, draws.uniform(12.0, 40.0, 6), draws.uniform(0, 2 * np.pi, 6))
+
+
+class Flow(NamedTuple):
+    """A horizontal current: speed ``lo + (hi - lo) (1 + sin(2 pi t / speed_period +
+    speed_phase)) / 2``, direction ``direction + 0.3 sin(2 pi t / veer_period +
+    veer_phase)``."""
+
+    low: float
+    high: float
+    speed_period: Any
+    speed_phase: Any
+    direction: Any
+    veer_period: Any
+    veer_phase: Any
+
+    def at(self, t, xp):
+        """The current (..., 3) m/s at times ``t`` (...) s."""
+        speed = self.low + (self.high - self.low) * 0.5 * (
+            1 + xp.sin(2 * np.pi * t / self.speed_period + self.speed_phase))
+        direction = self.direction + 0.3 * xp.sin(2 * np.pi * t / self.veer_period
+                                                  + self.veer_phase)
+        return xp.stack([speed * xp.cos(direction), speed * xp.sin(direction),
+                         0.0 * speed], -1)
+
+
+def draw_flow(draws, speed_range) -> Flow:
+    """The current's periods (speed 20-60 s, direction 30-90 s), phases and mean
+    direction, drawn in that order."""
+    speed_period = draws.uniform(20, 60)
+    speed_phase = draws.uniform(0, 2 * np.pi)
+    direction = draws.uniform(-np.pi, np.pi)
+    veer_period = draws.uniform(30, 90)
+    return Flow(float(speed_range[0]), float(speed_range[1]), speed_period, speed_phase,
+                direction, veer_period, draws.uniform(0, 2 * np.pi))
+
+
+def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) -> np.ndarray:
+    """A horizontal current (n, 3) drawn as :func:`draw_flow` (the route tests' helper)."""
+    return draw_flow(rng, speed_range).at(dt * np.arange(n), np)
+
+
+def draw_plan(params: AcousticParams, draws, ops=FLOATS) -> Plan:
+    """The episode's plan. Draws, in order: the route (:func:`draw_route`, or
+    :func:`plan_route` with ``params.planner == "tabulated"``) and the arm's sweep, or
+    the static point when drawn; the current (:func:`draw_flow`); the clock offsets;
+    the sound speed."""
+    xp = ops.xp
     n = params.horizon + 1
-    dt = params.dt
     static_point = None
     if params.trajectory == "dynamic":
-        carrier_ref, carrier_vel = plan_route(draws, n, dt)
-        t = dt * np.arange(n)[:, None]
-        amplitude = np.concatenate([draws.uniform(0.1, 0.35, 3), draws.uniform(0.05, 0.2, 3)])
-        period = draws.uniform(12.0, 40.0, 6)
-        phase = draws.uniform(0, 2 * np.pi, 6)
-        arm_ref = NOMINAL_POSTURE + amplitude * (
-            np.sin(2 * np.pi * t / period + phase) - np.sin(phase)
-        )
+        if params.planner == "tabulated":
+            route = TabulatedRoute(*plan_route(draws, n, params.dt))
+        else:
+            route = draw_route(draws, n, params.dt, ops)
+        sweep = draw_sweep(draws)
     else:
-        static_point = params.static_point or int(draws.integers(1, len(STATIC_POINTS) + 1))
-        ref = np.append(np.asarray(STATIC_POINTS[static_point - 1]) - params.source_offset, 0.0)
-        carrier_ref = np.broadcast_to(ref, (n, 4)).copy()
-        carrier_vel = np.zeros((n, 4))
-        arm_ref = np.broadcast_to(NOMINAL_POSTURE, (n, 6)).copy()
-    current = current_profile(draws, n, dt, params.current_range)
+        static_point = params.static_point or draws.integers(1, len(STATIC_POINTS) + 1)
+        points = xp.asarray(STATIC_POINTS) - xp.asarray(params.source_offset)
+        route = StillRoute(points[static_point - 1])
+        zeros = np.zeros(6)
+        sweep = Sweep(zeros, np.ones(6), zeros)
+    flow = draw_flow(draws, params.current_range)
     array = params.array
-    clock_offsets = array.draw_clock_offsets(draws)
-    sound_speed = array.draw_sound_speed(draws)
-    return Plan(carrier_ref, carrier_vel, arm_ref, current, clock_offsets, sound_speed,
-                static_point)
+    clock_offsets = array.draw_clock_offsets(draws, xp)
+    sound_speed = array.draw_sound_speed(draws, xp)
+    return Plan(route, sweep, flow, clock_offsets, sound_speed, static_point)
+
+
+def references(params: AcousticParams, plan: Plan, rows, xp=np):
+    """The carrier's reference and rate (..., 4), the arm's joint references (..., 6) and
+    the current (..., 3) at periods ``rows`` (an integer array)."""
+    t = params.dt * rows
+    carrier_ref, carrier_vel = plan.route.at(rows, params.dt, xp)
+    return carrier_ref, carrier_vel, plan.sweep.at(t[..., None], xp), plan.flow.at(t, xp)
 
 
 # ------------------------------------------------------------------ blocks
-def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, start: int,
+def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, start,
                    backend: Backend) -> Block:
-    """Advance the plant over sample periods ``[start, start + BLOCK)`` (to the horizon)
-    and measure them, continuing ``previous`` (None at reset)."""
-    _, draws, plant = backend
-    count = min(BLOCK, params.horizon + 1 - start)
-    rows = slice(start, start + count)
-    before = np.arange(start - 1, start + count - 1).clip(0)  # the current of the period before
-    positions, velocities = plant.follow(plan.carrier_ref[rows], plan.carrier_vel[rows],
-                                         plan.arm_ref[rows], plan.current[before], start)
+    """Advance the plant over sample periods ``[start, start + params.block)`` (to the
+    horizon) and measure them, continuing ``previous`` (None at reset)."""
+    ops, draws, plant = backend
+    xp = ops.xp
+    count = 1 if params.block == 1 else min(params.block, params.horizon + 1 - start)
+    # The block's periods and the one before it (whose current moves the rig into the first).
+    rows = xp.maximum(xp.arange(count + 1) + (start - 1), 0)
+    carrier_ref, carrier_vel, arm_ref, current = references(params, plan, rows, xp)
+    positions, velocities = plant.follow(carrier_ref[1:], carrier_vel[1:], arm_ref[1:],
+                                         current[:-1], start)
+    current = current[1:]
+    start = ops.integer(start)  # the Block's, a typed scalar (the plant reads the literal 0)
     if not params.draw_detections:
-        return Block(start, positions, velocities, None, None, None, None, None, None, None)
+        return Block(start, positions, velocities, current, None, None, None, None, None,
+                     None, None)
     array = params.array
     history = wander = fading = nodes = None
     if previous is not None:
@@ -288,37 +492,51 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
         nodes = previous.nodes
     heard = positions
     if array.config.propagation_delay:
-        track = positions if history is None else np.concatenate([history, positions])
-        heard = array.emission_positions(track, count, params.dt, plan.sound_speed)
+        if history is None and params.block == 1:
+            # A fixed-size history from the start (JAX's shapes): the first position
+            # repeated, the source held still before the episode, as emission_positions
+            # clamps earlier times to a track's first row.
+            history = xp.broadcast_to(positions[:1], (HISTORY, 3))
+        track = positions if history is None else xp.concatenate([history, positions])
+        heard = array.emission_positions(track, count, params.dt, plan.sound_speed, xp=xp)
         history = track[-HISTORY:]
-    wanders = array.draw_wander(draws, count, wander)
+    wanders = array.draw_wander(draws, count, wander, xp=xp)
     if wanders is not None:
         wander = wanders[-1]
-    fades = array.draw_fading(draws, count, fading)
+    fades = array.draw_fading(draws, count, fading, xp=xp)
     if fades is not None:
         fading = fades[-1]
-    nodes = array.draw_node_states(draws, count, None if nodes is None else nodes[-1])
+    nodes = array.draw_node_states(draws, count, None if nodes is None else nodes[-1], xp=xp)
     measurements = array.measure(
-        draws, heard, plan.clock_offsets,
-        np.linalg.norm(plan.current[start:start + count], axis=1), plan.sound_speed, wanders,
-        fades, nodes, noise_draws=params.noise_draws,
+        draws, heard, plan.clock_offsets, xp.linalg.norm(current, axis=1), plan.sound_speed,
+        wanders, fades, nodes, noise_draws=params.noise_draws, xp=xp,
     )
-    return Block(start, positions, velocities, heard, fades, nodes, measurements, history,
-                 wander, fading)
+    return Block(start, positions, velocities, current, heard, fades, nodes, measurements,
+                 history, wander, fading)
 
 
 # ------------------------------------------------------------------ reset and step
 def reset(params: AcousticParams, backend: Backend):
     """A new episode: ``(state, truth, observation)``; ``truth`` is ``{"k": 0, "error":
     NaN}`` (nothing estimated yet)."""
-    plan = draw_plan(params, backend.draws)
-    backend.plant.place(plan.carrier_ref[0], plan.arm_ref[0])
+    return begin(params, draw_plan(params, backend.draws, backend.ops), backend)
+
+
+def begin(params: AcousticParams, plan: Plan, backend: Backend):
+    """The episode of ``plan`` at its start: :func:`reset` after the plan's draws."""
+    ops = backend.ops
+    xp = ops.xp
+    carrier, _, arm, _ = references(params, plan, xp.asarray(0), xp)
+    backend.plant.place(carrier, arm)
     block = simulate_block(params, plan, None, 0, backend)
-    state = EpisodeState(plan=plan, block=block, steps=0, squared_error_sum=0.0,
-                         estimates=np.full((params.horizon, 3), np.nan),
-                         truths=np.full((params.horizon, 3), np.nan))
-    now = {"k": 0, "error": float("nan")}
-    return state, now, observe(params, state)
+    record = None
+    if params.record:
+        record = np.full((params.horizon, 3), np.nan)
+    state = EpisodeState(plan=plan, block=block, steps=ops.integer(0),
+                         squared_error_sum=ops.real(0.0), estimates=record,
+                         truths=None if record is None else record.copy())
+    now = {"k": state.steps, "error": ops.real(float("nan"))}
+    return state, now, observe(params, state, xp)
 
 
 def record_row(array: np.ndarray, k: int, row) -> np.ndarray:
@@ -332,32 +550,34 @@ def step(params: AcousticParams, state: EpisodeState, action, backend: Backend):
     at the last observation, then move on one sample period: ``(state, truth,
     observation, terms)``, ``terms`` the reward terms (an episode never terminates;
     it is truncated at its horizon)."""
+    ops = backend.ops
     k = state.steps  # the estimate is scored against the truth at observation k
     block = state.block
     position = block.positions[k - block.start]
     difference = action - position
-    error = math.sqrt(difference.dot(difference))  # np.linalg.norm's arithmetic, sooner
-    state = state._replace(
-        steps=k + 1, squared_error_sum=state.squared_error_sum + error * error,
-        estimates=record_row(state.estimates, k, action),
-        truths=record_row(state.truths, k, position))
-    if state.steps - block.start >= BLOCK:
+    error = ops.sqrt(difference.dot(difference))  # np.linalg.norm's arithmetic, sooner
+    state = state._replace(steps=k + 1,
+                           squared_error_sum=state.squared_error_sum + error * error)
+    if params.record:
+        state = state._replace(estimates=record_row(state.estimates, k, action),
+                               truths=record_row(state.truths, k, position))
+    if params.block == 1 or state.steps - block.start >= params.block:
         state = state._replace(
             block=simulate_block(params, state.plan, block, state.steps, backend))
     now = {"k": state.steps, "error": error}
-    terms = {"estimate": -min(error, params.error_clip) / params.error_clip}
-    return state, now, observe(params, state), terms
+    terms = {"estimate": -ops.minimum(error, params.error_clip) / params.error_clip}
+    return state, now, observe(params, state, ops.xp), terms
 
 
 # ------------------------------------------------------------------ what is seen
-def observe(params: AcousticParams, state: EpisodeState):
+def observe(params: AcousticParams, state: EpisodeState, xp=np):
     """The ``state`` or ``measurements`` observation at the state's step."""
     k = state.steps
     block = state.block
     j = k - block.start
     if params.obs_mode == "state":
-        return np.concatenate([block.positions[j], block.velocities[j],
-                               state.plan.current[k]]).astype(np.float32)
+        return xp.concatenate([block.positions[j], block.velocities[j],
+                               block.current[j]]).astype(xp.float32)
     m = block.measurements
     n = m.n_nodes
     values = m.values[j].copy()  # one copy, then views of it
@@ -365,27 +585,23 @@ def observe(params: AcousticParams, state: EpisodeState):
         "tdoa": values[..., : n - 1],
         "azimuth": values[..., n - 1 : 2 * n - 1],
         "elevation": values[..., 2 * n - 1 :],
-        "mask": m.mask[j].astype(np.int8),
+        "mask": m.mask[j].astype(xp.int8),
     }
     if block.nodes is not None:
-        obs["node_mask"] = block.nodes[j].astype(np.int8)
+        obs["node_mask"] = block.nodes[j].astype(xp.int8)
     return obs
 
 
 def info(params: AcousticParams, state: EpisodeState, now: dict) -> dict:
     """The step's ``info`` without the reward terms (see the environment's docstring)."""
     block = state.block
-    k, error = now["k"], now["error"]
+    k = now["k"]
     j = k - block.start
-    rmse = math.sqrt(state.squared_error_sum / k) if k else float("nan")
     out = {
-        "estimate_error": error,
-        "running_rmse": rmse,
-        "tracked": error <= params.track_gate,
-        "is_success": rmse <= params.success_radius,
+        **scores(params, state, now, FLOATS),
         "true_position": block.positions[j].copy(),
         "true_velocity": block.velocities[j].copy(),
-        "current": state.plan.current[k].copy(),
+        "current": block.current[j].copy(),
         "time": k * params.dt,
     }
     if block.measurements is not None:
@@ -395,8 +611,24 @@ def info(params: AcousticParams, state: EpisodeState, now: dict) -> dict:
     return out
 
 
+def scores(params: AcousticParams, state: EpisodeState, now: dict, ops) -> dict:
+    """The step's scores: the estimate's error (m), the running RMSE over the steps so
+    far (NaN before the first), whether the estimate is within the track gate and the
+    running RMSE within the success radius."""
+    k, error = now["k"], now["error"]
+    mean = state.squared_error_sum / ops.maximum(k, 1)
+    rmse = ops.where(k > 0, ops.sqrt(mean), float("nan"))
+    return {
+        "estimate_error": error,
+        "running_rmse": rmse,
+        "tracked": error <= params.track_gate,
+        "is_success": rmse <= params.success_radius,
+    }
+
+
 def summary(params: AcousticParams, state: EpisodeState) -> dict:
-    """The episode's summary (``info["episode_metrics"]`` at its end)."""
+    """The episode's summary (``info["episode_metrics"]`` at its end), from the record
+    of estimates and truths (``params.record``)."""
     est, truth = state.estimates[: state.steps], state.truths[: state.steps]
     errors = metrics.position_errors(est, truth)
     rmse = metrics.rmse(est, truth)
@@ -420,5 +652,5 @@ def summary(params: AcousticParams, state: EpisodeState) -> dict:
         "success": bool(rmse <= params.success_radius),
     }
     if state.plan.static_point is not None:
-        out["static_point"] = state.plan.static_point
+        out["static_point"] = int(state.plan.static_point)
     return out
