@@ -3,23 +3,26 @@
 Two tables, each with its reference timed in the same run, so the ratios
 compare them on this machine:
 
-* **environment**: ``features`` env-steps per second of a family's batched JAX
-  environment (``--family docking``: :class:`auv_envs.batched.docking_env.DockingMJX`;
-  ``lars``: :class:`auv_envs.batched.lars_env.LARSMJX`) against its CPU
+* **environment**: ``features`` (acoustic: ``measurements``) env-steps per second of a
+  family's batched JAX environment (``--family docking``:
+  :class:`auv_envs.batched.docking_env.DockingMJX`; ``lars``:
+  :class:`auv_envs.batched.lars_env.LARSMJX`; ``acoustic``:
+  :class:`auv_envs.batched.acoustic_env.AcousticMJX`) against its CPU
   environment through Gymnasium's ``SyncVectorEnv`` of 8 (issue 40's target:
   >= 10x at the best batch size). Two ways to drive the batch: through
   ``gym.make_vec`` of the batched id (NumPy in and out every step, as a Python
   learner uses it) and fused, ``steps`` steps in one compiled ``jax.lax.scan``
   (as a compiled learner uses it). The action is held (docking: surge 0.3;
-  LARS: shoulder 0.3, elbow -0.2 of the torque limits); episodes that end reset
-  themselves.
+  LARS: shoulder 0.3, elbow -0.2 of the torque limits; acoustic: the estimate at the
+  tank's centre); episodes that end reset themselves.
 * **plant**: the batched docking plant (:class:`auv_envs.batched.docking.DockingPlantMJX`,
   :func:`auv_envs.core.plant.hull_advance` on JAX since ``-v2``) one control
   period (0.1 s, RK4 with the hull wrench at every stage) per compiled call
   against MuJoCo's staged RK4 with the hull wrench at every stage
   (``env.integrator``, the ``-v1`` plant), one vehicle at a time.
 
-    python benchmarks/batched_speed.py [--family docking|lars] [--batches 1 64 256 1024 4096]
+    python benchmarks/batched_speed.py [--family docking|lars|acoustic]
+        [--batches 1 64 256 1024 4096]
         [--steps 50] [--difficulty easy|paper|hard]
 
 Runs unchanged on a GPU (JAX picks it): ``pip install -e ".[jax]"`` with a
@@ -37,18 +40,22 @@ import jax.numpy as jnp
 import numpy as np
 
 import auv_envs  # noqa: F401
+from auv_envs.batched.acoustic_env import AcousticMJX
 from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.batched.docking_env import DockingMJX
 from auv_envs.batched.lars_env import LARSMJX
 from auv_envs.core.difficulty import LEVELS
 
 ENV_ID = "auv_envs/DockingStation-v2"
-#: Per family: the CPU id, the batched id, the functional env's maker, the held action.
+#: Per family: the CPU id, the batched id, the functional env's maker, the held action,
+#: the observation mode timed.
 FAMILIES = {
     "docking": (ENV_ID, "auv_envs/DockingStationMJX-v2",
-                lambda **kw: DockingMJX(ENV_ID, **kw), (0.3, 0.0, 0.0, 0.0)),
+                lambda **kw: DockingMJX(ENV_ID, **kw), (0.3, 0.0, 0.0, 0.0), "features"),
     "lars": ("auv_envs/LARSCapture-v0", "auv_envs/LARSCaptureMJX-v0", LARSMJX,
-             (0.0, 0.3, -0.2)),
+             (0.0, 0.3, -0.2), "features"),
+    "acoustic": ("auv_envs/AcousticTracking-v2", "auv_envs/AcousticTrackingMJX-v2",
+                 AcousticMJX, (150.0, 150.0, -15.0), "measurements"),
 }
 FAMILY = "docking"
 
@@ -69,20 +76,21 @@ def vector_rate(envs, steps: int, repeats: int) -> float:
 
 
 def sync_vector_rate(num_envs: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
-    """``features`` env-steps per second of the CPU env through ``SyncVectorEnv``."""
+    """Env-steps per second of the CPU env through ``SyncVectorEnv``."""
     return vector_rate(gym.make_vec(FAMILIES[FAMILY][0], num_envs=num_envs,
-                                    vectorization_mode="sync", obs_mode="features",
+                                    vectorization_mode="sync", obs_mode=FAMILIES[FAMILY][4],
                                     difficulty=difficulty), steps, repeats)
 
 
 def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
-    """``features`` env-steps per second through ``gym.make_vec`` (NumPy every step)."""
+    """Env-steps per second through ``gym.make_vec`` (NumPy every step)."""
     return vector_rate(gym.make_vec(FAMILIES[FAMILY][1], num_envs=batch,
-                                    obs_mode="features", difficulty=difficulty), steps, repeats)
+                                    obs_mode=FAMILIES[FAMILY][4], difficulty=difficulty),
+                       steps, repeats)
 
 
 def fused_rate(env, batch: int, steps: int, repeats: int) -> float:
-    """``features`` env-steps per second, ``steps`` steps fused in one compiled scan."""
+    """Env-steps per second, ``steps`` steps fused in one compiled scan."""
     action = jnp.tile(jnp.asarray(FAMILIES[FAMILY][3], jnp.float32), (batch, 1))
     step = jax.vmap(env.step)
 
@@ -147,7 +155,7 @@ def main(argv=None) -> None:
     FAMILY = args.family
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")
     print(f"family: {FAMILY}, level: {args.difficulty}")
-    batched = FAMILIES[FAMILY][2](obs_mode="features", difficulty=args.difficulty)
+    batched = FAMILIES[FAMILY][2](obs_mode=FAMILIES[FAMILY][4], difficulty=args.difficulty)
     print("\n| batch | make_vec env-steps/s | fused scan env-steps/s | SyncVectorEnv env-steps/s "
           "(same run) | ratio make_vec | ratio fused |")
     print("|---|---|---|---|---|---|")

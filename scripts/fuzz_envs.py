@@ -113,6 +113,8 @@ def batched_levels(env_id: str) -> tuple[str, ...]:
     """The ``difficulty`` levels a batched id builds (its module's ``LEVELS``)."""
     if "LARS" in env_id:
         from auv_envs.batched.lars_env import LEVELS
+    elif "Acoustic" in env_id:
+        from auv_envs.batched.acoustic_env import LEVELS
     else:
         from auv_envs.batched.docking_env import LEVELS
     return LEVELS
@@ -166,7 +168,8 @@ def main(argv=None) -> int:
              for mode in auv_envs.env_class(env_id).obs_modes if mode not in RENDERED
              for level in args.levels]
     if not args.no_batched:
-        cases += [(env_id, "features", level, True) for env_id in auv_envs.BATCHED_ENVIRONMENTS
+        cases += [(env_id, "measurements" if "Acoustic" in env_id else "features", level, True)
+                  for env_id in auv_envs.BATCHED_ENVIRONMENTS
                   for level in args.levels if level in batched_levels(env_id)]
     for index, (env_id, mode, level, batched) in enumerate(cases):
         start = time.perf_counter()

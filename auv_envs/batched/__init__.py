@@ -6,6 +6,10 @@
 * :mod:`auv_envs.batched.docking_env`: the docking environments as pure JAX
   functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
   interface), ``state`` and ``features`` at the ``easy`` level;
+* :mod:`auv_envs.batched.lars_env`: the LARS capture environment likewise;
+* :mod:`auv_envs.batched.acoustic_env`: the acoustic tracking environment, its rig on
+  MJX (:mod:`auv_envs.batched.acoustic_plant`, with MuJoCo's ellipsoid fluid model
+  in JAX: :mod:`auv_envs.tasks.acoustic.fluid`);
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,
   ``gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=N)``, whose compiled
   programs are kept on disk (:mod:`auv_envs.batched.compile_cache`).

@@ -152,12 +152,10 @@ class DockingMJX(FunctionalEnv):
         plant = _PlantCursor(self, qpos, qvel)
         episode, truth, obs = transition.reset(
             self.params, transition.Backend(self.ops, KeyDraws(key), plant), start, vehicle)
-        false = jnp.bool_(False)
-        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
-                "final_obs": obs}
         zero = jnp.float32(0.0)
         metrics = self._metrics(truth, episode, {term: zero for term in self.cpu_env.reward_terms})
-        return State({"qpos": plant.qpos, "qvel": plant.qvel}, obs, zero, false, metrics, info)
+        return self._started(rng, {"qpos": plant.qpos, "qvel": plant.qvel}, episode, obs,
+                             metrics)
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1]):

@@ -211,13 +211,9 @@ class LARSMJX(FunctionalEnv):
         return self._first(rng, plant, episode, truth, obs)
 
     def _first(self, rng, plant, episode, truth, obs) -> State:
-        false = jnp.bool_(False)
-        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
-                "final_obs": obs}
-        zero = jnp.float32(0.0)
-        terms = {term: zero for term in self.cpu_env.reward_terms}
-        return State(plant.data, obs, zero, false, self._metrics(truth, episode, None, terms),
-                     info)
+        terms = {term: jnp.float32(0.0) for term in self.cpu_env.reward_terms}
+        return self._started(rng, plant.data, episode, obs,
+                             self._metrics(truth, episode, None, terms))
 
     def step(self, state: State, action: jax.Array) -> State:
         """One control period under the action (clipped to [-1, 1]):

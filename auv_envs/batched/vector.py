@@ -8,9 +8,10 @@
 
 Each batched id is its CPU id with ``MJX`` after the family's name
 (``auv_envs/DockingStationMJX-v2``, ``auv_envs/LampArrayDockingMJX-v2``,
-``auv_envs/LARSCaptureMJX-v0``) and has only a ``vector_entry_point``: Gymnasium
-refuses that mode for an id registered with additional wrappers, and the CPU ids
-carry one (their episode summary). Episodes reset themselves on the step that ends them
+``auv_envs/LARSCaptureMJX-v0``, ``auv_envs/AcousticTrackingMJX-v2``) and has only a
+``vector_entry_point``: Gymnasium refuses that mode for an id registered with
+additional wrappers, and the CPU ids carry one (their episode summary). Episodes reset
+themselves on the step that ends them
 (``AutoresetMode.SAME_STEP``): that step returns the new episode's first
 observation; ``info["final_obs"]`` holds the observation that ended each
 episode and ``info["episode_metrics"]`` its summary, each with a mask
@@ -26,6 +27,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from auv_envs.batched.acoustic_env import STEP_METRICS as ACOUSTIC_METRICS
+from auv_envs.batched.acoustic_env import AcousticMJX
 from auv_envs.batched.compile_cache import use_compilation_cache
 from auv_envs.batched.docking_env import STEP_METRICS as DOCKING_METRICS
 from auv_envs.batched.docking_env import DockingMJX
@@ -46,9 +49,10 @@ class TransitionVectorEnv(VectorEnv):
         num_envs: the batch size.
         step_metrics: the metrics every step's ``info`` carries.
         failure_reason: ``failure_reason(code, success) -> str``, the CPU env's name of
-            an episode's end.
+            an episode's end (None for a family whose episodes only time out).
         max_episode_steps: episode length in steps (Gymnasium passes the
-            registered one); None: the env's ``time_limit``.
+            registered one), cut to the env's ``time_limit`` where that is shorter;
+            None: the env's ``time_limit``.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
@@ -62,7 +66,9 @@ class TransitionVectorEnv(VectorEnv):
             if not (isinstance(max_episode_steps, int) and max_episode_steps >= 1):
                 raise ValueError(f"max_episode_steps must be a positive int, got "
                                  f"{max_episode_steps!r}")
-            self.env.max_episode_steps = max_episode_steps
+            # As gym.make's TimeLimit over a CPU env: whichever ends the episode first,
+            # this or the env's own time_limit (make_vec passes the registered length).
+            self.env.max_episode_steps = min(max_episode_steps, self.env.max_episode_steps)
         self.num_envs = num_envs
         self.step_metrics = step_metrics
         self.failure_reason = failure_reason
@@ -168,6 +174,25 @@ class LARSVectorEnv(TransitionVectorEnv):
                          lars_transition.end_reason, max_episode_steps)
 
 
+class AcousticVectorEnv(TransitionVectorEnv):
+    """``num_envs`` acoustic tracking environments stepped in one compiled JAX call
+    (:class:`~auv_envs.batched.acoustic_env.AcousticMJX`: what is built and what is not).
+
+    Args:
+        num_envs: the batch size.
+        obs_mode: ``"state"`` or ``"measurements"``.
+        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
+        **env_kwargs: the environment's arguments (:class:`AcousticMJX`).
+    """
+
+    def __init__(self, num_envs: int, obs_mode: str = "measurements",
+                 max_episode_steps: int | None = None, **env_kwargs):
+        if not (isinstance(num_envs, int) and num_envs >= 1):
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        super().__init__(AcousticMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
+                         ACOUSTIC_METRICS, None, max_episode_steps)
+
+
 def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
     """``auv_envs/DockingStationMJX-v2``: :class:`DockingVectorEnv` of the six-light station."""
     return DockingVectorEnv(num_envs, env_id="auv_envs/DockingStation-v2", **kwargs)
@@ -181,3 +206,8 @@ def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
 def lars_capture(num_envs: int, **kwargs) -> LARSVectorEnv:
     """``auv_envs/LARSCaptureMJX-v0``: :class:`LARSVectorEnv`."""
     return LARSVectorEnv(num_envs, **kwargs)
+
+
+def acoustic_tracking(num_envs: int, **kwargs) -> AcousticVectorEnv:
+    """``auv_envs/AcousticTrackingMJX-v2``: :class:`AcousticVectorEnv`."""
+    return AcousticVectorEnv(num_envs, **kwargs)
