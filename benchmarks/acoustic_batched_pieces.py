@@ -1,0 +1,81 @@
+"""Where a batched acoustic step goes: the rig's kinematics, a rig period, a whole step.
+
+Times, at one batch size, each piece as one compiled ``vmap`` call (best of
+``--repeats`` after compiling):
+
+* MJX's ``smooth.kinematics`` of the rig against
+  :class:`~auv_envs.batched.acoustic_plant.ChainKinematics` (the same fields);
+* one sample period of the rig (:meth:`RigPlantMJX.period`: two MJX steps with the
+  ellipsoid fluid force);
+* one step of :class:`~auv_envs.batched.acoustic_env.AcousticMJX` in ``state`` and in
+  ``measurements`` mode (the estimate held at the tank's centre).
+
+    python benchmarks/acoustic_batched_pieces.py [--batch 64] [--difficulty hard]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+import jax
+import jax.numpy as jnp
+from mujoco.mjx._src import smooth
+
+import auv_envs  # noqa: F401
+from auv_envs.batched.acoustic_env import AcousticMJX
+from auv_envs.batched.acoustic_plant import RigPlantMJX
+from auv_envs.core.difficulty import LEVELS
+from auv_envs.tasks.acoustic.transition import NOMINAL_POSTURE
+
+
+def best_ms(fn, args, repeats: int) -> float:
+    """Milliseconds of the compiled ``fn(*args)``, best of ``repeats`` after one call."""
+    jax.block_until_ready(fn(*args))
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - start)
+    return best * 1e3
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--batch", type=int, default=64)
+    parser.add_argument("--difficulty", default="hard", choices=LEVELS)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    batch = args.batch
+    print(f"JAX backend: {jax.default_backend()}; batch {batch}, {args.difficulty}")
+    cpu = gym.make("auv_envs/AcousticTracking-v2", obs_mode="state").unwrapped
+    plant = RigPlantMJX(cpu.physics)
+    tile = lambda values: jnp.tile(jnp.asarray(values, jnp.float32), (batch, 1))  # noqa: E731
+    carrier, arm = tile([150.0, 150.0, -12.0, 0.3]), tile(NOMINAL_POSTURE)
+    data = jax.jit(jax.vmap(plant.place))(carrier, arm)
+    rows = []
+    kinematics = jax.jit(jax.vmap(lambda d: smooth.kinematics(plant.model, d)))
+    rows.append(("MJX smooth.kinematics", best_ms(kinematics, (data,), args.repeats)))
+    rows.append(("ChainKinematics", best_ms(jax.jit(jax.vmap(plant.kinematics)), (data,),
+                                            args.repeats)))
+    period = jax.jit(jax.vmap(plant.period))
+    references = (carrier, tile([0.2, 0.0, 0.0, 0.0]), arm, tile([0.2, 0.1, 0.0]))
+    rows.append(("rig period (two MJX steps, fluid)",
+                 best_ms(lambda d: period(d, *references)[1], (data,), args.repeats)))
+    estimate = tile([150.0, 150.0, -15.0])
+    for mode in ("state", "measurements"):
+        env = AcousticMJX(obs_mode=mode, difficulty=args.difficulty)
+        states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+        step = jax.jit(jax.vmap(env.step))
+        states = step(states, estimate)  # a stepped state: the types every later step has
+        rows.append((f"env step, {mode}", best_ms(lambda s, step=step: step(s, estimate).obs,
+                                                  (states,), args.repeats)))
+    print("\n| piece | ms a call | env-steps/s |")
+    print("|---|---|---|")
+    for name, ms in rows:
+        print(f"| {name} | {ms:.2f} | {batch / ms * 1e3:,.0f} |")
+
+
+if __name__ == "__main__":
+    main()
