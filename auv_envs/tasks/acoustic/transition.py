@@ -427,11 +427,6 @@ def draw_flow(draws, speed_range) -> Flow:
                 direction, veer_period, draws.uniform(0, 2 * np.pi))
 
 
-def current_profile(rng: np.random.Generator, n: int, dt: float, speed_range) -> np.ndarray:
-    """A horizontal current (n, 3) drawn as :func:`draw_flow` (the route tests' helper)."""
-    return draw_flow(rng, speed_range).at(dt * np.arange(n), np)
-
-
 def draw_plan(params: AcousticParams, draws, ops=FLOATS) -> Plan:
     """The episode's plan. Draws, in order: the route (:func:`draw_route`, or
     :func:`plan_route` with ``params.planner == "tabulated"``) and the arm's sweep, or
