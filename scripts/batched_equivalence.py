@@ -91,7 +91,7 @@ def trajectory_errors(env_id: str, seeds, steps: int = 200, **env_kwargs) -> dic
     compared = mismatches = 0
     for k in range(length):
         states = step(states, jnp.asarray(np.stack([log["action"][k] for log in logs])))
-        positions = np.asarray(states.data["qpos"][:, :3])
+        positions = np.asarray(states.plant["qpos"][:, :3])
         pixels = np.asarray(states.obs["pixels"])
         visible = np.asarray(states.obs["visible"]).astype(bool)
         for i, log in enumerate(logs):
@@ -133,9 +133,9 @@ def outcome_agreement(env_id: str, seeds, **env_kwargs) -> dict:
         states = step(states, jnp.asarray(line_of_sight_policy(np.asarray(states.obs))))
         ended = np.asarray(states.done) & ~done
         for i in np.flatnonzero(ended):
-            success = bool(states.info["episode"].success[i])
+            success = bool(states.episode.success[i])
             reasons[i] = "success" if success else failure_reason(
-                int(states.info["episode"].failure[i]), success)
+                int(states.episode.failure[i]), success)
         done |= ended
     cpu_success = np.array([r == "success" for r in cpu_reasons])
     success = np.array([r == "success" for r in reasons])

@@ -74,20 +74,20 @@ def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():
             obs, _, terminated, truncated, info = cpu.step(action)
             state = step(state, jnp.asarray(action))
             assert not (terminated or truncated)
-            np.testing.assert_allclose(np.asarray(state.info["episode"].thrust), info["thrust"],
+            np.testing.assert_allclose(np.asarray(state.episode.thrust), info["thrust"],
                                        rtol=1e-4, atol=1e-3)
-            worst = max(worst, float(np.abs(np.asarray(state.data["qpos"][:3])
+            worst = max(worst, float(np.abs(np.asarray(state.plant["qpos"][:3])
                                             - info["true_position"]).max()))
     assert worst < 0.01
     # The check can fail: with a vehicle of its own drawing the batch leaves the CPU path.
     state = reset_to(*start, jax.random.PRNGKey(0))
-    assert float(state.info["episode"].plant[0]) != pytest.approx(draws["mass_scale"])
+    assert float(state.episode.plant[0]) != pytest.approx(draws["mass_scale"])
     obs = cpu.reset(seed=18)[0]
     for _ in range(200):
         action = line_of_sight_policy(obs)[0]
         obs, _, _, _, info = cpu.step(action)
         state = step(state, jnp.asarray(action))
-    assert np.abs(np.asarray(state.data["qpos"][:3]) - info["true_position"]).max() > 0.01
+    assert np.abs(np.asarray(state.plant["qpos"][:3]) - info["true_position"]).max() > 0.01
 
 
 @pytest.mark.parametrize(("env_id", "level"), [
@@ -135,8 +135,8 @@ def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level
         for _ in range(steps):
             speed, direction = current.advance(speed, direction, 0.0, 1.0, cpu.dt, rng)
         speeds.append(speed)
-    batch_speeds = np.asarray(state.info["episode"].current_polar)[:, 0]
-    np.testing.assert_allclose(np.hypot(*np.asarray(state.info["episode"].current)[:, :2].T),
+    batch_speeds = np.asarray(state.episode.current_polar)[:, 0]
+    np.testing.assert_allclose(np.hypot(*np.asarray(state.episode.current)[:, :2].T),
                                batch_speeds, rtol=1e-5, atol=1e-6)
     assert np.mean(speeds) > 0.05  # the current varies at this level
     assert abs(np.mean(batch_speeds) - np.mean(speeds)) < 0.15 * np.mean(speeds)

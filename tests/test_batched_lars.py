@@ -247,7 +247,7 @@ def test_a_fixed_policys_outcomes_agree_on_100_seeds():
             state = step(state, act(state.obs))
             first = state.done & ~ended
             return (state, ended | state.done,
-                    jnp.where(first, state.info["episode"].success, success)), None
+                    jnp.where(first, state.episode.success, success)), None
         false = jnp.zeros(len(seeds), bool)
         return jax.lax.scan(body, (state, false, false), None,
                             length=batched.max_episode_steps)[0]

@@ -5,11 +5,13 @@
   vehicles in one compiled call;
 * :mod:`auv_envs.batched.docking_env`: the docking environments as pure JAX
   functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
-  interface), ``state`` and ``features`` at the ``easy`` level;
+  interface), ``state`` and ``features`` at every level;
 * :mod:`auv_envs.batched.lars_env`: the LARS capture environment likewise;
 * :mod:`auv_envs.batched.acoustic_env`: the acoustic tracking environment, its rig on
   MJX (:mod:`auv_envs.batched.acoustic_plant`, with MuJoCo's ellipsoid fluid model
   in JAX: :mod:`auv_envs.tasks.acoustic.fluid`);
+* :func:`load` (:mod:`auv_envs.batched.registry`): any family's functional env
+  under MuJoCo Playground's and Brax's conventions, for ``wrap_for_brax_training``;
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,
   ``gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=N)``, whose compiled
   programs are kept on disk (:mod:`auv_envs.batched.compile_cache`).
@@ -33,3 +35,7 @@ except ImportError as exc:  # pragma: no cover - the message is the point
     raise ImportError(
         "auv_envs.batched needs JAX and MuJoCo MJX: pip install -e \".[jax]\""
     ) from exc
+
+from auv_envs.batched.registry import load  # noqa: E402  (after the import check above)
+
+__all__ = ["load"]

@@ -142,13 +142,11 @@ class AcousticMJX(FunctionalEnv):
         """Score the estimate ``action`` (clipped to the tank) and move on one sample
         period: :func:`auv_envs.tasks.acoustic.transition.step` on JAX."""
         rng, key, reset_key = jax.random.split(state.info["rng"], 3)
-        space = self.action_space
-        action = jnp.clip(jnp.asarray(action, jnp.float32), space.low, space.high)
-        plant = _RigCursor(self.plant, state.data)
+        plant = _RigCursor(self.plant, state.plant)
         episode, now, obs, terms = transition.step(
-            self.params, state.info["episode"], action,
+            self.params, state.episode, self._action(action),
             Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(rng, reset_key, plant.data, episode, obs, terms,
+        return self._conclude(state, rng, reset_key, plant.data, episode, obs, terms,
                               jnp.bool_(False), self._metrics(episode, now, terms))
 
     # ------------------------------------------------------------------ internals

@@ -161,12 +161,11 @@ class DockingMJX(FunctionalEnv):
         """One control period under the normalised action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.docking.transition.step` on JAX."""
         rng, key, reset_key = jax.random.split(state.info["rng"], 3)
-        action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
-        plant = _PlantCursor(self, state.data["qpos"], state.data["qvel"])
+        plant = _PlantCursor(self, state.plant["qpos"], state.plant["qvel"])
         episode, truth, obs, judged = transition.step(
-            self.params, state.info["episode"], self.ops.unpack(action),
+            self.params, state.episode, self.ops.unpack(self._action(action)),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(rng, reset_key, {"qpos": plant.qpos, "qvel": plant.qvel},
+        return self._conclude(state, rng, reset_key, {"qpos": plant.qpos, "qvel": plant.qvel},
                               episode, obs, judged.terms, judged.terminated,
                               self._metrics(truth, episode, judged.terms))
 

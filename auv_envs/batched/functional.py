@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 
+import gymnasium as gym
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 
 @jax.tree_util.register_dataclass
@@ -20,17 +22,21 @@ class State:
     """One environment's state (a batch of them under ``vmap``), as Playground's.
 
     Attributes:
-        data: the plant's state (docking: ``{"qpos": (7,), "qvel": (6,)}``; LARS: the
-            arm's ``mjx.Data``).
-        obs: the observation (an array for ``state``, a dict for ``features``).
+        data: everything the episode is: ``{"plant": ..., "episode": ...}``, the plant's
+            state (docking: ``{"qpos": (7,), "qvel": (6,)}``; LARS: the arm's
+            ``mjx.Data``; acoustic: the rig's) and the transition's ``EpisodeState``.
+            Restoring ``data`` (and ``obs``) restarts an episode, as Playground's
+            auto-reset does with a cached first state.
+        obs: the observation (an array for ``state``, a dict for ``features``; a flat
+            vector under Playground's conventions).
         reward: the last step's reward.
         done: whether the last step ended the episode (terminated or truncated).
         metrics: the last step's metrics (the environment's ``STEP_METRICS``), its
             reward terms (``reward_<term>``) and the episode's summary so far
-            (``episode_*``).
-        info: ``rng`` (the episode's key), ``episode`` (the transition's
-            ``EpisodeState``), ``terminated``, ``truncation`` and ``final_obs`` (the
-            observation that ended the episode; the present one otherwise).
+            (``episode_*``), with any keys a wrapper added kept.
+        info: ``rng`` (the key of the step's draws), ``terminated``, ``truncation`` and
+            ``final_obs`` (the observation that ended the episode; the present one
+            otherwise), with any keys a wrapper added kept.
     """
 
     data: dict
@@ -42,6 +48,16 @@ class State:
 
     def replace(self, **changes) -> State:
         return dataclasses.replace(self, **changes)
+
+    @property
+    def episode(self):
+        """The transition's ``EpisodeState``."""
+        return self.data["episode"]
+
+    @property
+    def plant(self):
+        """The plant's state."""
+        return self.data["plant"]
 
 
 class KeyDraws:
@@ -90,11 +106,24 @@ class FunctionalEnv:
 
     A subclass sets ``cpu_env``, ``plant``, ``calibration``, ``observation_space``,
     ``action_space``, ``max_episode_steps`` and ``auto_reset``, and defines ``reset``.
+
+    Two conventions. Gymnasium's (the default, what :mod:`auv_envs.batched.vector` and
+    the compiled PPO use): the observation and action as the CPU env's spaces, ``done``
+    a bool that includes the time limit, the episode reset inside :meth:`step` with
+    ``auto_reset``. MuJoCo Playground's and Brax's (:meth:`use_playground_conventions`,
+    what :func:`auv_envs.batched.load` returns): a flat float32 observation vector,
+    actions in [-1, 1] (mapped affinely onto the CPU env's action box), float32
+    ``done``, ``info["truncation"]`` and metrics, no time limit and no reset inside
+    the env (Brax's ``EpisodeWrapper`` ends an episode at ``episode_length`` steps and
+    flags it as truncation; Playground's ``BraxAutoResetWrapper`` restores ``data``).
     """
 
     cpu_env = plant = calibration = observation_space = action_space = None
     max_episode_steps: int
     auto_reset: bool = True
+    #: Playground's and Brax's conventions (:meth:`use_playground_conventions`).
+    playground: bool = False
+    _action_box = None
 
     @property
     def dt(self) -> float:
@@ -112,6 +141,12 @@ class FunctionalEnv:
         return space.shape[0]
 
     @property
+    def episode_length(self) -> int:
+        """The CPU environment's episode length in steps (its time limit): what Brax's
+        ``ppo.train(episode_length=...)`` is given."""
+        return self.cpu_env.max_episode_steps
+
+    @property
     def mj_model(self):
         return self.cpu_env.physics.model
 
@@ -119,34 +154,90 @@ class FunctionalEnv:
     def mjx_model(self):
         return self.plant.model
 
+    @property
+    def unwrapped(self) -> FunctionalEnv:
+        return self
+
+    def use_playground_conventions(self) -> FunctionalEnv:
+        """Switch to MuJoCo Playground's and Brax's conventions (class docstring): the
+        observation space becomes Gymnasium's flattening of the CPU env's (a ``Dict``'s
+        entries concatenated in its key order, as ``gymnasium.spaces.flatten``), the
+        action space [-1, 1]. Returns this env."""
+        self.playground, self.auto_reset = True, False
+        self._observation_keys = (tuple(self.observation_space.spaces)
+                                  if hasattr(self.observation_space, "spaces") else None)
+        flat = gym.spaces.flatten_space(self.observation_space)
+        self.observation_space = gym.spaces.Box(flat.low.astype(np.float32),
+                                                flat.high.astype(np.float32), dtype=np.float32)
+        self._action_box = self.action_space
+        self.action_space = gym.spaces.Box(-1.0, 1.0, self._action_box.shape, np.float32)
+        return self
+
     def reset(self, rng: jax.Array) -> State:
         raise NotImplementedError
 
-    def _started(self, rng, data, episode, obs, metrics: dict) -> State:
+    def _action(self, action) -> jax.Array:
+        """The action the transition is given: clipped to the CPU env's action box;
+        under Playground's conventions first mapped onto it from [-1, 1]."""
+        action = jnp.asarray(action, jnp.float32)
+        if self.playground:
+            low, high = self._action_box.low, self._action_box.high
+            return low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
+        return jnp.clip(action, self.action_space.low, self.action_space.high)
+
+    def _present(self, obs):
+        """The observation as this env gives it (flattened under Playground's conventions)."""
+        if not self.playground:
+            return obs
+        if self._observation_keys is None:
+            return jnp.asarray(obs, jnp.float32).reshape(-1)
+        return jnp.concatenate([jnp.asarray(obs[key], jnp.float32).reshape(-1)
+                                for key in self._observation_keys])
+
+    def _flag(self, value) -> jax.Array:
+        """A bool of the step (``done``, ``terminated``, ``truncation``) as this env gives it."""
+        return jnp.asarray(value, jnp.float32) if self.playground else jnp.asarray(value)
+
+    def _metrics_out(self, metrics: dict) -> dict:
+        if not self.playground:
+            return metrics
+        return {key: jnp.asarray(value, jnp.float32) for key, value in metrics.items()}
+
+    def _started(self, rng, plant, episode, obs, metrics: dict) -> State:
         """The state of an episode just begun: no reward yet, not done, its first
         observation as ``final_obs``."""
-        false = jnp.bool_(False)
-        info = {"rng": rng, "episode": episode, "terminated": false, "truncation": false,
-                "final_obs": obs}
-        return State(data, obs, jnp.float32(0.0), false, metrics, info)
+        false = self._flag(jnp.bool_(False))
+        obs = self._present(obs)
+        info = {"rng": rng, "terminated": false, "truncation": false, "final_obs": obs}
+        return State({"plant": plant, "episode": episode}, obs, jnp.float32(0.0), false,
+                     self._metrics_out(metrics), info)
 
-    def _conclude(self, rng, reset_key, data, episode, obs, terms: dict, terminated,
-                  metrics: dict) -> State:
-        """The state a step returns: its reward (the terms' sum), ``done`` at termination
-        or the time limit (``info["truncation"]``), and, with ``auto_reset``, the episode
-        that ended replaced by a fresh one from ``reset_key`` (its ``reward``, ``done``,
+    def _conclude(self, state: State, rng, reset_key, plant, episode, obs, terms: dict,
+                  terminated, metrics: dict) -> State:
+        """The state a step from ``state`` returns: its reward (the terms' sum), ``done``
+        at termination or the time limit (``info["truncation"]``; under Playground's
+        conventions at termination only), the keys of ``state.info`` and
+        ``state.metrics`` that this env does not write kept, and, with
+        ``auto_reset``, the episode that ended replaced by a fresh one from
+        ``reset_key`` (its ``data`` and ``obs``; the step's ``reward``, ``done``,
         ``metrics``, ``terminated``, ``truncation`` and ``final_obs`` kept)."""
         reward = sum(terms.values())
-        truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
+        terminated = jnp.asarray(terminated, jnp.bool_)
+        if self.playground:  # the time limit is the trainer's (Brax's EpisodeWrapper)
+            truncated = jnp.bool_(False)
+        else:
+            truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
         done = terminated | truncated
-        info = {"rng": rng, "episode": episode, "terminated": terminated,
-                "truncation": truncated, "final_obs": obs}
-        stepped = State(data, obs, reward, done, metrics, info)
+        obs = self._present(obs)
+        info = {**state.info, "rng": rng, "terminated": self._flag(terminated),
+                "truncation": self._flag(truncated), "final_obs": obs}
+        stepped = State({"plant": plant, "episode": episode}, obs, reward, self._flag(done),
+                        {**state.metrics, **self._metrics_out(metrics)}, info)
         if not self.auto_reset:
             return stepped
         fresh = self.reset(reset_key)
-        fresh = fresh.replace(
-            reward=reward, done=done, metrics=stepped.metrics,
-            info={**fresh.info, "terminated": terminated, "truncation": truncated,
-                  "final_obs": obs})
-        return jax.tree_util.tree_map(lambda new, old: jnp.where(done, new, old), fresh, stepped)
+        restart = lambda new, old: jnp.where(done, new, old)  # noqa: E731
+        return stepped.replace(
+            data=jax.tree_util.tree_map(restart, fresh.data, stepped.data),
+            obs=jax.tree_util.tree_map(restart, fresh.obs, stepped.obs),
+            info={**info, "rng": restart(fresh.info["rng"], rng)})

@@ -219,19 +219,18 @@ class LARSMJX(FunctionalEnv):
         """One control period under the action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.lars.transition.step` on JAX."""
         rng, key, reset_key = jax.random.split(state.info["rng"], 3)
-        action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
-        plant = _ArmCursor(self.plant, self.ops, state.data)
+        plant = _ArmCursor(self.plant, self.ops, state.plant)
         episode, truth, obs, judged = transition.step(
-            self.params, state.info["episode"], action,
+            self.params, state.episode, self._action(action),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(rng, reset_key, plant.data, episode, obs, judged.terms,
+        return self._conclude(state, rng, reset_key, plant.data, episode, obs, judged.terms,
                               judged.terminated, self._metrics(truth, episode, judged,
                                                                judged.terms))
 
     def truth(self, state: State) -> dict:
         """The ground truth of ``state`` (:func:`auv_envs.tasks.lars.transition.truth`)."""
-        plant = _ArmCursor(self.plant, self.ops, state.data)
-        return transition.truth_now(self.params, state.info["episode"], plant, self.ops)
+        plant = _ArmCursor(self.plant, self.ops, state.plant)
+        return transition.truth_now(self.params, state.episode, plant, self.ops)
 
     # ------------------------------------------------------------------ internals
     def _metrics(self, truth: dict, episode, judged, terms: dict) -> dict:

@@ -1,0 +1,62 @@
+"""``auv_envs.batched.load(env_id, **env_kwargs)``: any family's functional environment
+for the JAX RL ecosystem, as MuJoCo Playground's ``registry.load``.
+
+::
+
+    from brax.training.agents.ppo import train as ppo
+    from mujoco_playground import wrapper
+    import auv_envs.batched
+
+    env = auv_envs.batched.load("auv_envs/LARSCapture-v0", obs_mode="features")
+    make_policy, params, metrics = ppo.train(
+        environment=env, num_timesteps=1_000_000, episode_length=env.episode_length,
+        wrap_env_fn=wrapper.wrap_for_brax_training)
+
+The environment keeps MuJoCo Playground's and Brax's conventions
+(:meth:`~auv_envs.batched.functional.FunctionalEnv.use_playground_conventions`): a flat
+float32 observation, actions in [-1, 1], float32 ``done`` at termination only (the time
+limit is Brax's ``EpisodeWrapper``'s, flagged as ``info["truncation"]``), no reset
+inside the environment, everything an episode is in ``state.data`` (so Playground's
+auto-reset to a cached first state restarts it whole), and the keys wrappers add to
+``info`` and ``metrics`` kept across a step.
+"""
+
+from __future__ import annotations
+
+from auv_envs.batched.acoustic_env import AcousticMJX
+from auv_envs.batched.docking_env import DockingMJX
+from auv_envs.batched.functional import FunctionalEnv
+from auv_envs.batched.lars_env import LARSMJX
+
+#: Each family's CPU id and its batched id, and the functional env that evaluates it.
+FAMILIES = {
+    "auv_envs/DockingStation-v2": ("auv_envs/DockingStationMJX-v2",
+                                   lambda **kw: DockingMJX("auv_envs/DockingStation-v2", **kw)),
+    "auv_envs/LampArrayDocking-v2": ("auv_envs/LampArrayDockingMJX-v2",
+                                     lambda **kw: DockingMJX("auv_envs/LampArrayDocking-v2",
+                                                             **kw)),
+    "auv_envs/LARSCapture-v0": ("auv_envs/LARSCaptureMJX-v0", LARSMJX),
+    "auv_envs/AcousticTracking-v2": ("auv_envs/AcousticTrackingMJX-v2", AcousticMJX),
+}
+#: Every id :func:`load` takes (a CPU id or its batched twin) and the CPU id it means.
+IDS = {**{cpu: cpu for cpu in FAMILIES}, **{batched: cpu for cpu, (batched, _) in FAMILIES.items()}}
+
+
+def load(env_id: str, **env_kwargs) -> FunctionalEnv:
+    """The functional environment of ``env_id`` under Playground's conventions.
+
+    Args:
+        env_id: a CPU id (``auv_envs/DockingStation-v2``, ``auv_envs/LampArrayDocking-v2``,
+            ``auv_envs/LARSCapture-v0``, ``auv_envs/AcousticTracking-v2``) or its batched
+            twin (``auv_envs/DockingStationMJX-v2``, ...).
+        **env_kwargs: the environment's arguments (``obs_mode``, ``difficulty``, ...), as
+            the CPU env takes them.
+
+    Raises:
+        ValueError: an id without a batched twin (superseded versions included).
+    """
+    if env_id not in IDS:
+        raise ValueError(f"no batched environment for {env_id!r}; load() takes "
+                         f"{sorted(IDS)}")
+    env = FAMILIES[IDS[env_id]][1](**env_kwargs)
+    return env.use_playground_conventions()
