@@ -74,9 +74,10 @@ def test_export_is_an_sb3_policy_acting_as_the_jax_one(tmp_path):
     batched = pytest.importorskip("auv_envs.batched.docking_env")
     env = batched.DockingMJX(ENV_ID, obs_mode="features")
     params, normalizer, observations, flat = _policy_and_normalizer(env)
-    run = {"seed": 0, "n_timesteps": 0, "wall_time_s": 0.0, "difficulty": "paper",
+    run = {"env_id": ENV_ID, "obs_mode": "features", "seed": 0, "n_timesteps": 0,
+           "wall_time_s": 0.0, "difficulty": "paper",
            "settings": compiled.DEFAULT_SETTINGS._asdict(), "curve": []}
-    manifest = compiled.export(env, params, normalizer, tmp_path / "policy", run)
+    manifest = compiled.export(params, normalizer, tmp_path / "policy", run)
     assert manifest["algo"] == "ppo" and manifest["flatten_obs"] is True
     cpu = gym.make(ENV_ID, obs_mode="features").unwrapped
     agent = load_policy_agent(tmp_path / "policy", cpu)
@@ -187,7 +188,7 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
     ({"num_envs": 0}, r"num_envs must be an integer in \[1, inf\)"),
     ({"gamma": -0.1}, r"gamma must be a finite number in \[0, 1\]"),
     ({"n_epochs": 2.5}, "n_epochs must be an integer"),
-    ({"obs_mode": "state"}, "'features' only"),
+    ({"obs_mode": "measurements"}, r"obs_mode \('state', 'features'\)"),
     ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
     ({"env_kwargs": {"time_limit": 5.0}}, "may set 'difficulty' only"),
     ({"num_envs": 10, "n_minibatches": 48}, "must split into"),
@@ -211,8 +212,10 @@ def test_cppo_yml_holds_the_trainers_defaults_and_only_batched_envs():
         assert compiled.Settings(**config.hyperparams) == compiled.DEFAULT_SETTINGS
         assert config.run["n_timesteps"] == budget
         assert config.run["env_kwargs"] == {"difficulty": "paper"}
-    with pytest.raises(ConfigError, match="batched JAX envs only"):
-        resolve_config("cppo", "auv_envs/LARSCapture-v0", 0)
+    assert resolve_config("cppo", "auv_envs/AcousticTracking-v2", 0).run["obs_mode"] == \
+        "measurements"
+    with pytest.raises(ConfigError, match="unknown env id"):
+        resolve_config("cppo", "auv_envs/LARSCapture-v9", 0)
     with pytest.raises(ConfigError, match="seed must be"):
         resolve_config("cppo", ENV_ID, -1)
 
@@ -272,3 +275,49 @@ def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, see
     assert manifest["env_kwargs"] == {"difficulty": "hard"}
     assert manifest["group"] == f"cppo-{family}-features-hard"
     assert f"--set 'env_kwargs={{difficulty: hard}}' --n-timesteps {steps}" in manifest["command"]
+
+
+def test_cppo_knows_every_batched_family_and_its_modes():
+    from auv_envs.batched import acoustic_env, docking_env, lars_env
+    from auv_envs.batched.registry import FAMILIES
+    from baselines.rl.config import COMPILED_OBS_MODES
+
+    assert set(COMPILED_OBS_MODES) == set(FAMILIES)
+    modules = {"Docking": docking_env, "LampArray": docking_env, "LARS": lars_env,
+               "Acoustic": acoustic_env}
+    for env_id, modes in COMPILED_OBS_MODES.items():
+        module = next(m for prefix, m in modules.items()
+                      if env_id.split("/")[1].startswith(prefix))
+        assert modes == module.OBS_MODES
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode"), [("auv_envs/LARSCapture-v0", "features"),
+                                                  ("auv_envs/AcousticTracking-v2",
+                                                   "measurements")])
+def test_one_iteration_on_each_other_family_exports_a_policy_for_its_cpu_env(
+        tmp_path, env_id, obs_mode):
+    """LARS and acoustic: an iteration of 4 envs x 4 steps, then the policy written and
+    acting in the CPU env as the JAX policy acts, through the action box's rescaling."""
+    env = compiled.make_env(env_id, obs_mode, "paper")
+    settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1)
+    trainer = compiled.Trainer(env, settings)
+    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
+    params, opt_state, normalizer, states, key, stats = trainer.iteration(
+        params, opt_state, normalizer, states, key)
+    assert bool(trainer.all_finite((params, normalizer))) and int(stats["episodes"]) == 0
+    params["pi"][-1]["w"] = params["pi"][-1]["w"] * 300.0  # actions far from zero
+    run = {"env_id": env_id, "obs_mode": obs_mode, "seed": 0, "n_timesteps": 16,
+           "wall_time_s": 0.0, "difficulty": "paper", "settings": settings._asdict(),
+           "curve": []}
+    compiled.export(params, normalizer, tmp_path / "policy", run)
+    cpu = gym.make(env_id, obs_mode=obs_mode, difficulty="paper").unwrapped
+    agent = load_policy_agent(tmp_path / "policy", cpu)
+    obs, info = cpu.reset(seed=4)
+    flat = compiled.flatten_observation({k: jnp.asarray(v) for k, v in obs.items()},
+                                        trainer.keys)
+    unit = np.clip(np.asarray(compiled._mlp(params["pi"], normalizer(flat[None]))[0]),
+                   -1.0, 1.0)
+    # The batched env's action from the unit action is the CPU policy's action.
+    np.testing.assert_allclose(agent.act(obs, info), np.asarray(env._action(unit)),
+                               rtol=1e-5, atol=1e-4)
+    assert cpu.action_space.contains(agent.act(obs, info))

@@ -123,6 +123,7 @@ class FunctionalEnv:
     auto_reset: bool = True
     #: Playground's and Brax's conventions (:meth:`use_playground_conventions`).
     playground: bool = False
+    #: The CPU env's action box when actions are taken in [-1, 1] (:meth:`use_unit_actions`).
     _action_box = None
 
     @property
@@ -169,18 +170,25 @@ class FunctionalEnv:
         flat = gym.spaces.flatten_space(self.observation_space)
         self.observation_space = gym.spaces.Box(flat.low.astype(np.float32),
                                                 flat.high.astype(np.float32), dtype=np.float32)
-        self._action_box = self.action_space
-        self.action_space = gym.spaces.Box(-1.0, 1.0, self._action_box.shape, np.float32)
+        return self.use_unit_actions()
+
+    def use_unit_actions(self) -> FunctionalEnv:
+        """Take actions in [-1, 1], mapped affinely onto the CPU env's action box (as
+        Gymnasium's ``RescaleAction(env, -1, 1)``; the identity for docking and LARS,
+        whose boxes are [-1, 1]). Returns this env."""
+        if self._action_box is None:
+            self._action_box = self.action_space
+            self.action_space = gym.spaces.Box(-1.0, 1.0, self._action_box.shape, np.float32)
         return self
 
     def reset(self, rng: jax.Array) -> State:
         raise NotImplementedError
 
     def _action(self, action) -> jax.Array:
-        """The action the transition is given: clipped to the CPU env's action box;
-        under Playground's conventions first mapped onto it from [-1, 1]."""
+        """The action the transition is given: clipped to the CPU env's action box; with
+        unit actions first mapped onto it from [-1, 1]."""
         action = jnp.asarray(action, jnp.float32)
-        if self.playground:
+        if self._action_box is not None:
             low, high = self._action_box.low, self._action_box.high
             return low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
         return jnp.clip(action, self.action_space.low, self.action_space.high)

@@ -22,7 +22,7 @@ become non-finite stops at once, keeps its last good checkpoint and exits with
 with a smaller learning rate (``--resume`` may change only
 :data:`baselines.rl.config.RESUMABLE`).
 
-``--algo cppo`` is PPO compiled in JAX on the batched docking envs
+``--algo cppo`` is PPO compiled in JAX on the batched envs of every family
 (:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``), from
 ``cppo.yml``: the same run directory, minutes instead of tens of minutes.
 Ctrl-C writes its policy so far; it cannot be resumed (the same seed trains

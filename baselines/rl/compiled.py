@@ -1,13 +1,15 @@
-"""Compiled PPO: rollouts and updates fused in JAX on the batched docking environment.
+"""Compiled PPO: rollouts and updates fused in JAX on a batched environment of any family.
 
 A compact PPO (Schulman et al. 2017, "Proximal Policy Optimization
 Algorithms", arXiv:1707.06347: clipped surrogate, GAE(λ), a value baseline)
-whose whole iteration (a rollout of ``num_envs`` batched
-:class:`auv_envs.batched.docking_env.DockingMJX` environments, then the
+whose whole iteration (a rollout of ``num_envs`` batched environments of one family,
+:class:`~auv_envs.batched.docking_env.DockingMJX`,
+:class:`~auv_envs.batched.lars_env.LARSMJX` or
+:class:`~auv_envs.batched.acoustic_env.AcousticMJX`, then the
 minibatch epochs) is one compiled ``jax.jit`` call (``pip install -e
-".[jax]"``; optax's Adam). Brax's PPO would be the library to use, but
-``brax 0.14.2`` calls ``jax.device_put_replicated``, which JAX 0.10 (the one
-that matches ``mujoco-mjx 3.17``) no longer has.
+".[jax]"``; optax's Adam). It writes its policy as Stable-Baselines3's, which Brax's
+PPO (``scripts/brax_ppo.py``) does not; actions are taken in [-1, 1], mapped onto the
+env's action box as ``RescaleAction`` maps them for the SB3 policy on the CPU env.
 
 The policy is Stable-Baselines3's ``MlpPolicy`` in JAX: separate tanh MLPs
 for the Gaussian mean and the value, a state-independent log standard
@@ -47,7 +49,8 @@ from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.
     default_compilation_cache,
     use_compilation_cache,
 )
-from auv_envs.batched.docking_env import DockingMJX
+from auv_envs.batched.functional import FunctionalEnv
+from auv_envs.batched.registry import FAMILIES
 from baselines.rl.config import (
     COMPILED,
     CompiledSettings,
@@ -157,9 +160,11 @@ def _log_prob(params, mean, action):
 
 # ---------------------------------------------------------------------- training
 class Trainer:
-    """PPO on a batched docking environment; :meth:`iteration` is one compiled call."""
+    """PPO on a batched environment (actions in [-1, 1]: :meth:`FunctionalEnv.use_unit_actions`);
+    :meth:`iteration` is one compiled call."""
 
-    def __init__(self, env: DockingMJX, settings: Settings = DEFAULT_SETTINGS, total_iterations=1):
+    def __init__(self, env: FunctionalEnv, settings: Settings = DEFAULT_SETTINGS,
+                 total_iterations=1):
         self.env, self.settings = env, settings
         space = env.observation_space
         self.keys = tuple(space.spaces) if isinstance(space, gym.spaces.Dict) else None
@@ -293,10 +298,16 @@ class Trainer:
 EVAL_EPISODES = 64
 
 
+def make_env(env_id: str, obs_mode: str, difficulty: str) -> FunctionalEnv:
+    """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
+    trains on: episodes reset themselves, actions in [-1, 1]."""
+    return FAMILIES[env_id][1](obs_mode=obs_mode, difficulty=difficulty).use_unit_actions()
+
+
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
-          stop=lambda: False) -> dict:
+          stop=lambda: False, obs_mode: str = "features") -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
@@ -310,12 +321,12 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
     statistic non-finite raises :class:`~baselines.rl.training.TrainingDiverged` at once,
     writing nothing more (the checkpoints written before it stay).
     """
-    env = DockingMJX(env_id, obs_mode="features", difficulty=difficulty)
+    env = make_env(env_id, obs_mode, difficulty)
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
     trainer = Trainer(env, settings, iterations)
-    run = {"seed": seed, "difficulty": difficulty, "settings": settings._asdict(),
-           "command": command}
+    run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
+           "settings": settings._asdict(), "command": command}
     checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -350,21 +361,22 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
                   f"{EVAL_EPISODES} batched episodes ({row['wall_s']} s)", flush=True)
             if checkpoints and i < iterations:
                 last_checkpoint = checkpoint_dir / f"step_{row['step']}"
-                export(env, params, normalizer, last_checkpoint,
+                export(params, normalizer, last_checkpoint,
                        {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
                         "curve": list(curve), "group": None})
         if evaluate is None:
             compiling.cancel()  # stopped before the first evaluation
     wall = time.perf_counter() - start
-    manifest = export(env, params, normalizer, Path(out), {
+    manifest = export(params, normalizer, Path(out), {
         **run, "n_timesteps": i * per_iteration, "wall_time_s": round(wall, 1),
         "curve": curve, "group": group})
     return {**manifest, "finished": i == iterations}
 
 
-def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
+def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     """Write the policy as Stable-Baselines3 files (``model.zip``, ``vecnormalize.pkl``)
-    and a ``policy.json`` manifest that :mod:`baselines.rl.agents` reads."""
+    and a ``policy.json`` manifest that :mod:`baselines.rl.agents` reads; ``run`` names
+    the CPU env (``env_id``, ``obs_mode``) the policy acts in."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -374,7 +386,7 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
     from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
     out.mkdir(parents=True, exist_ok=True)
-    cpu = gym.make(env.env_id, obs_mode="features").unwrapped
+    cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"]).unwrapped
     wrapped = wrap_env(cpu, flatten_obs=True)
     model = PPO("MlpPolicy", wrapped, seed=0, device="cpu", policy_kwargs={
         "net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh})
@@ -402,7 +414,7 @@ def export(env: DockingMJX, params: dict, normalizer: Normalizer, out: Path, run
         writer.writeheader()
         writer.writerows(run["curve"])
     manifest = {
-        "name": out.name, "algo": "ppo", "env_id": env.env_id, "obs_mode": "features",
+        "name": out.name, "algo": "ppo", "env_id": run["env_id"], "obs_mode": run["obs_mode"],
         "flatten_obs": True, "env_kwargs": {"difficulty": run["difficulty"]},
         "trainer": "baselines.rl.compiled (PPO fused in JAX on the batched MJX env)",
         "seed": run["seed"], "n_timesteps": run["n_timesteps"],
@@ -456,7 +468,8 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
                              Settings(**config.hyperparams), config.run["evals"],
                              checkpoints=config.run["checkpoints"],
                              checkpoint_dir=run.checkpoints, command=command,
-                             stop=lambda: flag.stop_signal is not None)
+                             stop=lambda: flag.stop_signal is not None,
+                             obs_mode=config.run["obs_mode"])
     except TrainingDiverged as exc:
         exc.run_dir = run.path
         info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))

@@ -15,7 +15,7 @@ two kinds of keys:
 * keyword arguments of the Stable-Baselines3 algorithm (``learning_rate``,
   ``n_steps``, ``policy_kwargs`` ...), checked against its constructor.
 
-``cppo`` (:data:`COMPILED`) is the PPO compiled in JAX on the batched docking
+``cppo`` (:data:`COMPILED`) is the PPO compiled in JAX on the batched
 environments (:mod:`baselines.rl.compiled`): its file ``cppo.yml`` has the
 run keys :data:`COMPILED_RUN_KEYS` and the fields of :class:`CompiledSettings`.
 
@@ -63,8 +63,15 @@ OFF_POLICY = ("sac", "td3", "ddpg")
 COMPILED = "cppo"
 #: Every ``--algo`` train.py accepts.
 TRAINERS = (*ALGORITHMS, COMPILED)
-#: The environments the compiled PPO has a batched JAX version of.
-COMPILED_ENV_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
+#: The environments the compiled PPO has a batched JAX version of, and the observation
+#: modes it builds (``auv_envs.batched.registry.FAMILIES``, each module's ``OBS_MODES``).
+COMPILED_OBS_MODES = {
+    "auv_envs/DockingStation-v2": ("state", "features"),
+    "auv_envs/LampArrayDocking-v2": ("state", "features"),
+    "auv_envs/LARSCapture-v0": ("state", "features"),
+    "auv_envs/AcousticTracking-v2": ("state", "measurements"),
+}
+COMPILED_ENV_IDS = tuple(COMPILED_OBS_MODES)
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
@@ -608,8 +615,10 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"cppo run keys must be {sorted(COMPILED_RUN_KEYS)}, "
                           f"got {sorted(config.run)}")
     run = config.run
-    if run["obs_mode"] != "features":
-        raise ConfigError(f"cppo trains on obs_mode 'features' only, got {run['obs_mode']!r}")
+    modes = COMPILED_OBS_MODES[config.env_id]
+    if run["obs_mode"] not in modes:
+        raise ConfigError(f"cppo trains {config.env_id} on obs_mode {modes}, got "
+                          f"{run['obs_mode']!r}")
     kwargs = run["env_kwargs"]
     if not isinstance(kwargs, dict) or set(kwargs) - {"difficulty"}:
         raise ConfigError(f"cppo env_kwargs may set 'difficulty' only, got {kwargs!r}")
