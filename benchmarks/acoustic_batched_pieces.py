@@ -67,7 +67,7 @@ def main(argv=None) -> None:
     for mode in ("state", "measurements"):
         env = AcousticMJX(obs_mode=mode, difficulty=args.difficulty)
         states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
-        step = jax.jit(jax.vmap(env.step))
+        step = jax.jit(env.step_batch)
         states = step(states, estimate)  # a stepped state: the types every later step has
         rows.append((f"env step, {mode}", best_ms(lambda s, step=step: step(s, estimate).obs,
                                                   (states,), args.repeats)))

@@ -92,7 +92,7 @@ def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy"
 def fused_rate(env, batch: int, steps: int, repeats: int) -> float:
     """Env-steps per second, ``steps`` steps fused in one compiled scan."""
     action = jnp.tile(jnp.asarray(FAMILIES[FAMILY][3], jnp.float32), (batch, 1))
-    step = jax.vmap(env.step)
+    step = env.step_batch
 
     @jax.jit
     def rollout(state):

@@ -208,3 +208,23 @@ def test_importing_the_batched_package_prints_nothing():
     out = subprocess.run([sys.executable, "-c", "import auv_envs.batched.vector"],
                          capture_output=True, text=True, check=True)
     assert out.stdout == ""
+
+
+def test_step_batch_is_vmap_of_step_with_fewer_resets():
+    """FunctionalEnv.step_batch (the auto-reset once for the batch, only on a step where an
+    episode ended) gives the states jax.vmap(step) gives, resets included."""
+    env = DockingMJX("auv_envs/DockingStation-v2", obs_mode="features", time_limit=0.5)
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(8), 3))
+    by_env, by_batch = jax.jit(jax.vmap(env.step)), jax.jit(env.step_batch)
+    actions = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (12, 3, 4)), jnp.float32)
+    # Environment 0 two steps ahead, so on some steps one episode ends and the others not.
+    ahead = by_env(by_env(states, actions[0]), actions[1])
+    a = b = jax.tree_util.tree_map(lambda x, y: x.at[0].set(y[0]), states, ahead)
+    ended = 0
+    for k in range(12):
+        a, b = by_env(a, actions[k]), by_batch(b, actions[k])
+        ended += int(np.asarray(a.done).sum())
+        for left, right in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b),
+                               strict=True):
+            np.testing.assert_array_equal(np.asarray(left), np.asarray(right))
+    assert ended >= 6  # episodes of 5 steps: two restarts each

@@ -138,15 +138,15 @@ class AcousticMJX(FunctionalEnv):
         return self._started(rng, plant.data, episode, obs,
                              self._metrics(episode, now, {"estimate": jnp.float32(0.0)}))
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def _step(self, state: State, action: jax.Array) -> State:
         """Score the estimate ``action`` (clipped to the tank) and move on one sample
         period: :func:`auv_envs.tasks.acoustic.transition.step` on JAX."""
-        rng, key, reset_key = jax.random.split(state.info["rng"], 3)
+        rng, key, _ = self._keys(state)
         plant = _RigCursor(self.plant, state.plant)
         episode, now, obs, terms = transition.step(
             self.params, state.episode, self._action(action),
             Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, reset_key, plant.data, episode, obs, terms,
+        return self._conclude(state, rng, plant.data, episode, obs, terms,
                               jnp.bool_(False), self._metrics(episode, now, terms))
 
     # ------------------------------------------------------------------ internals

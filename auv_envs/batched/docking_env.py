@@ -157,15 +157,15 @@ class DockingMJX(FunctionalEnv):
         return self._started(rng, {"qpos": plant.qpos, "qvel": plant.qvel}, episode, obs,
                              metrics)
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def _step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.docking.transition.step` on JAX."""
-        rng, key, reset_key = jax.random.split(state.info["rng"], 3)
+        rng, key, _ = self._keys(state)
         plant = _PlantCursor(self, state.plant["qpos"], state.plant["qvel"])
         episode, truth, obs, judged = transition.step(
             self.params, state.episode, self.ops.unpack(self._action(action)),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, reset_key, {"qpos": plant.qpos, "qvel": plant.qvel},
+        return self._conclude(state, rng, {"qpos": plant.qpos, "qvel": plant.qvel},
                               episode, obs, judged.terms, judged.terminated,
                               self._metrics(truth, episode, judged.terms))
 

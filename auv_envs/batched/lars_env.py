@@ -215,15 +215,15 @@ class LARSMJX(FunctionalEnv):
         return self._started(rng, plant.data, episode, obs,
                              self._metrics(truth, episode, None, terms))
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def _step(self, state: State, action: jax.Array) -> State:
         """One control period under the action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.lars.transition.step` on JAX."""
-        rng, key, reset_key = jax.random.split(state.info["rng"], 3)
+        rng, key, _ = self._keys(state)
         plant = _ArmCursor(self.plant, self.ops, state.plant)
         episode, truth, obs, judged = transition.step(
             self.params, state.episode, self._action(action),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, reset_key, plant.data, episode, obs, judged.terms,
+        return self._conclude(state, rng, plant.data, episode, obs, judged.terms,
                               judged.terminated, self._metrics(truth, episode, judged,
                                                                judged.terms))
 

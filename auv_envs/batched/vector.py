@@ -79,7 +79,7 @@ class TransitionVectorEnv(VectorEnv):
         #: Where compiled programs are kept (a later process loads them instead).
         self.compilation_cache = use_compilation_cache()
         self._reset = jax.jit(jax.vmap(self.env.reset))
-        self._step = jax.jit(jax.vmap(self.env.step))
+        self._step = jax.jit(self.env.step_batch)
         self.state = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -177,7 +177,7 @@ class Trainer:
                                      optax.adam(schedule, eps=1e-5))
         self._reset = jax.vmap(env.reset)
         self._reset_batch = jax.jit(self._reset)  # eager, op by op, it took 27 s on 2 cores
-        self._step = jax.vmap(env.step)
+        self._step = env.step_batch
         self.iteration = jax.jit(self._iteration)
         self.all_finite = jax.jit(_all_finite)  # one small program, one scalar to the host
         self.evaluate = jax.jit(self._evaluate, static_argnums=(2, 3))
