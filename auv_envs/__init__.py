@@ -110,10 +110,18 @@ BATCHED_ENVIRONMENTS = {
     "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
     "auv_envs/AcousticTrackingMJX-v2": "auv_envs.batched.vector:acoustic_tracking",
 }
+
+
+def cpu_id(batched_id: str) -> str:
+    """The CPU id a batched id twins (``auv_envs/DockingStationMJX-v2`` ->
+    ``auv_envs/DockingStation-v2``)."""
+    return batched_id.replace("MJX", "")
+
+
 for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():
     if _env_id not in registry:
         register(id=_env_id, vector_entry_point=_vector_entry_point,
-                 max_episode_steps=max_episode_steps(_env_id.replace("MJX", "")))
+                 max_episode_steps=max_episode_steps(cpu_id(_env_id)))
 
 
 def _prefix_hint(env_id: str, **kwargs):

@@ -280,12 +280,12 @@ def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, see
 def test_cppo_knows_every_batched_family_and_its_modes():
     from auv_envs.batched import acoustic_env, docking_env, lars_env
     from auv_envs.batched.registry import FAMILIES
-    from baselines.rl.config import COMPILED_OBS_MODES
+    from baselines.rl.config import COMPILED_ENV_IDS
 
-    assert set(COMPILED_OBS_MODES) == set(FAMILIES)
+    assert set(COMPILED_ENV_IDS) == set(FAMILIES)
     modules = {"Docking": docking_env, "LampArray": docking_env, "LARS": lars_env,
                "Acoustic": acoustic_env}
-    for env_id, modes in COMPILED_OBS_MODES.items():
+    for env_id, (_, modes) in FAMILIES.items():
         module = next(m for prefix, m in modules.items()
                       if env_id.split("/")[1].startswith(prefix))
         assert modes == module.OBS_MODES

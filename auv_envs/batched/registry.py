@@ -23,23 +23,25 @@ auto-reset to a cached first state restarts it whole), and the keys wrappers add
 
 from __future__ import annotations
 
-from auv_envs.batched.acoustic_env import AcousticMJX
-from auv_envs.batched.docking_env import DockingMJX
+import auv_envs
+from auv_envs.batched import acoustic_env, docking_env, lars_env
 from auv_envs.batched.functional import FunctionalEnv
-from auv_envs.batched.lars_env import LARSMJX
 
-#: Each family's CPU id and its batched id, and the functional env that evaluates it.
+#: Each family's CPU id: the functional env that evaluates it and the modes it builds.
 FAMILIES = {
-    "auv_envs/DockingStation-v2": ("auv_envs/DockingStationMJX-v2",
-                                   lambda **kw: DockingMJX("auv_envs/DockingStation-v2", **kw)),
-    "auv_envs/LampArrayDocking-v2": ("auv_envs/LampArrayDockingMJX-v2",
-                                     lambda **kw: DockingMJX("auv_envs/LampArrayDocking-v2",
-                                                             **kw)),
-    "auv_envs/LARSCapture-v0": ("auv_envs/LARSCaptureMJX-v0", LARSMJX),
-    "auv_envs/AcousticTracking-v2": ("auv_envs/AcousticTrackingMJX-v2", AcousticMJX),
+    "auv_envs/DockingStation-v2": (
+        lambda **kw: docking_env.DockingMJX("auv_envs/DockingStation-v2", **kw),
+        docking_env.OBS_MODES),
+    "auv_envs/LampArrayDocking-v2": (
+        lambda **kw: docking_env.DockingMJX("auv_envs/LampArrayDocking-v2", **kw),
+        docking_env.OBS_MODES),
+    "auv_envs/LARSCapture-v0": (lars_env.LARSMJX, lars_env.OBS_MODES),
+    "auv_envs/AcousticTracking-v2": (acoustic_env.AcousticMJX, acoustic_env.OBS_MODES),
 }
-#: Every id :func:`load` takes (a CPU id or its batched twin) and the CPU id it means.
-IDS = {**{cpu: cpu for cpu in FAMILIES}, **{batched: cpu for cpu, (batched, _) in FAMILIES.items()}}
+#: Every id :func:`load` takes, a CPU id or its batched twin (``auv_envs.BATCHED_ENVIRONMENTS``,
+#: the CPU id with ``MJX`` after the family's name), and the CPU id it means.
+IDS = {**{cpu: cpu for cpu in FAMILIES},
+       **{batched: auv_envs.cpu_id(batched) for batched in auv_envs.BATCHED_ENVIRONMENTS}}
 
 
 def load(env_id: str, **env_kwargs) -> FunctionalEnv:
@@ -58,5 +60,5 @@ def load(env_id: str, **env_kwargs) -> FunctionalEnv:
     if env_id not in IDS:
         raise ValueError(f"no batched environment for {env_id!r}; load() takes "
                          f"{sorted(IDS)}")
-    env = FAMILIES[IDS[env_id]][1](**env_kwargs)
+    env = FAMILIES[IDS[env_id]][0](**env_kwargs)
     return env.use_playground_conventions()

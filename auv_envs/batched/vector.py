@@ -43,9 +43,9 @@ class TransitionVectorEnv(VectorEnv):
     """``num_envs`` environments of one batched family stepped in one compiled JAX call.
 
     Args:
-        env: the family's functional environment (:class:`DockingMJX`, :class:`LARSMJX`),
-            built with ``auto_reset=True``; its module's ``STEP_METRICS`` are the
-            ``info`` keys of every step.
+        make_env: builds the family's functional environment (:class:`DockingMJX`,
+            :class:`LARSMJX`, :class:`AcousticMJX`) with ``auto_reset=True``; called once
+            ``num_envs`` is checked (building it compiles).
         num_envs: the batch size.
         step_metrics: the metrics every step's ``info`` carries.
         failure_reason: ``failure_reason(code, success) -> str``, the CPU env's name of
@@ -57,15 +57,16 @@ class TransitionVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, env, num_envs: int, step_metrics: tuple, failure_reason,
+    def __init__(self, make_env, num_envs: int, step_metrics: tuple, failure_reason,
                  max_episode_steps: int | None = None):
         if not (isinstance(num_envs, int) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
-        self.env = env
+        if max_episode_steps is not None and not (isinstance(max_episode_steps, int)
+                                                  and max_episode_steps >= 1):
+            raise ValueError(f"max_episode_steps must be a positive int, got "
+                             f"{max_episode_steps!r}")
+        self.env = make_env()
         if max_episode_steps is not None:
-            if not (isinstance(max_episode_steps, int) and max_episode_steps >= 1):
-                raise ValueError(f"max_episode_steps must be a positive int, got "
-                                 f"{max_episode_steps!r}")
             # As gym.make's TimeLimit over a CPU env: whichever ends the episode first,
             # this or the env's own time_limit (make_vec passes the registered length).
             self.env.max_episode_steps = min(max_episode_steps, self.env.max_episode_steps)
@@ -149,10 +150,8 @@ class DockingVectorEnv(TransitionVectorEnv):
     def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v2",
                  obs_mode: str = "features", max_episode_steps: int | None = None,
                  **env_kwargs):
-        if not (isinstance(num_envs, int) and num_envs >= 1):
-            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
-        super().__init__(DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs), num_envs,
-                         DOCKING_METRICS, failure_reason, max_episode_steps)
+        super().__init__(lambda: DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs),
+                         num_envs, DOCKING_METRICS, failure_reason, max_episode_steps)
 
 
 class LARSVectorEnv(TransitionVectorEnv):
@@ -168,10 +167,8 @@ class LARSVectorEnv(TransitionVectorEnv):
 
     def __init__(self, num_envs: int, obs_mode: str = "features",
                  max_episode_steps: int | None = None, **env_kwargs):
-        if not (isinstance(num_envs, int) and num_envs >= 1):
-            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
-        super().__init__(LARSMJX(obs_mode=obs_mode, **env_kwargs), num_envs, LARS_METRICS,
-                         lars_transition.end_reason, max_episode_steps)
+        super().__init__(lambda: LARSMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
+                         LARS_METRICS, lars_transition.end_reason, max_episode_steps)
 
 
 class AcousticVectorEnv(TransitionVectorEnv):
@@ -187,9 +184,7 @@ class AcousticVectorEnv(TransitionVectorEnv):
 
     def __init__(self, num_envs: int, obs_mode: str = "measurements",
                  max_episode_steps: int | None = None, **env_kwargs):
-        if not (isinstance(num_envs, int) and num_envs >= 1):
-            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
-        super().__init__(AcousticMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
+        super().__init__(lambda: AcousticMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
                          ACOUSTIC_METRICS, None, max_episode_steps)
 
 

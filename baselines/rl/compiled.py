@@ -301,7 +301,7 @@ EVAL_EPISODES = 64
 def make_env(env_id: str, obs_mode: str, difficulty: str) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
     trains on: episodes reset themselves, actions in [-1, 1]."""
-    return FAMILIES[env_id][1](obs_mode=obs_mode, difficulty=difficulty).use_unit_actions()
+    return FAMILIES[env_id][0](obs_mode=obs_mode, difficulty=difficulty).use_unit_actions()
 
 
 def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,

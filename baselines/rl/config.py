@@ -50,6 +50,7 @@ from typing import NamedTuple
 import stable_baselines3
 import yaml
 
+import auv_envs
 from baselines.fileio import atomic_write
 from baselines.parsing import parse_value
 from baselines.rl.manifest import ALGORITHM_NAMES
@@ -63,15 +64,9 @@ OFF_POLICY = ("sac", "td3", "ddpg")
 COMPILED = "cppo"
 #: Every ``--algo`` train.py accepts.
 TRAINERS = (*ALGORITHMS, COMPILED)
-#: The environments the compiled PPO has a batched JAX version of, and the observation
-#: modes it builds (``auv_envs.batched.registry.FAMILIES``, each module's ``OBS_MODES``).
-COMPILED_OBS_MODES = {
-    "auv_envs/DockingStation-v2": ("state", "features"),
-    "auv_envs/LampArrayDocking-v2": ("state", "features"),
-    "auv_envs/LARSCapture-v0": ("state", "features"),
-    "auv_envs/AcousticTracking-v2": ("state", "measurements"),
-}
-COMPILED_ENV_IDS = tuple(COMPILED_OBS_MODES)
+#: The environments the compiled PPO has a batched JAX version of (the CPU ids of
+#: ``auv_envs.BATCHED_ENVIRONMENTS``).
+COMPILED_ENV_IDS = tuple(auv_envs.cpu_id(env_id) for env_id in auv_envs.BATCHED_ENVIRONMENTS)
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
@@ -614,8 +609,10 @@ def _validate_compiled(config: TrainConfig) -> None:
     if set(config.run) != set(COMPILED_RUN_KEYS):
         raise ConfigError(f"cppo run keys must be {sorted(COMPILED_RUN_KEYS)}, "
                           f"got {sorted(config.run)}")
+    from auv_envs.batched.registry import FAMILIES  # JAX: cppo needs it to run anyway
+
     run = config.run
-    modes = COMPILED_OBS_MODES[config.env_id]
+    modes = FAMILIES[config.env_id][1]
     if run["obs_mode"] not in modes:
         raise ConfigError(f"cppo trains {config.env_id} on obs_mode {modes}, got "
                           f"{run['obs_mode']!r}")
