@@ -36,13 +36,15 @@ import jax.numpy as jnp
 from auv_envs.batched.acoustic_plant import RigPlantMJX
 from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
 from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
-from auv_envs.core.difficulty import LEVELS  # noqa: F401  (every level is built)
 from auv_envs.core.ops import Backend, jax_ops
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "measurements")
+#: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
+#: source, without importing JAX).
+LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (:func:`~auv_envs.tasks.acoustic.transition.scores`).
 STEP_METRICS = ("estimate_error", "running_rmse", "tracked", "is_success")
 

@@ -32,7 +32,6 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
-from auv_envs.core.difficulty import LEVELS  # noqa: F401  (every level is built)
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
@@ -43,6 +42,9 @@ from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
 
 #: The observation modes the batched environment builds.
 OBS_MODES = ("state", "features")
+#: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
+#: source, without importing JAX).
+LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
