@@ -464,6 +464,11 @@ class HydrophoneArray:
     def n_nodes(self) -> int:
         return len(self.positions)
 
+    @property
+    def path_loss(self) -> np.ndarray:
+        """The boundary losses (dB) of the direct, surface and bottom paths, (P, 1)."""
+        return self._path_loss
+
     # ------------------------------------------------------------ geometry
     # Every method that computes takes the array namespace ``xp``: NumPy (the default) or
     # ``jax.numpy``, whose arrays then pass through (under ``jit`` and ``vmap`` too).

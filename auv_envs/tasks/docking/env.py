@@ -33,6 +33,15 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
+from auv_envs.core.navigation import (
+    AHRS,
+    DVL,
+    USBL,
+    USBL_ACOUSTICS,
+    DepthSensor,
+    Navigation,
+    NavigationSensors,
+)
 from auv_envs.core.ops import FLOATS
 from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
@@ -69,7 +78,7 @@ from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home befor
     START_SURGE,
 )
 
-OBS_MODES = ("state", "features", "image")
+OBS_MODES = ("state", "features", "image", "nav", "nav_features")
 SCENARIOS = ("mismatch", "current")
 
 #: Default nominal-model damping scale (surge, sway, heave, roll, pitch, yaw):
@@ -186,6 +195,33 @@ HARD_DISTURBANCES = DockingDisturbances(
 #: 620000-620019) and in 90 % of the leaderboard's (lamp array, seeds 100000-100029).
 HARD_OPTICS = WaterOptics.jerlov("7C", lamp_failure_probability=0.1, occlusion_rate=0.05,
                                  occlusion_duration=3.0)
+
+#: ``paper`` level, navigation sensors (the ``nav`` modes; ``docs/navigation.md`` gives each
+#: figure's source): the defaults of :mod:`auv_envs.core.navigation`, from data sheets
+#: (a DVL's 1 % long-term accuracy and 0.05-50 m bottom lock, [OFNMPC]'s 0.02 m/s velocity
+#: noise; an MTi-30-class AHRS, 0.5 deg roll/pitch and 1 deg heading, an MTi-1-class gyro,
+#: 0.007 deg/s/sqrt(Hz) and 10 deg/h bias instability; a quartz depth sensor, 0.01 % of a
+#: 140 m full scale, 1 mm resolution; a USBL fix every second, 0.5 us element timing, a
+#: 3 m/s sound-speed error) with faults at rates of our choice: 2 % of DVL pings lost, 5 %
+#: of USBL fixes from a mirror path, 2 % spurious.
+PAPER_NAVIGATION = NavigationSensors(
+    dvl=DVL(dropout=0.02), usbl=USBL(shadowing=0.05, outlier_rate=0.02))
+#: ``easy`` level (``navigation=None``), navigation sensors: the data-sheet noise of ``paper`` with no faults (no
+#: lost ping, mirror-path or spurious fix, no sound-speed error).
+EASY_NAVIGATION = NavigationSensors(usbl=USBL(acoustics=dataclasses.replace(
+    USBL_ACOUSTICS, sound_speed_error_std=0.0)))
+#: ``hard`` level, navigation sensors: a lower grade of each (our choices, to be calibrated
+#: with the docking mission): DVL 0.05 m/s noise, 2 % scale error, 10 % of pings lost; AHRS
+#: 1 deg roll/pitch, 2 deg heading, three times the gyro noise and bias; depth 0.05 m; a
+#: USBL fix every 2 s with 1.5 us element timing, 15 % mirror-path and 5 % spurious fixes and
+#: a 5 m/s sound-speed error.
+HARD_NAVIGATION = NavigationSensors(
+    dvl=DVL(noise_std=0.05, scale_std=0.02, dropout=0.1),
+    ahrs=AHRS(roll_pitch_std=math.radians(1.0), heading_std=math.radians(2.0),
+              rate_noise_density=math.radians(0.021), bias_instability=math.radians(30.0) / 3600),
+    depth=DepthSensor(noise_std=0.05),
+    usbl=USBL(period=2.0, shadowing=0.15, outlier_rate=0.05, acoustics=dataclasses.replace(
+        USBL_ACOUSTICS, timing_floor=1.5e-6, sound_speed_error_std=5.0)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -364,8 +400,10 @@ class DockingEnv(TaskEnv):
     #: the constants after it for each value's unit, source and calibration).
     difficulty_presets = {
         "easy": {},
-        "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_OPTICS},
-        "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS},
+        "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_OPTICS,
+                  "navigation": PAPER_NAVIGATION},
+        "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
+                 "navigation": HARD_NAVIGATION},
     }
     reward_terms = ("progress", "control", "visibility", "success", "failure")
     metric_keys = (
@@ -394,6 +432,7 @@ class DockingEnv(TaskEnv):
         render_size: tuple[int, int] = (640, 480),
         disturbances: DockingDisturbances | None = None,
         optics: WaterOptics | None = None,
+        navigation: NavigationSensors | None = None,
         difficulty: str = levels.DEFAULT_LEVEL,
         **unknown,
     ):
@@ -406,10 +445,17 @@ class DockingEnv(TaskEnv):
             min_visible_lights=min_visible_lights, integrator=integrator,
             physics_substeps=physics_substeps, plant=plant, render_mode=render_mode,
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
-            optics=optics, difficulty=difficulty,
+            optics=optics, navigation=navigation, difficulty=difficulty,
         )
-        level = self._apply_difficulty(difficulty, disturbances=disturbances, optics=optics)
-        disturbances, optics = level["disturbances"], level["optics"]
+        level = self._apply_difficulty(difficulty, disturbances=disturbances, optics=optics,
+                                       navigation=navigation)
+        disturbances, optics, navigation = (level["disturbances"], level["optics"],
+                                            level["navigation"])
+        if navigation is None:  # easy: the release's presets set nothing
+            navigation = EASY_NAVIGATION
+        if not isinstance(navigation, NavigationSensors):
+            raise TypeError(f"navigation must be a NavigationSensors, got "
+                            f"{type(navigation).__name__}")
         disturbances = disturbances if disturbances is not None else DockingDisturbances()
         if not isinstance(disturbances, DockingDisturbances):
             raise TypeError(
@@ -517,7 +563,7 @@ class DockingEnv(TaskEnv):
         self._validate_action = ActionValidator(self.action_space)
         self.observation_space = self._make_observation_space(n_lights, width, height)
         pixel_bounds = None
-        if obs_mode == "features":
+        if obs_mode in transition.LIGHT_MODES:
             space = self.observation_space["pixels"]
             pixel_bounds = (space.low.astype(np.float64), space.high.astype(np.float64))
         cal = self.calibration
@@ -534,7 +580,11 @@ class DockingEnv(TaskEnv):
             noise=(cal.pixel_noise_std, cal.velocity_noise_std, cal.yaw_rate_noise_std,
                    cal.attitude_noise_std),
             pixel_bounds=pixel_bounds, focal_px=cal.intrinsics.fy,
-            max_episode_steps=self.max_episode_steps)
+            max_episode_steps=self.max_episode_steps,
+            navigation=(Navigation(navigation, self.physics.seabed_z, self._dt)
+                        if obs_mode in transition.NAV_MODES else None))
+        #: The navigation sensors (:mod:`auv_envs.core.navigation`) of the ``nav`` modes.
+        self.navigation = navigation
         self._plant = CompiledPlant(self) if plant == "compiled" else MujocoPlant(self)
         # One renderer for the image observation, one for render(): they differ
         # in camera, size or lighting.
@@ -563,7 +613,11 @@ class DockingEnv(TaskEnv):
             "velocity": spaces.Box(-np.inf, np.inf, shape=(4,), dtype=np.float32),
             "attitude": spaces.Box(-np.pi - 1.0, np.pi + 1.0, shape=(3,), dtype=np.float32),
         }
-        if self.obs_mode == "features":
+        if self.obs_mode in transition.NAV_MODES:
+            sensors = nav_space()
+        if self.obs_mode == "nav":
+            return sensors
+        if self.obs_mode in transition.LIGHT_MODES:
             return spaces.Dict(
                 {
                     "pixels": pixel_space(width, height, (n,)),
@@ -755,6 +809,21 @@ class DockingEnv(TaskEnv):
         return metrics
 
 
+def nav_space() -> spaces.Dict:
+    """The navigation sensors' observation (:meth:`Navigation.observation`)."""
+    unbounded = {"shape": (3,), "dtype": np.float32}
+    return spaces.Dict({
+        "dvl_velocity": spaces.Box(-np.inf, np.inf, **unbounded),
+        "dvl_valid": spaces.MultiBinary(1),
+        "attitude": spaces.Box(-np.pi - 1.0, np.pi + 1.0, **unbounded),
+        "rates": spaces.Box(-np.inf, np.inf, **unbounded),
+        "depth": spaces.Box(-np.inf, np.inf, shape=(1,), dtype=np.float32),
+        "usbl": spaces.Box(-np.inf, np.inf, **unbounded),
+        "usbl_age": spaces.Box(0.0, np.inf, shape=(1,), dtype=np.float32),
+        "usbl_valid": spaces.MultiBinary(1),
+    })
+
+
 class DockingStationEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
         "**Version history.**",
@@ -774,6 +843,8 @@ class LampArrayDockingEnv(DockingEnv):
     #: at ``paper`` (:data:`PAPER_LAMP_ARRAY_OPTICS`).
     difficulty_presets = {
         "easy": {},
-        "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_LAMP_ARRAY_OPTICS},
-        "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS},
+        "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_LAMP_ARRAY_OPTICS,
+                  "navigation": PAPER_NAVIGATION},
+        "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
+                 "navigation": HARD_NAVIGATION},
     }

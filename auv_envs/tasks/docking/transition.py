@@ -39,6 +39,10 @@ from auv_envs.tasks.docking.rules import DockingRules
 
 #: [OFNMPC] Scenario 2 current speed, m/s.
 SCENARIO_CURRENT_SPEED = 0.3
+#: The observation modes that see the lights' pixels, and those with the navigation
+#: sensors (:mod:`auv_envs.core.navigation`) in place of the DVL/INS readings.
+LIGHT_MODES = ("features", "nav_features")
+NAV_MODES = ("nav", "nav_features")
 #: Start state: heading spread about the line of sight to the entrance (deg) and the
 #: surge speed range (m/s), drawn uniformly.
 START_HEADING_SPREAD_DEG = 10.0
@@ -53,8 +57,8 @@ class DockingParams:
         rules: the scene's geometry and the episode rules.
         start_box: ``(x, y, z)`` ranges of the start position, m.
         light_positions: ``(n, 3)`` light positions in the world (NumPy).
-        obs_mode: ``"state"`` or ``"features"`` (the rendered ``image`` mode is
-            the CPU shell's).
+        obs_mode: ``"state"``, ``"features"``, ``"nav"`` or ``"nav_features"`` (the
+            rendered ``image`` mode is the CPU shell's).
         scenario: ``"mismatch"`` or ``"current"``.
         current_direction: the scenario current's direction, deg; None: drawn.
         disturbances: the level's :class:`~auv_envs.tasks.docking.env.DockingDisturbances`.
@@ -65,6 +69,8 @@ class DockingParams:
         pixel_bounds: ``(low, high)`` of the ``features`` pixels (NumPy), or None.
         focal_px: the camera's vertical focal length, pixels.
         max_episode_steps: steps to the time limit.
+        navigation: the navigation sensors in the scene
+            (:class:`~auv_envs.core.navigation.Navigation`) in the ``nav`` modes, else None.
     """
 
     rules: DockingRules
@@ -81,6 +87,7 @@ class DockingParams:
     pixel_bounds: tuple | None
     focal_px: float
     max_episode_steps: int
+    navigation: Any = None
 
     @property
     def dt(self) -> float:
@@ -100,7 +107,8 @@ class EpisodeState(NamedTuple):
     ``docking_time`` NaN until docked; ``thrust`` is None without a thruster
     lag, ``plant`` (the simulated vehicle's draws: mass factor, 12 damping
     factors, net-buoyancy offset) without a plant perturbation, ``failed`` and
-    ``occluded`` (per lamp) without ``optics``.
+    ``occluded`` (per lamp) without ``optics``, ``nav`` (the navigation sensors'
+    :class:`~auv_envs.core.navigation.NavState`) outside the ``nav`` modes.
     """
 
     steps: Any
@@ -119,6 +127,7 @@ class EpisodeState(NamedTuple):
     plant: Any = None
     failed: Any = None
     occluded: Any = None
+    nav: Any = None
 
     @property
     def out(self):
@@ -207,6 +216,8 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
         current=ops.vector(current_components(*start.current_polar, ops)),
         thrust=ops.vector((0.0,) * 4) if params.thruster_gain != 1.0 else None,
         plant=vehicle, failed=failed, occluded=occluded)
+    if params.navigation is not None:  # drawn last: the other modes' draws are unchanged
+        state = state._replace(nav=params.navigation.start(truth, draws, ops.xp))
     return state, truth, observe(params, state, truth, backend)
 
 
@@ -238,9 +249,12 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
                            control_effort=state.control_effort
                            + (x * x + y * y + z * z + n * n) * params.dt,
                            thrust=thrust, current_polar=polar, current=current)
-    if params.optics is not None and params.obs_mode == "features":  # occluders pass
+    if params.optics is not None and params.obs_mode in LIGHT_MODES:  # occluders pass
         state = state._replace(occluded=LampOutages.occlusions_drawn(
             state.occluded, params.optics, params.dt, draws, ops.xp))
+    if params.navigation is not None:
+        state = state._replace(nav=params.navigation.advance(
+            state.nav, truth, state.steps * params.dt, draws, ops.xp))
     return state, truth, observe(params, state, truth, backend), judged
 
 
@@ -280,7 +294,7 @@ def truth_with_lights(truth: dict, pixels, visible, ops) -> dict:
 
 
 def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Backend):
-    """The ``state`` or ``features`` observation (see the environment's docstring); in
+    """The observation of ``params.obs_mode`` (see the environment's docstring); in
     ``image`` mode its sensors (the CPU shell adds the camera's image)."""
     ops, draws, _ = backend
     xp = ops.xp
@@ -289,14 +303,18 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
         return xp.asarray(params.rules.state_observation(
             truth, (current[0], current[1], current[2]), ops), dtype=xp.float32)
     pixel_std, velocity_std, yaw_rate_std, attitude_std = params.noise
-    # One draw of 7 standard normals, scaled: the numbers of normal(0, s_v, 3),
-    # normal(0, s_r), normal(0, s_a, 3) (Generator.normal is loc + scale * standard_normal).
-    noise = ops.unpack(draws.standard_normal(7)) if velocity_std > 0 else None
-    velocity, attitude = params.rules.sensor_readings(
-        truth, noise, (velocity_std, yaw_rate_std, attitude_std))
-    sensors = {"velocity": xp.asarray(velocity, dtype=xp.float32),
-               "attitude": xp.asarray(attitude, dtype=xp.float32)}
-    if params.obs_mode != "features":
+    if params.navigation is not None:  # read in the step (the sensors keep a state)
+        sensors = params.navigation.observation(state.nav, state.steps * params.dt, xp)
+    else:
+        # One draw of 7 standard normals, scaled: the numbers of normal(0, s_v, 3),
+        # normal(0, s_r), normal(0, s_a, 3) (Generator.normal is loc + scale *
+        # standard_normal).
+        noise = ops.unpack(draws.standard_normal(7)) if velocity_std > 0 else None
+        velocity, attitude = params.rules.sensor_readings(
+            truth, noise, (velocity_std, yaw_rate_std, attitude_std))
+        sensors = {"velocity": xp.asarray(velocity, dtype=xp.float32),
+                   "attitude": xp.asarray(attitude, dtype=xp.float32)}
+    if params.obs_mode not in LIGHT_MODES:
         return sensors
     visible = truth["visible"]
     pixels = truth["visible_pixels"]

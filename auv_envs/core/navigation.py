@@ -1,0 +1,367 @@
+"""An AUV's navigation sensors: DVL, AHRS, pressure depth and a USBL fix of a transponder.
+
+[OFNMPC] §1: an AUV's navigation sensors are typically a Doppler velocity log, an
+inertial navigation system and a pressure sensor, and its position relative to a
+docking station comes from acoustic equipment or from vision. Each model here is a
+frozen dataclass of its parameters (the figures and their sources are in
+``docs/navigation.md``, and at the presets in :mod:`auv_envs.tasks.docking.env`) whose
+methods draw from the episode's generator and take the array namespace ``xp`` (NumPy
+on the CPU, ``jax.numpy`` under ``jit``/``vmap``). Every step draws the same numbers of
+the same shapes whatever happens, so one code path serves both.
+
+* **DVL** (bottom lock): the body-frame velocity over the seabed, each axis scaled by
+  ``1 + s_i`` with ``s_i`` drawn once per episode (N(0, ``scale_std``^2): the
+  data sheets' "long-term accuracy"), plus white noise ``noise_std`` per ping. No
+  lock (reading zero, ``valid`` false) below ``min_altitude`` or above
+  ``max_altitude`` over the seabed, and on a ping lost with probability ``dropout``.
+* **AHRS**: roll, pitch and heading with white errors (``roll_pitch_std``,
+  ``heading_std``; an AHRS filter's output error), and the body rates from gyros with
+  white noise of density ``rate_noise_density`` (rad/s/sqrt(Hz); a reading averaged
+  over the step ``dt`` has std ``density / sqrt(dt)``) plus a bias: drawn at the
+  episode's start with std ``bias_instability`` and wandering as a random walk that
+  grows by ``bias_instability`` in ``bias_time`` seconds.
+* **Depth** from pressure: the true depth plus white noise ``noise_std``, quantised to
+  ``resolution``.
+* **USBL**: a transceiver of four elements on the vehicle fixes a transponder (on the
+  station) once every ``period`` seconds through the acoustic measurement model of
+  :mod:`auv_envs.core.acoustics` (its :class:`~auv_envs.core.acoustics.HydrophoneArray`
+  is the transceiver, in body axes): the direct path and its surface and bottom
+  mirror images, transmission loss, SNR, each element's arrival-time noise (the
+  Cramer-Rao bound with the hardware floor) and the detection probability; the
+  water's true sound speed differs from the nominal one by the episode's draw
+  (``AcousticConfig.sound_speed_error_std``). The fix is the first detected arrival:
+  the direct path, unless it is shadowed (probability ``shadowing``, e.g. by the
+  vehicle's own hull) or missed, then the earliest detected mirror image (a multipath
+  fix, metres off); with probability ``outlier_rate`` a spurious detection instead
+  (uniform in range up to ``max_range`` and in direction). Range is the nominal sound
+  speed times the mean one-way travel time; direction the least-squares plane wave
+  through the elements' arrival times. It arrives ``latency`` later: the reply's
+  two-way travel time plus ``processing_delay``; the observation carries its age.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from auv_envs.core import frames
+from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray
+
+
+def _check(owner: str, **values) -> None:
+    """``ValueError`` for a field that is not a finite number >= 0."""
+    for name, value in values.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) \
+                or not math.isfinite(value) or value < 0:
+            raise ValueError(f"{owner}.{name} must be a finite number >= 0, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class DVL:
+    """Doppler velocity log in bottom lock (module docstring). Speeds m/s, altitudes m."""
+
+    noise_std: float = 0.02
+    scale_std: float = 0.01
+    min_altitude: float = 0.05
+    max_altitude: float = 50.0
+    dropout: float = 0.0
+
+    def __post_init__(self):
+        _check("DVL", noise_std=self.noise_std, scale_std=self.scale_std,
+               min_altitude=self.min_altitude, max_altitude=self.max_altitude,
+               dropout=self.dropout)
+        if not self.min_altitude < self.max_altitude or self.dropout > 1:
+            raise ValueError("DVL needs min_altitude < max_altitude and dropout <= 1")
+
+    def draw_scale(self, draws, xp=np):
+        """The episode's scale-factor errors (3,)."""
+        return self.scale_std * xp.asarray(draws.standard_normal(3))
+
+    def read(self, velocity, altitude, scale, draws, xp=np):
+        """``(reading (3,), valid)`` for the body-frame velocity over the seabed (3,) at
+        ``altitude`` m; draws 3 normals and 1 uniform."""
+        noise = xp.asarray(draws.standard_normal(3))
+        lost = draws.random() < self.dropout
+        valid = (altitude >= self.min_altitude) & (altitude <= self.max_altitude) & ~lost
+        reading = (1.0 + scale) * xp.asarray(velocity) + self.noise_std * noise
+        return xp.where(valid, reading, 0.0), valid
+
+
+@dataclasses.dataclass(frozen=True)
+class AHRS:
+    """Attitude and heading reference system (module docstring). Angles rad, rates rad/s."""
+
+    roll_pitch_std: float = math.radians(0.5)
+    heading_std: float = math.radians(1.0)
+    rate_noise_density: float = math.radians(0.007)
+    bias_instability: float = math.radians(10.0) / 3600.0
+    bias_time: float = 100.0
+
+    def __post_init__(self):
+        _check("AHRS", roll_pitch_std=self.roll_pitch_std, heading_std=self.heading_std,
+               rate_noise_density=self.rate_noise_density,
+               bias_instability=self.bias_instability, bias_time=self.bias_time)
+        if self.bias_time <= 0:
+            raise ValueError("AHRS.bias_time must be positive")
+
+    def draw_bias(self, draws, xp=np):
+        """The gyros' bias at the episode's start (3,)."""
+        return self.bias_instability * xp.asarray(draws.standard_normal(3))
+
+    def read(self, euler, rates, bias, dt: float, draws, xp=np):
+        """``(attitude (3,), rates (3,), bias (3,))``: the readings of the true ``euler``
+        (roll, pitch, yaw) and body ``rates`` (p, q, r) over a step of ``dt`` s, and the
+        bias after the step's random walk; draws 9 normals."""
+        noise = xp.asarray(draws.standard_normal(9))
+        angle_std = xp.asarray((self.roll_pitch_std, self.roll_pitch_std, self.heading_std))
+        attitude = xp.asarray(euler) + angle_std * noise[:3]
+        attitude = xp.concatenate([attitude[:2], frames.wrap_angle(attitude[2:])])
+        reading = (xp.asarray(rates) + bias
+                   + (self.rate_noise_density / math.sqrt(dt)) * noise[3:6])
+        bias = bias + self.bias_instability * math.sqrt(dt / self.bias_time) * noise[6:]
+        return attitude, reading, bias
+
+
+@dataclasses.dataclass(frozen=True)
+class DepthSensor:
+    """Pressure depth sensor (module docstring). Metres."""
+
+    noise_std: float = 0.014
+    resolution: float = 0.001
+
+    def __post_init__(self):
+        _check("DepthSensor", noise_std=self.noise_std, resolution=self.resolution)
+
+    def read(self, depth, draws, xp=np):
+        """The reading of the true ``depth`` (m, positive down); draws 1 normal."""
+        reading = depth + self.noise_std * draws.standard_normal()
+        if self.resolution > 0:
+            reading = xp.round(reading / self.resolution) * self.resolution
+        return reading
+
+
+#: The USBL transceiver's elements in body axes, m: a regular tetrahedron of 0.1 m edges
+#: centred on the transceiver (four elements give the three directions; our choice).
+TETRAHEDRON = tuple((0.1 / math.sqrt(8.0) * x, 0.1 / math.sqrt(8.0) * y, 0.1 / math.sqrt(8.0) * z)
+                    for x, y, z in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)))
+#: The USBL's acoustic link: one medium-frequency band (19-34 kHz, as most USBLs) and a
+#: transponder's source level; the elements' timing floor (phase-difference precision)
+#: sets the bearing accuracy (``docs/navigation.md``). No clock offsets or clutter (the
+#: spurious fixes are ``USBL.outlier_rate``'s).
+USBL_ACOUSTICS = AcousticConfig(
+    band_centres=(26_500.0,), bandwidth=15_000.0, sample_rate=1.0, source_level=190.0,
+    timing_floor=0.5e-6, clock_offset_std=0.0, clutter_rate=0.0, aperture=0.1,
+    sound_speed_error_std=3.0, max_detections=3)
+
+
+@dataclasses.dataclass(frozen=True)
+class USBL:
+    """USBL fix of a transponder (module docstring). Seconds, metres."""
+
+    period: float = 1.0
+    processing_delay: float = 0.2
+    shadowing: float = 0.0
+    outlier_rate: float = 0.0
+    max_range: float = 1000.0
+    elements: tuple = TETRAHEDRON
+    acoustics: AcousticConfig = USBL_ACOUSTICS
+
+    def __post_init__(self):
+        _check("USBL", period=self.period, processing_delay=self.processing_delay,
+               shadowing=self.shadowing, outlier_rate=self.outlier_rate,
+               max_range=self.max_range)
+        if self.period <= 0 or self.max_range <= 0 or self.shadowing > 1 \
+                or self.outlier_rate > 1:
+            raise ValueError("USBL needs period > 0, max_range > 0, and shadowing and "
+                             "outlier_rate in [0, 1]")
+        if len(self.elements) < 4:
+            raise ValueError("USBL needs at least four elements")
+
+    @functools.cached_property
+    def _plane_wave(self) -> np.ndarray:
+        """The least-squares solver (3, N) of the plane wave through the elements."""
+        elements = np.asarray(self.elements, dtype=float)
+        return np.linalg.pinv(elements - elements.mean(axis=0))
+
+    def array(self, surface_z: float, bottom_z: float) -> HydrophoneArray:
+        """The transceiver as a hydrophone array: elements in body axes, the water's
+        surface and bottom heights in the world (the mirror images are formed there)."""
+        return HydrophoneArray(self.elements, surface_z, bottom_z, self.acoustics)
+
+    def fix(self, array: HydrophoneArray, transceiver, rows, transponder, sound_speed,
+            draws, xp=np):
+        """One fix: ``(vector (3,), valid)``, the transponder as measured from the
+        transceiver in body axes (m). ``transceiver`` and ``transponder`` are world
+        positions (3,), ``rows`` the body-to-world rotation (3, 3), ``sound_speed`` the
+        water's true one. Draws 3 + 1 + 1 + N + 3 + 2 uniforms and normals, always."""
+        sources = array.image_sources(xp.asarray(transponder), xp)  # (3 paths, 3), world
+        body = (sources - xp.asarray(transceiver)) @ xp.asarray(rows)  # rows: R; R^T d
+        ranges = array.geometry(body, xp)[0]  # (P, N)
+        snr = array.snr_db(ranges, array.path_loss, xp=xp)  # (1 band, P, N)
+        timing = array.noise_std(snr, xp.ones_like(snr), xp)[0][0]  # (P, N) s
+        pd = array.detection_probability(snr, xp=xp)[0]  # (P,)
+        detected = xp.asarray(draws.random(3)) < pd
+        shadowed = draws.random() < self.shadowing
+        detected = detected & xp.asarray([xp.logical_not(shadowed), True, True])
+        # The first detected arrival: the nearest detected path (range of the centroid).
+        centre = xp.mean(ranges, axis=1)
+        path = xp.argmin(xp.where(detected, centre, xp.inf))
+        found = xp.any(detected)
+        arrival = ranges[path] / sound_speed + timing[path] * xp.asarray(
+            draws.standard_normal(len(self.elements)))
+        nominal = self.acoustics.sound_speed
+        mean = xp.mean(arrival)
+        # Plane wave: t_i - mean = -(e_i - e_mean) . u / c, solved by least squares.
+        direction = -nominal * (xp.asarray(self._plane_wave) @ (arrival - mean))
+        direction = direction / xp.linalg.norm(direction)
+        vector = nominal * mean * direction
+        # A spurious detection: uniform in range and over the sphere.
+        outlier = draws.random() < self.outlier_rate
+        u = xp.asarray(draws.random(3))
+        z = 2.0 * u[1] - 1.0
+        ring = xp.sqrt(1.0 - z * z)
+        angle = 2.0 * math.pi * u[2]
+        spurious = self.max_range * u[0] * xp.stack([ring * xp.cos(angle),
+                                                     ring * xp.sin(angle), z])
+        vector = xp.where(outlier, spurious, vector)
+        return xp.where(found | outlier, vector, 0.0), found | outlier
+
+
+@dataclasses.dataclass(frozen=True)
+class NavigationSensors:
+    """The navigation suite of a docking scene (module docstring).
+
+    Attributes:
+        dvl, ahrs, depth, usbl: the sensors.
+        station_depth: depth of the station's entrance below the surface, m (the
+            pressure sensor's zero and the USBL's surface mirror).
+        transponder: the USBL transponder's position in the station frame, m.
+    """
+
+    dvl: DVL = DVL()
+    ahrs: AHRS = AHRS()
+    depth: DepthSensor = DepthSensor()
+    usbl: USBL = USBL()
+    station_depth: float = 50.0
+    transponder: tuple = (0.5, 0.0, 1.0)
+
+    def __post_init__(self):
+        for name, kind in (("dvl", DVL), ("ahrs", AHRS), ("depth", DepthSensor),
+                           ("usbl", USBL)):
+            if not isinstance(getattr(self, name), kind):
+                raise TypeError(f"NavigationSensors.{name} must be a {kind.__name__}")
+        _check("NavigationSensors", station_depth=self.station_depth)
+        if len(self.transponder) != 3 or not all(math.isfinite(v) for v in self.transponder):
+            raise ValueError(f"transponder must be 3 finite coordinates, got "
+                             f"{self.transponder!r}")
+
+
+class NavState(NamedTuple):
+    """The navigation sensors' part of an episode: per-episode draws, the gyro bias, the
+    fix in flight and the last delivered one, and this step's readings (every field an
+    array or scalar; a pytree)."""
+
+    dvl_scale: Any
+    gyro_bias: Any
+    sound_speed: Any
+    next_ping: Any
+    pending: Any
+    pending_valid: Any
+    pending_time: Any
+    pending_due: Any
+    fix: Any
+    fix_valid: Any
+    fix_time: Any
+    dvl: Any
+    dvl_valid: Any
+    attitude: Any
+    rates: Any
+    depth: Any
+
+
+class Navigation:
+    """The suite of :class:`NavigationSensors` in a scene: what a transition calls.
+
+    Args:
+        sensors: the suite.
+        seabed_z: the seabed's height in the station frame, m.
+        dt: the control period, s.
+    """
+
+    def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
+        self.sensors = sensors
+        self.surface_z = float(sensors.station_depth)
+        self.array = sensors.usbl.array(self.surface_z, float(seabed_z))
+        self.dt = float(dt)
+
+    def start(self, truth: dict, draws, xp=np) -> NavState:
+        """The episode's first sensor state and readings (``truth`` from the task's
+        kinematics, with ``seabed_clearance``)."""
+        s = self.sensors
+        zero3 = xp.zeros(3)
+        state = NavState(
+            dvl_scale=s.dvl.draw_scale(draws, xp), gyro_bias=s.ahrs.draw_bias(draws, xp),
+            sound_speed=self.array.draw_sound_speed(draws, xp), next_ping=xp.asarray(0.0),
+            pending=zero3, pending_valid=xp.asarray(False), pending_time=xp.asarray(0.0),
+            pending_due=xp.asarray(0.0), fix=zero3, fix_valid=xp.asarray(False),
+            fix_time=xp.asarray(0.0), dvl=zero3, dvl_valid=xp.asarray(False), attitude=zero3,
+            rates=zero3, depth=xp.asarray(0.0))
+        return self.advance(state, truth, 0.0, draws, xp)
+
+    def advance(self, state: NavState, truth: dict, time, draws, xp=np) -> NavState:
+        """The sensors at ``time`` s with the vehicle at ``truth``: this step's readings,
+        a fix delivered if due, a ping made if due."""
+        s = self.sensors
+        velocity = truth["velocity"]
+        dvl, dvl_valid = s.dvl.read(velocity[:3], truth["seabed_clearance"],
+                                    state.dvl_scale, draws, xp)
+        attitude, rates, bias = s.ahrs.read(truth["euler"], velocity[3:], state.gyro_bias,
+                                            self.dt, draws, xp)
+        depth = s.depth.read(self.surface_z - truth["position"][2], draws, xp)
+        # A fix in flight arrives once due; a new ping goes out on schedule.
+        arrived = state.pending_valid & (time >= state.pending_due - 1e-9)
+        fix = xp.where(arrived, state.pending, state.fix)
+        fix_valid = state.fix_valid | arrived
+        fix_time = xp.where(arrived, state.pending_time, state.fix_time)
+        rows = xp.asarray(frames.rotation_rows(*truth["euler"], ops=_Trig(xp)))
+        vector, found = s.usbl.fix(self.array, xp.asarray(truth["position"]), rows,
+                                   xp.asarray(s.transponder), state.sound_speed, draws, xp)
+        ping = time >= state.next_ping - 1e-9
+        travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - xp.asarray(s.transponder))
+        due = time + travel / state.sound_speed + s.usbl.processing_delay
+        pending_valid = xp.where(ping, found, state.pending_valid & ~arrived)
+        return state._replace(
+            gyro_bias=bias,
+            next_ping=xp.where(ping, state.next_ping + s.usbl.period, state.next_ping),
+            pending=xp.where(ping, vector, state.pending), pending_valid=pending_valid,
+            pending_time=xp.where(ping, time, state.pending_time),
+            pending_due=xp.where(ping, due, state.pending_due),
+            fix=fix, fix_valid=fix_valid, fix_time=fix_time, dvl=dvl, dvl_valid=dvl_valid,
+            attitude=attitude, rates=rates, depth=xp.asarray(depth))
+
+    @staticmethod
+    def observation(state: NavState, time, xp=np) -> dict:
+        """The ``nav`` observation (float32 and int8 arrays)."""
+        f32 = xp.float32
+        age = xp.where(state.fix_valid, time - state.fix_time, 0.0)
+        return {
+            "dvl_velocity": xp.asarray(state.dvl, dtype=f32),
+            "dvl_valid": xp.asarray(state.dvl_valid, dtype=xp.int8).reshape(1),
+            "attitude": xp.asarray(state.attitude, dtype=f32),
+            "rates": xp.asarray(state.rates, dtype=f32),
+            "depth": xp.asarray(state.depth, dtype=f32).reshape(1),
+            "usbl": xp.asarray(state.fix, dtype=f32),
+            "usbl_age": xp.asarray(age, dtype=f32).reshape(1),
+            "usbl_valid": xp.asarray(state.fix_valid, dtype=xp.int8).reshape(1),
+        }
+
+
+class _Trig:
+    """``cos``/``sin`` of an array namespace, for :func:`frames.rotation_rows`."""
+
+    def __init__(self, xp):
+        self.cos, self.sin = xp.cos, xp.sin
