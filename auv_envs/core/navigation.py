@@ -34,8 +34,9 @@ the same shapes whatever happens, so one code path serves both.
   vehicle's own hull) or missed, then the earliest detected mirror image (a multipath
   fix, metres off); with probability ``outlier_rate`` a spurious detection instead
   (uniform in range up to ``max_range`` and in direction). Range is the nominal sound
-  speed times the mean one-way travel time; direction the least-squares plane wave
-  through the elements' arrival times. It arrives ``latency`` later: the reply's
+  speed times the mean one-way travel time and direction the least-squares plane wave
+  through the elements' arrival times, refined by two Gauss-Newton steps on the
+  spherical wave (the least-squares fix of the arrival times). It arrives ``latency`` later: the reply's
   two-way travel time plus ``processing_delay``; the observation carries its age.
 """
 
@@ -86,7 +87,7 @@ class DVL:
         ``altitude`` m; draws 3 normals and 1 uniform."""
         noise = xp.asarray(draws.standard_normal(3))
         lost = draws.random() < self.dropout
-        valid = (altitude >= self.min_altitude) & (altitude <= self.max_altitude) & ~lost
+        valid = (altitude >= self.min_altitude) & (altitude <= self.max_altitude) & xp.logical_not(lost)
         reading = (1.0 + scale) * xp.asarray(velocity) + self.noise_std * noise
         return xp.where(valid, reading, 0.0), valid
 
@@ -219,6 +220,15 @@ class USBL:
         direction = -nominal * (xp.asarray(self._plane_wave) @ (arrival - mean))
         direction = direction / xp.linalg.norm(direction)
         vector = nominal * mean * direction
+        # Two Gauss-Newton steps on the spherical wave |v - e_i| = c t_i: the least-squares
+        # fix (the plane wave is metres off near the aperture, millimetres at 20 m).
+        elements = xp.asarray(self.elements)
+        for _ in range(2):
+            offsets = vector - elements
+            ranges_now = xp.linalg.norm(offsets, axis=1)
+            jacobian = offsets / ranges_now[:, None]
+            vector = vector + xp.linalg.solve(jacobian.T @ jacobian,
+                                              jacobian.T @ (nominal * arrival - ranges_now))
         # A spurious detection: uniform in range and over the sphere.
         outlier = draws.random() < self.outlier_rate
         u = xp.asarray(draws.random(3))
@@ -333,7 +343,7 @@ class Navigation:
         ping = time >= state.next_ping - 1e-9
         travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - xp.asarray(s.transponder))
         due = time + travel / state.sound_speed + s.usbl.processing_delay
-        pending_valid = xp.where(ping, found, state.pending_valid & ~arrived)
+        pending_valid = xp.where(ping, found, state.pending_valid & xp.logical_not(arrived))
         return state._replace(
             gyro_bias=bias,
             next_ping=xp.where(ping, state.next_ping + s.usbl.period, state.next_ping),

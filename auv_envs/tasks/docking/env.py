@@ -292,18 +292,26 @@ class DockingEnv(TaskEnv):
 
     **Observation space** (``obs_mode``; n lights):
 
-    ============  ===========================================================
-    mode          space
-    ============  ===========================================================
-    ``state``     ``Box((16,), float32)``, privileged: CG position (3); roll,
-                  pitch, cos yaw, sin yaw (4); body u, v, w, p, q, r (6);
-                  current (3)
-    ``features``  ``Dict``: ``pixels`` (n, 2) (zero where not seen),
-                  ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w, r;
-                  DVL/INS), ``attitude`` (roll, pitch, yaw; INS)
-    ``image``     ``Dict``: ``image`` (H, W, 3) uint8 forward camera,
-                  ``velocity``, ``attitude``
-    ============  ===========================================================
+    ================  =======================================================
+    mode              space
+    ================  =======================================================
+    ``state``         ``Box((16,), float32)``, privileged: CG position (3);
+                      roll, pitch, cos yaw, sin yaw (4); body u, v, w, p, q,
+                      r (6); current (3)
+    ``features``      ``Dict``: ``pixels`` (n, 2) (zero where not seen),
+                      ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w,
+                      r; DVL/INS), ``attitude`` (roll, pitch, yaw; INS)
+    ``image``         ``Dict``: ``image`` (H, W, 3) uint8 forward camera,
+                      ``velocity``, ``attitude``
+    ``nav``           ``Dict``, the navigation sensors
+                      (:mod:`auv_envs.core.navigation`): ``dvl_velocity``
+                      (3), ``dvl_valid`` (1), ``attitude`` (3), ``rates``
+                      (3), ``depth`` (1), ``usbl`` (3: the last fix of the
+                      station's transponder, body axes), ``usbl_age`` (1,
+                      s), ``usbl_valid`` (1)
+    ``nav_features``  ``Dict``: ``pixels`` and ``visible`` of ``features``
+                      with the ``nav`` sensors
+    ================  =======================================================
 
     With ``optics`` the camera looks through that water: ``image`` through the
     image formation model, ``features`` detecting each lamp with a
@@ -349,7 +357,8 @@ class DockingEnv(TaskEnv):
     ===========================  ==============================================
     argument                     meaning (default)
     ===========================  ==============================================
-    ``obs_mode``                 ``"state"``, ``"features"``, ``"image"``
+    ``obs_mode``                 ``"state"``, ``"features"``, ``"image"``,
+                                 ``"nav"``, ``"nav_features"``
     ``scenario``                 ``"mismatch"`` ([OFNMPC] Scenario 1) or
                                  ``"current"`` (Scenario 2: current and noise)
     ``current_direction``        deg (None: drawn)
@@ -371,8 +380,12 @@ class DockingEnv(TaskEnv):
     ``disturbances``             :class:`DockingDisturbances` (none)
     ``optics``                   :class:`~auv_envs.tasks.docking.optics.WaterOptics`
                                  (None: clear water)
+    ``navigation``               :class:`~auv_envs.core.navigation.NavigationSensors`
+                                 of the ``nav`` modes (None: the level's;
+                                 ``docs/navigation.md``)
     ``difficulty``               ``"easy"`` (the release), ``"paper"``,
-                                 ``"hard"``: ``disturbances`` and ``optics``
+                                 ``"hard"``: ``disturbances``, ``optics`` and
+                                 ``navigation``
                                  (:data:`PAPER_DISTURBANCES`, ...,
                                  ``docs/difficulty.md``)
     ===========================  ==============================================
