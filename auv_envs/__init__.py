@@ -29,6 +29,7 @@ ENVIRONMENTS = {
     "auv_envs/LampArrayDocking-v2": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
     "auv_envs/AcousticTracking-v2": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
     "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
+    "auv_envs/DockingMission-v0": "auv_envs.tasks.docking.mission:DockingMissionEnv",
 }
 
 #: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
@@ -72,13 +73,15 @@ PREVIOUS_VERSIONS = {
 
 #: Steps in each family's default episode: its default ``time_limit`` divided
 #: by its step period (docking 100 s at 0.1 s, LARS 30 s at 0.04 s, acoustic
-#: 60 s at 0.01 s; a test checks them against the classes). Registered as
+#: 60 s at 0.01 s, the docking mission 600 s at 0.1 s; a test checks them against the
+#: classes). Registered as
 #: ``max_episode_steps``, so ``TimeLimit``-aware tools see them.
 MAX_EPISODE_STEPS = {
     "DockingStation": 1000,
     "LampArrayDocking": 1000,
     "AcousticTracking": 6000,
     "LARSCapture": 750,
+    "DockingMission": 6000,
 }
 
 #: Applied by ``gym.make`` above its ``TimeLimit``: the episode summary on a
@@ -107,6 +110,7 @@ for _env_id, (_entry_point, _kwargs) in {
 BATCHED_ENVIRONMENTS = {
     "auv_envs/DockingStationMJX-v2": "auv_envs.batched.vector:docking_station",
     "auv_envs/LampArrayDockingMJX-v2": "auv_envs.batched.vector:lamp_array_docking",
+    "auv_envs/DockingMissionMJX-v0": "auv_envs.batched.vector:docking_mission",
     "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
     "auv_envs/AcousticTrackingMJX-v2": "auv_envs.batched.vector:acoustic_tracking",
 }

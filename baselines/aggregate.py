@@ -38,6 +38,7 @@ from baselines.stats import BOOTSTRAP_SEED, CONFIDENCE, RESAMPLES
 REFERENCES = {
     "auv_envs/DockingStation-v2": "pd-state",
     "auv_envs/LampArrayDocking-v2": "pd-state",
+    "auv_envs/DockingMission-v0": "homing-pd-state",
     "auv_envs/LARSCapture-v0": "ckf-pd-state",
 }
 #: The anchor of score 0 in every task.

@@ -23,6 +23,7 @@ from baselines.registry import AgentSpec, env_ids_of, lazy, register_source
 
 #: Every registered id of each environment family (the module of its entry point).
 DOCKING = env_ids_of("auv_envs.tasks.docking.env")
+MISSION = env_ids_of("auv_envs.tasks.docking.mission")
 LARS = env_ids_of("auv_envs.tasks.lars.env")
 ACOUSTIC = env_ids_of("auv_envs.tasks.acoustic.env")
 
@@ -35,6 +36,11 @@ AGENTS: tuple[AgentSpec, ...] = (
     AgentSpec(
         "pd-state", lazy("baselines.docking.agents:DockingPDAgent"), "state", DOCKING,
         "scripted PD on the privileged state (reference controller)",
+    ),
+    AgentSpec(
+        "homing-pd-state", lazy("baselines.docking.agents:HomingPDAgent"), "state", MISSION,
+        "privileged reference of the whole approach: line-of-sight homing to the docking "
+        "axis, then pd-state's controller, on the true state",
     ),
     AgentSpec(
         "ofnmpc-ekf", lazy("baselines.docking.agents:OFNMPCAgent", observer="ekf"),

@@ -65,6 +65,7 @@ VARIANTS = {
     "LampArrayDocking": {"scenario": "current"},
     "LARSCapture": {"sea_state": "severe"},
     "AcousticTracking": {"trajectory": "static"},
+    "DockingMission": {"layout": "lamp_array"},
 }
 
 

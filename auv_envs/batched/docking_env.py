@@ -61,8 +61,9 @@ class DockingMJX(FunctionalEnv):
     """A docking environment as pure JAX functions of one episode.
 
     Args:
-        env_id: ``"auv_envs/DockingStation-v2"`` or ``"auv_envs/LampArrayDocking-v2"``
-            (the RK4 plant; the v0 ids integrate with Euler and are refused).
+        env_id: ``"auv_envs/DockingStation-v2"``, ``"auv_envs/LampArrayDocking-v2"`` or
+            ``"auv_envs/DockingMission-v0"`` (the RK4 plant; the v0 ids integrate with
+            Euler and are refused).
         obs_mode: ``"state"`` or ``"features"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
         **env_kwargs: the CPU environment's arguments (``scenario``,

@@ -35,6 +35,9 @@ FAMILIES = {
     "auv_envs/LampArrayDocking-v2": (
         lambda **kw: docking_env.DockingMJX("auv_envs/LampArrayDocking-v2", **kw),
         docking_env.OBS_MODES),
+    "auv_envs/DockingMission-v0": (
+        lambda **kw: docking_env.DockingMJX("auv_envs/DockingMission-v0", **kw),
+        docking_env.OBS_MODES),
     "auv_envs/LARSCapture-v0": (lars_env.LARSMJX, lars_env.OBS_MODES),
     "auv_envs/AcousticTracking-v2": (acoustic_env.AcousticMJX, acoustic_env.OBS_MODES),
 }
@@ -49,7 +52,8 @@ def load(env_id: str, **env_kwargs) -> FunctionalEnv:
 
     Args:
         env_id: a CPU id (``auv_envs/DockingStation-v2``, ``auv_envs/LampArrayDocking-v2``,
-            ``auv_envs/LARSCapture-v0``, ``auv_envs/AcousticTracking-v2``) or its batched
+            ``auv_envs/DockingMission-v0``, ``auv_envs/LARSCapture-v0``,
+            ``auv_envs/AcousticTracking-v2``) or its batched
             twin (``auv_envs/DockingStationMJX-v2``, ...).
         **env_kwargs: the environment's arguments (``obs_mode``, ``difficulty``, ...), as
             the CPU env takes them.

@@ -198,6 +198,11 @@ def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
     return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v2", **kwargs)
 
 
+def docking_mission(num_envs: int, **kwargs) -> DockingVectorEnv:
+    """``auv_envs/DockingMissionMJX-v0``: :class:`DockingVectorEnv` of the whole approach."""
+    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingMission-v0", **kwargs)
+
+
 def lars_capture(num_envs: int, **kwargs) -> LARSVectorEnv:
     """``auv_envs/LARSCaptureMJX-v0``: :class:`LARSVectorEnv`."""
     return LARSVectorEnv(num_envs, **kwargs)

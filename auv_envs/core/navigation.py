@@ -7,7 +7,8 @@ frozen dataclass of its parameters (the figures and their sources are in
 ``docs/navigation.md``, and at the presets in :mod:`auv_envs.tasks.docking.env`) whose
 methods draw from the episode's generator and take the array namespace ``xp`` (NumPy
 on the CPU, ``jax.numpy`` under ``jit``/``vmap``). Every step draws the same numbers of
-the same shapes whatever happens, so one code path serves both.
+the same shapes whatever happens, so one code path serves both; only on NumPy does a
+step without a USBL ping skip the fix and its draws.
 
 * **DVL** (bottom lock): the body-frame velocity over the seabed, each axis scaled by
   ``1 + s_i`` with ``s_i`` drawn once per episode (N(0, ``scale_std``^2): the
@@ -337,10 +338,13 @@ class Navigation:
         fix = xp.where(arrived, state.pending, state.fix)
         fix_valid = state.fix_valid | arrived
         fix_time = xp.where(arrived, state.pending_time, state.fix_time)
-        rows = xp.asarray(frames.rotation_rows(*truth["euler"], ops=_Trig(xp)))
-        vector, found = s.usbl.fix(self.array, xp.asarray(truth["position"]), rows,
-                                   xp.asarray(s.transponder), state.sound_speed, draws, xp)
         ping = time >= state.next_ping - 1e-9
+        if xp is np and not ping:  # NumPy skips the fix between pings (JAX selects it)
+            vector, found = state.pending, False
+        else:
+            rows = xp.asarray(frames.rotation_rows(*truth["euler"], ops=_Trig(xp)))
+            vector, found = s.usbl.fix(self.array, xp.asarray(truth["position"]), rows,
+                                       xp.asarray(s.transponder), state.sound_speed, draws, xp)
         travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - xp.asarray(s.transponder))
         due = time + travel / state.sound_speed + s.usbl.processing_delay
         pending_valid = xp.where(ping, found, state.pending_valid & xp.logical_not(arrived))

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
+from baselines.docking.control.homing import HomingPDController
 from baselines.docking.control.pd import DockingPDController
 from baselines.docking.estimation.observers import DockingEKF, DockingMHE, MHEConfig
 
@@ -67,6 +68,35 @@ class DockingPDAgent:
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
 
+
+
+class HomingPDAgent:
+    """The whole approach's privileged reference (:class:`HomingPDController`): line-of-sight
+    homing to the docking axis on the ``state`` observation, then :class:`DockingPDAgent`'s
+    controller. Reads the documented calibration only: target, thrust limits, nominal net
+    buoyancy.
+
+    Args:
+        env: an unwrapped ``DockingMission`` env with ``obs_mode="state"``.
+        **gains: :class:`HomingPDController`'s keywords.
+    """
+
+    def __init__(self, env, **gains):
+        if env.obs_mode != "state":
+            raise ValueError("HomingPDAgent needs obs_mode='state'")
+        cal = env.calibration
+        self.controller = HomingPDController(cal.target_position,
+                                             cal.nominal_params.net_buoyancy, **gains)
+        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+
+    def reset(self, seed: int | None = None) -> None:
+        del seed  # deterministic controller
+        self.controller.reset()
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        obs = np.asarray(observation, dtype=float)
+        tau = self.controller.force(obs[0:3], math.atan2(obs[6], obs[5]), obs[7:10], obs[12])
+        return np.clip(tau / self._limits, -1.0, 1.0).astype(np.float32)
 
 
 class OFNMPCAgent:

@@ -79,6 +79,9 @@ from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home befor
 )
 
 OBS_MODES = ("state", "features", "image", "nav", "nav_features")
+#: Summary entries reported as None where NaN (no docking, no hand-over).
+NONE_IF_NAN = frozenset({"docking_time", "homing_time", "homing_path_length",
+                         "handover_range", "handover_cross_track"})
 SCENARIOS = ("mismatch", "current")
 
 #: Default nominal-model damping scale (surge, sway, heave, roll, pitch, yaw):
@@ -405,6 +408,12 @@ class DockingEnv(TaskEnv):
     _closeables = ("camera_renderer", "_view")
 
     layout: StationLayout = SIX_LIGHTS
+    #: The whole approach's start and phases (:class:`transition.MissionSpec`); None: the
+    #: terminal approach of the docking ids.
+    mission: transition.MissionSpec | None = None
+    #: The water when ``optics`` is None and the level sets none (None: clear water, every
+    #: lamp seen at any range).
+    default_optics: WaterOptics | None = None
 
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
@@ -473,6 +482,8 @@ class DockingEnv(TaskEnv):
         if not isinstance(disturbances, DockingDisturbances):
             raise TypeError(
                 f"disturbances must be a DockingDisturbances, got {type(disturbances).__name__}")
+        if optics is None:
+            optics = self.default_optics
         if optics is not None and not isinstance(optics, WaterOptics):
             raise TypeError(f"optics must be a WaterOptics or None, got {type(optics).__name__}")
         check_choice("scenario", scenario, SCENARIOS)
@@ -568,9 +579,17 @@ class DockingEnv(TaskEnv):
             lights=tuple(tuple(p) for p in light_positions.tolist()), nose_offset=nose,
             hull_axes=(nose, self._params.diameter / 2, self._params.diameter / 2),
             seabed_z=self.physics.seabed_z, tolerances=self.calibration.tolerances,
-            min_visible=self._min_visible, lights_lost_timeout=self._lost_timeout,
+            min_visible=self._min_visible,
+            lights_lost_timeout=self._lost_timeout if self.mission is None else math.inf,
             control_period=self._dt,
+            **({} if self.mission is None else {"out_of_bounds": self.mission.out_of_bounds,
+                                                "behind_radius": self.mission.behind_radius,
+                                                "surface_z": navigation.station_depth}),
         )
+        mission = self.mission
+        if mission is not None:  # the lights take over where the water shows them
+            mission = dataclasses.replace(
+                mission, handover_range=math.inf if optics is None else optics.detection_range())
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self._validate_action = ActionValidator(self.action_space)
@@ -595,7 +614,8 @@ class DockingEnv(TaskEnv):
             pixel_bounds=pixel_bounds, focal_px=cal.intrinsics.fy,
             max_episode_steps=self.max_episode_steps,
             navigation=(Navigation(navigation, self.physics.seabed_z, self._dt)
-                        if obs_mode in transition.NAV_MODES else None))
+                        if obs_mode in transition.NAV_MODES else None),
+            mission=mission)
         #: The navigation sensors (:mod:`auv_envs.core.navigation`) of the ``nav`` modes.
         self.navigation = navigation
         self._plant = CompiledPlant(self) if plant == "compiled" else MujocoPlant(self)
@@ -816,7 +836,7 @@ class DockingEnv(TaskEnv):
         for key, value in transition.summary(state, truth).items():
             if key == "failure":
                 key, value = "failure_reason", failure_reason(value, state.success)
-            elif key == "docking_time" and math.isnan(value):
+            elif key in NONE_IF_NAN and math.isnan(value):
                 value = None
             metrics[key] = value
         return metrics

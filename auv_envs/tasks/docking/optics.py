@@ -258,6 +258,21 @@ class WaterOptics:
         ratio = self.detection_contrast / self.lamp_contrast(distance, xp)
         return 1.0 / (1.0 + ratio ** self.detection_slope)
 
+    def detection_range(self, probability: float = 0.5) -> float:
+        """The range (m) at which a lamp in view is detected with ``probability``: the
+        detection probability falls with range (bisection to 1 mm, up to 10 km)."""
+        if not 0.0 < probability < 1.0:
+            raise ValueError(f"probability must be in (0, 1), got {probability!r}")
+        low, high = 1e-3, 1e4
+        with np.errstate(over="ignore", divide="ignore"):  # far out the contrast underflows
+            while high - low > 1e-3:
+                middle = 0.5 * (low + high)
+                if float(self.detection_probability(middle)) >= probability:
+                    low = middle
+                else:
+                    high = middle
+        return low
+
     def centroid_std(self, distance, focal_px: float, xp=np) -> np.ndarray:
         """Standard deviation of a detected lamp's centroid (each axis), pixels."""
         return self.centroid_noise + self.centroid_blur_ratio * self.glow_width(

@@ -19,7 +19,7 @@ from auv_envs.core.camera import CameraIntrinsics
 from auv_envs.core.ops import FLOATS
 
 #: Failure reasons, in the order they are checked: the first that holds ends the episode.
-FAILURE_REASONS = ("behind_entrance", "seabed", "lights_lost", "out_of_bounds")
+FAILURE_REASONS = ("behind_entrance", "seabed", "lights_lost", "out_of_bounds", "surfaced")
 def failure_reason(code, success) -> str:
     """The ``failure_reason`` episode metric of a failure code (index + 1 in
     :data:`FAILURE_REASONS`, 0: none): ``""`` for a success, ``"time_limit"`` otherwise."""
@@ -64,6 +64,13 @@ class DockingRules:
         min_visible: lights that must be in view.
         lights_lost_timeout: seconds with fewer in view before failure.
         control_period: seconds per step.
+        out_of_bounds: distance from the entrance beyond which the vehicle is out of
+            bounds, m.
+        behind_radius: the nose past the entrance plane fails only within this distance
+            of the entrance (m); None: anywhere (the docking ids, which start in front).
+        surface_z: the water surface's height (m): the centre of gravity reaching it fails
+            (``"surfaced"``); None: no surface (the docking ids, a few metres from the
+            station, never reach it).
     """
 
     intrinsics: CameraIntrinsics
@@ -77,6 +84,9 @@ class DockingRules:
     min_visible: int
     lights_lost_timeout: float
     control_period: float
+    out_of_bounds: float = OUT_OF_BOUNDS
+    behind_radius: float | None = None
+    surface_z: float | None = None
 
     @functools.cached_property
     def heading_tolerance(self) -> float:
@@ -153,13 +163,20 @@ class DockingRules:
         return ops.where(fov_violation, lost_time + self.control_period, 0.0)
 
     def failures(self, truth: dict, docked, lost_time, ops=FLOATS) -> tuple:
-        """One flag per :data:`FAILURE_REASONS` entry, for the state after a step."""
-        return (
-            (truth["longitudinal"] > self.tolerances.longitudinal) & ops.logical_not(docked),
+        """One flag per :data:`FAILURE_REASONS` entry (``"surfaced"`` with a surface only),
+        for the state after a step."""
+        behind = (truth["longitudinal"] > self.tolerances.longitudinal) & ops.logical_not(docked)
+        if self.behind_radius is not None:
+            behind = behind & (truth["distance"] < self.behind_radius)
+        flags = (
+            behind,
             truth["seabed_clearance"] <= 0.0,
             lost_time > self.lights_lost_timeout,
-            truth["distance"] > OUT_OF_BOUNDS,
+            truth["distance"] > self.out_of_bounds,
         )
+        if self.surface_z is None:
+            return flags
+        return (*flags, truth["position"][2] >= self.surface_z)
 
     @staticmethod
     def failure_index(flags, ops=FLOATS):

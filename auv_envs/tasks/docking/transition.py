@@ -39,6 +39,10 @@ from auv_envs.tasks.docking.rules import DockingRules
 
 #: [OFNMPC] Scenario 2 current speed, m/s.
 SCENARIO_CURRENT_SPEED = 0.3
+#: The mission's phase metrics (NaN, or None in the CPU env's summary, without a hand-over
+#: except ``path_length``).
+MISSION_METRICS = ("path_length", "homing_time", "homing_path_length", "handover_range",
+                   "handover_cross_track")
 #: The observation modes that see the lights' pixels, and those with the navigation
 #: sensors (:mod:`auv_envs.core.navigation`) in place of the DVL/INS readings.
 LIGHT_MODES = ("features", "nav_features")
@@ -47,6 +51,48 @@ NAV_MODES = ("nav", "nav_features")
 #: surge speed range (m/s), drawn uniformly.
 START_HEADING_SPREAD_DEG = 10.0
 START_SURGE = (0.0, 0.3)
+
+
+@dataclasses.dataclass(frozen=True)
+class MissionSpec:
+    """The whole approach (``auv_envs/DockingMission-v0``): where it starts and when the
+    lights take over.
+
+    Attributes:
+        start_range: ``(low, high)`` of the start's horizontal distance from the
+            entrance, m, drawn uniformly at a bearing uniform around the station.
+        start_height: ``(low, high)`` of the start's height above the seabed, m.
+        handover_range: the hand-over happens on the first step with at least
+            ``min_visible`` lights in view within this distance of the entrance (m): the
+            range at which the water lets the camera detect a lamp half the time.
+        out_of_bounds: distance from the entrance beyond which the vehicle is out of
+            bounds, m.
+        behind_radius: passing the entrance plane fails within this distance of the
+            entrance only (m): the vehicle may start behind the station and go round.
+    """
+
+    start_range: tuple = (100.0, 300.0)
+    start_height: tuple = (3.0, 30.0)
+    handover_range: float = 30.0
+    out_of_bounds: float = 500.0
+    behind_radius: float = 3.0
+
+
+class MissionRecord(NamedTuple):
+    """A mission's phases so far (scalars): where the vehicle was after the last step, the
+    path it has run, and at the hand-over (the first step with the lights in view within
+    ``handover_range``) the time, the path run, the nose's distance from the entrance and
+    its distance from the docking axis (NaN before)."""
+
+    x: Any
+    y: Any
+    z: Any
+    path_length: Any
+    handed_over: Any
+    handover_time: Any
+    homing_path_length: Any
+    handover_range: Any
+    handover_cross_track: Any
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +117,7 @@ class DockingParams:
         max_episode_steps: steps to the time limit.
         navigation: the navigation sensors in the scene
             (:class:`~auv_envs.core.navigation.Navigation`) in the ``nav`` modes, else None.
+        mission: the whole approach's :class:`MissionSpec` (``DockingMission``), else None.
     """
 
     rules: DockingRules
@@ -88,6 +135,7 @@ class DockingParams:
     focal_px: float
     max_episode_steps: int
     navigation: Any = None
+    mission: MissionSpec | None = None
 
     @property
     def dt(self) -> float:
@@ -128,6 +176,7 @@ class EpisodeState(NamedTuple):
     failed: Any = None
     occluded: Any = None
     nav: Any = None
+    mission: Any = None
 
     @property
     def out(self):
@@ -161,12 +210,23 @@ class Assessment(NamedTuple):
 # ------------------------------------------------------------------ reset
 def draw_start(params: DockingParams, draws, ops) -> Start:
     """The start pose (uniform in the layout's box, heading towards the entrance within
-    :data:`START_HEADING_SPREAD_DEG`, surge in :data:`START_SURGE`) and the current."""
-    (x0, x1), (y0, y1), (z0, z1) = params.start_box
-    x = draws.uniform(x0, x1)
-    y = draws.uniform(y0, y1)
-    z = draws.uniform(z0, z1)
-    yaw = ops.atan2(-y, -x) + draws.uniform(-1.0, 1.0) * math.radians(START_HEADING_SPREAD_DEG)
+    :data:`START_HEADING_SPREAD_DEG`, surge in :data:`START_SURGE`; with a ``mission``, at
+    a distance, bearing and height of :class:`MissionSpec` and any heading) and the
+    current."""
+    mission = params.mission
+    if mission is None:
+        (x0, x1), (y0, y1), (z0, z1) = params.start_box
+        x = draws.uniform(x0, x1)
+        y = draws.uniform(y0, y1)
+        z = draws.uniform(z0, z1)
+        yaw = ops.atan2(-y, -x) + draws.uniform(-1.0, 1.0) * math.radians(
+            START_HEADING_SPREAD_DEG)
+    else:
+        distance = draws.uniform(*mission.start_range)
+        bearing = draws.uniform(-math.pi, math.pi)
+        x, y = distance * ops.cos(bearing), distance * ops.sin(bearing)
+        z = params.rules.seabed_z + draws.uniform(*mission.start_height)
+        yaw = draws.uniform(-math.pi, math.pi)
     surge = draws.uniform(*START_SURGE)
     varying = params.disturbances.current
     if params.scenario == "current" or varying.active:
@@ -218,6 +278,13 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
         plant=vehicle, failed=failed, occluded=occluded)
     if params.navigation is not None:  # drawn last: the other modes' draws are unchanged
         state = state._replace(nav=params.navigation.start(truth, draws, ops.xp))
+    if params.mission is not None:
+        nan = ops.real(math.nan)
+        x, y, z = truth["position"]
+        state = state._replace(mission=MissionRecord(
+            x=x, y=y, z=z, path_length=ops.real(0.0), handed_over=ops.boolean(False),
+            handover_time=nan, homing_path_length=nan, handover_range=nan,
+            handover_cross_track=nan))
     return state, truth, observe(params, state, truth, backend)
 
 
@@ -255,6 +322,8 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
     if params.navigation is not None:
         state = state._replace(nav=params.navigation.advance(
             state.nav, truth, state.steps * params.dt, draws, ops.xp))
+    if params.mission is not None:
+        state = state._replace(mission=track_mission(params, state, truth, ops))
     return state, truth, observe(params, state, truth, backend), judged
 
 
@@ -280,6 +349,25 @@ def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops,
         fov_violations=state.fov_violations + fov_violation,
         min_lights_visible=ops.minimum(state.min_lights_visible, n_visible), **changes)
     return state, Assessment(terms, docked | failed, fov_violation, flags[0], flags[1])
+
+
+def track_mission(params: DockingParams, state: EpisodeState, truth: dict, ops) -> MissionRecord:
+    """The mission's record after a step (``state`` after it, ``truth`` its truth)."""
+    record = state.mission
+    x, y, z = truth["position"]
+    dx, dy, dz = x - record.x, y - record.y, z - record.z
+    path = record.path_length + ops.sqrt(dx * dx + dy * dy + dz * dz)
+    near = ((truth["n_visible"] >= params.rules.min_visible)
+            & (truth["distance"] <= params.mission.handover_range))
+    first = near & ops.logical_not(record.handed_over)
+    lateral, vertical = truth["lateral"], truth["vertical"]
+    return MissionRecord(
+        x=x, y=y, z=z, path_length=path, handed_over=record.handed_over | near,
+        handover_time=ops.where(first, state.steps * params.dt, record.handover_time),
+        homing_path_length=ops.where(first, path, record.homing_path_length),
+        handover_range=ops.where(first, truth["distance"], record.handover_range),
+        handover_cross_track=ops.where(first, ops.sqrt(lateral * lateral + vertical * vertical),
+                                       record.handover_cross_track))
 
 
 # ------------------------------------------------------------------ what is seen
@@ -346,7 +434,18 @@ def step_metrics(truth: dict, state: EpisodeState) -> dict:
 
 def summary(state: EpisodeState, truth: dict) -> dict:
     """The episode's summary as numbers: ``failure`` the code of :class:`EpisodeState`,
-    ``docking_time`` NaN when it did not dock (the shells name and format them)."""
+    ``docking_time`` NaN when it did not dock (the shells name and format them); with a
+    mission, its phases too (:data:`MISSION_METRICS`, NaN without a hand-over)."""
+    mission = {}
+    record = state.mission
+    if record is not None:
+        mission = {
+            "path_length": record.path_length,
+            "homing_time": record.handover_time,
+            "homing_path_length": record.homing_path_length,
+            "handover_range": record.handover_range,
+            "handover_cross_track": record.handover_cross_track,
+        }
     return {
         "success": state.success,
         "failure": state.failure,
@@ -359,4 +458,5 @@ def summary(state: EpisodeState, truth: dict) -> dict:
         "fov_violation_steps": state.fov_violations,
         "min_lights_visible": state.min_lights_visible,
         "control_effort": state.control_effort,
+        **mission,
     }
