@@ -104,6 +104,7 @@ class DockingMissionEnv(DockingEnv):
         super().__init__(obs_mode=obs_mode, time_limit=time_limit, navigation=navigation,
                          **kwargs)
         self._init_kwargs["layout"] = layout
+        del self._init_kwargs["lights_lost_timeout"]  # the docking ids' default, not ours
 
 
 def _signature() -> inspect.Signature:
