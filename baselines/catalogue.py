@@ -43,6 +43,12 @@ AGENTS: tuple[AgentSpec, ...] = (
         "axis, then pd-state's controller, on the true state",
     ),
     AgentSpec(
+        "nav-homing-ofnmpc-ekf", lazy("baselines.docking.agents:MissionAgent"),
+        "nav_features", MISSION,
+        "the whole approach: AHRS/DVL/depth/USBL error-state filter + line-of-sight homing, "
+        "handing over to ofnmpc-ekf once the lights are tracked [OFNMPC]",
+    ),
+    AgentSpec(
         "ofnmpc-ekf", lazy("baselines.docking.agents:OFNMPCAgent", observer="ekf"),
         "features", DOCKING, "offset-free NMPC + EKF on the light pixels [OFNMPC]",
     ),

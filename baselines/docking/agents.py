@@ -31,6 +31,7 @@ import numpy as np
 from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
 from baselines.docking.control.homing import HomingPDController
 from baselines.docking.control.pd import DockingPDController
+from baselines.docking.estimation.navigation_filter import NavigationFilter
 from baselines.docking.estimation.observers import DockingEKF, DockingMHE, MHEConfig
 
 
@@ -97,6 +98,100 @@ class HomingPDAgent:
         obs = np.asarray(observation, dtype=float)
         tau = self.controller.force(obs[0:3], math.atan2(obs[6], obs[5]), obs[7:10], obs[12])
         return np.clip(tau / self._limits, -1.0, 1.0).astype(np.float32)
+
+
+class MissionAgent:
+    """The whole approach on the navigation sensors and the lights (``nav_features``):
+    :class:`NavigationFilter` (AHRS/DVL dead reckoning, depth, late USBL fixes) with
+    :class:`HomingPDController`'s line-of-sight homing on the estimate, handing over to
+    ``ofnmpc-ekf`` (:class:`OFNMPCAgent`) once the lights are tracked.
+
+    Hand-over with hysteresis: to the lights after ``handover_steps`` consecutive steps
+    with at least ``min_visible_lights`` lamps detected; back to homing after
+    ``fallback_steps`` steps with fewer (the OFNMPC agent then starts afresh at the next
+    hand-over). The OFNMPC agent gets the ``features`` observation its paper describes:
+    the pixels and, from the navigation sensors, ``velocity`` (DVL u, v, w and gyro r) and
+    ``attitude`` (AHRS).
+
+    Reads the documented calibration and the navigation suite's nominal figures (the
+    transponder's position, the station's depth, the sensors' noise: data-sheet values).
+
+    Args:
+        env: an unwrapped ``DockingMission`` env with ``obs_mode="nav_features"``.
+        observer: the OFNMPC agent's observer, ``"ekf"`` or ``"mhe"``.
+        handover_steps, fallback_steps: the hysteresis (steps).
+    """
+
+    def __init__(self, env, observer: str = "ekf", handover_steps: int = 5,
+                 fallback_steps: int = 50):
+        if env.obs_mode != "nav_features":
+            raise ValueError("MissionAgent acts on obs_mode='nav_features'")
+        cal = env.calibration
+        nav = env.navigation
+        self.filter = NavigationFilter(
+            nav.transponder, nav.station_depth, cal.control_period,
+            dvl_std=nav.dvl.noise_std, depth_std=max(nav.depth.noise_std, 1e-3))
+        self.homing = HomingPDController(cal.target_position, cal.nominal_params.net_buoyancy)
+        self._terminal_env = _FeaturesView(env)
+        self.observer = observer
+        self.min_visible = env.rules.min_visible
+        self.handover_steps, self.fallback_steps = handover_steps, fallback_steps
+        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        del seed  # deterministic
+        self.filter.reset()
+        self.homing.reset()
+        self.terminal: OFNMPCAgent | None = None
+        self.seen = self.lost = 0
+        self.handovers = 0
+
+    def act(self, observation, info: dict) -> np.ndarray:
+        del info  # ground truth is not for agents
+        position = self.filter.step(observation)
+        tracked = int(np.sum(observation["visible"])) >= self.min_visible
+        self.seen = self.seen + 1 if tracked else 0
+        self.lost = 0 if tracked else self.lost + 1
+        if self.terminal is None and self.seen >= self.handover_steps:
+            self.terminal = OFNMPCAgent(self._terminal_env, observer=self.observer)
+            self.handovers += 1
+        elif self.terminal is not None and self.lost >= self.fallback_steps:
+            self.terminal = None
+            self.homing.reset()
+        if self.terminal is not None:
+            return self.terminal.act(features_of(observation), {})
+        rates = observation["rates"]
+        tau = self.homing.force(position, float(observation["attitude"][2]),
+                                np.asarray(observation["dvl_velocity"], dtype=float),
+                                float(rates[2]))
+        return np.clip(tau / self._limits, -1.0, 1.0).astype(np.float32)
+
+    def position_estimate(self) -> np.ndarray:
+        """The navigation filter's estimate of the CG position (station frame)."""
+        return self.filter.p.copy()
+
+    def stats(self) -> dict:
+        """Per episode: USBL fixes taken and rejected, hand-overs to the lights."""
+        return {"usbl_fixes": self.filter.fixes, "usbl_rejected": self.filter.rejected,
+                "handovers": self.handovers}
+
+
+def features_of(observation: dict) -> dict:
+    """The ``features`` observation inside a ``nav_features`` one: the pixels, and the
+    DVL/gyro ``velocity`` (u, v, w, r) and AHRS ``attitude`` the docking ids report."""
+    velocity = np.concatenate([observation["dvl_velocity"], observation["rates"][2:]])
+    return {"pixels": observation["pixels"], "visible": observation["visible"],
+            "velocity": velocity.astype(np.float32), "attitude": observation["attitude"]}
+
+
+class _FeaturesView:
+    """An env as :class:`OFNMPCAgent` reads it: its calibration, in ``features`` mode."""
+
+    obs_mode = "features"
+
+    def __init__(self, env):
+        self.calibration = env.calibration
 
 
 class OFNMPCAgent:
