@@ -48,7 +48,7 @@ from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.rules import failure_reason  # noqa: F401  (re-exported)
 
 #: The observation modes the batched environment builds.
-OBS_MODES = ("state", "features")
+OBS_MODES = ("state", "features", "nav", "nav_features")
 #: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
 #: source, without importing JAX).
 LEVELS = ("easy", "paper", "hard")

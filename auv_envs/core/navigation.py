@@ -223,13 +223,14 @@ class USBL:
         vector = nominal * mean * direction
         # Two Gauss-Newton steps on the spherical wave |v - e_i| = c t_i: the least-squares
         # fix (the plane wave is metres off near the aperture, millimetres at 20 m).
+        # The steps by least squares on the Jacobian itself (its normal matrix is singular in
+        # float32 a few hundred metres out: the elements' unit vectors nearly coincide).
         elements = xp.asarray(self.elements)
         for _ in range(2):
             offsets = vector - elements
             ranges_now = xp.linalg.norm(offsets, axis=1)
             jacobian = offsets / ranges_now[:, None]
-            vector = vector + xp.linalg.solve(jacobian.T @ jacobian,
-                                              jacobian.T @ (nominal * arrival - ranges_now))
+            vector = vector + xp.linalg.lstsq(jacobian, nominal * arrival - ranges_now)[0]
         # A spurious detection: uniform in range and over the sphere.
         outlier = draws.random() < self.outlier_rate
         u = xp.asarray(draws.random(3))
