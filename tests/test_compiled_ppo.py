@@ -188,7 +188,7 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
     ({"num_envs": 0}, r"num_envs must be an integer in \[1, inf\)"),
     ({"gamma": -0.1}, r"gamma must be a finite number in \[0, 1\]"),
     ({"n_epochs": 2.5}, "n_epochs must be an integer"),
-    ({"obs_mode": "measurements"}, r"obs_mode \('state', 'features'\)"),
+    ({"obs_mode": "measurements"}, r"obs_mode \('state', 'features', 'nav', 'nav_features'\)"),
     ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
     ({"env_kwargs": {"time_limit": 5.0}}, "may set 'difficulty' only"),
     ({"num_envs": 10, "n_minibatches": 48}, "must split into"),

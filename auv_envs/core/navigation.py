@@ -37,8 +37,9 @@ step without a USBL ping skip the fix and its draws.
   (uniform in range up to ``max_range`` and in direction). Range is the nominal sound
   speed times the mean one-way travel time and direction the least-squares plane wave
   through the elements' arrival times, refined by two Gauss-Newton steps on the
-  spherical wave (the least-squares fix of the arrival times). It arrives ``latency`` later: the reply's
-  two-way travel time plus ``processing_delay``; the observation carries its age.
+  spherical wave (the least-squares fix of the arrival times). It arrives later by the
+  reply's two-way travel time plus ``processing_delay``; the observation carries its
+  age.
 """
 
 from __future__ import annotations
@@ -88,7 +89,8 @@ class DVL:
         ``altitude`` m; draws 3 normals and 1 uniform."""
         noise = xp.asarray(draws.standard_normal(3))
         lost = draws.random() < self.dropout
-        valid = (altitude >= self.min_altitude) & (altitude <= self.max_altitude) & xp.logical_not(lost)
+        valid = ((altitude >= self.min_altitude) & (altitude <= self.max_altitude)
+                 & xp.logical_not(lost))
         reading = (1.0 + scale) * xp.asarray(velocity) + self.noise_std * noise
         return xp.where(valid, reading, 0.0), valid
 

@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
-from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
 from baselines.docking.control.homing import HomingPDController
+from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
 from baselines.docking.control.pd import DockingPDController
 from baselines.docking.estimation.navigation_filter import NavigationFilter
 from baselines.docking.estimation.observers import DockingEKF, DockingMHE, MHEConfig

@@ -209,8 +209,9 @@ HARD_OPTICS = WaterOptics.jerlov("7C", lamp_failure_probability=0.1, occlusion_r
 #: of USBL fixes from a mirror path, 2 % spurious.
 PAPER_NAVIGATION = NavigationSensors(
     dvl=DVL(dropout=0.02), usbl=USBL(shadowing=0.05, outlier_rate=0.02))
-#: ``easy`` level (``navigation=None``), navigation sensors: the data-sheet noise of ``paper`` with no faults (no
-#: lost ping, mirror-path or spurious fix, no sound-speed error).
+#: ``easy`` level (``navigation=None``), navigation sensors: the data-sheet noise of
+#: ``paper`` with no faults (no lost ping, mirror-path or spurious fix, no sound-speed
+#: error).
 EASY_NAVIGATION = NavigationSensors(usbl=USBL(acoustics=dataclasses.replace(
     USBL_ACOUSTICS, sound_speed_error_std=0.0)))
 #: ``hard`` level, navigation sensors: a lower grade of each (our choices, to be calibrated

@@ -12,15 +12,7 @@ import inspect
 from auv_envs.core.env import check_choice
 from auv_envs.core.navigation import NavigationSensors
 from auv_envs.tasks.docking import transition
-from auv_envs.tasks.docking.env import (
-    HARD_DISTURBANCES,
-    HARD_NAVIGATION,
-    HARD_OPTICS,
-    PAPER_DISTURBANCES,
-    PAPER_NAVIGATION,
-    PAPER_OPTICS,
-    DockingEnv,
-)
+from auv_envs.tasks.docking.env import DockingEnv
 from auv_envs.tasks.docking.optics import WaterOptics
 from auv_envs.tasks.docking.station import LAMP_ARRAY, SIX_LIGHTS
 
@@ -83,14 +75,7 @@ class DockingMissionEnv(DockingEnv):
     """
 
     mission = transition.MissionSpec()
-    default_optics = CLEAR_OCEAN
-    difficulty_presets = {
-        "easy": {},
-        "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_OPTICS,
-                  "navigation": PAPER_NAVIGATION},
-        "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
-                 "navigation": HARD_NAVIGATION},
-    }
+    default_optics = CLEAR_OCEAN  # the levels are the six-light station's (PAPER_OPTICS...)
 
     def __init__(self, obs_mode: str = "state", layout: str = "six_lights",
                  time_limit: float = 600.0, navigation: NavigationSensors | None = None,
