@@ -192,4 +192,4 @@ def test_handover_with_hysteresis_on_scripted_cases():
         import gymnasium as gym
 
         MissionAgent(gym.make("auv_envs/DockingMission-v0", obs_mode="nav").unwrapped)
-    assert math.isfinite(agent.position_estimate()[0])
+    assert agent.position_estimate() is None  # no USBL fix yet: placed nowhere

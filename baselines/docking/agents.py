@@ -167,9 +167,10 @@ class MissionAgent:
                                 float(rates[2]))
         return np.clip(tau / self._limits, -1.0, 1.0).astype(np.float32)
 
-    def position_estimate(self) -> np.ndarray:
-        """The navigation filter's estimate of the CG position (station frame)."""
-        return self.filter.p.copy()
+    def position_estimate(self) -> np.ndarray | None:
+        """The navigation filter's estimate of the CG position (station frame), once a USBL
+        fix has placed it (None before: dead reckoning from nowhere)."""
+        return self.filter.p.copy() if self.filter.fixes else None
 
     def stats(self) -> dict:
         """Per episode: USBL fixes taken and rejected, hand-overs to the lights."""
