@@ -80,8 +80,7 @@ from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home befor
 
 OBS_MODES = ("state", "features", "image", "nav", "nav_features")
 #: Summary entries reported as None where NaN (no docking, no hand-over).
-NONE_IF_NAN = frozenset({"docking_time", "homing_time", "homing_path_length",
-                         "handover_range", "handover_cross_track"})
+NONE_IF_NAN = frozenset({"docking_time", *transition.MISSION_METRICS}) - {"path_length"}
 SCENARIOS = ("mismatch", "current")
 
 #: Default nominal-model damping scale (surge, sway, heave, roll, pitch, yaw):

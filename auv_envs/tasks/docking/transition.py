@@ -439,13 +439,9 @@ def summary(state: EpisodeState, truth: dict) -> dict:
     mission = {}
     record = state.mission
     if record is not None:
-        mission = {
-            "path_length": record.path_length,
-            "homing_time": record.handover_time,
-            "homing_path_length": record.homing_path_length,
-            "handover_range": record.handover_range,
-            "handover_cross_track": record.handover_cross_track,
-        }
+        mission = dict(zip(MISSION_METRICS, (
+            record.path_length, record.handover_time, record.homing_path_length,
+            record.handover_range, record.handover_cross_track), strict=True))
     return {
         "success": state.success,
         "failure": state.failure,
