@@ -3,8 +3,6 @@ linear-Gaussian case, its late-fix update, its gate, and the hand-over logic."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
