@@ -201,7 +201,7 @@ class USBL:
         """One fix: ``(vector (3,), valid)``, the transponder as measured from the
         transceiver in body axes (m). ``transceiver`` and ``transponder`` are world
         positions (3,), ``rows`` the body-to-world rotation (3, 3), ``sound_speed`` the
-        water's true one. Draws 3 + 1 + 1 + N + 3 + 2 uniforms and normals, always."""
+        water's true one. Draws 3 + 1 uniforms, N normals and 1 + 3 uniforms, always."""
         sources = array.image_sources(xp.asarray(transponder), xp)  # (3 paths, 3), world
         body = (sources - xp.asarray(transceiver)) @ xp.asarray(rows)  # rows: R; R^T d
         ranges = array.geometry(body, xp)[0]  # (P, N)
@@ -223,10 +223,10 @@ class USBL:
         direction = -nominal * (xp.asarray(self._plane_wave) @ (arrival - mean))
         direction = direction / xp.linalg.norm(direction)
         vector = nominal * mean * direction
-        # Two Gauss-Newton steps on the spherical wave |v - e_i| = c t_i: the least-squares
-        # fix (the plane wave is metres off near the aperture, millimetres at 20 m).
-        # The steps by least squares on the Jacobian itself (its normal matrix is singular in
-        # float32 a few hundred metres out: the elements' unit vectors nearly coincide).
+        # Two Gauss-Newton steps on the spherical wave |v - e_i| = c t_i give the
+        # least-squares fix (the far-field plane wave alone is millimetres off at 20-160 m),
+        # each by least squares on the Jacobian itself: its normal matrix is singular in
+        # float32 a few hundred metres out, where the elements' unit vectors nearly coincide.
         elements = xp.asarray(self.elements)
         for _ in range(2):
             offsets = vector - elements
