@@ -112,6 +112,11 @@ class AHRS:
         if self.bias_time <= 0:
             raise ValueError("AHRS.bias_time must be positive")
 
+    @functools.cached_property
+    def _angle_std(self) -> np.ndarray:
+        """Roll, pitch and heading error standard deviations (3,), built once."""
+        return np.array((self.roll_pitch_std, self.roll_pitch_std, self.heading_std))
+
     def draw_bias(self, draws, xp=np):
         """The gyros' bias at the episode's start (3,)."""
         return self.bias_instability * xp.asarray(draws.standard_normal(3))
@@ -121,8 +126,7 @@ class AHRS:
         (roll, pitch, yaw) and body ``rates`` (p, q, r) over a step of ``dt`` s, and the
         bias after the step's random walk; draws 9 normals."""
         noise = xp.asarray(draws.standard_normal(9))
-        angle_std = xp.asarray((self.roll_pitch_std, self.roll_pitch_std, self.heading_std))
-        attitude = xp.asarray(euler) + angle_std * noise[:3]
+        attitude = xp.asarray(euler) + xp.asarray(self._angle_std) * noise[:3]
         attitude = xp.concatenate([attitude[:2], frames.wrap_angle(attitude[2:])])
         reading = (xp.asarray(rates) + bias
                    + (self.rate_noise_density / math.sqrt(dt)) * noise[3:6])
@@ -188,8 +192,12 @@ class USBL:
     @functools.cached_property
     def _plane_wave(self) -> np.ndarray:
         """The least-squares solver (3, N) of the plane wave through the elements."""
-        elements = np.asarray(self.elements, dtype=float)
-        return np.linalg.pinv(elements - elements.mean(axis=0))
+        return np.linalg.pinv(self._elements - self._elements.mean(axis=0))
+
+    @functools.cached_property
+    def _elements(self) -> np.ndarray:
+        """The elements' positions (N, 3), built once."""
+        return np.asarray(self.elements, dtype=float)
 
     def array(self, surface_z: float, bottom_z: float) -> HydrophoneArray:
         """The transceiver as a hydrophone array: elements in body axes, the water's
@@ -227,7 +235,7 @@ class USBL:
         # least-squares fix (the far-field plane wave alone is millimetres off at 20-160 m),
         # each by least squares on the Jacobian itself: its normal matrix is singular in
         # float32 a few hundred metres out, where the elements' unit vectors nearly coincide.
-        elements = xp.asarray(self.elements)
+        elements = xp.asarray(self._elements)
         for _ in range(2):
             offsets = vector - elements
             ranges_now = xp.linalg.norm(offsets, axis=1)
@@ -311,6 +319,7 @@ class Navigation:
         self.surface_z = float(sensors.station_depth)
         self.array = sensors.usbl.array(self.surface_z, float(seabed_z))
         self.dt = float(dt)
+        self._transponder = np.asarray(sensors.transponder, dtype=float)
 
     def start(self, truth: dict, draws, xp=np) -> NavState:
         """The episode's first sensor state and readings (``truth`` from the task's
@@ -345,10 +354,10 @@ class Navigation:
         if xp is np and not ping:  # NumPy skips the fix between pings (JAX selects it)
             vector, found = state.pending, False
         else:
-            rows = xp.asarray(frames.rotation_rows(*truth["euler"], ops=_Trig(xp)))
+            rows = frames.rotation_from_euler(*truth["euler"], ops=xp)
             vector, found = s.usbl.fix(self.array, xp.asarray(truth["position"]), rows,
-                                       xp.asarray(s.transponder), state.sound_speed, draws, xp)
-        travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - xp.asarray(s.transponder))
+                                       self._transponder, state.sound_speed, draws, xp)
+        travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - self._transponder)
         due = time + travel / state.sound_speed + s.usbl.processing_delay
         pending_valid = xp.where(ping, found, state.pending_valid & xp.logical_not(arrived))
         return state._replace(
@@ -375,10 +384,3 @@ class Navigation:
             "usbl_age": xp.asarray(age, dtype=f32).reshape(1),
             "usbl_valid": xp.asarray(state.fix_valid, dtype=xp.int8).reshape(1),
         }
-
-
-class _Trig:
-    """``cos``/``sin`` of an array namespace, for :func:`frames.rotation_rows`."""
-
-    def __init__(self, xp):
-        self.cos, self.sin = xp.cos, xp.sin

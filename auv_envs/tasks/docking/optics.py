@@ -37,6 +37,7 @@ import numbers
 
 import cv2
 import numpy as np
+from scipy import optimize
 from scipy.special import ndtri
 
 #: Jerlov water types: oceanic I (clearest) to III, coastal 1C to 9C (most turbid).
@@ -260,18 +261,14 @@ class WaterOptics:
 
     def detection_range(self, probability: float = 0.5) -> float:
         """The range (m) at which a lamp in view is detected with ``probability``: the
-        detection probability falls with range (bisection to 1 mm, up to 10 km)."""
+        root of the detection probability, which falls with range (SciPy's ``brentq`` to
+        1 mm, between 1 mm and 10 km)."""
         if not 0.0 < probability < 1.0:
             raise ValueError(f"probability must be in (0, 1), got {probability!r}")
-        low, high = 1e-3, 1e4
         with np.errstate(over="ignore", divide="ignore"):  # far out the contrast underflows
-            while high - low > 1e-3:
-                middle = 0.5 * (low + high)
-                if float(self.detection_probability(middle)) >= probability:
-                    low = middle
-                else:
-                    high = middle
-        return low
+            return float(optimize.brentq(
+                lambda d: float(self.detection_probability(d)) - probability, 1e-3, 1e4,
+                xtol=1e-3))
 
     def centroid_std(self, distance, focal_px: float, xp=np) -> np.ndarray:
         """Standard deviation of a detected lamp's centroid (each axis), pixels."""

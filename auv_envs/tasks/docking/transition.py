@@ -64,7 +64,8 @@ class MissionSpec:
         start_height: ``(low, high)`` of the start's height above the seabed, m.
         handover_range: the hand-over happens on the first step with at least
             ``min_visible`` lights in view within this distance of the entrance (m): the
-            range at which the water lets the camera detect a lamp half the time.
+            range at which the water lets the camera detect a lamp half the time (the
+            environment sets it from its water, ``WaterOptics.detection_range``).
         out_of_bounds: distance from the entrance beyond which the vehicle is out of
             bounds, m.
         behind_radius: passing the entrance plane fails within this distance of the
@@ -73,7 +74,7 @@ class MissionSpec:
 
     start_range: tuple = (100.0, 300.0)
     start_height: tuple = (3.0, 30.0)
-    handover_range: float = 30.0
+    handover_range: float = math.inf
     out_of_bounds: float = 500.0
     behind_radius: float = 3.0
 

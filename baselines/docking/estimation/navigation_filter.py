@@ -41,12 +41,13 @@ import collections
 import math
 
 import numpy as np
+from scipy import stats
 
 from auv_envs.core import frames
 
 #: Squared Mahalanobis distance beyond which a USBL fix is rejected: chi-square, 3 dof,
-#: 99.9 % point.
-USBL_GATE = 16.27
+#: 99.9 % point (16.27).
+USBL_GATE = float(stats.chi2.ppf(0.999, 3))
 
 
 class NavigationFilter:
