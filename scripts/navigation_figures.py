@@ -66,8 +66,9 @@ def main(argv=None) -> None:
                   f"| {r['gross']:.3f} |")
     print("\nDVL, AHRS, depth (1 m/s forward, 10 m altitude; each level's noise):\n")
     print("| level | DVL noise m/s | DVL lost | roll/pitch deg | heading deg | gyro noise "
-          "deg/s (0.1 s) | gyro bias after 100 s deg/h | depth noise m |")
-    print("|---|---|---|---|---|---|---|---|")
+          "deg/s (0.1 s) | gyro bias after 100 s deg/h | depth noise m | heading deviation per "
+          "episode deg |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for level, sensors in LEVELS.items():
         rng = np.random.default_rng(args.seed)
         n = args.fixes
@@ -87,10 +88,12 @@ def main(argv=None) -> None:
             biases.append(bias)
         bias = np.array(biases)
         depth = np.array([sensors.depth.read(20.0, rng) for _ in range(n)])
+        deviation = np.array([sensors.ahrs.draw_heading_bias(rng) for _ in range(n)])
         print(f"| {level} | {np.std(readings - [1.0, 0.0, 0.0]):.4f} | {lost:.3f} "
               f"| {math.degrees(attitude[:, :2].std()):.3f} "
               f"| {math.degrees(attitude[:, 2].std()):.3f} | {math.degrees(rates.std()):.4f} "
-              f"| {math.degrees(bias.std()) * 3600:.2f} | {depth.std():.4f} |")
+              f"| {math.degrees(bias.std()) * 3600:.2f} | {depth.std():.4f} "
+              f"| {math.degrees(deviation.std()):.2f} |")
 
 
 if __name__ == "__main__":

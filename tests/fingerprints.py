@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -109,6 +110,10 @@ def record(levels: bool = False) -> dict:
 
 if __name__ == "__main__":
     levels = "--levels" in sys.argv[1:]
-    path = [a for a in sys.argv[1:] if a != "--levels"][0]
+    path = Path([a for a in sys.argv[1:] if a != "--levels"][0])
+    # Keep what is recorded for the ids no longer in ``auv_envs.ENVIRONMENTS`` (older
+    # versions, still registered and still tested against their record).
+    fingerprints = json.loads(path.read_text()) if path.exists() else {}
+    fingerprints.update(record(levels))
     with open(path, "w") as f:
-        json.dump(record(levels), f, indent=0)
+        json.dump(fingerprints, f, indent=0)

@@ -148,6 +148,36 @@ def test_ahrs_noise_and_gyro_bias_random_walk():
     assert ahrs.draw_bias(rng).shape == (3,)
 
 
+def test_ahrs_heading_deviation_is_drawn_once_per_episode():
+    """The heading's deviation from the station's frame is one draw per episode, with
+    ``heading_bias_std``, carried through every step; with 0 nothing is drawn (the
+    presets without it keep their streams)."""
+    quiet = dict(roll_pitch_std=0.0, heading_std=0.0, rate_noise_density=0.0,
+                 bias_instability=0.0)
+    suite = dataclasses.replace(_exact_suite(), ahrs=AHRS(heading_bias_std=0.1, **quiet))
+    nav = Navigation(suite, seabed_z=-20.0, dt=0.1)
+    truth = {"position": (-20.0, 0.0, 0.0), "euler": (0.0, 0.0, 3.1),
+             "velocity": [0.0] * 6, "seabed_clearance": 15.0}
+    deviations = []
+    for seed in range(400):
+        rng = np.random.default_rng(seed)
+        state = nav.start(truth, rng)
+        first = float(frames.wrap_angle(state.attitude[2] - 3.1))
+        for k in range(1, 4):
+            state = nav.advance(state, truth, 0.1 * k, rng)
+            assert float(frames.wrap_angle(state.attitude[2] - 3.1)) == pytest.approx(first)
+        assert float(state.heading_bias) == pytest.approx(first)
+        deviations.append(first)
+    assert np.std(deviations) == pytest.approx(0.1, rel=0.12)
+    assert abs(np.mean(deviations)) < 4 * 0.1 / math.sqrt(400)
+    # No deviation: no draw, so the generator is where it was.
+    rng = np.random.default_rng(5)
+    before = rng.bit_generator.state
+    assert float(AHRS(**quiet).draw_heading_bias(rng)) == 0.0
+    assert rng.bit_generator.state == before
+    AHRS(heading_bias_std=0.1, **quiet).draw_heading_bias(rng)
+    assert rng.bit_generator.state != before
+
 def test_depth_noise_and_resolution():
     sensor = DepthSensor(noise_std=0.05, resolution=0.01)
     rng = np.random.default_rng(23)
@@ -269,3 +299,35 @@ def test_navigation_runs_under_jax_as_on_numpy():
         np.testing.assert_allclose(np.asarray(getattr(got, name)), getattr(expected, name),
                                    atol=2e-4, err_msg=name)
     assert bool(got.pending_valid)
+
+
+def test_heading_deviation_under_jax():
+    """Under ``jit`` the episode's heading deviation is drawn from the key and carried in
+    the state: the heading reads the truth plus it."""
+    jax = pytest.importorskip("jax")
+    import jax.numpy as jnp
+
+    from auv_envs.batched.functional import KeyDraws
+
+    quiet = dict(roll_pitch_std=0.0, heading_std=0.0, rate_noise_density=0.0,
+                 bias_instability=0.0)
+    suite = dataclasses.replace(_exact_suite(), ahrs=AHRS(heading_bias_std=0.1, **quiet))
+    nav = Navigation(suite, seabed_z=-2.0, dt=0.1)
+    truth = {"position": jnp.asarray((-12.0, 1.0, -0.5)), "euler": jnp.asarray((0.0, 0.0, 0.3)),
+             "velocity": jnp.zeros(6), "seabed_clearance": jnp.asarray(1.0)}
+
+    @jax.jit
+    def run(key):
+        first, second = jax.random.split(key)
+        state = nav.start(truth, KeyDraws(first), jnp)
+        return state, nav.advance(state, truth, 0.1, KeyDraws(second), jnp)
+
+    deviations = []
+    for seed in range(3):
+        start, after = run(jax.random.PRNGKey(seed))
+        bias = float(start.heading_bias)
+        assert bias != 0.0 and abs(bias) < 1.0
+        assert float(after.heading_bias) == bias
+        assert float(after.attitude[2]) == pytest.approx(0.3 + bias, abs=1e-6)
+        deviations.append(bias)
+    assert len(set(deviations)) == 3  # one draw per key

@@ -16,7 +16,11 @@ step without a USBL ping skip the fix and its draws.
   lock (reading zero, ``valid`` false) below ``min_altitude`` or above
   ``max_altitude`` over the seabed, and on a ping lost with probability ``dropout``.
 * **AHRS**: roll, pitch and heading with white errors (``roll_pitch_std``,
-  ``heading_std``; an AHRS filter's output error), and the body rates from gyros with
+  ``heading_std``; an AHRS filter's output error), the heading also off by a deviation
+  drawn once per episode (std ``heading_bias_std``: relative to the station's frame, the
+  compass's deviation near the station's steel and the error of the station's surveyed
+  heading; drawn only when nonzero, so the other presets' streams are unchanged), and
+  the body rates from gyros with
   white noise of density ``rate_noise_density`` (rad/s/sqrt(Hz); a reading averaged
   over the step ``dt`` has std ``density / sqrt(dt)``) plus a bias: drawn at the
   episode's start with std ``bias_instability`` and wandering as a random walk that
@@ -104,11 +108,13 @@ class AHRS:
     rate_noise_density: float = math.radians(0.007)
     bias_instability: float = math.radians(10.0) / 3600.0
     bias_time: float = 100.0
+    heading_bias_std: float = 0.0
 
     def __post_init__(self):
         _check("AHRS", roll_pitch_std=self.roll_pitch_std, heading_std=self.heading_std,
                rate_noise_density=self.rate_noise_density,
-               bias_instability=self.bias_instability, bias_time=self.bias_time)
+               bias_instability=self.bias_instability, bias_time=self.bias_time,
+               heading_bias_std=self.heading_bias_std)
         if self.bias_time <= 0:
             raise ValueError("AHRS.bias_time must be positive")
 
@@ -121,13 +127,22 @@ class AHRS:
         """The gyros' bias at the episode's start (3,)."""
         return self.bias_instability * xp.asarray(draws.standard_normal(3))
 
-    def read(self, euler, rates, bias, dt: float, draws, xp=np):
+    def draw_heading_bias(self, draws, xp=np):
+        """The episode's heading deviation (rad); draws 1 normal, or none (and returns 0)
+        when ``heading_bias_std`` is 0."""
+        if self.heading_bias_std == 0.0:
+            return xp.asarray(0.0)
+        return self.heading_bias_std * xp.asarray(draws.standard_normal())
+
+    def read(self, euler, rates, bias, dt: float, draws, xp=np, heading_bias=0.0):
         """``(attitude (3,), rates (3,), bias (3,))``: the readings of the true ``euler``
-        (roll, pitch, yaw) and body ``rates`` (p, q, r) over a step of ``dt`` s, and the
-        bias after the step's random walk; draws 9 normals."""
+        (roll, pitch, yaw) and body ``rates`` (p, q, r) over a step of ``dt`` s, the
+        heading off by the episode's ``heading_bias``, and the gyro bias after the step's
+        random walk; draws 9 normals."""
         noise = xp.asarray(draws.standard_normal(9))
         attitude = xp.asarray(euler) + xp.asarray(self._angle_std) * noise[:3]
-        attitude = xp.concatenate([attitude[:2], frames.wrap_angle(attitude[2:])])
+        attitude = xp.concatenate([attitude[:2],
+                                   frames.wrap_angle(attitude[2:] + heading_bias)])
         reading = (xp.asarray(rates) + bias
                    + (self.rate_noise_density / math.sqrt(dt)) * noise[3:6])
         bias = bias + self.bias_instability * math.sqrt(dt / self.bias_time) * noise[6:]
@@ -289,6 +304,7 @@ class NavState(NamedTuple):
 
     dvl_scale: Any
     gyro_bias: Any
+    heading_bias: Any
     sound_speed: Any
     next_ping: Any
     pending: Any
@@ -328,6 +344,7 @@ class Navigation:
         zero3 = xp.zeros(3)
         state = NavState(
             dvl_scale=s.dvl.draw_scale(draws, xp), gyro_bias=s.ahrs.draw_bias(draws, xp),
+            heading_bias=s.ahrs.draw_heading_bias(draws, xp),
             sound_speed=self.array.draw_sound_speed(draws, xp), next_ping=xp.asarray(0.0),
             pending=zero3, pending_valid=xp.asarray(False), pending_time=xp.asarray(0.0),
             pending_due=xp.asarray(0.0), fix=zero3, fix_valid=xp.asarray(False),
@@ -343,7 +360,7 @@ class Navigation:
         dvl, dvl_valid = s.dvl.read(velocity[:3], truth["seabed_clearance"],
                                     state.dvl_scale, draws, xp)
         attitude, rates, bias = s.ahrs.read(truth["euler"], velocity[3:], state.gyro_bias,
-                                            self.dt, draws, xp)
+                                            self.dt, draws, xp, state.heading_bias)
         depth = s.depth.read(self.surface_z - truth["position"][2], draws, xp)
         # A fix in flight arrives once due; a new ping goes out on schedule.
         arrived = state.pending_valid & (time >= state.pending_due - 1e-9)
