@@ -8,7 +8,8 @@ in its own thread, measured alternately in one process, and their ratio
 (> 1: the threads step faster together). Pure-Python work in a step holds the
 GIL, so the gain depends on how much of a step is MuJoCo.
 
-    python benchmarks/threads.py [--steps N] [--repeats R] [--envs ID[:MODE] ...]
+    python benchmarks/threads.py [--steps N] [--repeats R] [--image-size W H]
+                                 [--envs ID[:MODE] ...]
 """
 
 from __future__ import annotations
@@ -28,13 +29,15 @@ DEFAULT_ENVS = (
     "auv_envs/LARSCapture-v0:features",
     "auv_envs/AcousticTracking-v2:measurements",
 )
-#: Image modes are timed at a small size, as an RL pixel agent uses them.
-IMAGE_KWARGS = {"image": {"image_size": (84, 84)}, "stereo": {"image_size": (84, 84)}}
+#: Image modes are timed at a small size by default, as an RL pixel agent uses them.
+IMAGE_SIZE = (84, 84)
+IMAGE_MODES = ("image", "stereo")
 
 
-def _make(spec: str) -> gym.Env:
+def _make(spec: str, image_size=IMAGE_SIZE) -> gym.Env:
     env_id, _, mode = spec.partition(":")
-    return gym.make(env_id, obs_mode=mode or "state", **IMAGE_KWARGS.get(mode, {}))
+    kwargs = {"image_size": tuple(image_size)} if mode in IMAGE_MODES else {}
+    return gym.make(env_id, obs_mode=mode or "state", **kwargs)
 
 
 def serial_rate(steppers: list[Stepper]) -> float:
@@ -74,6 +77,8 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=1000, help="steps per env per pass")
     parser.add_argument("--repeats", type=int, default=3, help="passes of each kind (best kept)")
+    parser.add_argument("--image-size", type=int, nargs=2, default=IMAGE_SIZE,
+                        metavar=("W", "H"), help="image modes' size (default 84 84)")
     parser.add_argument("--envs", nargs="+", default=list(DEFAULT_ENVS),
                         help="env ids, each optionally with :MODE (default: state)")
     args = parser.parse_args(argv)
@@ -82,7 +87,7 @@ def main(argv=None) -> None:
     print("| env:mode | 1 thread, 2 envs (steps/s) | 2 threads, 1 env each | ratio |")
     print("|---|---|---|---|")
     for spec in args.envs:
-        envs = [_make(spec), _make(spec)]
+        envs = [_make(spec, args.image_size), _make(spec, args.image_size)]
         try:
             steppers = [Stepper(env, args.steps) for env in envs]
             serial, threaded = 0.0, 0.0
