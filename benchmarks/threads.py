@@ -19,7 +19,7 @@ import threading
 import time
 
 import gymnasium as gym
-from throughput import Stepper  # benchmarks/ is the script's path
+from throughput import IMAGE_MODES, Stepper  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the environments)
 
@@ -31,7 +31,6 @@ DEFAULT_ENVS = (
 )
 #: Image modes are timed at a small size by default, as an RL pixel agent uses them.
 IMAGE_SIZE = (84, 84)
-IMAGE_MODES = ("image", "stereo")
 
 
 def _make(spec: str, image_size=IMAGE_SIZE) -> gym.Env:

@@ -49,7 +49,7 @@ def episode(task: tuple) -> tuple[bool, str]:
         row = run_episode(env, spec.factory(env.unwrapped), seed, ENV_ID, agent)
     finally:
         env.close()
-    return bool(row.success), row.metrics["failure_reason"] or "time_limit"
+    return bool(row.success), row.failure_reason
 
 
 def main() -> None:
