@@ -29,10 +29,10 @@ def render_seconds(env: LARSCaptureEnv, views, size, n: int, repeats: int):
     rounds), so that load drifting during the run affects them alike; CPU time
     is the process's, which includes llvmpipe's rasteriser threads.
     """
-    renderers = [CameraRenderer(env.physics.model, cams, *size) for cams in views]
+    renderers = [CameraRenderer(env.physics.scene_model, cams, *size) for cams in views]
     try:
         env._pose_scene()
-        data = env.physics.data
+        data = env.physics.scene_data
         wall = [float("inf")] * len(views)
         cpu = [float("inf")] * len(views)
         for renderer in renderers:

@@ -255,7 +255,7 @@ def test_stereo_glints_are_saturated_where_the_model_says():
     spot_sum, spot_pixels, model_sum = np.zeros(2), 0, np.zeros(2)
     for _ in range(25):
         obs, *_, info = env.step(tracking_action(env, info))
-        clean, ranges = env.camera_renderer.render_with_range(env.physics.data)  # no glint
+        clean, ranges = env.camera_renderer.render_with_range(env.physics.scene_data)  # no glint
         left = obs["left"]
         changed = np.any(left != clean[:, :width], axis=-1)
         assert np.all(left[changed] == 255)
@@ -294,7 +294,7 @@ def test_glitter_centres_on_the_suns_mirror_image():
     offsets = []
     for _ in range(10):
         obs, *_, info = env.step(tracking_action(env, info))
-        clean = env.camera_renderer.render(env.physics.data)[:, :width]
+        clean = env.camera_renderer.render(env.physics.scene_data)[:, :width]
         changed = np.any(obs["left"] != clean, axis=-1)
         pose = cal.camera_poses(env.physics.data.qpos)[0]
         camera = pose[:3, 3]

@@ -148,6 +148,9 @@ class _ArmCursor:
     def joints(self) -> tuple:
         return self.ops.unpack(self.data.qpos), self.ops.unpack(self.data.qvel)
 
+    def truth(self, params, scene, steps, ops) -> dict:
+        return transition.truth(params, scene, steps, *self.joints(), ops)
+
 
 class LARSMJX(FunctionalEnv):
     """The LARS capture environment as pure JAX functions of one episode.

@@ -35,6 +35,7 @@ from auv_envs.tasks.lars.calibration import (
     read_only,
     read_only_pose,
 )
+from auv_envs.tasks.lars.compiled import CompiledTruth
 from auv_envs.tasks.lars.glint import GlintCamera
 from auv_envs.tasks.lars.physics import LARSPhysics
 from auv_envs.tasks.lars.scene import (
@@ -342,8 +343,8 @@ class LARSCaptureEnv(TaskEnv):
         analog_marker = MarkerGeometry.on_cylinder(
             tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
         )
-        model = build_lars_model(float(baseline), fovy, marker, analog_marker)
-        self.physics = LARSPhysics(model)
+        scene_model, model = build_lars_model(float(baseline), fovy, marker, analog_marker)
+        self.physics = LARSPhysics(scene_model, model)
         arm = ArmModel(model)
         self._arm = arm
         self._dt = CONTROL_PERIOD
@@ -416,13 +417,14 @@ class LARSCaptureEnv(TaskEnv):
         # One renderer for the stereo observation, one for render().
         self.camera_renderer: CameraRenderer | None = None
         if obs_mode == "stereo":
-            self.camera_renderer = CameraRenderer(model, ("left", "right"), width, height)
+            self.camera_renderer = CameraRenderer(scene_model, ("left", "right"), width,
+                                                  height)
         self._view: CameraRenderer | None = None
         if render_mode == "rgb_array":
             side = render_camera == "side"
             self._view = CameraRenderer(
-                model, ("side",) if side else ("left", "right"), render_width, render_height,
-                skybox=side,
+                scene_model, ("side",) if side else ("left", "right"), render_width,
+                render_height, skybox=side,
             )
         self._episode = ShellEpisode()
 
@@ -477,7 +479,7 @@ class LARSCaptureEnv(TaskEnv):
             pair = self._render_pair()
         else:
             self._pose_scene()
-            pair, ranges = self.camera_renderer.render_with_range(self.physics.data)
+            pair, ranges = self.camera_renderer.render_with_range(self.physics.scene_data)
             pair, frame = self._glint_camera.on_pair(field, truth, pair, ranges, self.np_random)
             ep.state = transition.with_glint_frame(ep.state, frame)
         w = self._width
@@ -493,7 +495,7 @@ class LARSCaptureEnv(TaskEnv):
 
     def _render_frame(self) -> np.ndarray:
         self._pose_scene()
-        return self._view.render(self.physics.data)
+        return self._view.render(self.physics.scene_data)
 
     # ------------------------------------------------------------------ internals
     @property
@@ -560,7 +562,7 @@ class LARSCaptureEnv(TaskEnv):
     def _render_pair(self) -> np.ndarray:
         """Left and right images side by side, (H, 2 W, 3), one rendering pass."""
         self._pose_scene()
-        return self.camera_renderer.render(self.physics.data)
+        return self.camera_renderer.render(self.physics.scene_data)
 
 
 class _MujocoArm:
@@ -577,12 +579,21 @@ class _MujocoArm:
         self.kp, self.kd = env.calibration.position_gains
         self.limits = env.calibration.torque_limits
         self.tau = np.zeros(3)
+        self._compiled = None
 
     def place(self, q) -> None:
         self.physics.reset(q)
 
     def joints(self) -> tuple[list, list]:
         return self.data.qpos.tolist(), self.data.qvel.tolist()
+
+    def truth(self, params, scene, steps, ops) -> dict:
+        """The truth after a move: compiled without a sea model, in floats with one."""
+        if scene.sea is None:
+            if self._compiled is None:  # built on first use: the sea ids never need it
+                self._compiled = CompiledTruth(params, self.data.qpos, self.data.qvel)
+            return self._compiled(scene, steps)
+        return transition.truth(params, scene, steps, *self.joints(), ops)
 
     def advance(self, action: np.ndarray, effort: float) -> float:
         """One control period under ``action``; the control effort with it added."""

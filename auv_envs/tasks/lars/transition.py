@@ -8,8 +8,10 @@ the CPU, ``jax.numpy`` in :mod:`auv_envs.batched.lars_env`), the episode's
 random draws (NumPy ``Generator``'s interface) and the arm's plant (MuJoCo on
 the CPU, MJX batched), whose methods are ``place(q)`` (the arm at rest at
 joint angles ``q``), ``advance(action, effort) -> effort`` (one control
-period under the checked action, the running control effort updated) and
-``joints() -> (q, qd)`` (three scalars each). The start draw, the order of the step
+period under the checked action, the running control effort updated),
+``joints() -> (q, qd)`` (three scalars each) and ``truth(params, scene, steps, ops)``
+(:func:`truth` of its joints; the CPU arm's is compiled where it can be,
+:mod:`auv_envs.tasks.lars.compiled`). The start draw, the order of the step
 (arm, truth, judgement, observation), the reward terms, the episode's end,
 the ``state``/``features`` observations, ``info`` and the episode summary
 exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
@@ -268,18 +270,31 @@ def _count_distractors(params: LARSParams, scene: Scene, t, position, sample, ca
 def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
     """Ground truth at step ``steps`` with the arm at joint angles ``q`` and rates ``qd``
     (three scalars each), computed once a step and shared by observation, reward and
-    info, in the scalars of ``ops``.
+    info, in the scalars of ``ops``: :func:`geometry`, then :func:`sighting`.
 
     ``corners`` (9) and ``pixels`` (12: left u, v of A1, A2, A3, then right) are
     flat lists, shaped once when they become arrays; ``sea`` is the sea's
     sample (None without a sea).
     """
     t = steps * params.dt
+    sample = sea_sample(scene, t)
+    return sighting(params, scene, t, sample, geometry(params, scene, t, sample, q, qd, ops),
+                    ops)
+
+
+def geometry(params: LARSParams, scene: Scene, t, sample: SeaSample | None, q, qd,
+             ops=FLOATS, inside: bool = True) -> dict:
+    """The truth's arithmetic at time ``t`` (the sea's ``sample`` at it): the arm's end,
+    the AUV, the cameras, the marker's pixels (NaN behind a camera; ``visible`` per
+    camera, inside its image, when ``inside``: CasADi's symbols, whose comparisons do not
+    combine, leave it out, as :func:`~auv_envs.core.camera.project_few` does), the
+    capture offset and ``radial2``, the capture tip's squared distance from the hull's
+    axis. Arithmetic only: evaluated on any backend of :mod:`auv_envs.core.ops`, and
+    compiled by the CPU arm (:class:`auv_envs.tasks.lars.env.CompiledTruth`)."""
     ex, ey, ez, evx, evy, evz = params.arm.end_state(q, qd, ops)
     end_on_ship = (ex, ey, ez)
     c, s = ops.cos(q[0]), ops.sin(q[0])
     m = scene.motion
-    sample = sea_sample(scene, t)
     if sample is None:
         level, rate = heave(t, m.heave_amplitude, m.omega, m.heave_phase, ops)
         px, py, pz = m.x0 + m.surge * t, m.y0, level + Z_CENTRE
@@ -300,34 +315,10 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
     # The right camera sits one baseline along the left camera's x axis.
     rows = camera_rows(c, s)
     points = [(px + ox, py + oy, pz + oz) for ox, oy, oz in body_corners]
-    corners = list(itertools.chain.from_iterable(points))
     b = params.baseline
     left_cam, right_cam = (camx, camy, camz), (camx + b * c, camy + b * s, camz)
-    left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows, ops)
-    right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows, ops)
-    left = list(itertools.chain.from_iterable(left_px))
-    right = list(itertools.chain.from_iterable(right_px))
-
-    occluded = False
-    distractors = 0
-    if scene.wash is not None:
-        active, crest = crest_centre(scene, t, (px, py, pz), level)
-        # Python bools can skip the test when nothing can be hidden; arrays always run it.
-        skip = isinstance(active, bool) and not (active and (any(vis_left) or any(vis_right)))
-        if not skip:
-            xp = ops.xp
-            hidden = segments_cross_box(
-                xp.asarray([left_cam, right_cam])[:, None, :],
-                xp.asarray(corners).reshape(1, 3, 3), crest, scene.wash.half_size, xp,
-            ) & active
-            hidden_left, hidden_right = ops.unpack(hidden[0]), ops.unpack(hidden[1])
-            occluded = functools.reduce(operator.or_, hidden_left + hidden_right)
-            vis_left = [v & ops.logical_not(h) for v, h in zip(vis_left, hidden_left,
-                                                                strict=True)]
-            vis_right = [v & ops.logical_not(h) for v, h in zip(vis_right, hidden_right,
-                                                                  strict=True)]
-        distractors = _count_distractors(params, scene, t, (px, py, pz), sample, left_cam,
-                                         rows, ops)
+    left_px, vis_left = project_few(params.intrinsics, points, left_cam, rows, ops, inside)
+    right_px, vis_right = project_few(params.intrinsics, points, right_cam, rows, ops, inside)
 
     # Capture tip vs the AUV: capture point offset and hull penetration.
     tx, ty, tz = ex, ey, ez + params.tip_z
@@ -335,7 +326,6 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
     dx, dy, dz = tx - px, ty - py, tz - pz
     half = params.hull_half
     along = ops.clip(dx * ax + dy * ay + dz * az, -half, half)
-    radial2 = (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2
     dvx, dvy, dvz = m.surge - evx, -evy, rate - evz
     return {
         "q": q,
@@ -349,24 +339,59 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
         "roll": roll,
         "pitch": pitch,
         "sea": sample,
-        "corners": corners,
+        "corners": list(itertools.chain.from_iterable(points)),
         "cameras": (left_cam, right_cam),
         "hull_axis": (ax, ay, az),
-        "pixels": left + right,
+        "pixels": list(itertools.chain(*left_px, *right_px)),
         "visible": [vis_left, vis_right],
-        "n_visible": sum(map(operator.and_, vis_left, vis_right)),
-        "occluded": occluded,
-        "distractors": distractors,
         "offset": offset,
         "capture_error": ops.sqrt(offset[0] ** 2 + offset[1] ** 2 + offset[2] ** 2),
         "relative_speed": ops.sqrt(dvx * dvx + dvy * dvy + dvz * dvz),
-        "tip_in_hull": radial2 < (AUV_DIAMETER / 2.0) ** 2,
+        "radial2": (dx - along * ax) ** 2 + (dy - along * ay) ** 2 + (dz - along * az) ** 2,
     }
+
+
+def sighting(params: LARSParams, scene: Scene, t, sample: SeaSample | None, now: dict,
+             ops=FLOATS) -> dict:
+    """:func:`geometry`'s ``now`` at time ``t`` made the truth, in place: the wash-over
+    crest hiding corners (``occluded``), the analogs in view (``distractors``), the
+    corners both cameras see (``n_visible``) and whether the tip is in the hull
+    (``tip_in_hull``, from ``radial2``)."""
+    vis_left, vis_right = now["visible"]
+    occluded = False
+    distractors = 0
+    if scene.wash is not None:
+        position = now["position"]
+        active, crest = crest_centre(scene, t, position, now["level"])
+        # Python bools can skip the test when nothing can be hidden; arrays always run it.
+        skip = isinstance(active, bool) and not (active and (any(vis_left) or any(vis_right)))
+        if not skip:
+            xp = ops.xp
+            hidden = segments_cross_box(
+                xp.asarray(now["cameras"])[:, None, :],
+                xp.asarray(now["corners"]).reshape(1, 3, 3), crest, scene.wash.half_size, xp,
+            ) & active
+            hidden_left, hidden_right = ops.unpack(hidden[0]), ops.unpack(hidden[1])
+            occluded = functools.reduce(operator.or_, hidden_left + hidden_right)
+            vis_left = [v & ops.logical_not(h) for v, h in zip(vis_left, hidden_left,
+                                                                strict=True)]
+            vis_right = [v & ops.logical_not(h) for v, h in zip(vis_right, hidden_right,
+                                                                  strict=True)]
+            now["visible"] = [vis_left, vis_right]
+        q0 = now["q"][0]
+        distractors = _count_distractors(params, scene, t, position, sample,
+                                         now["cameras"][0],
+                                         camera_rows(ops.cos(q0), ops.sin(q0)), ops)
+    now["n_visible"] = sum(map(operator.and_, vis_left, vis_right))
+    now["occluded"] = occluded
+    now["distractors"] = distractors
+    now["tip_in_hull"] = now.pop("radial2") < (AUV_DIAMETER / 2.0) ** 2
+    return now
 
 
 def truth_now(params: LARSParams, state: EpisodeState, plant, ops=FLOATS) -> dict:
     """:func:`truth` at the state's step with the plant's joints now."""
-    return truth(params, state.scene, state.steps, *plant.joints(), ops)
+    return plant.truth(params, state.scene, state.steps, ops)
 
 
 # ------------------------------------------------------------------ reset
@@ -419,7 +444,7 @@ def reset(params: LARSParams, backend: Backend, options: dict | None = None):
     ops, draws, plant = backend
     scene, end = draw_scene(params, draws, options, ops)
     plant.place(params.arm.joint_angles(end, ops))
-    now = truth(params, scene, ops.integer(0), *plant.joints(), ops)
+    now = plant.truth(params, scene, ops.integer(0), ops)
     state, obs = observe(params, first_state(scene, now, ops), now, backend)
     return state, now, obs
 
@@ -468,7 +493,7 @@ def step(params: LARSParams, state: EpisodeState, action, backend: Backend):
     ops, _, plant = backend
     effort = plant.advance(action, state.control_effort)
     steps = state.steps + 1
-    now = truth(params, state.scene, steps, *plant.joints(), ops)
+    now = plant.truth(params, state.scene, steps, ops)
     state, judged = assess(params, state, now, action, ops, steps=steps,
                            control_effort=effort)
     state, obs = observe(params, state, now, backend)
@@ -509,10 +534,8 @@ def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, step
 # ------------------------------------------------------------------ what is seen
 def joint_readings(now: dict, xp=np) -> dict:
     """The joint angles and rates every image-based mode carries."""
-    return {
-        "joint_position": xp.asarray(now["q"], dtype=xp.float32),
-        "joint_velocity": xp.asarray(now["qd"], dtype=xp.float32),
-    }
+    joints = xp.asarray((*now["q"], *now["qd"]), dtype=xp.float32)
+    return {"joint_position": joints[:3], "joint_velocity": joints[3:]}
 
 
 def with_glint_frame(state: EpisodeState, frame: dict, ops=FLOATS) -> EpisodeState:
@@ -551,10 +574,12 @@ def observe(params: LARSParams, state: EpisodeState, now: dict, backend: Backend
         visible = [seen[:3], seen[3:]]
         state = with_glint_frame(state, frame, ops)
     pixels = seen_pixels(true_pixels, noise, seen, *params.pixel_bounds, ops)
+    readings = xp.asarray((*pixels, *now["q"], *now["qd"]), dtype=xp.float32)
     return state, {
-        "pixels": xp.asarray(pixels, dtype=xp.float32).reshape(2, 3, 2),
+        "pixels": readings[:12].reshape(2, 3, 2),
         "visible": xp.asarray(visible, dtype=xp.int8),
-        **joint_readings(now, xp),
+        "joint_position": readings[12:15],
+        "joint_velocity": readings[15:],
     }
 
 
@@ -577,10 +602,13 @@ def info(params: LARSParams, state: EpisodeState, now: dict,
          judged: Assessment | None) -> dict:
     """The step's ``info`` without the reward terms (see the environment's docstring)."""
     (px, py, pz), (ex, ey, ez) = now["position"], now["end"]
+    # Every vector in one array (one NumPy call, not seven); each key is its own rows.
+    flat = np.array((*now["offset"], px - ex, py - ey, pz - ez, *now["position"],
+                     *now["velocity"], *now["end"], *now["corners"], *now["pixels"]))
     out = {
         "capture_error": now["capture_error"],
-        "capture_offset": np.array(now["offset"]),
-        "relative_position": np.array((px - ex, py - ey, pz - ez)),
+        "capture_offset": flat[0:3],
+        "relative_position": flat[3:6],
         "relative_speed": now["relative_speed"],
         "is_success": state.success,
         "collision": judged is not None and judged.collision,
@@ -590,14 +618,14 @@ def info(params: LARSParams, state: EpisodeState, now: dict,
         "distractors_in_view": now["distractors"],
         "failure_reason": failure_reason(state),
         "time": state.steps * params.dt,
-        "true_position": np.array(now["position"]),
-        "true_velocity": np.array(now["velocity"]),
+        "true_position": flat[6:9],
+        "true_velocity": flat[9:12],
         "true_pitch": now["pitch"],
         "true_yaw": state.scene.motion.yaw,
-        "true_corners": np.array(now["corners"]).reshape(3, 3),
-        "true_pixels": np.array(now["pixels"]).reshape(2, 3, 2),
+        "true_corners": flat[15:24].reshape(3, 3),
+        "true_pixels": flat[24:36].reshape(2, 3, 2),
         "true_visible": np.array(now["visible"]),
-        "end_position": np.array(now["end"]),
+        "end_position": flat[12:15],
         "water_level": now["level"],
     }
     if state.glint_frame is not None:
