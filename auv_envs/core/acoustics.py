@@ -362,6 +362,11 @@ FIXED_DRAWS = "fixed"
 _MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
+def _lift(elevation, xp=np):
+    """What the azimuth's deviation divides by at an elevation: ``max(sin(el), 0.05)``."""
+    return xp.maximum(xp.sin(elevation), 0.05)
+
+
 def _wrap(angle, xp=np):
     """``angle`` wrapped into (-pi, pi]. On NumPy ``np.mod`` runs only where ``pi - angle``
     is outside [0, 2 pi) (it returns the rest unchanged, so the result is the same, several
@@ -438,7 +443,6 @@ class HydrophoneArray:
         self.max_tdoa.setflags(write=False)
         self._n_paths = 3 if c.multipath else 1
         k = c.max_detections
-        self._candidate_index = np.arange(self._n_paths + k)
         self._clutter_slot = np.arange(k)
         # The fixed-shape draw's candidates are the paths and then K false-alarm slots;
         # slot j holds a false alarm when a uniform exceeds P(count <= j), the Poisson
@@ -837,13 +841,14 @@ class HydrophoneArray:
                                   for f in dataclasses.fields(Measurements)))
         return result
 
-    def _noisy(self, delays, azimuth, elevation, snr, angle_k, noise, xp=np):
+    def _noisy(self, delays, azimuth, elevation, snr, angle_k, noise, xp=np, lift=None):
         """Detection vectors (..., 3N - 1) of paths: their true arrival times (s), azimuths
         and elevations, and SNRs (dB) (each (..., N)) with their bands' angle constants
         ``angle_k`` (broadcast against them), plus the noise of the module docstring from
-        unit draws ``noise`` (3, ..., N)."""
+        unit draws ``noise`` (3, ..., N). ``lift``: :func:`_lift` of the elevations, when
+        the caller has it."""
         timing, sigma_el = self._timing_and_angle_std(snr, angle_k, xp)
-        sigma_az = sigma_el / xp.maximum(xp.sin(elevation), 0.05)
+        sigma_az = sigma_el / (_lift(elevation, xp) if lift is None else lift)
         arrival = delays + timing * noise[0]
         return xp.concatenate([arrival[..., 1:] - arrival[..., :1],
                                _wrap(azimuth + sigma_az * noise[1], xp),
@@ -905,9 +910,8 @@ class HydrophoneArray:
         keys = np.where(valid, rng.random(valid.shape), 2.0)
         # Each (period, band) row's candidates in the order of their keys (valid ones
         # first, shuffled; the rest after them, in index order): the rank of each.
-        rank = np.empty(valid.shape, dtype=np.intp)
-        np.put_along_axis(rank, np.argsort(keys, axis=-1, kind="stable"),
-                          self._candidate_index, axis=-1)
+        # (The inverse of the sorting permutation is its own argsort.)
+        rank = np.argsort(np.argsort(keys, axis=-1, kind="stable"), axis=-1)
         kept = valid & (rank < k)
         path_b, path_q, path_p = np.nonzero(kept[..., :p])
         if noise_draws == "all":
@@ -917,14 +921,15 @@ class HydrophoneArray:
         noise = noise.astype(np.float64)  # exactly; float64 arithmetic from here on
 
         # The kept paths' detections (D, 3N - 1), from their rows of the (B * Q * P, N)
-        # and (B * P, N) arrays.
+        # and (B * P, N) arrays (the elevations' lift once a path, not once a band).
         row = path_b * p + path_p
+        elevation = paths.elevation.reshape(-1, n)
         detections = self._noisy(
             paths.delays.reshape(-1, n).take(row, axis=0),
             paths.azimuth.reshape(-1, n).take(row, axis=0),
-            paths.elevation.reshape(-1, n).take(row, axis=0),
+            elevation.take(row, axis=0),
             paths.snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
-            self._angle_k[path_q, 0], noise)
+            self._angle_k[path_q, 0], noise, lift=_lift(elevation).take(row, axis=0))
 
         # Each kept candidate into its slot; the rest of the K slots empty.
         picked = np.zeros((b, q, k, 3 * n - 1))
