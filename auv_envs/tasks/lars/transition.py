@@ -290,7 +290,7 @@ def geometry(params: LARSParams, scene: Scene, t, sample: SeaSample | None, q, q
     combine, leave it out, as :func:`~auv_envs.core.camera.project_few` does), the
     capture offset and ``radial2``, the capture tip's squared distance from the hull's
     axis. Arithmetic only: evaluated on any backend of :mod:`auv_envs.core.ops`, and
-    compiled by the CPU arm (:class:`auv_envs.tasks.lars.env.CompiledTruth`)."""
+    compiled by the CPU arm (:class:`auv_envs.tasks.lars.compiled.CompiledTruth`)."""
     ex, ey, ez, evx, evy, evz = params.arm.end_state(q, qd, ops)
     end_on_ship = (ex, ey, ez)
     c, s = ops.cos(q[0]), ops.sin(q[0])
