@@ -12,6 +12,7 @@ difference over ``--steps`` is the cost of a step. About 70 s of start-up per ru
 imports, under Valgrind); the two runs of a row go in parallel.
 
     python benchmarks/instructions.py --envs auv_envs/LARSCapture-v0:features
+    python benchmarks/instructions.py --lars-physics   # the arm's model against the scene's
 
 Needs ``valgrind`` on the PATH. Valgrind 3.19 cannot run MuJoCo 3.17's ellipsoid fluid
 model (an unhandled AVX instruction in ``mjd_ellipsoidFluid``): the acoustic envs, whose
@@ -34,11 +35,28 @@ REFERENCE = "HalfCheetah-v5"
 _CHILD = "--child"
 
 
+#: ``--lars-physics``'s rows: a LARS control period (``mj_step`` of 4 physics steps) on
+#: the model the env steps (the arm's) and on the whole scene's, which it renders.
+LARS_MODELS = {"arm": "model", "scene": "scene_model"}
+
+
 def _child(env_id: str, mode: str, n_steps: int) -> None:
     import gymnasium as gym
     import numpy as np
 
     import auv_envs  # noqa: F401  (registers the ids)
+
+    if env_id in LARS_MODELS:
+        import mujoco
+
+        from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureEnv
+
+        model = getattr(LARSCaptureEnv().physics, LARS_MODELS[env_id])
+        data = mujoco.MjData(model)
+        data.qpos[:], data.ctrl[:] = (0.1, 0.2, -0.5), (0.1, -0.2, 0.3)
+        for _ in range(n_steps):
+            mujoco.mj_step(model, data, FRAME_SKIP)
+        return
 
     env = gym.make(env_id) if mode == "-" else gym.make(env_id, obs_mode=mode)
     env.reset(seed=0)
@@ -74,13 +92,19 @@ def _instructions(env_id: str, mode: str, n_steps: int, workdir: str) -> list[in
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", required=True,
+    parser.add_argument("--envs", nargs="+", default=[],
                         help="ENV_ID:OBS_MODE entries, e.g. auv_envs/LARSCapture-v0:features")
+    parser.add_argument("--lars-physics", action="store_true",
+                        help="also a LARS control period on the arm's and the scene's model")
     parser.add_argument("--steps", type=int, default=1000)
     args = parser.parse_args(argv)
+    if not args.envs and not args.lars_physics:
+        parser.error("give --envs, --lars-physics or both")
     if shutil.which("valgrind") is None:
         sys.exit("valgrind is not on the PATH")
     rows = [(REFERENCE, "-")] + [tuple(entry.split(":", 1)) for entry in args.envs]
+    if args.lars_physics:
+        rows += [(name, "physics") for name in LARS_MODELS]
     per_step = {}
     with tempfile.TemporaryDirectory() as workdir:
         for env_id, mode in rows:

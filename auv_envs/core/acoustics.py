@@ -841,14 +841,14 @@ class HydrophoneArray:
                                   for f in dataclasses.fields(Measurements)))
         return result
 
-    def _noisy(self, delays, azimuth, elevation, snr, angle_k, noise, xp=np, lift=None):
+    def _noisy(self, delays, azimuth, elevation, lift, snr, angle_k, noise, xp=np):
         """Detection vectors (..., 3N - 1) of paths: their true arrival times (s), azimuths
-        and elevations, and SNRs (dB) (each (..., N)) with their bands' angle constants
-        ``angle_k`` (broadcast against them), plus the noise of the module docstring from
-        unit draws ``noise`` (3, ..., N). ``lift``: :func:`_lift` of the elevations, when
-        the caller has it."""
+        and elevations (with ``lift``, :func:`_lift` of the elevations), and SNRs (dB)
+        (each (..., N)) with their bands' angle constants ``angle_k`` (broadcast against
+        them), plus the noise of the module docstring from unit draws ``noise`` (3, ...,
+        N)."""
         timing, sigma_el = self._timing_and_angle_std(snr, angle_k, xp)
-        sigma_az = sigma_el / (_lift(elevation, xp) if lift is None else lift)
+        sigma_az = sigma_el / lift
         arrival = delays + timing * noise[0]
         return xp.concatenate([arrival[..., 1:] - arrival[..., :1],
                                _wrap(azimuth + sigma_az * noise[1], xp),
@@ -878,8 +878,9 @@ class HydrophoneArray:
             valid = valid & xp.any(working, axis=-1)[:, None, None]
         keys = xp.where(valid, rng.random(valid.shape), 2.0)
         noise = rng.standard_normal((3, b, q, p, n))
-        detections = self._noisy(paths.delays[:, None], paths.azimuth[:, None],
-                                 paths.elevation[:, None], paths.snr, self._angle_k, noise, xp)
+        elevation = paths.elevation[:, None]
+        detections = self._noisy(paths.delays[:, None], paths.azimuth[:, None], elevation,
+                                 _lift(elevation, xp), paths.snr, self._angle_k, noise, xp)
         candidates = xp.concatenate([detections, clutter], axis=-2)  # (B, Q, P + K, 3N - 1)
         order = xp.argsort(keys, axis=-1)[..., :k]  # (B, Q, K): the candidate in each slot
         mask = xp.take_along_axis(valid, order, axis=-1)
@@ -927,9 +928,9 @@ class HydrophoneArray:
         detections = self._noisy(
             paths.delays.reshape(-1, n).take(row, axis=0),
             paths.azimuth.reshape(-1, n).take(row, axis=0),
-            elevation.take(row, axis=0),
+            elevation.take(row, axis=0), _lift(elevation).take(row, axis=0),
             paths.snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
-            self._angle_k[path_q, 0], noise, lift=_lift(elevation).take(row, axis=0))
+            self._angle_k[path_q, 0], noise)
 
         # Each kept candidate into its slot; the rest of the K slots empty.
         picked = np.zeros((b, q, k, 3 * n - 1))

@@ -102,6 +102,14 @@ def inside_image(
     return ((pixels >= margin) & (pixels < upper)).all(axis=1)
 
 
+def inside_image_flat(intrinsics: CameraIntrinsics, pixels) -> list[bool]:
+    """:func:`inside_image` of flat ``u, v, u, v, ...`` Python floats (a step's few
+    pixels, e.g. a compiled truth's outputs), as a list of bools; NaN is not inside."""
+    width, height = intrinsics.width, intrinsics.height
+    return [0.0 <= u < width and 0.0 <= v < height
+            for u, v in zip(pixels[0::2], pixels[1::2], strict=True)]
+
+
 def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, ops=FLOATS):
     """The pinhole projection of one world offset from the camera centre, in scalar arithmetic.
 

@@ -16,7 +16,7 @@ import functools
 import numpy as np
 
 from auv_envs.core import frames
-from auv_envs.core.camera import project_few
+from auv_envs.core.camera import inside_image_flat, project_few
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
 from auv_envs.tasks.docking import transition
@@ -95,7 +95,7 @@ class CompiledTruth:
         # The inputs are the hull's free joint in MjData itself: nothing copied per call.
         self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
         self.physics, self.lights = physics, rules.lights
-        self._size = (rules.intrinsics.width, rules.intrinsics.height)
+        self._intrinsics = rules.intrinsics
 
     def __call__(self) -> dict:
         out, camera, rays = self._call()
@@ -103,10 +103,7 @@ class CompiledTruth:
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
         pixels = values[self._pixels]
-        width, height = self._size
-        # NaN (behind the camera) compares False: not in the image, as project_few says.
-        in_image = [0.0 <= pixels[k] < width and 0.0 <= pixels[k + 1] < height
-                    for k in range(0, len(pixels), 2)]
+        in_image = inside_image_flat(self._intrinsics, pixels)
         visible = self.physics.unoccluded_along(camera, self.lights, rays, in_image)
         return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
                                             np.array(visible), FLOATS)

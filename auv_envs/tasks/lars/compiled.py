@@ -9,17 +9,20 @@ for a few Python calls where the floats take a few hundred bytecodes a step.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from auv_envs.core.camera import inside_image_flat
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.scene import AUVMotion
 
-#: The scene's numbers the compiled geometry reads (its motion, then the marker's
-#: corners, the capture point and the hull's axis in world axes about the CG).
-_MOTION = ("x0", "y0", "surge", "heave_amplitude", "heave_period", "heave_phase", "yaw",
-           "pitch")
+#: The scene's numbers the compiled geometry reads: its motion (:class:`AUVMotion`'s
+#: fields in order), then the marker's corners, the capture point and the hull's axis in
+#: world axes about the CG.
+_MOTION = tuple(field.name for field in dataclasses.fields(AUVMotion))
 _SCENE_SIZE = len(_MOTION) + 9 + 3 + 3
 #: Entries of the truth the compiled call does not give: the joints (read from MjData),
 #: the sea's sample (none) and the corners' visibility (from the pixels).
@@ -50,7 +53,6 @@ class CompiledTruth:
                                                  np.zeros(_SCENE_SIZE)))
         self.params = params
         self._qpos, self._qvel = qpos, qvel
-        self._size = (params.intrinsics.width, params.intrinsics.height)
         self._scene = None
 
     def __call__(self, scene: transition.Scene, steps: int) -> dict:
@@ -66,21 +68,15 @@ class CompiledTruth:
         now = {"q": self._qpos.tolist(), "qd": self._qvel.tolist(), "sea": None}
         for key, part, kind in self._layout:
             now[key] = kind(values[part]) if kind is not float else values[part.start]
-        cameras = now["cameras"]
-        now["cameras"] = (tuple(cameras[:3]), tuple(cameras[3:]))
-        # NaN (behind a camera) compares False: not in the image, as project_few says.
-        width, height = self._size
-        pixels = now["pixels"]
-        seen = [0.0 <= u < width and 0.0 <= v < height
-                for u, v in zip(pixels[0::2], pixels[1::2], strict=True)]
+        seen = inside_image_flat(self.params.intrinsics, now["pixels"])
         now["visible"] = [seen[:3], seen[3:]]
         return transition.sighting(self.params, scene, t, None, now, FLOATS)
 
 
 def _geometry_function(params: transition.LARSParams):
     """:class:`CompiledTruth`'s CasADi function of ``(q, qd, t, scene numbers)`` and its
-    layout: each truth key with its slice of the output and the type that rebuilds it
-    (``float`` for a scalar; ``cameras`` flat, rebuilt as a pair by the caller)."""
+    layout: each truth key with its slice of the output and what rebuilds it from that
+    slice's values (``float``: a scalar, the slice's one value)."""
     import casadi
 
     q, qd = casadi.SX.sym("q", 3), casadi.SX.sym("qd", 3)
@@ -99,13 +95,19 @@ def _geometry_function(params: transition.LARSParams):
     for key, value in now.items():
         if key in _NOT_COMPILED:
             continue
-        if key == "cameras":
-            value = [*value[0], *value[1]]
-        many = isinstance(value, tuple | list)
-        entries = list(value) if many else [value]
-        kind = (list if key in ("cameras", "corners", "pixels") else tuple) if many else float
+        kind = float
+        if key == "cameras":  # two points
+            value, kind = [*value[0], *value[1]], _camera_pair
+        elif isinstance(value, tuple | list):
+            kind = type(value)
+        entries = list(value) if kind is not float else [value]
         layout.append((key, slice(len(flat), len(flat) + len(entries)), kind))
         flat.extend(entries)
     function = casadi.Function("lars_geometry", [q, qd, t, numbers],
                                [casadi.vertcat(*flat)])
     return function, tuple(layout)
+
+
+def _camera_pair(values: list) -> tuple:
+    """The truth's ``cameras`` from their six numbers: two ``(x, y, z)`` tuples."""
+    return tuple(values[:3]), tuple(values[3:])

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from auv_envs.core.env import get_physics_state
+from auv_envs.tasks.lars.scene import POSED_BODIES
 
 
 class LARSPhysics:
@@ -27,10 +28,7 @@ class LARSPhysics:
         self.data = mujoco.MjData(arm_model)
         self.scene_model = scene_model
         self.scene_data = mujoco.MjData(scene_model)
-        self.mocap = {
-            name: int(scene_model.body(name).mocapid[0])
-            for name in ("water", "crest", "head", "auv", "analog_0", "analog_1")
-        }
+        self.mocap = {name: int(scene_model.body(name).mocapid[0]) for name in POSED_BODIES}
         self._initial = get_physics_state(arm_model, self.data)  # a new MjData is reset
         # What the ship carries (its hull, the arm's links), for rendering a moving ship.
         model = scene_model

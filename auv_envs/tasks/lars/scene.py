@@ -203,10 +203,11 @@ def sample_motion(rng: np.random.Generator, overrides: dict | None = None,
     return AUVMotion(**values)
 
 
-#: What the arm's dynamics never read: the posed (mocap) bodies, the ship's hull, the
-#: person's camera and the sun (:func:`build_lars_model`'s arm model leaves them out).
-SCENERY = {"body": ("water", "crest", "head", "auv", "analog_0", "analog_1"),
-           "geom": ("ship",), "camera": ("side",), "light": ("sun",)}
+#: The scene's kinematic (mocap) bodies, posed for rendering from the episode's motion.
+POSED_BODIES = ("water", "crest", "head", "auv", "analog_0", "analog_1")
+#: What the arm's dynamics never read: the posed bodies, the ship's hull, the person's
+#: camera and the sun (:func:`build_lars_model`'s arm model leaves them out).
+SCENERY = {"body": POSED_BODIES, "geom": ("ship",), "camera": ("side",), "light": ("sun",)}
 
 
 def build_lars_model(
@@ -215,7 +216,7 @@ def build_lars_model(
     """Compose the scene from ``assets/lars/scene.xml`` with dm_control's mjcf:
     ``(scene, arm)``, the whole scene (rendering) and the arm alone without the
     :data:`SCENERY` (the dynamics: the same bodies, joints, masses and actuators, so the
-    same trajectories to the bit, for a physics step at about 60 % of the cost)."""
+    same trajectories to the bit, for a cheaper physics step: ``docs/speed.md``)."""
     scene = mjcf.from_path(str(asset_path("lars/scene.xml")))
     for name, geom in (("marker", marker), ("analog_marker", analog_marker)):
         verts, faces = geom.mesh()
