@@ -9,7 +9,7 @@ The model kept beside it is the docking environment's own (its MJCF, masses
 and camera included) on MuJoCo MJX with contacts switched off (MJX has no
 ellipsoid-box collision; the CPU environment handles the seabed and the
 station as failure checks and rarely touches them before an episode ends):
-the batched environment casts its lines of sight in it.
+Playground's ``mj_model``/``mjx_model`` (:class:`auv_envs.batched.functional.FunctionalEnv`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from auv_envs.core.plant import hull_advance
 
 
 class DockingPlantMJX:
-    """The plant of a docking environment, batched on JAX (its model on MJX, for ray casts).
+    """The plant of a docking environment, batched on JAX (its model on MJX beside it).
 
     Args:
         env: an unwrapped docking environment (``DockingStation`` or

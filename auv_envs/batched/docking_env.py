@@ -6,8 +6,8 @@ calls) evaluated on JAX arrays for ``jit`` and ``vmap``: one environment's
 functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingVectorEnv`
 does it and speaks NumPy to Gymnasium). What this shell adds: the plant is
 :class:`auv_envs.batched.docking.DockingPlantMJX` (the env's MJCF on MuJoCo
-MJX, the same hull wrench), the lines of sight to the lights are MJX's ray casts
-against the same scenery (``mujoco.mj_ray`` on the CPU), and the episode's draws
+MJX, the same hull wrench), the lines of sight to the lights are the CPU env's
+(:func:`auv_envs.core.rays.first_hit`, ``mj_ray``'s intersections) on JAX, and the episode's draws
 come from a JAX key (:class:`KeyDraws`, NumPy's ``Generator`` interface).
 
 The interface follows MuJoCo Playground's ``MjxEnv``: :attr:`observation_size`,
@@ -36,11 +36,10 @@ import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
 from auv_envs.batched.docking import DockingPlantMJX
 from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
-from auv_envs.core import frames
+from auv_envs.core import frames, rays
 from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.vehicle import PlantPerturbation
@@ -104,10 +103,8 @@ class DockingMJX(FunctionalEnv):
                                                            for b in bounds))
         # The scenery the lines of sight are cast against: static geoms, placed once.
         physics = cpu.physics
-        # Compiled: run eagerly, op by op, this forward pass took 24 s on 2 CPU cores, 5 compiled.
-        self._ray_data = jax.jit(mjx.forward)(self.plant.model, self.plant.rest_data)
-        self._ray_groups = tuple(int(g) for g in physics.ray_groups)
-        self._hull_body = int(physics.hull_body)
+        self._scenery = rays.static_primitives(physics.model, physics.data,
+                                               physics.ray_groups, physics.hull_body)
 
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
@@ -181,20 +178,16 @@ class DockingMJX(FunctionalEnv):
         lx, ly, lz = self._lights
         u, v, inside = project_point(self.calibration.intrinsics, lx - cx, ly - cy, lz - cz,
                                      truth.pop("camera_rows"), ops)
-        visible = inside & self._line_of_sight(jnp.stack([cx, cy, cz]))
+        visible = inside & self._line_of_sight((cx, cy, cz))
         return transition.truth_with_lights(truth, jnp.stack([u, v], axis=-1), visible, ops)
 
-    def _line_of_sight(self, origin: jax.Array) -> jax.Array:
-        """Per light: nothing of the scenery between ``origin`` and it (MJX's ray cast)."""
-        targets = jnp.stack(self._lights, axis=-1)
-
-        def clear(target):
-            distance, _ = mjx.ray(self.plant.model, self._ray_data, origin, target - origin,
-                                  self._ray_groups, True, self._hull_body)
-            # In units of the ray's length: below 1, something is hit before the light.
-            return jnp.logical_not((distance >= 0.0) & (distance < 1.0 - 1e-6))
-
-        return jax.vmap(clear)(targets)
+    def _line_of_sight(self, camera) -> jax.Array:
+        """Per light: nothing of the scenery between the ``camera`` centre (3 scalars) and
+        it (:func:`auv_envs.core.rays.first_hit`, as the CPU env's compiled truth)."""
+        vec = [light - c for light, c in zip(self._lights, camera, strict=True)]
+        hit = rays.first_hit(self._scenery, camera, vec, self.ops)
+        # In units of the segment: below 1, a geom before the light.
+        return hit >= 1.0 - 1e-6
 
     def _vehicle(self, draws):
         """The episode's simulated vehicle (None: the env's own)."""

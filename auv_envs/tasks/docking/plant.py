@@ -12,10 +12,11 @@
 from __future__ import annotations
 
 import functools
+import warnings
 
 import numpy as np
 
-from auv_envs.core import frames
+from auv_envs.core import frames, rays
 from auv_envs.core.camera import inside_image_flat, project_few
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
@@ -57,8 +58,8 @@ class CompiledPlant(MujocoPlant):
     """The plant of ``plant="compiled"`` (the ``-v2`` ids): the hull compiled
     (:class:`auv_envs.core.plant.FreeBodyPlant`) wherever no contact can act in the coming
     period, MuJoCo's staged RK4 (:class:`MujocoPlant`) where one can; the truth's
-    kinematics and the lights' projection compiled too (:class:`CompiledTruth`), the lines
-    of sight MuJoCo's ray casts. The same equations as ``plant="mujoco"``, to round-off."""
+    kinematics, the lights' projection and lines of sight compiled too
+    (:class:`CompiledTruth`). The same equations as ``plant="mujoco"``, to round-off."""
 
     def __init__(self, env):
         super().__init__(env)
@@ -84,37 +85,50 @@ class CompiledPlant(MujocoPlant):
 
 
 class CompiledTruth:
-    """:meth:`DockingRules.kinematics` of the hull's free joint and the lights' pixels
-    (:func:`~auv_envs.core.camera.project_few`) as one compiled call
-    (:class:`auv_envs.core.plant.CompiledFunction`, built from the same code on CasADi
-    symbols), with the camera centre and its offsets to the lights; the lines of sight
-    are MuJoCo's ray casts (:meth:`DockingPhysics.unoccluded_along`)."""
+    """:meth:`DockingRules.kinematics` of the hull's free joint, the lights' pixels
+    (:func:`~auv_envs.core.camera.project_few`) and their lines of sight through the
+    static scenery (:func:`auv_envs.core.rays.first_hit`, ``mj_ray``'s intersections) as
+    one compiled call (:class:`auv_envs.core.plant.CompiledFunction`, built from the same
+    code on CasADi symbols). Scenery that cannot be compiled (a moving geom, a mesh) is
+    ray-cast by MuJoCo instead (:meth:`DockingPhysics.unoccluded`), with a warning."""
 
     def __init__(self, rules: DockingRules, physics: DockingPhysics):
-        function, self._layout, self._pixels = _truth_function(rules)
+        try:
+            scenery = rays.static_primitives(physics.model, physics.data, physics.ray_groups,
+                                             physics.hull_body)
+        except ValueError as error:
+            warnings.warn(f"lines of sight cast by MuJoCo, not compiled: {error}",
+                          RuntimeWarning, stacklevel=2)
+            scenery = None
+        function, self._layout, self._pixels = _truth_function(rules, scenery)
         # The inputs are the hull's free joint in MjData itself: nothing copied per call.
         self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
         self.physics, self.lights = physics, rules.lights
         self._intrinsics = rules.intrinsics
 
     def __call__(self) -> dict:
-        out, camera, rays = self._call()
+        out, clear = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
         pixels = values[self._pixels]
         in_image = inside_image_flat(self._intrinsics, pixels)
-        visible = self.physics.unoccluded_along(camera, self.lights, rays, in_image)
+        if clear.size:
+            visible = [inside and sight > 0.5
+                       for inside, sight in zip(in_image, clear.tolist(), strict=True)]
+        else:  # the scenery could not be compiled
+            visible = self.physics.unoccluded(truth["camera_position"], self.lights, in_image)
         return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
                                             np.array(visible), FLOATS)
 
 
 @functools.lru_cache(maxsize=32)
-def _truth_function(rules: DockingRules):
-    """:class:`CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, the
-    camera centre, the offsets from it to the lights), with the truth's keys
-    (each with its slice of the output and whether it is a tuple) and the pixels' slice;
-    built once per task's rules (a CasADi function is immutable)."""
+def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | None):
+    """:class:`CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, and
+    per light 1 where no geom of ``scenery`` lies on the segment from the camera centre to
+    it, else 0; none where ``scenery`` is None), with the truth's keys (each with its
+    slice of the output and whether it is a tuple) and the pixels' slice; built once per
+    task's rules and scenery (a CasADi function is immutable)."""
     import casadi
 
     ops = casadi_ops()
@@ -132,9 +146,11 @@ def _truth_function(rules: DockingRules):
         flat.extend(values)
     pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
     flat.extend(c for pixel in pixels for c in pixel)
-    camera = truth["camera_position"]
-    rays = [light[k] - camera[k] for light in rules.lights for k in range(3)]
+    camera, clear = truth["camera_position"], []
+    for light in ([] if scenery is None else rules.lights):
+        hit = rays.first_hit(scenery, camera, [light[k] - camera[k] for k in range(3)], ops)
+        # mj_ray's distance is in units of the segment: below 1, a geom before the light.
+        clear.append(ops.where(hit < 1.0 - 1e-6, 0.0, 1.0))
     function = casadi.Function("docking_truth", [qpos, qvel],
-                               [casadi.vertcat(*flat), casadi.vertcat(*camera),
-                                casadi.vertcat(*rays)], {"cse": True})
+                               [casadi.vertcat(*flat), casadi.vertcat(*clear)], {"cse": True})
     return function, tuple(layout), pixel_slice

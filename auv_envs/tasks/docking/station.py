@@ -232,10 +232,6 @@ def lamp_spheres(model: mujoco.MjModel) -> np.ndarray:
 #: and a distance, m.
 _SPEED_MARGIN = 0.5
 _DISTANCE_MARGIN = 0.05
-#: Candidates from which :meth:`DockingPhysics.unoccluded_along` casts one ``mj_multiRay``.
-MULTI_RAY_FROM = 5
-
-
 class _StaticScenery:
     """Where the hull could touch static geometry: planes and one bounding box.
 
@@ -345,8 +341,6 @@ class DockingPhysics:
         self._ray_origin = np.empty(3)
         self._ray_vec = np.empty(3)
         self._ray_geom = np.empty(1, dtype=np.int32)
-        self._multi_geom = np.empty(n_lights, dtype=np.int32)
-        self._multi_dist = np.empty(n_lights)
         self._scenery = _StaticScenery(model, self.data, hull)
         self._constraint_bit = int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT)
 
@@ -470,26 +464,6 @@ class DockingPhysics:
                             for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)])
         forward = (corners @ self.camera_mat_body.T)[:, 0]
         return bool(np.any(forward <= 0.0))
-
-    def unoccluded_along(self, origin: np.ndarray, targets, vectors: np.ndarray,
-                         candidates) -> list[bool]:
-        """:meth:`unoccluded`, given also the offsets from ``origin`` to the ``targets``
-        (``vectors``, 3 n floats; ``origin`` and ``vectors`` the compiled docking truth's
-        arrays).
-
-        From :data:`MULTI_RAY_FROM` candidates on, one ``mj_multiRay`` over every
-        target, whose set-up then costs less than a ``mj_ray`` per candidate
-        (measured: six candidates 11 against 13-16 us, three 11 against 7 us);
-        fewer, :meth:`unoccluded`. The same ray casts either way.
-        """
-        n = len(candidates)
-        if sum(candidates) < MULTI_RAY_FROM:
-            return self.unoccluded(origin.tolist(), targets, candidates)
-        geoms, dist = self._multi_geom[:n], self._multi_dist[:n]
-        mujoco.mj_multiRay(self.model, self.data, origin, vectors, self.ray_groups, 1,
-                           self.hull_body, geoms, dist, None, n, mujoco.mjMAXVAL)
-        return [candidate and not 0.0 <= d < 1.0 - 1e-6
-                for candidate, d in zip(candidates, dist.tolist(), strict=True)]
 
     def unoccluded(self, origin, targets, candidates) -> list[bool]:
         """Which candidate targets static scenery does not hide from ``origin``.
