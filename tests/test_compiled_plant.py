@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401  (registers the environments)
-from auv_envs.core import frames
+from auv_envs.core import frames, native
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
 from auv_envs.core.vehicle import PlantPerturbation
@@ -146,6 +146,21 @@ def test_scenery_that_cannot_be_compiled_is_ray_cast_by_mujoco(monkeypatch):
         np.testing.assert_array_equal(got["pixels"], compiled["pixels"])
         hidden += int(np.sum(~got["visible"] & np.isfinite(got["pixels"][:, 0])))
     assert hidden > 0
+
+
+def test_lines_of_sight_left_to_mujoco_without_machine_code(monkeypatch):
+    """On CasADi's virtual machine the compiled lines of sight would be slower than
+    MuJoCo's ray casts: without machine code the truth leaves them to ``mj_ray``."""
+    from auv_envs.tasks.docking.plant import CompiledTruth
+
+    env = _unwrapped("auv_envs/DockingStation-v2", obs_mode="features")
+    monkeypatch.setenv("AUV_ENVS_NATIVE", "0")
+    truth = CompiledTruth(env.rules, env.physics)
+    assert not truth._call.native and truth._call.function.nnz_out(1) == 0
+    monkeypatch.setenv("AUV_ENVS_NATIVE", "1")
+    if native.compiler() is not None:
+        truth = CompiledTruth(env.rules, env.physics)
+        assert truth._call.native and truth._call.function.nnz_out(1) == len(env.rules.lights)
 
 
 def test_quat_turned_is_mujocos_quat_integrate_on_every_backend():

@@ -1,5 +1,5 @@
-"""auv_envs.core.rays: first hits equal to MuJoCo's ``mj_ray`` on random rays, in Python
-floats and compiled; the docking scenery and a scene of every primitive, turned."""
+"""auv_envs.core.rays: the verdicts of MuJoCo's ``mj_ray`` on random segments, in Python
+floats, compiled and on JAX; the docking scenery and a scene of every primitive, turned."""
 
 import casadi
 import mujoco
@@ -30,36 +30,43 @@ SHAPES = """
 GROUPS = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
 
 
-def _mj_hits(model, data, groups, exclude, points, vecs):
+def _mj_blocked(model, data, groups, exclude, points, targets):
     out = []
     geom = np.zeros(1, dtype=np.int32)
-    for point, vec in zip(points, vecs, strict=True):
-        d = mujoco.mj_ray(model, data, point, vec, groups, 1, exclude, geom)
-        out.append(np.inf if d < 0 else d)
+    for point, target in zip(points, targets, strict=True):
+        d = mujoco.mj_ray(model, data, point, target - point, groups, 1, exclude, geom)
+        out.append(0.0 <= d < rays.END)
     return np.array(out)
 
 
 def _compiled(primitives):
-    point, vec = casadi.SX.sym("p", 3), casadi.SX.sym("v", 3)
-    hit = rays.first_hit(primitives, [point[k] for k in range(3)],
-                         [vec[k] for k in range(3)], casadi_ops())
-    return CompiledFunction(casadi.Function("hit", [point, vec], [hit]))
+    point, target = casadi.SX.sym("p", 3), casadi.SX.sym("t", 3)
+    verdict = rays.blocked(primitives, [point[k] for k in range(3)],
+                           [target[k] for k in range(3)], casadi_ops())
+    return CompiledFunction(casadi.Function("blocked", [point, target],
+                                            [casadi.if_else(verdict, 1.0, 0.0)]))
 
 
-def _check(primitives, model, data, groups, exclude, points, vecs):
-    expected = _mj_hits(model, data, groups, exclude, points, vecs)
-    floats = np.array([rays.first_hit(primitives, p.tolist(), v.tolist(), FLOATS)
-                       for p, v in zip(points, vecs, strict=True)])
+def _check(primitives, model, data, groups, exclude, points, targets):
+    """Every backend's verdicts equal mj_ray's; returns those."""
+    expected = _mj_blocked(model, data, groups, exclude, points, targets)
+    floats = [rays.blocked(primitives, p.tolist(), t.tolist(), FLOATS)
+              for p, t in zip(points, targets, strict=True)]
     compiled = _compiled(primitives)
     native = []
-    for p, v in zip(points, vecs, strict=True):
-        compiled.inputs[0][:], compiled.inputs[1][:] = p, v
-        native.append(compiled()[0][0])
-    for got in (floats, np.array(native)):
-        np.testing.assert_array_equal(np.isinf(got), np.isinf(expected))
-        hit = np.isfinite(expected)
-        np.testing.assert_allclose(got[hit], expected[hit], rtol=1e-12, atol=1e-12)
-    return np.isfinite(expected)
+    for p, t in zip(points, targets, strict=True):
+        compiled.inputs[0][:], compiled.inputs[1][:] = p, t
+        native.append(compiled()[0][0] > 0.5)
+    np.testing.assert_array_equal(floats, expected)
+    np.testing.assert_array_equal(native, expected)
+    jax = pytest.importorskip("jax")
+    from auv_envs.core.ops import jax_ops
+
+    with jax.enable_x64(True):  # float32 would move the verdicts of grazes
+        got = jax.jit(jax.vmap(lambda p, t: rays.blocked(primitives, p, t, jax_ops())))(
+            points, targets)
+    np.testing.assert_array_equal(np.asarray(got), expected)
+    return expected
 
 
 def test_every_primitive_matches_mj_ray():
@@ -73,12 +80,13 @@ def test_every_primitive_matches_mj_ray():
     rng = np.random.default_rng(4)
     points = rng.uniform(-2.5, 2.5, (3000, 3))
     aims = rng.uniform(-1.5, 1.5, (3000, 3))  # through the shapes' region
-    vecs = (aims - points) * rng.uniform(0.3, 3.0, (3000, 1))
-    # Axis-parallel rays (zero components: the box's and capsule's special cases).
-    vecs[:300, 1:] = 0.0
-    vecs[300:600, :2] = 0.0
-    hit = _check(primitives, model, data, GROUPS, 1, points, vecs)
-    assert 0.3 < hit.mean() < 0.95
+    targets = points + (aims - points) * rng.uniform(0.3, 3.0, (3000, 1))
+    # Axis-parallel segments (zero components: the box's and capsule's special cases).
+    targets[:300, 1:] = points[:300, 1:]
+    targets[300:600, :2] = points[300:600, :2]
+    hidden = _check(primitives, model, data, GROUPS, 1, points, targets)
+    assert 0.2 < hidden.mean() < 0.8, hidden.mean()
+    assert 0.1 < hidden[:600].mean() < 0.9
 
 
 @pytest.mark.parametrize("env_id", ["auv_envs/DockingStation-v2",
@@ -94,13 +102,11 @@ def test_docking_scenery_matches_mj_ray(env_id):
     # Camera centres where an approach passes, near and off the docking axis.
     points = np.repeat(rng.uniform((-4.0, -2.5, -1.4), (3.0, 2.5, 2.0), (500, 3)),
                        len(lights), axis=0)
-    vecs = np.tile(lights, (500, 1)) - points
-    hit = _check(primitives, phys.model, phys.data, phys.ray_groups, phys.hull_body,
-                 points, vecs)
-    blocked = hit & (_mj_hits(phys.model, phys.data, phys.ray_groups, phys.hull_body,
-                              points, vecs) < 1.0 - 1e-6)
+    targets = np.tile(lights, (500, 1))
+    hidden = _check(primitives, phys.model, phys.data, phys.ray_groups, phys.hull_body,
+                    points, targets)
     env.close()
-    assert blocked.sum() > 50 and (~blocked).sum() > 50
+    assert hidden.sum() > 50 and (~hidden).sum() > 50
 
 
 def test_moving_or_unsupported_geoms_refused():

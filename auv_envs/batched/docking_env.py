@@ -7,7 +7,7 @@ functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingV
 does it and speaks NumPy to Gymnasium). What this shell adds: the plant is
 :class:`auv_envs.batched.docking.DockingPlantMJX` (the env's MJCF on MuJoCo
 MJX, the same hull wrench), the lines of sight to the lights are the CPU env's
-(:func:`auv_envs.core.rays.first_hit`, ``mj_ray``'s intersections) on JAX, and the episode's draws
+(:func:`auv_envs.core.rays.blocked`, ``mj_ray``'s verdicts) on JAX, and the episode's draws
 come from a JAX key (:class:`KeyDraws`, NumPy's ``Generator`` interface).
 
 The interface follows MuJoCo Playground's ``MjxEnv``: :attr:`observation_size`,
@@ -183,11 +183,8 @@ class DockingMJX(FunctionalEnv):
 
     def _line_of_sight(self, camera) -> jax.Array:
         """Per light: nothing of the scenery between the ``camera`` centre (3 scalars) and
-        it (:func:`auv_envs.core.rays.first_hit`, as the CPU env's compiled truth)."""
-        vec = [light - c for light, c in zip(self._lights, camera, strict=True)]
-        hit = rays.first_hit(self._scenery, camera, vec, self.ops)
-        # In units of the segment: below 1, a geom before the light.
-        return hit >= 1.0 - 1e-6
+        it (:func:`auv_envs.core.rays.blocked`, as the CPU env's compiled truth)."""
+        return jnp.logical_not(rays.blocked(self._scenery, camera, self._lights, self.ops))
 
     def _vehicle(self, draws):
         """The episode's simulated vehicle (None: the env's own)."""

@@ -34,8 +34,11 @@ from pathlib import Path
 import numpy as np
 
 #: The flags: optimised, position-independent, no contraction into fused multiply-adds
-#: (which would round once where the virtual machine rounds twice).
-FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math")
+#: (which would round once where the virtual machine rounds twice); CasADi's helpers
+#: (``casadi_fabs``, ``casadi_sq``, ...) inlined, not called through the library's
+#: symbol table (``-fno-semantic-interposition``: the same arithmetic, no calls).
+FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math",
+         "-fno-semantic-interposition")
 
 #: Loaded machine code by its library's path: each library is loaded once a process.
 _loaded: dict[str, object] = {}

@@ -227,7 +227,11 @@ class CompiledFunction:
                                  f"{array.shape}")
         self.inputs = tuple(inputs)
         self.outputs = tuple(np.zeros(function.nnz_out(i)) for i in range(function.n_out()))
-        buffer, self._evaluate = native.machine_code(function).buffer()
+        code = native.machine_code(function)
+        #: Whether it runs as machine code (:mod:`auv_envs.core.native`), not on CasADi's
+        #: virtual machine.
+        self.native = code is not function
+        buffer, self._evaluate = code.buffer()
         for i, array in enumerate(self.inputs):
             buffer.set_arg(i, memoryview(array))
         for i, array in enumerate(self.outputs):

@@ -1,26 +1,22 @@
 """Lines of sight through static MuJoCo primitives, in scalar arithmetic for every backend.
 
-The ray-geom intersections of MuJoCo's ``mj_ray`` (``engine_ray.c``: the plane's front
-face within its size, the sphere, the capsule with its bounding sphere, the box face by
-face within its bounding sphere), restated as equations of :mod:`auv_envs.core.ops`, so a
-compiled function (:class:`auv_envs.core.plant.CompiledFunction`) or JAX can evaluate
-them without a call into MuJoCo. Only geoms that never move are taken (their poses are
-read once), as a scene's static scenery; :func:`static_primitives` refuses the rest.
-``tests/test_rays.py`` checks the first hits against ``mj_ray`` on random rays.
+Whether a segment is hidden by the scene's static geoms, as MuJoCo's ``mj_ray`` would
+say (``engine_ray.c``: what it tests, the plane's front face within its size, spheres,
+capsules and boxes), written as equations of :mod:`auv_envs.core.ops`, so a compiled
+function (:class:`auv_envs.core.plant.CompiledFunction`) or JAX evaluates it without a
+call into MuJoCo. Only geoms that never move are taken (their poses are read once);
+:func:`static_primitives` refuses the rest. ``tests/test_rays.py`` checks the verdicts
+against ``mj_ray`` on random segments.
 """
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import mujoco
 
 #: MuJoCo's ``mjMINVAL``: its tolerance for a zero denominator or discriminant.
 MINVAL = 1e-15
-
-#: A miss: every hit is smaller.
-MISS = math.inf
 
 _KINDS = {mujoco.mjtGeom.mjGEOM_PLANE: "plane", mujoco.mjtGeom.mjGEOM_SPHERE: "sphere",
           mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule", mujoco.mjtGeom.mjGEOM_BOX: "box"}
@@ -64,116 +60,132 @@ def static_primitives(model: mujoco.MjModel, data: mujoco.MjData, groups,
     return tuple(out)
 
 
-def first_hit(primitives, point, vec, ops):
-    """The smallest ``x >= 0`` at which ``point + x * vec`` meets one of ``primitives``
-    (``mj_ray``'s distance, in units of ``vec``), :data:`MISS` where none is met.
+#: Where a segment ends, as a share of it: ``mj_ray``'s hits at ``x >= END`` of the way
+#: to a target (on it, within round-off) do not hide it.
+END = 1.0 - 1e-6
 
-    Args:
-        primitives: :class:`Primitive` s (:func:`static_primitives`).
-        point, vec: 3 scalars each, of ``ops``' backend.
-        ops: a namespace of :mod:`auv_envs.core.ops`.
+
+def blocked(primitives, point, target, ops):
+    """Whether one of ``primitives`` meets the segment from ``point`` to ``target`` (3
+    scalars each; ``target`` may be a batch of arrays on JAX) before :data:`END` of the
+    way: ``0 <= mj_ray(point, target - point) < END``.
+
+    Each primitive's test is a margin, non-negative where it hides the target, and
+    the margins combine by their maximum: one comparison at the end, no branches (as
+    compiled code and JAX evaluate every branch anyway). A solid (box, capsule, sphere)
+    hides it where the segment meets the solid and does not lie wholly inside it (from
+    inside, ``mj_ray`` meets the surface on the way out only): the slab test's entry and
+    exit within ``[0, END]`` for a box, the segment's squared distance from the axis or
+    centre against the squared radius for a capsule or sphere. A plane hides it where
+    the segment crosses its front face within its size. They agree with ``mj_ray`` but
+    on a boundary (a graze, a hit exactly at ``END``), ``tests/test_rays.py``.
     """
-    nearest = MISS
+    margin = -1.0
     for primitive in primitives:
-        nearest = ops.minimum(nearest, _HITS[primitive.kind](primitive, point, vec, ops))
-    return nearest
+        lpnt = _local(primitive, point)
+        ltarget = _local(primitive, target)
+        lvec = [(ltarget[k] - lpnt[k]) * END for k in range(3)]  # the segment to END
+        meets = _MARGINS[primitive.kind](primitive, lpnt, lvec, ops)
+        if primitive.kind != "plane":
+            inside = _INSIDE[primitive.kind]
+            lend = [lpnt[k] + lvec[k] for k in range(3)]
+            meets = _min(meets, -_min(inside(primitive, lpnt, ops),
+                                      inside(primitive, lend, ops), ops), ops)
+        margin = _max(margin, meets, ops)
+    return margin >= 0.0
 
 
-def _all(conditions, value, ops):
-    """``value`` where every condition holds, :data:`MISS` elsewhere (nested ``where``:
-    CasADi's comparisons do not combine with ``&``)."""
-    for condition in reversed(conditions):
-        value = ops.where(condition, value, MISS)
-    return value
+def _min(a, b, ops):
+    """The smaller of ``a`` and ``b`` by a comparison (``ops.minimum`` is C's ``fmin``
+    when compiled: a call into the maths library, where this is one instruction)."""
+    return ops.where(a < b, a, b)
 
 
-def _local(primitive: Primitive, point, vec):
-    """``point - pos`` and ``vec`` in the geom's frame (``mat`` transposed)."""
+def _max(a, b, ops):
+    """The larger of ``a`` and ``b`` by a comparison (see :func:`_min`)."""
+    return ops.where(a > b, a, b)
+
+
+def _local(primitive: Primitive, point) -> list:
+    """``point`` in the geom's frame (``mat`` transposed times ``point - pos``)."""
     m = primitive.mat
     d = [point[k] - primitive.pos[k] for k in range(3)]
-    lpnt = [m[k] * d[0] + m[3 + k] * d[1] + m[6 + k] * d[2] for k in range(3)]
-    lvec = [m[k] * vec[0] + m[3 + k] * vec[1] + m[6 + k] * vec[2] for k in range(3)]
-    return lpnt, lvec
+    return [m[k] * d[0] + m[3 + k] * d[1] + m[6 + k] * d[2] for k in range(3)]
 
 
-def _roots(a, b, c, ops):
-    """Both roots of ``a x^2 + 2 b x + c = 0`` (smaller first) and whether they are real
-    (MuJoCo's discriminant test: ``b^2 - a c >= MINVAL``; where not, both are -1)."""
-    det = b * b - a * c
-    real = det >= MINVAL
-    root = ops.sqrt(ops.where(real, det, 1.0))
-    a = ops.where(real, a, 1.0)
-    return ops.where(real, (-b - root) / a, -1.0), ops.where(real, (-b + root) / a, -1.0)
+def _nonzero(x, ops):
+    """``x``, or :data:`MINVAL` where ``|x| <= MINVAL`` (a safe denominator)."""
+    return ops.where(abs(x) > MINVAL, x, MINVAL)
 
 
-def _nearest_root(a, b, c, ops):
-    """MuJoCo's ``ray_quad``: the smaller non-negative root, -1 where there is none."""
-    low, high = _roots(a, b, c, ops)
-    return ops.where(low >= 0.0, low, ops.where(high >= 0.0, high, -1.0))
-
-
-def _sphere_about(centre, radius_sqr, point, vec, ops):
-    """``ray_quad`` of the sphere of squared radius ``radius_sqr`` about ``centre``."""
-    d = [point[k] - centre[k] for k in range(3)]
-    a = vec[0] * vec[0] + vec[1] * vec[1] + vec[2] * vec[2]
-    b = vec[0] * d[0] + vec[1] * d[1] + vec[2] * d[2]
-    c = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] - radius_sqr
-    return _nearest_root(a, b, c, ops)
-
-
-def _plane(primitive: Primitive, point, vec, ops):
-    lpnt, lvec = _local(primitive, point, vec)
-    toward = lvec[2] <= -MINVAL  # from the front face's side only
-    x = -lpnt[2] / ops.where(toward, lvec[2], -1.0)
-    conditions = [toward, x >= 0.0]
+def _plane(primitive: Primitive, p, d, ops):
+    toward = d[2] <= -MINVAL  # from the front face's side only, as mj_ray
+    x = -p[2] / ops.where(toward, d[2], -1.0)  # in units of the segment (to END)
+    margin = _min(x, 1.0 - x, ops)
     for k in range(2):
-        if primitive.size[k] > 0:  # an infinite plane where the size is not positive
-            conditions.append(abs(lpnt[k] + x * lvec[k]) <= primitive.size[k])
-    return _all(conditions, x, ops)
+        if primitive.size[k] > 0:  # infinite where the size is not positive
+            margin = _min(margin, primitive.size[k] - abs(p[k] + x * d[k]), ops)
+    return ops.where(toward, margin, -1.0)
 
 
-def _sphere(primitive: Primitive, point, vec, ops):
-    x = _sphere_about(primitive.pos, primitive.size[0] ** 2, point, vec, ops)
-    return _all([x >= 0.0], x, ops)
+def _sphere(primitive: Primitive, p, d, ops):
+    t = ops.clip(-(p[0] * d[0] + p[1] * d[1] + p[2] * d[2])
+                 / _nonzero(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], ops), 0.0, 1.0)
+    x, y, z = p[0] + t * d[0], p[1] + t * d[1], p[2] + t * d[2]
+    return primitive.size[0] ** 2 - (x * x + y * y + z * z)
 
 
-def _capsule(primitive: Primitive, point, vec, ops):
+def _capsule(primitive: Primitive, p, d, ops):
+    """The closest points of the segment ``p + s d`` (s in [0, 1]) and the axis from
+    ``(0, 0, -half)`` to ``(0, 0, half)``: Ericson, *Real-Time Collision Detection*
+    (2005), 5.1.9, with the axis's terms written out."""
     radius, half = primitive.size[0], primitive.size[1]
-    bound = _sphere_about(primitive.pos, (radius + half) ** 2, point, vec, ops)
-    lpnt, lvec = _local(primitive, point, vec)
-    # The round side, between the flat ends: its nearest root only (as MuJoCo).
-    side = _nearest_root(lvec[0] * lvec[0] + lvec[1] * lvec[1],
-                         lvec[0] * lpnt[0] + lvec[1] * lpnt[1],
-                         lpnt[0] * lpnt[0] + lpnt[1] * lpnt[1] - radius * radius, ops)
-    x = _all([side >= 0.0, abs(lpnt[2] + side * lvec[2]) <= half], side, ops)
-    a = lvec[0] * lvec[0] + lvec[1] * lvec[1] + lvec[2] * lvec[2]
-    for end in (1.0, -1.0):  # the end caps: each root on its own half-sphere
-        dz = lpnt[2] - end * half
-        roots = _roots(a, lvec[0] * lpnt[0] + lvec[1] * lpnt[1] + lvec[2] * dz,
-                       lpnt[0] * lpnt[0] + lpnt[1] * lpnt[1] + dz * dz - radius * radius,
-                       ops)
-        for root in roots:
-            z = lpnt[2] + root * lvec[2]
-            beyond = z >= half if end > 0 else z <= -half
-            x = ops.minimum(x, _all([root >= 0.0, beyond], root, ops))
-    return _all([bound >= 0.0], x, ops)
+    rz = p[2] + half  # p minus the axis's start
+    a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    e = 4.0 * half * half
+    b = 2.0 * half * d[2]
+    c = d[0] * p[0] + d[1] * p[1] + d[2] * rz
+    f = 2.0 * half * rz
+    denom = a * e - b * b
+    s = ops.where(denom > MINVAL * a * e, ops.clip((b * f - c * e) / _nonzero(denom, ops),
+                                                   0.0, 1.0), 0.0)
+    t_free = (b * s + f) / e
+    inv_a = 1.0 / _nonzero(a, ops)
+    s = ops.where(t_free < 0.0, ops.clip(-c * inv_a, 0.0, 1.0),
+                  ops.where(t_free > 1.0, ops.clip((b - c) * inv_a, 0.0, 1.0), s))
+    t = ops.clip(t_free, 0.0, 1.0)
+    x, y = p[0] + s * d[0], p[1] + s * d[1]
+    z = p[2] + s * d[2] - (2.0 * t - 1.0) * half
+    return radius * radius - (x * x + y * y + z * z)
 
 
-def _box(primitive: Primitive, point, vec, ops):
+def _box(primitive: Primitive, p, d, ops):
+    near, far = 0.0, 1.0
+    for k in range(3):
+        inv = 1.0 / _nonzero(d[k], ops)
+        low, high = (-primitive.size[k] - p[k]) * inv, (primitive.size[k] - p[k]) * inv
+        near = _max(near, _min(low, high, ops), ops)
+        far = _min(far, _max(low, high, ops), ops)
+    return far - near
+
+
+def _inside_sphere(primitive: Primitive, p, ops):
+    return primitive.size[0] ** 2 - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+
+
+def _inside_capsule(primitive: Primitive, p, ops):
+    radius, half = primitive.size[0], primitive.size[1]
+    dz = p[2] - ops.clip(p[2], -half, half)
+    return radius * radius - (p[0] * p[0] + p[1] * p[1] + dz * dz)
+
+
+def _inside_box(primitive: Primitive, p, ops):
     size = primitive.size
-    bound = _sphere_about(primitive.pos, size[0] ** 2 + size[1] ** 2 + size[2] ** 2,
-                          point, vec, ops)
-    lpnt, lvec = _local(primitive, point, vec)
-    x = MISS
-    for i, (j, k) in enumerate(((1, 2), (0, 2), (0, 1))):
-        moving = abs(lvec[i]) > MINVAL
-        den = ops.where(moving, lvec[i], 1.0)
-        for side in (-1.0, 1.0):
-            sol = (side * size[i] - lpnt[i]) / den
-            on_face = [moving, sol >= 0.0, abs(lpnt[j] + sol * lvec[j]) <= size[j],
-                       abs(lpnt[k] + sol * lvec[k]) <= size[k]]
-            x = ops.minimum(x, _all(on_face, sol, ops))
-    return _all([bound >= 0.0], x, ops)
+    return _min(_min(size[0] - abs(p[0]), size[1] - abs(p[1]), ops), size[2] - abs(p[2]),
+                ops)
 
 
-_HITS = {"plane": _plane, "sphere": _sphere, "capsule": _capsule, "box": _box}
+#: Per solid: a margin non-negative where a point (in the geom's frame) is inside it.
+_INSIDE = {"sphere": _inside_sphere, "capsule": _inside_capsule, "box": _inside_box}
+#: Per kind: a margin non-negative where the segment ``p + s d``, s in [0, 1], meets it.
+_MARGINS = {"plane": _plane, "sphere": _sphere, "capsule": _capsule, "box": _box}
