@@ -123,7 +123,7 @@ class CompiledTruth:
         if clear.size:
             visible = [inside and sight > 0.5
                        for inside, sight in zip(in_image, clear.tolist(), strict=True)]
-        else:  # the scenery could not be compiled
+        else:  # left to MuJoCo (see __init__)
             visible = self.physics.unoccluded(truth["camera_position"], self.lights, in_image)
         return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
                                             np.array(visible), FLOATS)
