@@ -87,6 +87,15 @@ def test_every_primitive_matches_mj_ray():
     hidden = _check(primitives, model, data, GROUPS, 1, points, targets)
     assert 0.2 < hidden.mean() < 0.8, hidden.mean()
     assert 0.1 < hidden[:600].mean() < 0.9
+    # From inside each solid (its centre): hidden where the segment leaves it, not where
+    # it ends inside it (mj_ray meets the surface on the way out only).
+    solids = [p for p in primitives if p.kind != "plane"]
+    centres = np.array([p.pos for p in solids] * 2)
+    inner = [np.array(p.pos) + 0.5 * np.array(p.mat).reshape(3, 3)[:, 0] * p.size[0]
+             for p in solids]
+    targets = np.concatenate([centres[: len(solids)] + [0.0, 0.0, 5.0], inner])
+    hidden = _check(primitives, model, data, GROUPS, 1, centres, targets)
+    np.testing.assert_array_equal(hidden, [True] * len(solids) + [False] * len(solids))
 
 
 @pytest.mark.parametrize("env_id", ["auv_envs/DockingStation-v2",
