@@ -91,7 +91,7 @@ def test_every_primitive_matches_mj_ray():
     # it ends inside it (mj_ray meets the surface on the way out only).
     solids = [p for p in primitives if p.kind != "plane"]
     centres = np.array([p.pos for p in solids] * 2)
-    inner = [np.array(p.pos) + 0.5 * np.array(p.mat).reshape(3, 3)[:, 0] * p.size[0]
+    inner = [np.array(p.pos) + 0.5 * np.array(p.rows[0]) * p.size[0]
              for p in solids]
     targets = np.concatenate([centres[: len(solids)] + [0.0, 0.0, 5.0], inner])
     hidden = _check(primitives, model, data, GROUPS, 1, centres, targets)

@@ -123,7 +123,8 @@ def rotation_rows(roll: float, pitch: float, yaw: float, ops=FLOATS) -> tuple:
 
 
 def rotate_rows(rows, point) -> tuple[float, float, float]:
-    """``rows @ point`` in Python floats (``rows`` as from :func:`rotation_rows`)."""
+    """``rows @ point`` in scalar arithmetic (Python floats, CasADi symbols or JAX arrays;
+    ``rows`` as from :func:`rotation_rows`)."""
     x, y, z = point
     return tuple(a * x + b * y + c * z for a, b, c in rows)
 

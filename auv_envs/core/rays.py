@@ -15,8 +15,10 @@ from typing import NamedTuple
 
 import mujoco
 
+from auv_envs.core import frames
+
 #: MuJoCo's ``mjMINVAL``: its tolerance for a zero denominator or discriminant.
-MINVAL = 1e-15
+MINVAL = mujoco.mjMINVAL
 
 _KINDS = {mujoco.mjtGeom.mjGEOM_PLANE: "plane", mujoco.mjtGeom.mjGEOM_SPHERE: "sphere",
           mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule", mujoco.mjtGeom.mjGEOM_BOX: "box"}
@@ -24,11 +26,13 @@ _KINDS = {mujoco.mjtGeom.mjGEOM_PLANE: "plane", mujoco.mjtGeom.mjGEOM_SPHERE: "s
 
 class Primitive(NamedTuple):
     """A static geom: its ``kind`` (``plane``, ``sphere``, ``capsule``, ``box``), world
-    position, rotation (9 floats, row-major: MuJoCo's ``geom_xmat``) and ``size``."""
+    position, ``rows`` taking a world offset into its frame (three rows: the transpose
+    of MuJoCo's ``geom_xmat``, for :func:`auv_envs.core.frames.rotate_rows`) and
+    ``size``."""
 
     kind: str
     pos: tuple[float, ...]
-    mat: tuple[float, ...]
+    rows: tuple[tuple[float, ...], ...]
     size: tuple[float, ...]
 
 
@@ -55,8 +59,9 @@ def static_primitives(model: mujoco.MjModel, data: mujoco.MjData, groups,
         if kind is None:
             raise ValueError(f"geom {name!r} is a {mujoco.mjtGeom(model.geom_type[g]).name}: "
                              f"only {sorted(_KINDS.values())} are compiled")
-        out.append(Primitive(kind, tuple(data.geom_xpos[g].tolist()),
-                             tuple(data.geom_xmat[g].tolist()), tuple(model.geom_size[g].tolist())))
+        rows = tuple(tuple(row) for row in data.geom_xmat[g].reshape(3, 3).T.tolist())
+        out.append(Primitive(kind, tuple(data.geom_xpos[g].tolist()), rows,
+                             tuple(model.geom_size[g].tolist())))
     return tuple(out)
 
 
@@ -106,11 +111,9 @@ def _max(a, b, ops):
     return ops.where(a > b, a, b)
 
 
-def _local(primitive: Primitive, point) -> list:
-    """``point`` in the geom's frame (``mat`` transposed times ``point - pos``)."""
-    m = primitive.mat
-    d = [point[k] - primitive.pos[k] for k in range(3)]
-    return [m[k] * d[0] + m[3 + k] * d[1] + m[6 + k] * d[2] for k in range(3)]
+def _local(primitive: Primitive, point) -> tuple:
+    """``point`` in the geom's frame."""
+    return frames.rotate_rows(primitive.rows, [point[k] - primitive.pos[k] for k in range(3)])
 
 
 def _nonzero(x, ops):

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
-from auv_envs.core import frames, tessellation
+from auv_envs.core import frames, rays, tessellation
 from auv_envs.core.assets import asset_path
 from auv_envs.core.rendering import (
     DETAIL_SLICES,
@@ -232,6 +232,8 @@ def lamp_spheres(model: mujoco.MjModel) -> np.ndarray:
 #: and a distance, m.
 _SPEED_MARGIN = 0.5
 _DISTANCE_MARGIN = 0.05
+
+
 class _StaticScenery:
     """Where the hull could touch static geometry: planes and one bounding box.
 
@@ -489,8 +491,8 @@ class DockingPhysics:
             if candidate:
                 vec[0], vec[1], vec[2] = x - ox, y - oy, z - oz
                 dist = mujoco.mj_ray(model, data, start, vec, groups, 1, exclude, geom)
-                # dist is in units of |vec|: below 1, something is hit before the target.
-                candidate = not 0.0 <= dist < 1.0 - 1e-6
+                # dist is in units of |vec|: something is hit before the target.
+                candidate = not 0.0 <= dist < rays.END
             out.append(candidate)
         return out
 
