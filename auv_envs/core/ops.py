@@ -122,11 +122,20 @@ def casadi_ops() -> types.SimpleNamespace:
     def clip(x, low, high):  # comparisons, as FLOATS: NaN stays NaN
         return casadi.if_else(x < low, low, casadi.if_else(x > high, high, x))
 
+    # Comparisons, as Python's min and max choose (the second only where it is strictly
+    # smaller or larger): C's fmin and fmax, which CasADi emits for its own, are calls
+    # into the maths library in compiled code, where these are one instruction.
+    def minimum(a, b):
+        return casadi.if_else(b < a, b, a)
+
+    def maximum(a, b):
+        return casadi.if_else(b > a, b, a)
+
     return types.SimpleNamespace(
         name="casadi",
         sqrt=casadi.sqrt, sin=casadi.sin, cos=casadi.cos, exp=casadi.exp,
         atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
         hypot=lambda x, y: casadi.sqrt(x * x + y * y), clip=clip, where=casadi.if_else,
-        minimum=casadi.fmin, maximum=casadi.fmax, logical_not=casadi.logic_not,
+        minimum=minimum, maximum=maximum, logical_not=casadi.logic_not,
         barrier=lambda values: values,
     )

@@ -94,21 +94,10 @@ def blocked(primitives, point, target, ops):
         if primitive.kind != "plane":
             inside = _INSIDE[primitive.kind]
             lend = [lpnt[k] + lvec[k] for k in range(3)]
-            meets = _min(meets, -_min(inside(primitive, lpnt, ops),
-                                      inside(primitive, lend, ops), ops), ops)
-        margin = _max(margin, meets, ops)
+            meets = ops.minimum(meets, -ops.minimum(inside(primitive, lpnt, ops),
+                                                    inside(primitive, lend, ops)))
+        margin = ops.maximum(margin, meets)
     return margin >= 0.0
-
-
-def _min(a, b, ops):
-    """The smaller of ``a`` and ``b`` by a comparison (``ops.minimum`` is C's ``fmin``
-    when compiled: a call into the maths library, where this is one instruction)."""
-    return ops.where(a < b, a, b)
-
-
-def _max(a, b, ops):
-    """The larger of ``a`` and ``b`` by a comparison (see :func:`_min`)."""
-    return ops.where(a > b, a, b)
 
 
 def _local(primitive: Primitive, point) -> tuple:
@@ -124,10 +113,10 @@ def _nonzero(x, ops):
 def _plane(primitive: Primitive, p, d, ops):
     toward = d[2] <= -MINVAL  # from the front face's side only, as mj_ray
     x = -p[2] / ops.where(toward, d[2], -1.0)  # in units of the segment (to END)
-    margin = _min(x, 1.0 - x, ops)
+    margin = ops.minimum(x, 1.0 - x)
     for k in range(2):
         if primitive.size[k] > 0:  # infinite where the size is not positive
-            margin = _min(margin, primitive.size[k] - abs(p[k] + x * d[k]), ops)
+            margin = ops.minimum(margin, primitive.size[k] - abs(p[k] + x * d[k]))
     return ops.where(toward, margin, -1.0)
 
 
@@ -167,8 +156,8 @@ def _box(primitive: Primitive, p, d, ops):
     for k in range(3):
         inv = 1.0 / _nonzero(d[k], ops)
         low, high = (-primitive.size[k] - p[k]) * inv, (primitive.size[k] - p[k]) * inv
-        near = _max(near, _min(low, high, ops), ops)
-        far = _min(far, _max(low, high, ops), ops)
+        near = ops.maximum(near, ops.minimum(low, high))
+        far = ops.minimum(far, ops.maximum(low, high))
     return far - near
 
 
@@ -184,8 +173,8 @@ def _inside_capsule(primitive: Primitive, p, ops):
 
 def _inside_box(primitive: Primitive, p, ops):
     size = primitive.size
-    return _min(_min(size[0] - abs(p[0]), size[1] - abs(p[1]), ops), size[2] - abs(p[2]),
-                ops)
+    return ops.minimum(ops.minimum(size[0] - abs(p[0]), size[1] - abs(p[1])),
+                       size[2] - abs(p[2]))
 
 
 #: Per solid: a margin non-negative where a point (in the geom's frame) is inside it.
