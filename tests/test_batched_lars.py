@@ -259,3 +259,51 @@ def test_a_fixed_policys_outcomes_agree_on_100_seeds():
           f"outcomes agree on {agree} of {len(seeds)} seeds")
     assert 0 < sum(cpu_success) < len(seeds)  # mixed outcomes: the check can fail
     assert agree >= 95, f"outcomes agree on {agree} of {len(seeds)} seeds"
+
+
+def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
+    """The MJX arm's solver settings (``SOLVER_ITERATIONS``): from the CPU arm's state,
+    each control period of 16 arms driven by swinging torques into their joint limits
+    ends where MuJoCo's does, to float32 rounding (7e-6 rad; two iterations are 1.3e-4 rad
+    off, one 0.6 rad when a limit engages)."""
+    import mujoco
+
+    from auv_envs.batched.lars_env import ArmPlantMJX
+    from auv_envs.tasks.lars.env import FRAME_SKIP
+
+    env = LARSCaptureEnv(obs_mode="state", control="torque")
+    plant = ArmPlantMJX(env)
+    model = env.physics.model
+    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
+    rng = np.random.default_rng(7)
+    n = 16
+    amplitude = rng.uniform(0.3, 1.0, (n, 3))
+    frequency = rng.uniform(0.2, 1.0, (n, 3))
+    phase = rng.uniform(0.0, 2.0 * np.pi, (n, 3))
+    arms = [mujoco.MjData(model) for _ in range(n)]
+    for data, q in zip(arms, rng.uniform(low + 0.1, high - 0.1, (n, 3)), strict=True):
+        data.qpos[:] = q
+        mujoco.mj_forward(model, data)
+    advance = jax.jit(jax.vmap(plant.advance))
+    template = jax.vmap(lambda q: plant.place(tuple(q)))(jnp.zeros((n, 3), jnp.float32))
+    worst, engaged = 0.0, 0
+    for k in range(250):
+        torques = np.clip(amplitude * np.sin(2 * np.pi * frequency * k * env.dt + phase),
+                          -1.0, 1.0).astype(np.float32)
+        start = template.replace(
+            qpos=jnp.asarray([d.qpos for d in arms], jnp.float32),
+            qvel=jnp.asarray([d.qvel for d in arms], jnp.float32),
+            qacc_warmstart=jnp.asarray([d.qacc_warmstart for d in arms], jnp.float32))
+        for data, torque in zip(arms, torques, strict=True):
+            data.ctrl[:] = torque
+            for _ in range(FRAME_SKIP):
+                mujoco.mj_step(model, data)
+            engaged += data.nefc > 0
+        moved, _ = advance(start, jnp.asarray(torques), jnp.zeros(n, jnp.float32))
+        cpu = np.array([d.qpos for d in arms])
+        worst = max(worst, float(np.abs(np.asarray(moved.qpos) - cpu).max()))
+    env.close()
+    print(f"\none period from the CPU state: joints within {worst:.2e} rad; a limit engaged "
+          f"in {engaged} of {n * 250} periods")
+    assert engaged > 500  # the limits are exercised
+    assert worst < 3e-5, f"a period ends {worst:.2e} rad from MuJoCo's on the CPU"

@@ -29,6 +29,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import mujoco
 from mujoco import mjx
 
 from auv_envs.batched.functional import FunctionalEnv, KeyDraws, State
@@ -83,19 +84,45 @@ _register_attributes(HarmonicSeries, ("omega", "_matrix"), ("n_channels", "_xp",
 _register_attributes(EpisodeSea, ("_series",), ("_n_analogs",))
 
 
+#: MJX's Newton solver on the arm: at most three iterations from the warm start (the
+#: previous step's accelerations), up to 4 line-search steps each; the CPU model allows
+#: 100 and 50 to a tolerance of 1e-8. The arm's only constraints are its three joint
+#: limits, and three iterations reach the CPU solution there: from the same state, one
+#: control period of arms driven into their limits ends within 7e-6 rad of MuJoCo's on
+#: the CPU, as with 100 and 50; two iterations end up to 1.3e-4 rad off, one 0.6 rad
+#: (``tests/test_batched_lars.py``). Under ``vmap`` on the CPU the solver was most of
+#: a step: each lane's 3 x 3 Newton system is a LAPACK call (docs/speed.md).
+SOLVER_ITERATIONS = 3
+LINE_SEARCH_ITERATIONS = 4
+
+
 class ArmPlantMJX:
     """The LARS arm on MJX: the CPU environment's model with contacts off (the CPU
-    model has them disabled too), stepped ``FRAME_SKIP`` physics steps a control period.
+    model has them disabled too), MJX's solver settings (:data:`SOLVER_ITERATIONS`) and
+    its sparse mass-matrix factorisation (MJX's own arithmetic: the dense one is a LAPACK
+    call per arm on the CPU), stepped ``FRAME_SKIP`` physics steps a control period.
 
     ``control="torque"``: the action is the actuators' control. ``"position"``:
     [LTAT]'s computed-torque loop (eqs. 29-30) at the physics rate, as
-    :class:`auv_envs.tasks.lars.env._MujocoArm` runs it on the CPU.
+    :class:`auv_envs.tasks.lars.env._MujocoArm` runs it on the CPU: the mass matrix
+    and bias forces of each physics step's positions and velocities give its control,
+    and the step goes on from them (``mjx.step``'s stages, its position and velocity
+    stages once).
     """
 
     def __init__(self, env: LARSCaptureEnv):
         model = copy.deepcopy(env.physics.model)
         model.geom_contype[:] = 0
         model.geom_conaffinity[:] = 0
+        if model.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER:
+            raise ValueError("the batched arm steps MuJoCo's Euler integrator; the model "
+                             f"has integrator {model.opt.integrator}")
+        if model.nsensor:
+            raise ValueError("the batched arm steps without MJX's sensor stages; the model "
+                             f"has {model.nsensor} sensors")
+        model.opt.iterations = SOLVER_ITERATIONS
+        model.opt.ls_iterations = LINE_SEARCH_ITERATIONS
+        model.opt.jacobian = mujoco.mjtJacobian.mjJAC_SPARSE
         self.model = mjx.put_model(model)
         #: An MJX data of the model at rest (the template a reset fills).
         self.rest_data = mjx.make_data(model)
@@ -122,12 +149,16 @@ class ArmPlantMJX:
             return data, effort + jnp.sum(action * action) * self.dt
         target = self.q_mid + action * self.q_half
         for _ in range(FRAME_SKIP):
-            now = mjx.forward(model, data)
+            # mjx.step without its sensors (the model has none), the position and
+            # velocity stages, which the control does not enter, run once.
+            data = mjx.fwd_velocity(model, mjx.fwd_position(model, data))
             accel = self.kp * (target - data.qpos) - self.kd * data.qvel
-            tau = mjx.mul_m(model, now, accel) + now.qfrc_bias
+            tau = mjx.mul_m(model, data, accel) + data.qfrc_bias
             ctrl = jnp.clip(tau / self.limits, -1.0, 1.0)
             effort = effort + jnp.sum(ctrl * ctrl) * self.timestep
-            data = mjx.step(model, data.replace(ctrl=ctrl))
+            data = mjx.fwd_acceleration(model, mjx.fwd_actuation(model,
+                                                                 data.replace(ctrl=ctrl)))
+            data = mjx.euler(model, mjx.solve(model, data))
         return data, effort
 
 
