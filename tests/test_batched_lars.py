@@ -292,8 +292,7 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
                           -1.0, 1.0).astype(np.float32)
         start = template.replace(
             qpos=jnp.asarray([d.qpos for d in arms], jnp.float32),
-            qvel=jnp.asarray([d.qvel for d in arms], jnp.float32),
-            qacc_warmstart=jnp.asarray([d.qacc_warmstart for d in arms], jnp.float32))
+            qvel=jnp.asarray([d.qvel for d in arms], jnp.float32))
         for data, torque in zip(arms, torques, strict=True):
             data.ctrl[:] = torque
             for _ in range(FRAME_SKIP):

@@ -17,9 +17,10 @@ corners. Not built, and refused with a ``ValueError``: the rendered ``stereo``
 mode.
 
 What differs from the CPU environment: a seed gives other episodes (JAX's
-generator; the distributions are the same); everything runs in float32; MJX's
-constraint solver is not MuJoCo's, so an arm at a joint limit moves slightly
-differently (the equivalence tests bound the difference).
+generator; the distributions are the same); everything runs in float32; the
+joint limits' forces are the exact minimiser of MuJoCo's constraint problem
+(:meth:`ArmPlantMJX.constrain`), where MuJoCo iterates to a tolerance (the
+equivalence tests bound the difference).
 """
 
 from __future__ import annotations
