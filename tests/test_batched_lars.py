@@ -265,7 +265,7 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
     """The MJX arm's exact joint-limit solve (``ArmPlantMJX.constrain``): from the CPU
     arm's state, each control period of 16 arms driven by swinging torques into their
     joint limits ends where MuJoCo's does, to float32 rounding (MJX's own Newton solver
-    gave 7e-6 rad with 3 to 100 iterations, 1.3e-4 with two, 0.6 rad with one)."""
+    gave 7e-6 rad with 3 to 100 iterations, 1.3e-4 with two; docs/speed.md)."""
     import mujoco
 
     from auv_envs.batched.lars_env import ArmPlantMJX
