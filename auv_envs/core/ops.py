@@ -9,7 +9,7 @@ the same code then evaluates a batch of JAX arrays elementwise, inside
 ``jit`` and ``vmap``. The dynamics accept ``math``, ``numpy`` or ``casadi``
 modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
-Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan2``, ``asin``, ``acos``,
+Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan``, ``atan2``, ``asin``, ``acos``,
 ``hypot``, ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``,
 ``maximum``, ``logical_not`` and ``barrier(values)`` (a
 tuple of scalars materialised as one array where XLA would otherwise fuse them into
@@ -80,7 +80,7 @@ def _clip(x, low, high):
 #: Python floats (and bools): :mod:`math`, with ``where`` a conditional expression.
 FLOATS = types.SimpleNamespace(
     name="floats",
-    sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan2=math.atan2,
+    sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan=math.atan, atan2=math.atan2,
     asin=math.asin, acos=math.acos, hypot=math.hypot, clip=_clip, where=_where,
     minimum=min, maximum=max,
     logical_not=lambda x: not x,
@@ -99,7 +99,7 @@ def jax_ops() -> types.SimpleNamespace:
 
     return types.SimpleNamespace(
         name="jax",
-        sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan2=jnp.arctan2,
+        sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan=jnp.arctan, atan2=jnp.arctan2,
         asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, clip=jnp.clip, where=jnp.where,
         minimum=jnp.minimum,
         maximum=jnp.maximum, logical_not=jnp.logical_not,
@@ -134,7 +134,7 @@ def casadi_ops() -> types.SimpleNamespace:
     return types.SimpleNamespace(
         name="casadi",
         sqrt=casadi.sqrt, sin=casadi.sin, cos=casadi.cos, exp=casadi.exp,
-        atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
+        atan=casadi.atan, atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
         hypot=lambda x, y: casadi.sqrt(x * x + y * y), clip=clip, where=casadi.if_else,
         minimum=minimum, maximum=maximum, logical_not=casadi.logic_not,
         barrier=lambda values: values,

@@ -39,42 +39,15 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
 
 from baselines.rl.config import ConfigError
-
-#: The layout of :class:`MarkerEstimate`'s observation vector: name and length.
-LAYOUT = (
-    ("hold_target", 3),       # q as the position action that holds it, (q - mid) / half
-    ("joint_velocity", 3),    # rad/s
-    ("offset", 3),            # capture point minus capture tip, m (arm frame)
-    ("relative_velocity", 3),  # AUV CG velocity minus tip velocity, m/s
-    ("offset_ahead", 3),      # the offset HORIZON s ahead under eq. 8 (tip held still), m
-    ("estimate", 3),          # settled, heave fitted, ln(1 + steps since the last fix)
-    # the three vectors above in joint-target units: J(q)^-1 v / half (the joint-target
-    # change that would move the tip by v, the arm's first-order inverse kinematics)
-    ("joint_offset", 3),
-    ("joint_relative_velocity", 3),
-    ("joint_offset_ahead", 3),
-)
-#: s ahead of ``offset_ahead``.
-HORIZON = 0.5
-SIZE = sum(n for _, n in LAYOUT)
-
-
-def _slices() -> dict[str, slice]:
-    out, start = {}, 0
-    for name, n in LAYOUT:
-        out[name] = slice(start, start + n)
-        start += n
-    return out
-
-
-SLICES = _slices()
+from baselines.rl.marker_track import HORIZON, SIZE, SLICES
 
 
 class MarkerEstimate(gym.ObservationWrapper):
     """Replaces the LARS ``features`` observation by ``ckf-pd``'s state estimate,
     relative to the capture tip.
 
-    Observation: a ``Box((27,), float32)`` laid out as :data:`LAYOUT`, all in the
+    Observation: a ``Box((27,), float32)`` laid out as
+    :data:`~baselines.rl.marker_track.LAYOUT`, all in the
     arm's (ship's) frame. The capture tip is the arm end's forward kinematics plus
     ``calibration.capture_tip_in_end`` (the head is levelled), its velocity the
     Jacobian times the joint rates; the capture point is the estimate's CG plus the
@@ -223,7 +196,7 @@ class JointResidualPolicy(ActorCriticPolicy):
         if not isinstance(action_space, spaces.Box) or action_space.shape != (3,):
             raise ConfigError(f"JointResidualPolicy acts with 3 joint targets, got {action_space}")
         if not isinstance(observation_space, spaces.Box) or observation_space.shape != (SIZE,):
-            raise ConfigError("JointResidualPolicy reads MarkerEstimate's observation "
+            raise ConfigError("JointResidualPolicy reads a LARS front end's observation "
                               f"({SIZE},), got {observation_space}")
         super().__init__(observation_space, action_space, lr_schedule, **kwargs)
 

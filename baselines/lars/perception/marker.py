@@ -24,6 +24,7 @@ import math
 import numpy as np
 
 from auv_envs.core import frames
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.stereo import StereoRig, triangulate
 
 #: Floor on the pixel noise the measurement covariance assumes (px): detectors
@@ -37,18 +38,18 @@ MIN_DISPARITY = 1.0
 ADAPT_MIN_CORNERS = 30
 
 
-def attitude_rotation(pitch: float, yaw: float) -> np.ndarray:
+def attitude_rotation(pitch: float, yaw: float, xp=np) -> np.ndarray:
     """Body-to-world rotation (3, 3) of the level-rolled AUV with nose-up ``pitch`` and ``yaw``.
 
     The attitude convention of ``auv_envs/LARSCapture-v0`` (pitch nose up,
     yaw from world +x, counter-clockwise seen from above) through
     :func:`auv_envs.core.frames.rotation_from_euler`, whose ZYX pitch is
-    nose-down positive, hence the sign.
+    nose-down positive, hence the sign. ``xp``: NumPy, or ``jax.numpy`` for traced angles.
     """
-    return frames.rotation_from_euler(0.0, -pitch, yaw)
+    return frames.rotation_from_euler(0.0, -pitch, yaw, xp)
 
 
-def marker_pitch_yaw(corners, depth_offset: float) -> tuple[float, float]:
+def marker_pitch_yaw(corners, depth_offset: float, ops=FLOATS) -> tuple[float, float]:
     """AUV pitch and yaw from the marker's corners ([LTAT], eqs. 4-6).
 
     With A1, A2 the base corners, A3 the apex and ``D`` the marker's offset
@@ -69,21 +70,23 @@ def marker_pitch_yaw(corners, depth_offset: float) -> tuple[float, float]:
             world frame of this task (heading reference +x, yaw counter-
             clockwise), pass them with x and y swapped: ``corners[:, [1, 0, 2]]``.
         depth_offset: ``D`` of eq. 4.
+        ops: :data:`~auv_envs.core.ops.FLOATS` (the default) or
+            :func:`~auv_envs.core.ops.jax_ops` (traced corners).
 
     Returns:
         ``(pitch, yaw)`` in radians; pitch is nose-up positive.
     """
-    a = np.asarray(corners, dtype=float)
+    a = ops.xp.asarray(corners, dtype=float)
     x4, y4 = 0.5 * (a[0, 0] + a[1, 0]), 0.5 * (a[0, 1] + a[1, 1])
     z4 = 0.5 * (a[0, 2] + a[1, 2]) + depth_offset  # eq. 4
     dx, dy, dz = a[2, 0] - x4, a[2, 1] - y4, a[2, 2] - z4
-    pitch = math.atan(dz / math.hypot(dx, dy))  # eq. 5
-    yaw = math.atan2(dx, dy)  # eq. 6 (atan2 keeps the quadrant)
+    pitch = ops.atan(dz / ops.hypot(dx, dy))  # eq. 5
+    yaw = ops.atan2(dx, dy)  # eq. 6 (atan2 keeps the quadrant)
     return pitch, yaw
 
 
 def marker_attitude(corners, depth_offset: float, refine: bool = True,
-                    passes: int = 3) -> tuple[float, float]:
+                    passes: int = 3, ops=FLOATS) -> tuple[float, float]:
     """AUV pitch (nose up) and yaw (from world +x, counter-clockwise) from A1, A2, A3.
 
     Args:
@@ -92,17 +95,19 @@ def marker_attitude(corners, depth_offset: float, refine: bool = True,
         refine: apply ``D`` along the body vertical (see the module docstring);
             ``False`` is eqs. 4-6 as printed.
         passes: refinement passes.
+        ops: as :func:`marker_pitch_yaw`'s.
     """
-    a = np.asarray(corners, dtype=float)
+    xp = ops.xp
+    a = xp.asarray(corners, dtype=float)
     swap = [1, 0, 2]  # eq. 6 measures yaw from the y axis; the world's heading is +x
-    pitch, yaw = marker_pitch_yaw(a[:, swap], depth_offset)
+    pitch, yaw = marker_pitch_yaw(a[:, swap], depth_offset, ops)
     if refine:
         for _ in range(passes):
             # shift the base so that eq. 4's "+ D z" lands at "+ D body_z"
-            shift = depth_offset * (attitude_rotation(pitch, yaw)[:, 2] - (0.0, 0.0, 1.0))
-            moved = a.copy()
-            moved[:2] += shift
-            pitch, yaw = marker_pitch_yaw(moved[:, swap], depth_offset)
+            shift = depth_offset * (attitude_rotation(pitch, yaw, xp)[:, 2] - xp.asarray(
+                (0.0, 0.0, 1.0)))
+            moved = xp.concatenate([a[:2] + shift, a[2:]])
+            pitch, yaw = marker_pitch_yaw(moved[:, swap], depth_offset, ops)
     return pitch, yaw
 
 
