@@ -21,6 +21,7 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd  # noqa: E4
 import auv_envs  # noqa: E402,F401
 from baselines.rl import compiled  # noqa: E402
 from baselines.rl.agents import load_policy_agent, register_external_policy  # noqa: E402
+from baselines.rl.marker_track import MarkerTrack  # noqa: E402
 from baselines.rl.policy import PolicyFileError  # noqa: E402
 
 ENV_ID = "auv_envs/DockingStation-v2"
@@ -190,7 +191,12 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
     ({"n_epochs": 2.5}, "n_epochs must be an integer"),
     ({"obs_mode": "measurements"}, r"obs_mode \('state', 'features', 'nav', 'nav_features'\)"),
     ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
-    ({"env_kwargs": {"time_limit": 5.0}}, "may set 'difficulty' only"),
+    ({"env_kwargs": {"sea_state": 3}}, "may set difficulty, control, time_limit only"),
+    ({"policy": "CnnPolicy"}, "MlpPolicy or JointResidualPolicy"),
+    ({"policy": "JointResidualPolicy", "normalize": False}, "set marker_track: true"),
+    ({"marker_track": True}, "LARSCapture-v0's features front end"),
+    ({"marker_track": "yes"}, "marker_track must be true or false"),
+    ({"log_std_init": 5.0}, r"log_std_init must be a finite number in \[-20, 2\]"),
     ({"num_envs": 10, "n_minibatches": 48}, "must split into"),
     ({"evals": 0}, r"evals must be an integer in \[1, inf\)"),
     ({"checkpoints": "yes"}, "checkpoints must be true or false"),
@@ -214,6 +220,14 @@ def test_cppo_yml_holds_the_trainers_defaults_and_only_batched_envs():
         assert config.run["env_kwargs"] == {"difficulty": "paper"}
     assert resolve_config("cppo", "auv_envs/AcousticTracking-v2", 0).run["obs_mode"] == \
         "measurements"
+    lars = resolve_config("cppo", "auv_envs/LARSCapture-v0", 0)  # cppo-lars-features
+    assert lars.run["marker_track"] and lars.run["n_timesteps"] == 300_000
+    assert lars.run["env_kwargs"] == {"difficulty": "paper", "control": "position",
+                                      "time_limit": 20.0}
+    assert compiled.Settings(**lars.hyperparams).policy == compiled.RESIDUAL
+    with pytest.raises(ConfigError, match="set env_kwargs: {control: position}"):
+        resolve_config("cppo", "auv_envs/LARSCapture-v0", 0,
+                       {"env_kwargs": {"difficulty": "paper", "control": "torque"}})
     with pytest.raises(ConfigError, match="unknown env id"):
         resolve_config("cppo", "auv_envs/LARSCapture-v9", 0)
     with pytest.raises(ConfigError, match="seed must be"):
@@ -244,12 +258,15 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
 
 
 @pytest.mark.parametrize("name", [f"cppo-{family}-features-s{seed}"
-                                  for family in ("docking", "lamp-array") for seed in range(3)])
+                                  for family in ("docking", "lamp-array", "lars")
+                                  for seed in range(3)])
 def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
-    from baselines.rl.config import resolve_config
+    from baselines.rl.config import TrainConfig, resolve_config
     from baselines.rl.manifest import policies_root
 
-    shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())
+    # read as train.py reads a config (run keys added since filled with their defaults)
+    shipped = TrainConfig.from_dict(
+        yaml.safe_load((policies_root() / name / "config.yml").read_text())).to_dict()
     assert shipped == resolve_config("cppo", shipped["env_id"], shipped["seed"]).to_dict()
     manifest = json.loads((policies_root() / name / "policy.json").read_text())
     assert manifest["command"].startswith("python train.py --algo cppo")
@@ -264,11 +281,12 @@ def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
 def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, seed):
     # cppo-*-features-hard: the shipped recipe with two overrides, as
     # docs/training.md gives the command.
-    from baselines.rl.config import resolve_config
+    from baselines.rl.config import TrainConfig, resolve_config
     from baselines.rl.manifest import policies_root
 
     name = f"cppo-{family}-features-hard-s{seed}"
-    shipped = yaml.safe_load((policies_root() / name / "config.yml").read_text())
+    shipped = TrainConfig.from_dict(
+        yaml.safe_load((policies_root() / name / "config.yml").read_text())).to_dict()
     overrides = {"env_kwargs": {"difficulty": "hard"}, "n_timesteps": steps}
     assert shipped == resolve_config("cppo", env_id, seed, overrides).to_dict()
     manifest = json.loads((policies_root() / name / "policy.json").read_text())
@@ -291,13 +309,51 @@ def test_cppo_knows_every_batched_family_and_its_modes():
         assert modes == module.OBS_MODES
 
 
-@pytest.mark.parametrize(("env_id", "obs_mode"), [("auv_envs/LARSCapture-v0", "features"),
-                                                  ("auv_envs/AcousticTracking-v2",
-                                                   "measurements")])
-def test_one_iteration_on_each_other_family_exports_a_policy_for_its_cpu_env(
-        tmp_path, env_id, obs_mode):
-    """LARS and acoustic: an iteration of 4 envs x 4 steps, then the policy written and
-    acting in the CPU env as the JAX policy acts, through the action box's rescaling."""
+def test_the_residual_lars_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
+    """cppo-lars-features' recipe: an iteration of 4 envs x 4 steps on the marker tracker's
+    observation, then the JointResidualPolicy written and acting in the CPU env (through
+    MarkerTrack) as the JAX policy acts; untrained, it is the servo exactly."""
+    from baselines.rl.marker_track import SLICES
+
+    kwargs = {"difficulty": "paper", "control": "position", "time_limit": 20.0}
+    env = compiled.make_env("auv_envs/LARSCapture-v0", "features", kwargs, marker_track=True)
+    settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1,
+                                 policy=compiled.RESIDUAL, normalize=False, log_std_init=-5.0)
+    trainer = compiled.Trainer(env, settings)
+    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
+    obs = np.asarray(states.obs)
+    servo = obs[:, SLICES["hold_target"]] + 0.3 * obs[:, SLICES["joint_offset"]]
+    np.testing.assert_allclose(compiled.policy_mean(params, states.obs, states.obs), servo,
+                               atol=1e-6)
+    params, opt_state, normalizer, states, key, stats = trainer.iteration(
+        params, opt_state, normalizer, states, key)
+    assert bool(trainer.all_finite(params))
+    params["pi"][-1]["w"] = params["pi"][-1]["w"] + 0.05  # a correction far from zero
+    params["servo_gain"] = jnp.asarray([0.2, 0.4, 0.5])
+    run = {"env_id": "auv_envs/LARSCapture-v0", "obs_mode": "features", "seed": 0,
+           "n_timesteps": 16, "wall_time_s": 0.0, "difficulty": "paper", "env_kwargs": kwargs,
+           "marker_track": True, "settings": settings._asdict(), "curve": []}
+    manifest = compiled.export(params, normalizer, tmp_path / "policy", run)
+    assert manifest["marker_track"] and manifest["env_kwargs"] == kwargs
+    assert set(manifest["files"]) == {"model.zip"}  # no normaliser: the observation as it is
+    cpu = gym.make("auv_envs/LARSCapture-v0", obs_mode="features", **kwargs).unwrapped
+    agent = load_policy_agent(tmp_path / "policy", cpu)
+    tracker = MarkerTrack(gym.make("auv_envs/LARSCapture-v0", obs_mode="features", **kwargs))
+    obs, info = cpu.reset(seed=4)
+    for _ in range(30):  # the agent's own tracker and this one see the same observations
+        vector = jnp.asarray(tracker.observation(obs))[None]
+        expected = np.clip(np.asarray(compiled.policy_mean(params, vector, vector)[0]), -1, 1)
+        action = agent.act(obs, info)
+        np.testing.assert_allclose(action, expected, atol=1e-5)
+        obs, _, terminated, truncated, info = cpu.step(action)
+        if terminated or truncated:
+            break
+
+
+def test_one_iteration_on_acoustic_exports_a_policy_for_its_cpu_env(tmp_path):
+    """An iteration of 4 envs x 4 steps, then the policy written and acting in the CPU env
+    as the JAX policy acts, through the action box's rescaling."""
+    env_id, obs_mode = "auv_envs/AcousticTracking-v2", "measurements"
     env = compiled.make_env(env_id, obs_mode, "paper")
     settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1)
     trainer = compiled.Trainer(env, settings)

@@ -33,6 +33,7 @@ CHECKS = {
     "ppo-docking-features": ("easy", {}, "near"),
     "ppo-lamp-array-features": ("easy", {}, "near"),
     "ppo-lars-features": ("paper", {}, "captured"),
+    "cppo-lars-features": ("paper", {}, "captured"),
     "ppo-acoustic-measurements": ("paper", {"time_limit": 10.0}, "tracked"),
 }
 

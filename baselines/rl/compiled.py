@@ -59,6 +59,7 @@ from baselines.rl.config import (
     save_config,
     validate,
 )
+from baselines.rl.marker_track import SLICES, MarkerTrackMJX
 from baselines.rl.training import (
     RunDirectory,
     TrainingDiverged,
@@ -77,6 +78,8 @@ CLIP_OBS, NORM_EPSILON = 10.0, 1e-8
 #: PPO's settings (SB3's names where they exist); ``cppo.yml`` sets them.
 Settings = CompiledSettings
 DEFAULT_SETTINGS = Settings()
+#: ``policy`` of a residual policy on a servo (SB3's class of that name is what it exports).
+RESIDUAL = "JointResidualPolicy"
 
 
 def flatten_observation(obs, keys) -> jax.Array:
@@ -107,13 +110,35 @@ def _mlp(layers: list, x: jax.Array) -> jax.Array:
     return x @ layers[-1]["w"] + layers[-1]["b"]
 
 
-def init_params(key, obs_size: int, action_size: int) -> dict:
-    """Mean network (head gain 0.01), value network (gain 1), log std 0: SB3's PPO start."""
+def init_params(key, obs_size: int, action_size: int,
+                settings: Settings | None = None) -> dict:
+    """SB3's PPO start: mean network (head gain 0.01), value network (gain 1), log std
+    ``log_std_init`` (0 by default). With ``policy: JointResidualPolicy`` the mean's head
+    starts at zero and the servo's per-joint gains at ``servo_gain``
+    (:class:`~baselines.rl.marker_estimate.JointResidualPolicy`)."""
+    settings = settings or DEFAULT_SETTINGS
     pi_key, vf_key = jax.random.split(key)
     sizes = (obs_size, *HIDDEN_LAYERS)
-    return {"pi": _mlp_init(pi_key, sizes, action_size, 0.01),
-            "vf": _mlp_init(vf_key, sizes, 1, 1.0),
-            "log_std": jnp.zeros(action_size, jnp.float32)}
+    params = {"pi": _mlp_init(pi_key, sizes, action_size, 0.01),
+              "vf": _mlp_init(vf_key, sizes, 1, 1.0),
+              "log_std": jnp.full(action_size, settings.log_std_init, jnp.float32)}
+    if settings.policy == RESIDUAL:
+        params["pi"][-1] = jax.tree_util.tree_map(jnp.zeros_like, params["pi"][-1])
+        params["servo_gain"] = jnp.full(action_size, settings.servo_gain, jnp.float32)
+    return params
+
+
+def policy_mean(params: dict, obs: jax.Array, x: jax.Array) -> jax.Array:
+    """The Gaussian's mean from the observation ``obs`` and the network's input ``x``
+    (``obs`` normalised, or ``obs`` itself): the MLP's output, or with a servo's gains
+    (``JointResidualPolicy``) the hold target plus the gains times the joint offset to
+    the capture point plus the MLP's output (the observation of
+    :mod:`baselines.rl.marker_track`)."""
+    mean = _mlp(params["pi"], x)
+    if "servo_gain" not in params:
+        return mean
+    return (obs[..., SLICES["hold_target"]] + params["servo_gain"]
+            * obs[..., SLICES["joint_offset"]] + mean)
 
 
 class Normalizer(NamedTuple):
@@ -170,6 +195,9 @@ class Trainer:
         self.keys = tuple(space.spaces) if isinstance(space, gym.spaces.Dict) else None
         self.obs_size = int(gym.spaces.flatdim(space))
         self.action_size = env.action_size
+        if settings.policy == RESIDUAL and not isinstance(env, MarkerTrackMJX):
+            raise ConfigError("policy JointResidualPolicy reads the marker tracker's observation: "
+                              "set marker_track: true")
         schedule = optax.linear_schedule(settings.learning_rate, 0.0,
                                          total_iterations * settings.n_epochs
                                          * settings.n_minibatches)
@@ -184,13 +212,17 @@ class Trainer:
 
     def init(self, key) -> tuple:
         net_key, env_key, key = jax.random.split(key, 3)
-        params = init_params(net_key, self.obs_size, self.action_size)
+        params = init_params(net_key, self.obs_size, self.action_size, self.settings)
         states = self._reset_batch(jax.random.split(env_key, self.settings.num_envs))
         normalizer = Normalizer.create(self.obs_size).update(self._flat(states.obs))
         return params, self.optimizer.init(params), normalizer, states, key
 
     def _flat(self, obs):
         return jax.vmap(lambda o: flatten_observation(o, self.keys))(obs)
+
+    def _input(self, normalizer: Normalizer, obs: jax.Array) -> jax.Array:
+        """The networks' input: ``obs`` normalised, or as it is (``normalize: false``)."""
+        return normalizer(obs) if self.settings.normalize else obs
 
     def _iteration(self, params, opt_state, normalizer, states, key):
         s = self.settings
@@ -199,8 +231,8 @@ class Trainer:
             states, key = carry
             key, sample_key = jax.random.split(key)
             obs = self._flat(states.obs)
-            x = normalizer(obs)
-            mean = _mlp(params["pi"], x)
+            x = self._input(normalizer, obs)
+            mean = policy_mean(params, obs, x)
             action = mean + jnp.exp(params["log_std"]) * jax.random.normal(sample_key,
                                                                           mean.shape)
             value = _mlp(params["vf"], x)[:, 0]
@@ -211,7 +243,7 @@ class Trainer:
 
         (states, key), (obs, actions, log_probs, values, rewards, dones, successes) = \
             jax.lax.scan(act, (states, key), None, length=s.n_steps)
-        last_value = _mlp(params["vf"], normalizer(self._flat(states.obs)))[:, 0]
+        last_value = _mlp(params["vf"], self._input(normalizer, self._flat(states.obs)))[:, 0]
 
         def gae(carry, step):
             advantage, next_value = carry
@@ -228,8 +260,8 @@ class Trainer:
 
         def loss_fn(params, mb):
             obs, action, old_log_prob, advantage, ret = mb
-            x = normalizer(obs)
-            mean = _mlp(params["pi"], x)
+            x = self._input(normalizer, obs)
+            mean = policy_mean(params, obs, x)
             log_prob = _log_prob(params, mean, action)
             ratio = jnp.exp(log_prob - old_log_prob)
             advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
@@ -269,7 +301,7 @@ class Trainer:
         compiles in a thread while the first reset and iteration compile (most of XLA's
         compiling runs on one core)."""
         params = jax.eval_shape(lambda: init_params(jax.random.PRNGKey(0), self.obs_size,
-                                                    self.action_size))
+                                                    self.action_size, self.settings))
         normalizer = jax.eval_shape(lambda: Normalizer.create(self.obs_size))
         return self.evaluate.lower(params, normalizer, episodes, steps).compile()
 
@@ -281,7 +313,8 @@ class Trainer:
 
         def act(carry, _):
             states, done, success, total = carry
-            mean = _mlp(params["pi"], normalizer(self._flat(states.obs)))
+            obs = self._flat(states.obs)
+            mean = policy_mean(params, obs, self._input(normalizer, obs))
             nxt = self._step(states, jnp.clip(mean, -1.0, 1.0))
             ended = nxt.done & ~done
             total = total + jnp.where(done, 0.0, nxt.reward)
@@ -298,17 +331,29 @@ class Trainer:
 EVAL_EPISODES = 64
 
 
-def make_env(env_id: str, obs_mode: str, difficulty: str) -> FunctionalEnv:
+def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
+             marker_track: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
-    trains on: episodes reset themselves, actions in [-1, 1]."""
-    return FAMILIES[env_id][0](obs_mode=obs_mode, difficulty=difficulty).use_unit_actions()
+    trains on, built with ``env_kwargs`` (a difficulty level alone: a string): episodes
+    reset themselves, actions in [-1, 1]; with ``marker_track``, the LARS ``features``
+    observation replaced by the marker tracker's (:class:`MarkerTrackMJX`)."""
+    env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
+    try:
+        env = FAMILIES[env_id][0](obs_mode=obs_mode, **env_kwargs).use_unit_actions()
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
+                          f"env_kwargs {env_kwargs}: {exc}") from exc
+    return MarkerTrackMJX(env) if marker_track else env
 
 
-def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
+def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: Path,
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
-          stop=lambda: False, obs_mode: str = "features") -> dict:
+          stop=lambda: False, obs_mode: str = "features", marker_track: bool = False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
+
+    ``env_kwargs``: the environment's arguments (a difficulty level alone: a string);
+    ``marker_track``: train on the marker tracker's observation (:func:`make_env`).
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
     ``checkpoints``: also write the policy at each of the ``evals`` evaluations, as
@@ -321,11 +366,14 @@ def train(env_id: str, difficulty: str, timesteps: int, seed: int, out: Path,
     statistic non-finite raises :class:`~baselines.rl.training.TrainingDiverged` at once,
     writing nothing more (the checkpoints written before it stay).
     """
-    env = make_env(env_id, obs_mode, difficulty)
+    env = make_env(env_id, obs_mode, env_kwargs, marker_track)
+    env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else dict(env_kwargs)
+    difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
     trainer = Trainer(env, settings, iterations)
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
+           "env_kwargs": env_kwargs, "marker_track": marker_track,
            "settings": settings._asdict(), "command": command}
     checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
@@ -382,32 +430,49 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from auv_envs.core.assets import sha256_file
+    from baselines.registry import LazyFactory
+    from baselines.rl.config import CUSTOM_POLICIES
     from baselines.rl.envs import wrap_env
     from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
     out.mkdir(parents=True, exist_ok=True)
-    cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"]).unwrapped
-    wrapped = wrap_env(cpu, flatten_obs=True)
-    model = PPO("MlpPolicy", wrapped, seed=0, device="cpu", policy_kwargs={
-        "net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh})
+    env_kwargs = run.get("env_kwargs") or {"difficulty": run["difficulty"]}
+    settings = Settings(**run["settings"])
+    residual = settings.policy == RESIDUAL
+    front_ends = ("marker_track",) if run.get("marker_track") else ()
+    cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"], **env_kwargs).unwrapped
+    wrapped = wrap_env(cpu, flatten_obs=not front_ends, front_ends=front_ends)
+    policy_kwargs = {"net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh}
+    if residual:
+        policy_kwargs["servo_gain"] = settings.servo_gain
+    model = PPO(LazyFactory(CUSTOM_POLICIES[RESIDUAL]).resolve() if residual else "MlpPolicy",
+                wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)
     policy = model.policy
+    # JointResidualPolicy wraps SB3's extractor and puts the servo before the mean's head
+    extractor = policy.mlp_extractor.inner if residual else policy.mlp_extractor
+    head = policy.action_net.linear if residual else policy.action_net
     with torch.no_grad():
-        linear = [m for m in policy.mlp_extractor.policy_net if isinstance(m, torch.nn.Linear)]
-        for module, layer in zip([*linear, policy.action_net], params["pi"], strict=True):
+        linear = [m for m in extractor.policy_net if isinstance(m, torch.nn.Linear)]
+        for module, layer in zip([*linear, head], params["pi"], strict=True):
             module.weight.copy_(torch.as_tensor(np.array(layer["w"]).T))
             module.bias.copy_(torch.as_tensor(np.array(layer["b"])))
-        linear = [m for m in policy.mlp_extractor.value_net if isinstance(m, torch.nn.Linear)]
+        linear = [m for m in extractor.value_net if isinstance(m, torch.nn.Linear)]
         for module, layer in zip([*linear, policy.value_net], params["vf"], strict=True):
             module.weight.copy_(torch.as_tensor(np.array(layer["w"]).T))
             module.bias.copy_(torch.as_tensor(np.array(layer["b"])))
         policy.log_std.copy_(torch.as_tensor(np.array(params["log_std"])))
+        if residual:
+            policy.action_net.servo_gain.copy_(torch.as_tensor(np.array(params["servo_gain"])))
     model.save(out / MODEL_FILE)
-    vec = VecNormalize(DummyVecEnv([lambda: wrapped]), norm_obs=True, norm_reward=False,
-                       clip_obs=CLIP_OBS, epsilon=NORM_EPSILON)
-    vec.obs_rms.mean = np.asarray(normalizer.mean, np.float64)
-    vec.obs_rms.var = np.asarray(normalizer.var, np.float64)
-    vec.obs_rms.count = float(normalizer.count)
-    vec.save(str(out / NORMALIZER_FILE))
+    files = [MODEL_FILE]
+    if settings.normalize:
+        vec = VecNormalize(DummyVecEnv([lambda: wrapped]), norm_obs=True, norm_reward=False,
+                           clip_obs=CLIP_OBS, epsilon=NORM_EPSILON)
+        vec.obs_rms.mean = np.asarray(normalizer.mean, np.float64)
+        vec.obs_rms.var = np.asarray(normalizer.var, np.float64)
+        vec.obs_rms.count = float(normalizer.count)
+        vec.save(str(out / NORMALIZER_FILE))
+        files.append(NORMALIZER_FILE)
     with open(out / "eval_curve.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(run["curve"][0]) if run["curve"]
                                 else ["step"])
@@ -415,7 +480,8 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         writer.writerows(run["curve"])
     manifest = {
         "name": out.name, "algo": "ppo", "env_id": run["env_id"], "obs_mode": run["obs_mode"],
-        "flatten_obs": True, "env_kwargs": {"difficulty": run["difficulty"]},
+        "flatten_obs": not front_ends, "env_kwargs": env_kwargs,
+        **{name: True for name in front_ends},
         "trainer": "baselines.rl.compiled (PPO fused in JAX on the batched MJX env)",
         "seed": run["seed"], "n_timesteps": run["n_timesteps"],
         "wall_time_s": run["wall_time_s"], "settings": run["settings"],
@@ -423,7 +489,7 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         "versions": {"jax": jax.__version__, "optax": optax.__version__},
         "description": f"PPO compiled in JAX (batched env, trained at "
                        f"{run['difficulty']})",
-        "files": {name: sha256_file(out / name) for name in (MODEL_FILE, NORMALIZER_FILE)},
+        "files": {name: sha256_file(out / name) for name in files},
     }
     if run.get("group"):
         manifest["group"] = run["group"]
@@ -463,13 +529,14 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
     flag = SimpleNamespace(stop_signal=None)
     try:
         with stop_on_signals(flag, "writing the policy so far after this iteration"):
-            manifest = train(config.env_id, config.run["env_kwargs"].get("difficulty", "paper"),
+            manifest = train(config.env_id, {"difficulty": "paper", **config.run["env_kwargs"]},
                              config.run["n_timesteps"], config.seed, run.final,
                              Settings(**config.hyperparams), config.run["evals"],
                              checkpoints=config.run["checkpoints"],
                              checkpoint_dir=run.checkpoints, command=command,
                              stop=lambda: flag.stop_signal is not None,
-                             obs_mode=config.run["obs_mode"])
+                             obs_mode=config.run["obs_mode"],
+                             marker_track=config.run["marker_track"])
     except TrainingDiverged as exc:
         exc.run_dir = run.path
         info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))

@@ -86,6 +86,7 @@ RUN_KEYS = {
     "torch_threads": 1,
     "detection_fixes": False,
     "marker_estimate": False,
+    "marker_track": False,
 }
 #: Types of the run keys that are not numbers (the numbers are rows of :data:`RANGES`).
 _RUN_KEY_TYPES = {
@@ -96,14 +97,16 @@ _RUN_KEY_TYPES = {
     "env_kwargs": dict,
     "detection_fixes": bool,
     "marker_estimate": bool,
+    "marker_track": bool,
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
-_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate")
+_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track")
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
     "detection_fixes": "baselines.rl.detections:DetectionFixes",
     "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
+    "marker_track": "baselines.rl.marker_track:MarkerTrack",
 }
 POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy",
             "JointResidualPolicy")
@@ -132,7 +135,11 @@ COMPILED_RUN_KEYS = {
     "env_kwargs": {},
     "evals": 10,
     "checkpoints": False,
+    "marker_track": False,
 }
+#: Keys of a cppo run's ``env_kwargs`` (LARS ``control`` and ``time_limit``: its
+#: ``control="position"`` policies; building the env checks them).
+COMPILED_ENV_KWARGS = ("difficulty", "control", "time_limit")
 
 
 class CompiledSettings(NamedTuple):
@@ -149,6 +156,13 @@ class CompiledSettings(NamedTuple):
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
+    # The policy: SB3's MlpPolicy, or JointResidualPolicy (a servo on the marker
+    # tracker's observation, marker_track: true) with its servo's initial gain.
+    policy: str = "MlpPolicy"
+    servo_gain: float = 0.3
+    log_std_init: float = 0.0
+    # VecNormalize-style observation statistics (false: the observation as it is).
+    normalize: bool = True
 
 
 class ConfigError(ValueError):
@@ -295,6 +309,8 @@ RANGES = {
     "stats_window_size": Range(int, _AT_LEAST_1),
     "rms_prop_eps": Range(float, "(0, inf)"),
     "num_envs": Range(int, _AT_LEAST_1),  # cppo
+    "servo_gain": Range(float, "[0, inf)"),  # cppo JointResidualPolicy
+    "log_std_init": Range(float, "[-20, 2]"),
     "n_minibatches": Range(int, _AT_LEAST_1),  # cppo
     # off-policy: SAC, TD3, DDPG
     "buffer_size": Range(int, _AT_LEAST_1),
@@ -360,9 +376,10 @@ class TrainConfig:
                 "a resolved config needs exactly the keys algo, env_id, seed, run, hyperparams"
             )
         data = copy.deepcopy(data)
-        if data["algo"] != COMPILED and isinstance(data["run"], dict):  # keys added since
-            for key in _LATER_RUN_KEYS:
-                data["run"].setdefault(key, RUN_KEYS[key])
+        if isinstance(data["run"], dict):  # keys added since
+            later = (_LATER_RUN_KEYS if data["algo"] != COMPILED else ("marker_track",))
+            for key in later:
+                data["run"].setdefault(key, run_keys(data["algo"])[key])
         config = cls(**data)
         validate(config)
         return config
@@ -445,8 +462,9 @@ def _deep_merge(base: dict, update: dict) -> dict:
 def algo_arguments(algo: str) -> dict[str, inspect.Parameter]:
     """The constructor arguments of ``algo`` a config may set (for ``cppo``, the fields
     of :class:`CompiledSettings`)."""
-    params = inspect.signature(CompiledSettings if algo == COMPILED
-                               else ALGORITHMS[algo].__init__).parameters
+    if algo == COMPILED:
+        return dict(inspect.signature(CompiledSettings).parameters)
+    params = inspect.signature(ALGORITHMS[algo].__init__).parameters
     return {k: p for k, p in params.items() if k not in _MANAGED}
 
 
@@ -550,12 +568,12 @@ def validate(config: TrainConfig) -> None:
         raise ConfigError("DetectionSetPolicy reads the per-detection fixes: set "
                           "detection_fixes: true")
     if config.run["policy"] == "JointResidualPolicy":
-        if not config.run["marker_estimate"] or config.run["normalize"] is not False:
-            raise ConfigError("JointResidualPolicy reads MarkerEstimate's hold target as is: "
-                              "set marker_estimate: true and normalize: false")
-        if config.run["env_kwargs"].get("control") != "position":
-            raise ConfigError("JointResidualPolicy outputs joint targets: set "
-                              "env_kwargs: {control: position}")
+        front_end = config.run["marker_estimate"] or config.run["marker_track"]
+        if not front_end or config.run["normalize"] is not False:
+            raise ConfigError("JointResidualPolicy reads a LARS front end's hold target as is: "
+                              "set marker_estimate: true (or marker_track: true) and "
+                              "normalize: false")
+        _check_joint_targets(config.run["env_kwargs"])
     if not isinstance(config.seed, int) or isinstance(config.seed, bool):
         raise ConfigError(f"seed must be an integer, got {config.seed!r}")
     top = TRAIN_EVAL_SEED_BASE - config.run["n_envs"]
@@ -599,6 +617,12 @@ def _check_relations(config: TrainConfig, arguments: dict[str, inspect.Parameter
                               "(count steps instead: train_freq: [n, step])")
 
 
+def _check_joint_targets(env_kwargs: dict) -> None:
+    if env_kwargs.get("control") != "position":
+        raise ConfigError("JointResidualPolicy outputs joint targets: set "
+                          "env_kwargs: {control: position}")
+
+
 def _validate_compiled(config: TrainConfig) -> None:
     """:func:`validate` for ``cppo``: what the batched env and the compiled PPO can run."""
     from auv_envs.core.difficulty import LEVELS
@@ -617,14 +641,16 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"cppo trains {config.env_id} on obs_mode {modes}, got "
                           f"{run['obs_mode']!r}")
     kwargs = run["env_kwargs"]
-    if not isinstance(kwargs, dict) or set(kwargs) - {"difficulty"}:
-        raise ConfigError(f"cppo env_kwargs may set 'difficulty' only, got {kwargs!r}")
+    if not isinstance(kwargs, dict) or set(kwargs) - set(COMPILED_ENV_KWARGS):
+        raise ConfigError(f"cppo env_kwargs may set {', '.join(COMPILED_ENV_KWARGS)} only, "
+                          f"got {kwargs!r}")
     if kwargs.get("difficulty", "paper") not in LEVELS:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
         RANGES[key].check(key, run[key])
-    if not isinstance(run["checkpoints"], bool):
-        raise ConfigError(f"checkpoints must be true or false, got {run['checkpoints']!r}")
+    for key in ("checkpoints", "marker_track"):
+        if not isinstance(run[key], bool):
+            raise ConfigError(f"{key} must be true or false, got {run[key]!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
             or not 0 <= config.seed < TRAIN_EVAL_SEED_BASE:
         raise ConfigError(f"seed must be an integer in [0, {TRAIN_EVAL_SEED_BASE}), "
@@ -636,6 +662,17 @@ def _validate_compiled(config: TrainConfig) -> None:
                               f"{', '.join(sorted({*fields, *COMPILED_RUN_KEYS}))}")
         _check_argument(COMPILED, key, value, fields[key])
     settings = CompiledSettings(**config.hyperparams)
+    if settings.policy not in ("MlpPolicy", "JointResidualPolicy"):
+        raise ConfigError(f"cppo's policy is MlpPolicy or JointResidualPolicy, got "
+                          f"{settings.policy!r}")
+    if settings.policy == "JointResidualPolicy":
+        if not run["marker_track"] or settings.normalize:
+            raise ConfigError("JointResidualPolicy reads the marker tracker's hold target as "
+                              "is: set marker_track: true and normalize: false")
+        _check_joint_targets(kwargs)
+    if run["marker_track"] and (config.env_id != "auv_envs/LARSCapture-v0"
+                                or run["obs_mode"] != "features"):
+        raise ConfigError("marker_track is LARSCapture-v0's features front end")
     if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
         raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
                           f"split into n_minibatches ({settings.n_minibatches}) equal parts")
