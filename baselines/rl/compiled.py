@@ -15,6 +15,10 @@ The policy is Stable-Baselines3's ``MlpPolicy`` in JAX: separate tanh MLPs
 for the Gaussian mean and the value, a state-independent log standard
 deviation, observations flattened as Gymnasium's ``FlattenObservation`` and
 normalised as ``VecNormalize`` (running mean and variance, clipped at 10).
+With ``policy: JointResidualPolicy`` (LARS capture, ``marker_track: true``) it is
+:class:`~baselines.rl.marker_estimate.JointResidualPolicy` instead: a learned correction
+on a servo over the marker tracker's observation (:mod:`baselines.rl.marker_track`,
+computed in JAX by :class:`~baselines.rl.marker_track.MarkerTrackMJX`), not normalised.
 So a finished run is written *as* an SB3 policy (``model.zip``,
 ``vecnormalize.pkl``, ``policy.json``): it acts in the ordinary MuJoCo CPU
 environment through :class:`baselines.rl.policy.PolicyAgent`, and
