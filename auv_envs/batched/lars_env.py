@@ -207,11 +207,12 @@ class ArmPlantMJX:
     def advance(self, data: mjx.Data, action, effort):
         """One control period under ``action`` (3,): ``(data, effort)``, the running
         control effort with the period's added."""
+        # The FRAME_SKIP physics steps as a loop, not unrolled: XLA compiles the step
+        # once (a training program holds two of these, the rollout's and the reset's).
         model = self.model
         if self.torque_mode:
-            data = data.replace(ctrl=action)
-            for _ in range(FRAME_SKIP):
-                data = self._physics_step(data)
+            data = jax.lax.fori_loop(0, FRAME_SKIP, lambda _, now: self._physics_step(now),
+                                     data.replace(ctrl=action))
             return data, effort + jnp.sum(action * action) * self.dt
         target = self.q_mid + action * self.q_half
 
@@ -220,10 +221,12 @@ class ArmPlantMJX:
             tau = mjx.mul_m(model, now, accel) + now.qfrc_bias
             return jnp.clip(tau / self.limits, -1.0, 1.0)
 
-        for _ in range(FRAME_SKIP):
-            data = self._physics_step(data, control)
-            effort = effort + jnp.sum(data.ctrl * data.ctrl) * self.timestep
-        return data, effort
+        def physics_step(_, carry):
+            now, effort = carry
+            now = self._physics_step(now, control)
+            return now, effort + jnp.sum(now.ctrl * now.ctrl) * self.timestep
+
+        return jax.lax.fori_loop(0, FRAME_SKIP, physics_step, (data, effort))
 
 
 class _ArmCursor:
