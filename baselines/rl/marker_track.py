@@ -39,6 +39,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core.ops import FLOATS
+from auv_envs.tasks.lars.stereo import points_from_disparity
 from baselines.lars.perception.marker import MIN_DISPARITY, attitude_rotation, marker_attitude
 from baselines.rl.config import ConfigError
 
@@ -109,9 +110,6 @@ class TrackParams:
         if getattr(base, "obs_mode", None) != "features" or not hasattr(cal, "stereo"):
             raise ConfigError("the marker tracker needs auv_envs/LARSCapture-v0 with "
                               "obs_mode='features'")
-        rig = cal.stereo
-        if rig.left.cx != rig.right.cx or rig.left != rig.right:
-            raise ConfigError("the marker tracker needs a rectified pair of equal intrinsics")
         return cls(cal, np.asarray(base.params.joint_mid, float),
                    np.asarray(base.params.joint_half, float), **gains)
 
@@ -160,14 +158,14 @@ def fix(p: TrackParams, pixels, visible, q, xp=np):
     (seen in both images with a disparity above ``MIN_DISPARITY``; the others' rows are
     meaningless)."""
     cal = p.calibration
-    k, baseline = cal.stereo.left, cal.stereo.baseline
+    rig = cal.stereo
     left, right = pixels[0], pixels[1]
-    disparity = left[:, 0] - right[:, 0]  # equal principal points (TrackParams.of)
+    disparity = rig.disparity(left[:, 0], right[:, 0], xp)
     valid = (visible[0] != 0) & (visible[1] != 0) & (disparity > MIN_DISPARITY)
-    scale = baseline / xp.where(valid, disparity, 1.0)
-    x = xp.where(valid, left[:, 0] - k.cx, 0.0)
-    y = xp.where(valid, left[:, 1] - k.cy, 0.0)
-    camera = xp.stack([x * scale, y * scale * k.fx / k.fy, k.fx * scale], axis=-1)  # eq. 2
+    # eq. 2 on every row; the rows not triangulated read the principal point at disparity 1
+    centre = xp.asarray((rig.left.cx, rig.left.cy))
+    camera = points_from_disparity(rig, xp.where(valid[:, None], left, centre),
+                                   xp.where(valid, disparity, 1.0), xp)
     slew = _slew(q[0], xp)  # eq. 3: the levelled arm end turns with the slew joint
     end = _arm_end(p, q, xp.zeros(3), xp)[0]
     rotation = slew @ cal.left_in_end[:3, :3]
