@@ -339,15 +339,19 @@ def test_the_residual_lars_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
     cpu = gym.make("auv_envs/LARSCapture-v0", obs_mode="features", **kwargs).unwrapped
     agent = load_policy_agent(tmp_path / "policy", cpu)
     tracker = MarkerTrack(gym.make("auv_envs/LARSCapture-v0", obs_mode="features", **kwargs))
-    obs, info = cpu.reset(seed=4)
-    for _ in range(30):  # the agent's own tracker and this one see the same observations
-        vector = jnp.asarray(tracker.observation(obs))[None]
-        expected = np.clip(np.asarray(compiled.policy_mean(params, vector, vector)[0]), -1, 1)
-        action = agent.act(obs, info)
-        np.testing.assert_allclose(action, expected, atol=1e-5)
-        obs, _, terminated, truncated, info = cpu.step(action)
-        if terminated or truncated:
-            break
+    for seed in (4, 5):  # one agent, two episodes: its tracker starts afresh with each
+        obs, info = cpu.reset(seed=seed)
+        agent.reset(seed)
+        tracker.clear()
+        for _ in range(20):  # the agent's own tracker and this one see the same observations
+            vector = jnp.asarray(tracker.observation(obs))[None]
+            expected = np.clip(np.asarray(compiled.policy_mean(params, vector, vector)[0]),
+                               -1, 1)
+            action = agent.act(obs, info)
+            np.testing.assert_allclose(action, expected, atol=1e-5)
+            obs, _, terminated, truncated, info = cpu.step(action)
+            if terminated or truncated:
+                break
 
 
 def test_one_iteration_on_acoustic_exports_a_policy_for_its_cpu_env(tmp_path):

@@ -249,7 +249,8 @@ class MarkerTrack(gym.ObservationWrapper):
 
     ``marker_track: true`` in a training config or a policy manifest applies it
     (:data:`baselines.rl.config.FRONT_ENDS`). The tracker keeps the episode's state, so
-    each observation must be passed once and in order; :meth:`reset` starts afresh.
+    each observation must be passed once and in order; :meth:`reset` (and :meth:`clear`,
+    which the policy agent calls at each episode's start) start afresh.
 
     Raises:
         ConfigError: the environment is not ``LARSCapture-v0`` in ``features`` mode.
@@ -259,10 +260,14 @@ class MarkerTrack(gym.ObservationWrapper):
         super().__init__(env)
         self.params = TrackParams.of(env)
         self.observation_space = spaces.Box(-np.inf, np.inf, (SIZE,), np.float32)
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget the episode: the tracker starts afresh at the next observation."""
         self.state = TrackState.start()
 
     def reset(self, **kwargs):
-        self.state = TrackState.start()
+        self.clear()
         return super().reset(**kwargs)
 
     def observation(self, observation):
