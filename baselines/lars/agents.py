@@ -54,6 +54,7 @@ import numpy as np
 from baselines.lars.control.arm import CaptureStrategy, ComputedTorquePD, SampledTrajectory
 from baselines.lars.control.capture import CapturePlanner
 from baselines.lars.estimation.auv_state import (
+    ATTITUDE_MEMORY,
     GATE_3DOF,
     HeaveRefit,
     MarkerAUVEstimator,
@@ -155,7 +156,7 @@ class CKFPDAgent:
                  sample_period: float = 0.2, lookahead: float = 0.4,
                  heave_window: float = 15.0, heave_min_span: float = 3.0,
                  heave_refit_period: float = 0.5,
-                 heave_omega_bounds=(0.5, 1.6), attitude_memory: int = 50,
+                 heave_omega_bounds=(0.5, 1.6), attitude_memory: int = ATTITUDE_MEMORY,
                  relock_after: float = 1.0, settle_time: float = 0.5,
                  adapt_pixel_noise: bool = True, strike: bool = True,
                  kp: float | None = None, kd: float | None = None):

@@ -101,6 +101,8 @@ _RUN_KEY_TYPES = {
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
 _LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track")
+#: The same for ``cppo``'s run keys (:data:`COMPILED_RUN_KEYS`).
+_LATER_COMPILED_RUN_KEYS = ("marker_track",)
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
@@ -377,7 +379,7 @@ class TrainConfig:
             )
         data = copy.deepcopy(data)
         if isinstance(data["run"], dict):  # keys added since
-            later = (_LATER_RUN_KEYS if data["algo"] != COMPILED else ("marker_track",))
+            later = _LATER_COMPILED_RUN_KEYS if data["algo"] == COMPILED else _LATER_RUN_KEYS
             for key in later:
                 data["run"].setdefault(key, run_keys(data["algo"])[key])
         config = cls(**data)

@@ -40,6 +40,7 @@ from gymnasium import spaces
 
 from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.stereo import points_from_disparity
+from baselines.lars.estimation.auv_state import ATTITUDE_MEMORY
 from baselines.lars.perception.marker import MIN_DISPARITY, attitude_rotation, marker_attitude
 from baselines.rl.config import ConfigError
 
@@ -75,9 +76,8 @@ SLICES = _slices()
 
 #: The tracker's gains: alpha (position) and beta (velocity, per control period).
 ALPHA, BETA = 0.3, 0.05
-#: Attitude fixes the running mean spans (``PitchYawMean``'s default).
-ATTITUDE_MEMORY = 50
-#: Fixes before the track counts as settled.
+#: Fixes before the track counts as settled (the learner's ``estimate[0]``): a choice
+#: (0.2 s of fixes), not measured; ``ckf-pd``'s filter waits 0.5 s.
 SETTLE_FIXES = 5
 #: Below this |det J| the arm is singular and the joint-unit vectors are zero.
 SINGULAR = 1e-9
@@ -91,13 +91,14 @@ class TrackParams:
     Attributes:
         calibration: the env's ``LARSCalibration`` (stereo rig, hand-eye transform, arm
             kinematics, marker geometry).
-        joint_mid, joint_half: (3,) the ``control="position"`` action's map onto the
-            joint limits (``q = mid + half * action``).
+        position_action: the env's ``position_action(q, xp)``, the joint targets'
+            action (the ``control="position"`` map's inverse).
+        joint_half: (3,) that map's scale (``q = mid + half * action``).
         alpha, beta: the tracker's gains.
     """
 
     calibration: object
-    joint_mid: np.ndarray
+    position_action: object
     joint_half: np.ndarray
     alpha: float = ALPHA
     beta: float = BETA
@@ -110,8 +111,8 @@ class TrackParams:
         if getattr(base, "obs_mode", None) != "features" or not hasattr(cal, "stereo"):
             raise ConfigError("the marker tracker needs auv_envs/LARSCapture-v0 with "
                               "obs_mode='features'")
-        return cls(cal, np.asarray(base.params.joint_mid, float),
-                   np.asarray(base.params.joint_half, float), **gains)
+        return cls(cal, base.position_action, np.asarray(base.params.joint_half, float),
+                   **gains)
 
 
 class TrackState(NamedTuple):
@@ -146,13 +147,6 @@ def _arm_end(p: TrackParams, q, qd, xp):
                                                 tuple(qd[i] for i in range(3)), xp)).reshape(2, 3)
 
 
-def _slew(q0, xp):
-    c, s = xp.cos(q0), xp.sin(q0)
-    zero = xp.zeros_like(c)
-    return xp.stack([xp.stack([c, -s, zero]), xp.stack([s, c, zero]),
-                     xp.stack([zero, zero, zero + 1.0])])
-
-
 def fix(p: TrackParams, pixels, visible, q, xp=np):
     """The marker corners (3, 3) in the arm's frame and which were triangulated (3,)
     (seen in both images with a disparity above ``MIN_DISPARITY``; the others' rows are
@@ -166,7 +160,9 @@ def fix(p: TrackParams, pixels, visible, q, xp=np):
     centre = xp.asarray((rig.left.cx, rig.left.cy))
     camera = points_from_disparity(rig, xp.where(valid[:, None], left, centre),
                                    xp.where(valid, disparity, 1.0), xp)
-    slew = _slew(q[0], xp)  # eq. 3: the levelled arm end turns with the slew joint
+    # eq. 3: the camera's pose is the levelled arm end's composed with the hand-eye
+    # transform (LARSCalibration.camera_poses)
+    slew = cal.arm.end_rotation(q, _ops_of(xp))
     end = _arm_end(p, q, xp.zeros(3), xp)[0]
     rotation = slew @ cal.left_in_end[:3, :3]
     origin = end + slew @ cal.left_in_end[:3, 3]
@@ -239,7 +235,7 @@ def observe(p: TrackParams, state: TrackState, obs: dict, xp=np):
     joint = _solve3(jacobian, cartesian.T, xp).T / p.joint_half
     estimate = xp.stack([(state.fixes >= SETTLE_FIXES) * 1.0, (state.attitudes > 0) * 1.0,
                          xp.log1p(state.since_fix * 1.0)])
-    return xp.concatenate([(q - p.joint_mid) / p.joint_half, qd, cartesian.reshape(-1),
+    return xp.concatenate([p.position_action(q, xp), qd, cartesian.reshape(-1),
                            estimate, joint.reshape(-1)]).astype(xp.float32)
 
 
@@ -310,9 +306,7 @@ class MarkerTrackMJX:
     def reset(self, rng):
         jnp = self._jnp
         state = self.env.reset(rng)
-        state = state.replace(info={**state.info, self.INFO_KEY: self._jax.tree_util.tree_map(
-            lambda leaf: leaf.astype(jnp.float32 if leaf.dtype.kind == "f" else jnp.int32),
-            TrackState.start(jnp))})
+        state = state.replace(info={**state.info, self.INFO_KEY: TrackState.start(jnp)})
         carry, obs = self._tracked(state, jnp.bool_(True))
         return state.replace(obs=obs, info={**state.info, self.INFO_KEY: carry})
 

@@ -87,10 +87,11 @@ class ArmModel:
         """World position (3,) of the arm end (jib tip) for joint angles ``q``."""
         return np.array(self.end_state([float(v) for v in q])[:3])
 
-    def end_rotation(self, q) -> np.ndarray:
-        """Rotation (3, 3) of the levelled arm-end frame: ``Rz(q1)``."""
-        c, s = math.cos(float(q[0])), math.sin(float(q[0]))
-        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    def end_rotation(self, q, ops=FLOATS) -> np.ndarray:
+        """Rotation (3, 3) of the levelled arm-end frame: ``Rz(q1)``; ``ops``: Python floats
+        (the default), or :func:`~auv_envs.core.ops.jax_ops` for traced angles."""
+        c, s = ops.cos(q[0]), ops.sin(q[0])
+        return ops.xp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
     def jacobian(self, q) -> np.ndarray:
         """Analytic (3, 3) Jacobian of :meth:`forward_kinematics`."""

@@ -512,10 +512,11 @@ class LARSCaptureEnv(TaskEnv):
         state = self._episode.state
         return None if state is None else state.scene.glint
 
-    def position_action(self, q) -> np.ndarray:
+    def position_action(self, q, xp=np) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
-        the inverse of the action's linear map onto the joint limits (not clipped)."""
-        return (np.asarray(q, dtype=float) - self.params.joint_mid) / self.params.joint_half
+        the inverse of the action's linear map onto the joint limits (not clipped);
+        ``xp``: NumPy, or ``jax.numpy`` for traced angles."""
+        return (xp.asarray(q, dtype=float) - self.params.joint_mid) / self.params.joint_half
 
     def _pose_scene(self) -> None:
         """Pose the kinematic bodies (AUV, sea, head, analogs) for rendering.

@@ -43,6 +43,8 @@ GATE_3DOF = 16.27
 #: Heave prior before the first fit: a 7 s swell (the paper's "C is
 #: determined by the sine wave period") about the level the AUV floats at.
 PRIOR_HEAVE_PERIOD = 7.0
+#: Attitude fixes :class:`PitchYawMean`'s running mean spans by default.
+ATTITUDE_MEMORY = 50
 #: The counts :attr:`MarkerAUVEstimator.counts` keeps, in this order.
 COUNTS = ("fixes", "partial_fixes", "bridged", "gated", "reinitialised",
           "mismatched_corners", "heave_fits")
@@ -122,7 +124,7 @@ class PitchYawMean:
         count: angles taken in so far.
     """
 
-    def __init__(self, memory: int = 50):
+    def __init__(self, memory: int = ATTITUDE_MEMORY):
         if memory < 1:
             raise ValueError(f"need memory >= 1, got {memory}")
         self.memory = int(memory)
