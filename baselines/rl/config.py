@@ -106,7 +106,7 @@ _LATER_COMPILED_RUN_KEYS = ("marker_track",)
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
-    "detection_fixes": "baselines.rl.detections:DetectionFixes",
+    "detection_fixes": "baselines.rl.detection_fixes:DetectionFixes",
     "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
     "marker_track": "baselines.rl.marker_track:MarkerTrack",
 }

@@ -4,20 +4,13 @@ The ``measurements`` observation is a padded set per band: K detections of the
 source, its boundary ghosts and clutter in an order that carries no meaning, and
 a mask. Two pieces turn it into something a Stable-Baselines3 PPO can learn on:
 
-* :class:`DetectionFixes`, an observation wrapper (``detection_fixes: true`` in
-  the training config; ``train.py`` and the shipped agent apply it alike): every
-  real detection is fixed by the paper's least-squares positioner ([GMPHD]
-  §1.1-1.3, :class:`~baselines.acoustic.perception.positioning.LeastSquaresPositioner`,
-  fused TDOA-DOA rows, noise weighting, node dropouts honoured) from the
-  measurements and the documented calibration, never from ``info``. Each
-  detection becomes a token: its fix (in the learner's action units, [-1, 1]
-  over the tank), the log10 standard deviations of the fix's covariance (m), the
-  log of its residual ``chi2 / dof`` and a validity flag (real, finite, inside
-  the tank, inside the residual gate). Beside them the wrapper holds the tokens
-  of the last earlier step that had a valid fix, with their age: a frame stack
-  of depth two that skips empty frames, so that the estimate survives steps
-  without any fix (the ``hard`` level's dropouts). No clock calibration and no
-  filter: the policy itself is feed-forward.
+* :class:`~baselines.rl.detection_fixes.DetectionFixes`, an observation wrapper
+  (``detection_fixes: true`` in the training config; ``train.py`` and the shipped agent
+  apply it alike, :mod:`baselines.rl.detection_fixes`, which also computes it in JAX for
+  the compiled PPO): every real detection fixed by the paper's least-squares positioner,
+  a token per detection (its fix, the log standard deviations of its covariance, its log
+  residual fit, a validity flag), and the tokens of the last step that had a valid fix
+  held beside them with their age.
 * :class:`DetectionSetExtractor`, a permutation-invariant features extractor
   (Deep Sets, Zaheer et al. 2017, with attention pooling): a shared MLP embeds
   each token with its band (one-hot), whether it is held and its age, a linear
@@ -35,110 +28,15 @@ values in tokens that are not valid (``tests/test_rl_detections.py``).
 
 from __future__ import annotations
 
-import gymnasium as gym
-import numpy as np
 import torch
 from gymnasium import spaces
 from stable_baselines3.common.policies import MultiInputActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from baselines.acoustic.perception.positioning import LeastSquaresPositioner
 from baselines.rl.config import ConfigError
 
-#: The observation keys :class:`DetectionFixes` writes.
-FIX_KEYS = ("fix", "fix_log_std", "fix_log_fit", "fix_valid")
-OBS_KEYS = (*FIX_KEYS, *(f"held_{key}" for key in FIX_KEYS), "held_age")
-#: Floor on a fix's standard deviation and residual fit before their logarithms.
-_LOG_FLOOR = 1e-6
-
-
-class DetectionFixes(gym.ObservationWrapper):
-    """Replaces the ``measurements`` observation by one least-squares fix per detection,
-    with the fixes of the last step that had any held beside them.
-
-    Observation (float32 unless stated; Q bands, K padded detections per band):
-    ``fix`` (Q, K, 3) the fix in [-1, 1] units of the action space (the tank box,
-    as ``RescaleAction`` maps it), ``fix_log_std`` (Q, K, 3) log10 of the square
-    roots of the covariance's diagonal (m), ``fix_log_fit`` (Q, K) ln(chi2 / dof),
-    ``fix_valid`` ``MultiBinary((Q, K))``. Tokens that are not valid fixes are zero.
-    The same four under ``held_fix*`` are those of the latest earlier step with at least
-    one valid fix (all zero before there was one), and ``held_age`` (1,) is how many
-    steps ago that was, as ln(1 + steps). They carry the estimate across the steps
-    without a valid fix (the ``hard`` level's node dropouts and fades) and let the
-    policy weigh one step's fixes against the last: a frame stack of depth two that
-    skips empty frames. :meth:`reset` (and :meth:`clear`) forget them.
-
-    Raises:
-        ConfigError: the environment is not an acoustic one in ``measurements`` mode.
-    """
-
-    def __init__(self, env: gym.Env):
-        super().__init__(env)
-        base = env.unwrapped
-        if getattr(base, "obs_mode", None) != "measurements" or not hasattr(base,
-                                                                            "calibration"):
-            raise ConfigError("detection_fixes needs auv_envs/AcousticTracking-v2 with "
-                              f"obs_mode='measurements', got {env.spec.id if env.spec else env}"
-                              f" with obs_mode={getattr(base, 'obs_mode', None)!r}")
-        self._positioner = LeastSquaresPositioner(base.calibration, method="fused")
-        space = base.action_space
-        self._low = space.low.astype(np.float64)
-        self._span = (space.high - space.low).astype(np.float64)
-        mask = env.observation_space["mask"]
-        q, k = mask.shape
-        tokens = {
-            "fix": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
-            "fix_log_std": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
-            "fix_log_fit": spaces.Box(-np.inf, np.inf, (q, k), np.float32),
-            "fix_valid": spaces.MultiBinary((q, k)),
-        }
-        self.observation_space = spaces.Dict({
-            **tokens,
-            **{f"held_{key}": space_ for key, space_ in tokens.items()},
-            "held_age": spaces.Box(0.0, np.inf, (1,), np.float32),
-        })
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget the held fixes (a new episode)."""
-        self._held = None
-        self._held_steps = 0
-
-    def reset(self, **kwargs):
-        self.clear()
-        return super().reset(**kwargs)
-
-    def _tokens(self, observation) -> dict:
-        fixes = self._positioner.solve(
-            observation["tdoa"], observation["azimuth"], observation["elevation"],
-            observation["mask"], nodes=observation.get("node_mask"),
-        )
-        valid = fixes.valid
-        position = np.where(valid[..., None], fixes.position, self._low + 0.5 * self._span)
-        variance = np.diagonal(np.where(valid[..., None, None], fixes.covariance, 1.0),
-                               axis1=-2, axis2=-1)
-        fit = np.where(valid, fixes.chi2 / max(fixes.dof, 1), 1.0)
-        log_std = 0.5 * np.log10(np.maximum(variance, _LOG_FLOOR ** 2))
-        log_std[~valid] = 0.0
-        return {
-            "fix": (2.0 * (position - self._low) / self._span - 1.0).astype(np.float32),
-            "fix_log_std": log_std.astype(np.float32),
-            "fix_log_fit": np.log(np.maximum(fit, _LOG_FLOOR)).astype(np.float32),
-            "fix_valid": valid.astype(np.int8),
-        }
-
-    def observation(self, observation):
-        current = self._tokens(observation)
-        if self._held is None:
-            held = {key: np.zeros_like(value) for key, value in current.items()}
-        else:
-            held = self._held
-        out = {**current, **{f"held_{key}": value for key, value in held.items()},
-               "held_age": np.array([np.log1p(self._held_steps)], np.float32)}
-        self._held_steps += 1
-        if current["fix_valid"].any():
-            self._held, self._held_steps = current, 1
-        return out
+# The front end lives beside its JAX twin; imported here under the names it had.
+from baselines.rl.detection_fixes import FIX_KEYS, OBS_KEYS, DetectionFixes  # noqa: F401
 
 
 class DetectionSetExtractor(BaseFeaturesExtractor):

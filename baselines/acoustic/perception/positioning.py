@@ -120,49 +120,47 @@ class PositionFixes:
     valid: np.ndarray
 
 
-def tdoa_rows(tdoa: np.ndarray, nodes: np.ndarray, sound_speed: float):
+def tdoa_rows(tdoa, nodes: np.ndarray, sound_speed: float, xp=np):
     """The linearised TDOA system ``R omega = E`` ([GMPHD] §1.1).
 
     Args:
       tdoa: (..., N-1) time differences ``t_i - t_1`` (s).
       nodes: (N, 3) node positions (any origin; the result uses the same).
       sound_speed: c in m/s.
+      xp: the array namespace of ``tdoa`` (NumPy computes in float64, JAX in its own
+        float type).
 
     Returns:
       ``R`` (..., N-1, 4) over ``(x, y, z, D_1)`` and ``E`` (..., N-1).
     """
-    d = np.asarray(tdoa, dtype=np.float64) * sound_speed
+    d = (np.asarray(tdoa, dtype=np.float64) if xp is np else tdoa) * sound_speed
     h = np.asarray(nodes, dtype=np.float64)
     geo = 2.0 * (h[1:] - h[0])  # (N-1, 3)
-    R = np.empty(d.shape + (4,))
-    R[..., :3] = geo
-    R[..., 3] = 2.0 * d
+    R = xp.concatenate([xp.broadcast_to(geo, d.shape + (3,)), (2.0 * d)[..., None]], axis=-1)
     E = (np.sum(h[1:] ** 2, axis=1) - np.sum(h[0] ** 2)) - d * d
     return R, E
 
 
-def doa_rows(azimuth: np.ndarray, elevation: np.ndarray, nodes: np.ndarray):
+def doa_rows(azimuth, elevation, nodes: np.ndarray, xp=np):
     """The DOA system ``I p = N`` ([GMPHD] §1.2), two unit-norm rows per node.
 
     Args:
       azimuth, elevation: (..., N) angles (rad; elevation from the upward vertical).
       nodes: (N, 3) node positions.
+      xp: the angles' array namespace.
 
     Returns:
       ``I`` (..., 2N, 3) and ``N`` (..., 2N): rows ``0..N-1`` azimuth, ``N..2N-1`` elevation.
     """
-    a = np.asarray(azimuth, dtype=np.float64)
-    t = np.asarray(elevation, dtype=np.float64)
+    if xp is np:
+        azimuth = np.asarray(azimuth, dtype=np.float64)
+        elevation = np.asarray(elevation, dtype=np.float64)
     h = np.asarray(nodes, dtype=np.float64)
-    n = h.shape[0]
-    sa, ca, st, ct = np.sin(a), np.cos(a), np.sin(t), np.cos(t)
-    I_ = np.zeros(a.shape[:-1] + (2 * n, 3))
-    I_[..., :n, 0] = sa
-    I_[..., :n, 1] = -ca
-    I_[..., n:, 0] = ct * ca
-    I_[..., n:, 1] = ct * sa
-    I_[..., n:, 2] = -st
-    N_ = np.einsum("...rk,...rk->...r", I_, np.concatenate([h, h], axis=0))
+    sa, ca = xp.sin(azimuth), xp.cos(azimuth)
+    st, ct = xp.sin(elevation), xp.cos(elevation)
+    I_ = xp.concatenate([xp.stack([sa, -ca, xp.zeros_like(sa)], axis=-1),
+                         xp.stack([ct * ca, ct * sa, -st], axis=-1)], axis=-2)
+    N_ = xp.einsum("...rk,...rk->...r", I_, np.concatenate([h, h], axis=0))
     return I_, N_
 
 
@@ -178,19 +176,19 @@ def _model_test_threshold(level: float, dof: int) -> float:
     return float(chi2_distribution.ppf(level, dof) / dof)
 
 
-def _solve_normal(A: np.ndarray, b: np.ndarray):
+def _solve_normal(A, b, xp=np):
     """Batched normal-equation least squares; returns (x, (A^T A)^{-1}, rss)."""
-    At = np.swapaxes(A, -1, -2)
+    At = xp.swapaxes(A, -1, -2)
     AtA = At @ A
     Atb = (At @ b[..., None])[..., 0]
     # A relative ridge of 1e-12 keeps degenerate (clutter) systems solvable
     # without moving well-posed solutions beyond round-off.
-    scale = np.trace(AtA, axis1=-2, axis2=-1)[..., None, None]
-    AtA += (1e-12 * scale + 1e-300) * np.eye(A.shape[-1])
-    inv = np.linalg.inv(AtA)
+    scale = xp.trace(AtA, axis1=-2, axis2=-1)[..., None, None]
+    AtA = AtA + (1e-12 * scale + 1e-300) * np.eye(A.shape[-1])
+    inv = xp.linalg.inv(AtA)
     x = (inv @ Atb[..., None])[..., 0]
     r = (A @ x[..., None])[..., 0] - b
-    return x, inv, np.einsum("...r,...r->...", r, r)
+    return x, inv, xp.einsum("...r,...r->...", r, r)
 
 
 class LeastSquaresPositioner:
@@ -245,20 +243,22 @@ class LeastSquaresPositioner:
         self.dof = rows - self.n_unknowns
         # The model test's threshold on chi2 / dof (inf: the covariance is never scaled).
         self.variance_threshold = self._variance_threshold(self.dof)
+        # ... and for every dof that node dropouts leave (solve_fixed looks it up).
+        self._thresholds = np.array([self._variance_threshold(d) for d in range(rows + 1)])
 
     def _variance_threshold(self, dof: int) -> float:
         if self.variance_test is None or self.weighting != "noise" or dof <= 0:
             return math.inf
         return _model_test_threshold(self.variance_test, dof)
 
-    def _rows_of(self, nodes: np.ndarray) -> tuple[np.ndarray, int]:
+    def _rows_of(self, nodes, xp=np):
         """Which rows (rows,) the working ``nodes`` (N,) measure, and the unknowns left."""
         tdoa = nodes[1:] & nodes[0]
         blocks = {"fused": (tdoa, nodes, nodes), "tdoa": (tdoa,), "doa": (nodes, nodes)}
         unknowns = self.n_unknowns
-        if self.method == "fused" and not tdoa.any():
-            unknowns = 3  # no TDOA row: D_1 is not in the system
-        return np.concatenate(blocks[self.method]), unknowns
+        if self.method == "fused":  # no TDOA row: D_1 is not in the system
+            unknowns = xp.where(xp.any(tdoa), unknowns, 3)
+        return xp.concatenate(blocks[self.method]), unknowns
 
     def range_diff_std(self, clock_std) -> np.ndarray:
         """(Q, N-1) std of the measured range differences (m) with clock errors of ``clock_std``.
@@ -277,31 +277,82 @@ class LeastSquaresPositioner:
         return np.concatenate(blocks, axis=-1)
 
     # ------------------------------------------------------------------ systems
-    def _system(self, tdoa, azimuth, elevation):
+    def _system(self, tdoa, azimuth, elevation, xp=np):
         parts_A, parts_b = [], []
         if self.method in ("fused", "tdoa"):
-            R, E = tdoa_rows(tdoa, self._nodes, self._c)
+            R, E = tdoa_rows(tdoa, self._nodes, self._c, xp)
             parts_A.append(R)
             parts_b.append(E)
         if self.method in ("fused", "doa"):
-            I_, N_ = doa_rows(azimuth, elevation, self._nodes)
+            I_, N_ = doa_rows(azimuth, elevation, self._nodes, xp)
             if self.method == "fused":  # I~ = [I, 0]: D_1 does not enter the DOA rows
-                I_ = np.concatenate([I_, np.zeros(I_.shape[:-1] + (1,))], axis=-1)
+                I_ = xp.concatenate([I_, xp.zeros(I_.shape[:-1] + (1,), I_.dtype)], axis=-1)
             parts_A.append(I_)
             parts_b.append(N_)
-        return np.concatenate(parts_A, axis=-2), np.concatenate(parts_b, axis=-1)
+        return xp.concatenate(parts_A, axis=-2), xp.concatenate(parts_b, axis=-1)
 
-    def _row_std(self, p: np.ndarray, band: np.ndarray, row_scale: np.ndarray) -> np.ndarray:
-        """First-order residual stds (M, rows) of each row at positions p (M, 3) in bands (M,)."""
-        diff = p[:, None, :] - self._nodes  # (M, N, 3)
-        horizontal = np.maximum(np.hypot(diff[..., 0], diff[..., 1]), 1.0)
-        ranges = np.maximum(np.hypot(horizontal, diff[..., 2]), 1.0)
+    def _row_std(self, p, band, row_scale, xp=np):
+        """First-order residual stds (..., rows) of each row at positions p (..., 3) in
+        bands (...)."""
+        diff = p[..., None, :] - self._nodes  # (..., N, 3)
+        horizontal = xp.maximum(xp.hypot(diff[..., 0], diff[..., 1]), 1.0)
+        ranges = xp.maximum(xp.hypot(horizontal, diff[..., 2]), 1.0)
         parts = []
         if self.method in ("fused", "tdoa"):
-            parts.append(ranges[:, 1:])
+            parts.append(ranges[..., 1:])
         if self.method in ("fused", "doa"):
             parts += [horizontal, ranges]
-        return np.concatenate(parts, axis=-1) * row_scale[band]
+        return xp.concatenate(parts, axis=-1) * xp.asarray(row_scale)[band]
+
+    def _fix(self, tdoa, azimuth, elevation, band, rows, row_scale, dof, threshold, xp):
+        """The fixes of detections (leading axes ``...``): the method's rows (an out node's
+        weighing nothing when ``rows`` is given), the unweighted solve, the noise weights at
+        its solution and the weighted solve; then the validity (finite, inside the tank,
+        residual gate) and the model test. Returns (position, covariance, chi2, ok)."""
+        A, b = self._system(tdoa, azimuth, elevation, xp)
+        if rows is not None:  # an out node's rows weigh nothing
+            A, b = A * rows[..., :, None], b * rows
+        x, inv, rss = _solve_normal(A, b, xp)
+        if self.weighting == "noise":
+            w = 1.0 / self._row_std(x[..., :3], band, row_scale, xp)  # x centred
+            if rows is not None:
+                w = w * rows
+            x, inv, rss = _solve_normal(A * w[..., None], b * w, xp)
+        position = x[..., :3] + self._centre
+        ok = xp.all(xp.isfinite(position), axis=-1) & (dof >= 0)
+        ok &= xp.all((position >= self._low) & (position <= self._high), axis=-1)
+        if self.gate is not None:
+            ok &= xp.logical_or(dof <= 0, rss <= self.gate * dof)
+        covariance = inv[..., :3, :3]
+        if self.variance_test is not None and self.weighting == "noise":
+            factor = rss / xp.maximum(dof, 1)  # the threshold is infinite without a dof
+            covariance = covariance * xp.where(factor > threshold, factor, 1.0)[..., None, None]
+        return position, covariance, rss, ok
+
+    def solve_fixed(self, tdoa, azimuth, elevation, mask, nodes=None, xp=np) -> PositionFixes:
+        """:meth:`solve`'s fixes of one measurement set at fixed shapes, on any array
+        namespace (``jax.numpy`` under ``jit`` and ``vmap``; float32 there): every entry
+        is solved, real or not, and the entries that are not real detections are never
+        valid (their numbers, finite or not, mean nothing). No clock correction.
+
+        Args:
+          tdoa: (Q, K, N-1); azimuth, elevation: (Q, K, N); mask: (Q, K); nodes: (N,) or
+            None, as for :meth:`solve`. Shapes are not checked beyond broadcasting.
+
+        Returns:
+          :class:`PositionFixes` whose ``dof`` is an array (it depends on ``nodes``).
+        """
+        q, k = mask.shape
+        band = xp.broadcast_to(xp.arange(q)[:, None], (q, k))
+        rows, dof, threshold = None, xp.asarray(self.dof), xp.asarray(self.variance_threshold)
+        if nodes is not None:
+            used, unknowns = self._rows_of(xp.asarray(nodes).astype(bool), xp)
+            rows = used.astype(tdoa.dtype)
+            dof = xp.sum(used) - unknowns
+            threshold = xp.asarray(self._thresholds)[xp.clip(dof, 0, len(self._thresholds) - 1)]
+        position, covariance, chi2, ok = self._fix(
+            tdoa, azimuth, elevation, band, rows, self._row_scale, dof, threshold, xp)
+        return PositionFixes(position, covariance, chi2, dof, ok & xp.asarray(mask).astype(bool))
 
     def solve(self, tdoa, azimuth, elevation, mask=None, clock=None,
               nodes=None) -> PositionFixes:
@@ -352,7 +403,7 @@ class LeastSquaresPositioner:
             if not nodes.all():
                 used, unknowns = self._rows_of(nodes)
                 rows = used.astype(np.float64)
-                dof = int(used.sum()) - unknowns
+                dof = int(used.sum()) - int(unknowns)
                 threshold = self._variance_threshold(dof)
         sel = np.nonzero(mask)
         tdoa_sel, row_scale = tdoa[sel], self._row_scale
@@ -363,24 +414,8 @@ class LeastSquaresPositioner:
                                  f"got {offset.shape} and {std.shape}")
             tdoa_sel = tdoa_sel - offset
             row_scale = self._row_scales(std)
-        A, b = self._system(tdoa_sel, azimuth[sel], elevation[sel])
-        if rows is not None:  # an out node's rows weigh nothing
-            A, b = A * rows[:, None], b * rows
-        x, inv, rss = _solve_normal(A, b)
-        if self.weighting == "noise":
-            w = 1.0 / self._row_std(x[:, :3], sel[0], row_scale)  # x centred; sel[0]: band
-            if rows is not None:
-                w = w * rows
-            x, inv, rss = _solve_normal(A * w[..., None], b * w)
-        position = x[:, :3] + self._centre
-        ok = np.all(np.isfinite(position), axis=-1) & (dof >= 0)
-        ok &= np.all((position >= self._low) & (position <= self._high), axis=-1)
-        if self.gate is not None and dof > 0:
-            ok &= rss <= self.gate * dof
-        covariance = inv[:, :3, :3]
-        if threshold < math.inf:
-            factor = rss / dof
-            covariance = covariance * np.where(factor > threshold, factor, 1.0)[:, None, None]
+        position, covariance, rss, ok = self._fix(  # sel[0]: the bands
+            tdoa_sel, azimuth[sel], elevation[sel], sel[0], rows, row_scale, dof, threshold, np)
         out_position = np.full(lead + (3,), np.nan)
         out_covariance = np.full(lead + (3, 3), np.nan)
         chi2 = np.full(lead, np.nan)
