@@ -192,13 +192,17 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
     ({"obs_mode": "measurements"}, r"obs_mode \('state', 'features', 'nav', 'nav_features'\)"),
     ({"env_kwargs": {"difficulty": "extreme"}}, "difficulty must be one of"),
     ({"env_kwargs": {"sea_state": 3}}, "may set difficulty, control, time_limit only"),
-    ({"policy": "CnnPolicy"}, "MlpPolicy or JointResidualPolicy"),
+    ({"policy": "CnnPolicy"}, "MlpPolicy, JointResidualPolicy or DetectionSetPolicy"),
+    ({"policy": "DetectionSetPolicy", "normalize": False}, "detection_fixes: true"),
+    ({"detection_fixes": True}, "set policy: DetectionSetPolicy"),
+    ({"detection_fixes": True, "policy": "DetectionSetPolicy", "normalize": False},
+     "AcousticTracking-v2's measurements front end"),
     ({"policy": "JointResidualPolicy", "normalize": False}, "set marker_track: true"),
     ({"marker_track": True}, "LARSCapture-v0's features front end"),
     ({"marker_track": "yes"}, "marker_track must be true or false"),
     ({"log_std_init": 5.0}, r"log_std_init must be a finite number in \[-20, 2\]"),
     ({"num_envs": 10, "n_minibatches": 48}, "must split into"),
-    ({"evals": 0}, r"evals must be an integer in \[1, inf\)"),
+    ({"evals": -1}, r"evals must be an integer in \[0, inf\)"),
     ({"checkpoints": "yes"}, "checkpoints must be true or false"),
     ({"policy_kwargs": {}}, "unknown setting 'policy_kwargs'"),
 ])
@@ -381,3 +385,53 @@ def test_one_iteration_on_acoustic_exports_a_policy_for_its_cpu_env(tmp_path):
     np.testing.assert_allclose(agent.act(obs, info), np.asarray(env._action(unit)),
                                rtol=1e-5, atol=1e-4)
     assert cpu.action_space.contains(agent.act(obs, info))
+
+
+def test_the_set_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
+    """cppo-acoustic-measurements' recipe: an iteration of 4 envs x 4 steps on the detection
+    fixes, then the DetectionSetPolicy written and acting in the CPU env (through
+    DetectionFixes) as the JAX set encoder acts."""
+    from baselines.rl.detection_fixes import DetectionFixes
+
+    env_id, kwargs = "auv_envs/AcousticTracking-v2", {"difficulty": "hard", "time_limit": 20.0}
+    env = compiled.make_env(env_id, "measurements", kwargs, detection_fixes=True)
+    settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1,
+                                 policy=compiled.SET_POLICY, normalize=False,
+                                 log_std_init=-6.0, gamma=0.0)
+    trainer = compiled.Trainer(env, settings)
+    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
+    params, opt_state, normalizer, states, key, stats = trainer.iteration(
+        params, opt_state, normalizer, states, key)
+    assert bool(trainer.all_finite(params))
+    # scores far from their start, so that the weights differ from token to token
+    params["set"]["score"]["w"] = params["set"]["score"]["w"] * 20.0
+    run = {"env_id": env_id, "obs_mode": "measurements", "seed": 0, "n_timesteps": 16,
+           "wall_time_s": 0.0, "difficulty": "hard", "env_kwargs": kwargs,
+           "detection_fixes": True, "settings": settings._asdict(), "curve": []}
+    manifest = compiled.export(params, normalizer, tmp_path / "policy", run)
+    assert manifest["detection_fixes"] and not manifest["flatten_obs"]
+    assert set(manifest["files"]) == {"model.zip"}
+    cpu = gym.make(env_id, obs_mode="measurements", **kwargs).unwrapped
+    agent = load_policy_agent(tmp_path / "policy", cpu)
+    front = DetectionFixes(gym.make(env_id, obs_mode="measurements", **kwargs))
+    space = front.observation_space
+    obs, info = cpu.reset(seed=6)
+    agent.reset(6)
+    front.clear()
+    departures = []
+    for _ in range(30):
+        tokens = front.observation(obs)
+        flat = compiled.flatten_observation({k: jnp.asarray(v) for k, v in tokens.items()},
+                                            tuple(space.spaces))
+        features = compiled.set_features(params["set"],
+                                         compiled.unflatten_observation(flat, space))
+        unit = np.clip(np.asarray(features[:3]), -1.0, 1.0)
+        action = agent.act(obs, info)
+        np.testing.assert_allclose(action, np.asarray(env._action(unit)), rtol=1e-5, atol=1e-3)
+        valid = np.concatenate([tokens["fix"][tokens["fix_valid"] > 0],
+                                tokens["held_fix"][tokens["held_fix_valid"] > 0]])
+        if len(valid) > 1:  # how far the weights took the pooled fix from the plain mean
+            plain = np.asarray(env._action(valid.mean(axis=0)))
+            departures.append(float(np.max(np.abs(action - plain))))
+        obs, _, terminated, truncated, info = cpu.step(action)
+    assert departures and max(departures) > 0.01  # metres: the weights were compared

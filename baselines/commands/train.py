@@ -152,7 +152,11 @@ def main(argv=None, prog: str = "python train.py") -> int:
         print(f"{prog}: error: {exc}{_after_divergence(exc, expected, prog)}", file=sys.stderr)
         return DIVERGED
     curve = write_curve(result.run_dir)
-    print(f"learning curve: {curve} (data: eval_curve.csv, train_episodes.csv)")
+    if curve is None:
+        print(f"no learning curve: nothing was evaluated during the run (cppo's evals: 0); "
+              f"rank the policy with evaluate.py --policy {result.run_dir}")
+    else:
+        print(f"learning curve: {curve} (data: eval_curve.csv, train_episodes.csv)")
     if not result.finished:
         if result.checkpoint is None:  # a compiled run
             print(f"stopped by {result.stopped_by} at step {result.steps}; the policy so far "
@@ -206,13 +210,16 @@ def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespac
     return compiled.train_run(config, run_dir, command, cache)
 
 
-def write_curve(run_dir: Path) -> Path:
+def write_curve(run_dir: Path) -> Path | None:
     """``RUN_DIR/curve.png``: held-out success and return, and training returns, against steps
-    (the data is the run's ``eval_curve.csv`` and ``train_episodes.csv``)."""
-    from baselines.rl.export import plot_curve
+    (the data is the run's ``eval_curve.csv`` and ``train_episodes.csv``); None, and no
+    file, when the run recorded neither."""
+    from baselines.rl.export import plot_curve, read_csv
     from baselines.rl.training import RunDirectory
 
     run = RunDirectory(run_dir)
+    if not (read_csv(run.eval_curve) or read_csv(run.train_episodes)):
+        return None
     path = run.path / "curve.png"
     plot_curve(run, path, run.path.name)
     return path

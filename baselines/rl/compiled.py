@@ -63,6 +63,7 @@ from baselines.rl.config import (
     save_config,
     validate,
 )
+from baselines.rl.detection_fixes import DetectionFixesMJX
 from baselines.rl.marker_track import SLICES, MarkerTrackMJX
 from baselines.rl.training import (
     RunDirectory,
@@ -84,6 +85,10 @@ Settings = CompiledSettings
 DEFAULT_SETTINGS = Settings()
 #: ``policy`` of a residual policy on a servo (SB3's class of that name is what it exports).
 RESIDUAL = "JointResidualPolicy"
+#: ``policy`` of the acoustic set encoder over the detection fixes (the same).
+SET_POLICY = "DetectionSetPolicy"
+#: :class:`~baselines.rl.detections.DetectionSetExtractor`'s widths (its defaults).
+SET_EMBED, SET_SUMMARY = 64, 64
 
 
 def flatten_observation(obs, keys) -> jax.Array:
@@ -114,14 +119,77 @@ def _mlp(layers: list, x: jax.Array) -> jax.Array:
     return x @ layers[-1]["w"] + layers[-1]["b"]
 
 
+def _affine(layer: dict, x: jax.Array) -> jax.Array:
+    return x @ layer["w"] + layer["b"]
+
+
+def _set_init(key, bands: int) -> dict:
+    """:class:`~baselines.rl.detections.DetectionSetExtractor`'s layers as SB3 starts
+    them (orthogonal, gain sqrt(2), zero bias): the token MLP, the score, the summary."""
+    token_dim = 3 + 3 + 1 + bands + 2  # fix, log std, log fit, band one-hot, held, age
+    keys = jax.random.split(key, 4)
+    gain = math.sqrt(2.0)
+    return {"embed": [_dense(keys[0], token_dim, SET_EMBED, gain),
+                      _dense(keys[1], SET_EMBED, SET_EMBED, gain)],
+            "score": _dense(keys[2], SET_EMBED, 1, gain),
+            "summary": _dense(keys[3], SET_EMBED + 1, SET_SUMMARY, gain)}
+
+
+def set_features(net: dict, obs: dict) -> jax.Array:
+    """:class:`~baselines.rl.detections.DetectionSetExtractor`'s output for one
+    observation of :mod:`baselines.rl.detection_fixes` (``vmap`` it over a batch): the
+    attention-weighted mean of the valid fixes (zero when none is), then the set's
+    summary."""
+    q, k = obs["fix_valid"].shape
+    bands = jnp.repeat(jnp.eye(q, dtype=jnp.float32), k, axis=0)  # (Q*K, Q)
+
+    def part(prefix: str, held: float, age):
+        fix = obs[f"{prefix}fix"].reshape(q * k, 3)
+        flags = jnp.stack([jnp.full(q * k, held, jnp.float32),
+                           jnp.broadcast_to(age, (q * k,))], axis=-1)
+        tokens = jnp.concatenate([fix, obs[f"{prefix}fix_log_std"].reshape(q * k, 3),
+                                  obs[f"{prefix}fix_log_fit"].reshape(q * k, 1), bands,
+                                  flags], axis=-1)
+        return fix, obs[f"{prefix}fix_valid"].reshape(q * k) > 0.5, tokens
+
+    now = part("", 0.0, jnp.float32(0.0))
+    before = part("held_", 1.0, obs["held_age"][0])
+    fix, valid, tokens = (jnp.concatenate(pair) for pair in zip(now, before, strict=True))
+    h = jax.nn.relu(_affine(net["embed"][1], jax.nn.relu(_affine(net["embed"][0], tokens))))
+    scores = jnp.where(valid, _affine(net["score"], h)[:, 0], -jnp.inf)
+    weights = jax.nn.softmax(jnp.where(valid.any(), scores, 0.0)) * valid
+    count = valid.sum().astype(jnp.float32)
+    mean_h = (h * valid[:, None]).sum(axis=0) / jnp.maximum(count, 1.0)
+    summary = jax.nn.relu(_affine(net["summary"], jnp.concatenate(
+        [mean_h, (count / valid.shape[0])[None]])))
+    return jnp.concatenate([(weights[:, None] * fix).sum(axis=0), summary])
+
+
+def unflatten_observation(flat: jax.Array, space: gym.spaces.Dict) -> dict:
+    """The inverse of :func:`flatten_observation` for one observation of ``space``."""
+    out, start = {}, 0
+    for key, part in space.spaces.items():
+        size = int(np.prod(part.shape))
+        out[key] = flat[start:start + size].reshape(part.shape)
+        start += size
+    return out
+
+
 def init_params(key, obs_size: int, action_size: int,
-                settings: Settings | None = None) -> dict:
+                settings: Settings | None = None, space=None) -> dict:
     """SB3's PPO start: mean network (head gain 0.01), value network (gain 1), log std
     ``log_std_init`` (0 by default). With ``policy: JointResidualPolicy`` the mean's head
     starts at zero and the servo's per-joint gains at ``servo_gain``
-    (:class:`~baselines.rl.marker_estimate.JointResidualPolicy`)."""
+    (:class:`~baselines.rl.marker_estimate.JointResidualPolicy`). With ``policy:
+    DetectionSetPolicy`` (``space``: the observation space of
+    :mod:`baselines.rl.detection_fixes`) the mean is the set encoder's pooled fix and
+    the value network reads its features."""
     settings = settings or DEFAULT_SETTINGS
     pi_key, vf_key = jax.random.split(key)
+    if settings.policy == SET_POLICY:
+        return {"set": _set_init(pi_key, space["fix_valid"].shape[0]),
+                "vf": _mlp_init(vf_key, (3 + SET_SUMMARY, *HIDDEN_LAYERS), 1, 1.0),
+                "log_std": jnp.full(action_size, settings.log_std_init, jnp.float32)}
     sizes = (obs_size, *HIDDEN_LAYERS)
     params = {"pi": _mlp_init(pi_key, sizes, action_size, 0.01),
               "vf": _mlp_init(vf_key, sizes, 1, 1.0),
@@ -202,6 +270,10 @@ class Trainer:
         if settings.policy == RESIDUAL and not isinstance(env, MarkerTrackMJX):
             raise ConfigError("policy JointResidualPolicy reads the marker tracker's observation: "
                               "set marker_track: true")
+        if (settings.policy == SET_POLICY) != isinstance(env, DetectionFixesMJX):
+            raise ConfigError("policy DetectionSetPolicy reads the detection fixes, and they are "
+                              "read by it only: set both policy: DetectionSetPolicy and "
+                              "detection_fixes: true, or neither")
         schedule = optax.linear_schedule(settings.learning_rate, 0.0,
                                          total_iterations * settings.n_epochs
                                          * settings.n_minibatches)
@@ -216,7 +288,8 @@ class Trainer:
 
     def init(self, key) -> tuple:
         net_key, env_key, key = jax.random.split(key, 3)
-        params = init_params(net_key, self.obs_size, self.action_size, self.settings)
+        params = init_params(net_key, self.obs_size, self.action_size, self.settings,
+                             self.env.observation_space)
         states = self._reset_batch(jax.random.split(env_key, self.settings.num_envs))
         normalizer = Normalizer.create(self.obs_size).update(self._flat(states.obs))
         return params, self.optimizer.init(params), normalizer, states, key
@@ -228,6 +301,16 @@ class Trainer:
         """The networks' input: ``obs`` normalised, or as it is (``normalize: false``)."""
         return normalizer(obs) if self.settings.normalize else obs
 
+    def _heads(self, params: dict, obs: jax.Array, x: jax.Array) -> tuple:
+        """The Gaussian's mean and the value of a batch of flat observations ``obs``
+        (``x``: the networks' input, :meth:`_input`)."""
+        if "set" not in params:
+            return policy_mean(params, obs, x), _mlp(params["vf"], x)[:, 0]
+        space = self.env.observation_space
+        features = jax.vmap(lambda flat: set_features(
+            params["set"], unflatten_observation(flat, space)))(x)
+        return features[:, :3], _mlp(params["vf"], features)[:, 0]
+
     def _iteration(self, params, opt_state, normalizer, states, key):
         s = self.settings
 
@@ -235,11 +318,9 @@ class Trainer:
             states, key = carry
             key, sample_key = jax.random.split(key)
             obs = self._flat(states.obs)
-            x = self._input(normalizer, obs)
-            mean = policy_mean(params, obs, x)
+            mean, value = self._heads(params, obs, self._input(normalizer, obs))
             action = mean + jnp.exp(params["log_std"]) * jax.random.normal(sample_key,
                                                                           mean.shape)
-            value = _mlp(params["vf"], x)[:, 0]
             nxt = self._step(states, jnp.clip(action, -1.0, 1.0))
             out = (obs, action, _log_prob(params, mean, action), value, nxt.reward,
                    nxt.done.astype(jnp.float32), nxt.metrics["is_success"] & nxt.done)
@@ -247,7 +328,8 @@ class Trainer:
 
         (states, key), (obs, actions, log_probs, values, rewards, dones, successes) = \
             jax.lax.scan(act, (states, key), None, length=s.n_steps)
-        last_value = _mlp(params["vf"], self._input(normalizer, self._flat(states.obs)))[:, 0]
+        last_obs = self._flat(states.obs)
+        last_value = self._heads(params, last_obs, self._input(normalizer, last_obs))[1]
 
         def gae(carry, step):
             advantage, next_value = carry
@@ -264,15 +346,14 @@ class Trainer:
 
         def loss_fn(params, mb):
             obs, action, old_log_prob, advantage, ret = mb
-            x = self._input(normalizer, obs)
-            mean = policy_mean(params, obs, x)
+            mean, value = self._heads(params, obs, self._input(normalizer, obs))
             log_prob = _log_prob(params, mean, action)
             ratio = jnp.exp(log_prob - old_log_prob)
             advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
             policy_loss = -jnp.minimum(
                 ratio * advantage,
                 jnp.clip(ratio, 1 - s.clip_range, 1 + s.clip_range) * advantage).mean()
-            value_loss = jnp.mean((ret - _mlp(params["vf"], x)[:, 0]) ** 2)
+            value_loss = jnp.mean((ret - value) ** 2)
             entropy = jnp.sum(params["log_std"] + 0.5 * math.log(2 * math.pi * math.e))
             return policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
 
@@ -305,7 +386,8 @@ class Trainer:
         compiles in a thread while the first reset and iteration compile (most of XLA's
         compiling runs on one core)."""
         params = jax.eval_shape(lambda: init_params(jax.random.PRNGKey(0), self.obs_size,
-                                                    self.action_size, self.settings))
+                                                    self.action_size, self.settings,
+                                                    self.env.observation_space))
         normalizer = jax.eval_shape(lambda: Normalizer.create(self.obs_size))
         return self.evaluate.lower(params, normalizer, episodes, steps).compile()
 
@@ -318,7 +400,7 @@ class Trainer:
         def act(carry, _):
             states, done, success, total = carry
             obs = self._flat(states.obs)
-            mean = policy_mean(params, obs, self._input(normalizer, obs))
+            mean = self._heads(params, obs, self._input(normalizer, obs))[0]
             nxt = self._step(states, jnp.clip(mean, -1.0, 1.0))
             ended = nxt.done & ~done
             total = total + jnp.where(done, 0.0, nxt.reward)
@@ -336,30 +418,42 @@ EVAL_EPISODES = 64
 
 
 def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
-             marker_track: bool = False) -> FunctionalEnv:
+             marker_track: bool = False, detection_fixes: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
     trains on, built with ``env_kwargs`` (a difficulty level alone: a string): episodes
     reset themselves, actions in [-1, 1]; with ``marker_track``, the LARS ``features``
-    observation replaced by the marker tracker's (:class:`MarkerTrackMJX`)."""
+    observation replaced by the marker tracker's (:class:`MarkerTrackMJX`); with
+    ``detection_fixes``, the acoustic ``measurements`` by the detection fixes
+    (:class:`DetectionFixesMJX`)."""
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
     try:
         env = FAMILIES[env_id][0](obs_mode=obs_mode, **env_kwargs).use_unit_actions()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc
+    if detection_fixes:
+        try:
+            return DetectionFixesMJX(env)
+        except ConfigError as exc:
+            raise ConfigError(f"detection_fixes: {exc}") from exc
     return MarkerTrackMJX(env) if marker_track else env
 
 
 def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: Path,
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
-          stop=lambda: False, obs_mode: str = "features", marker_track: bool = False) -> dict:
+          stop=lambda: False, obs_mode: str = "features", marker_track: bool = False,
+          detection_fixes: bool = False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``env_kwargs``: the environment's arguments (a difficulty level alone: a string);
-    ``marker_track``: train on the marker tracker's observation (:func:`make_env`).
+    ``marker_track``, ``detection_fixes``: train on the marker tracker's observation, on
+    the detection fixes (:func:`make_env`).
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
+    ``evals``: batched evaluations of :data:`EVAL_EPISODES` episodes during the run, the
+    last at its end (0: none; the curve is then empty and the policy is judged by
+    ``evaluate.py`` alone).
     ``checkpoints``: also write the policy at each of the ``evals`` evaluations, as
     ``<checkpoint_dir or out/checkpoints>/step_<N>`` (each a policy directory whose
     manifest holds the training wall time so far), to find when a run first reached a
@@ -370,7 +464,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     statistic non-finite raises :class:`~baselines.rl.training.TrainingDiverged` at once,
     writing nothing more (the checkpoints written before it stay).
     """
-    env = make_env(env_id, obs_mode, env_kwargs, marker_track)
+    env = make_env(env_id, obs_mode, env_kwargs, marker_track, detection_fixes)
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else dict(env_kwargs)
     difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
@@ -378,15 +472,17 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     trainer = Trainer(env, settings, iterations)
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
            "env_kwargs": env_kwargs, "marker_track": marker_track,
+           "detection_fixes": detection_fixes,
            "settings": settings._asdict(), "command": command}
     checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
     with ThreadPoolExecutor(max_workers=1) as pool:
-        compiling = pool.submit(trainer.compile_evaluation, EVAL_EPISODES, env.max_episode_steps)
+        compiling = (pool.submit(trainer.compile_evaluation, EVAL_EPISODES,
+                                 env.max_episode_steps) if evals else None)
         params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(seed))
         evaluate = None
         curve = []
-        every = max(1, iterations // evals)
+        every = max(1, iterations // evals) if evals else iterations + 1
         i = 0
         last_checkpoint = None
         while i < iterations and not (i and stop()):
@@ -394,11 +490,12 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
             params, opt_state, normalizer, states, key, stats = trainer.iteration(
                 params, opt_state, normalizer, states, key)
             if not bool(trainer.all_finite((params, normalizer))):
-                compiling.cancel()
+                if compiling is not None:
+                    compiling.cancel()
                 raise TrainingDiverged(i * per_iteration, non_finite_leaves(
                     {"policy": params, "normalizer": normalizer}), last_checkpoint,
                     resumable=False)
-            if i % every and i != iterations:
+            if not evals or (i % every and i != iterations):
                 continue
             evaluate = evaluate or compiling.result()
             success, mean_return, std_return = (float(v) for v in evaluate(params, normalizer))
@@ -416,7 +513,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
                 export(params, normalizer, last_checkpoint,
                        {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
                         "curve": list(curve), "group": None})
-        if evaluate is None:
+        if evaluate is None and compiling is not None:
             compiling.cancel()  # stopped before the first evaluation
     wall = time.perf_counter() - start
     manifest = export(params, normalizer, Path(out), {
@@ -443,27 +540,39 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     env_kwargs = run.get("env_kwargs") or {"difficulty": run["difficulty"]}
     settings = Settings(**run["settings"])
     residual = settings.policy == RESIDUAL
-    front_ends = ("marker_track",) if run.get("marker_track") else ()
+    front_ends = tuple(name for name in ("detection_fixes", "marker_track") if run.get(name))
     cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"], **env_kwargs).unwrapped
     wrapped = wrap_env(cpu, flatten_obs=not front_ends, front_ends=front_ends)
     policy_kwargs = {"net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh}
     if residual:
         policy_kwargs["servo_gain"] = settings.servo_gain
-    model = PPO(LazyFactory(CUSTOM_POLICIES[RESIDUAL]).resolve() if residual else "MlpPolicy",
-                wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)
+    if settings.policy == SET_POLICY:
+        policy_kwargs = {"net_arch": {"pi": [], "vf": list(HIDDEN_LAYERS)},
+                         "activation_fn": torch.nn.Tanh}
+    policy_class = (LazyFactory(CUSTOM_POLICIES[settings.policy]).resolve()
+                    if settings.policy in CUSTOM_POLICIES else "MlpPolicy")
+    model = PPO(policy_class, wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)
     policy = model.policy
+
+    def copy(modules, layers):
+        for module, layer in zip(modules, layers, strict=True):
+            module.weight.copy_(torch.as_tensor(np.array(layer["w"]).T))
+            module.bias.copy_(torch.as_tensor(np.array(layer["b"])))
+
+    def linear(sequence):
+        return [m for m in sequence if isinstance(m, torch.nn.Linear)]
+
     # JointResidualPolicy wraps SB3's extractor and puts the servo before the mean's head
     extractor = policy.mlp_extractor.inner if residual else policy.mlp_extractor
-    head = policy.action_net.linear if residual else policy.action_net
     with torch.no_grad():
-        linear = [m for m in extractor.policy_net if isinstance(m, torch.nn.Linear)]
-        for module, layer in zip([*linear, head], params["pi"], strict=True):
-            module.weight.copy_(torch.as_tensor(np.array(layer["w"]).T))
-            module.bias.copy_(torch.as_tensor(np.array(layer["b"])))
-        linear = [m for m in extractor.value_net if isinstance(m, torch.nn.Linear)]
-        for module, layer in zip([*linear, policy.value_net], params["vf"], strict=True):
-            module.weight.copy_(torch.as_tensor(np.array(layer["w"]).T))
-            module.bias.copy_(torch.as_tensor(np.array(layer["b"])))
+        if settings.policy == SET_POLICY:  # the actor is the set encoder's pooled fix
+            encoder, net = policy.features_extractor, params["set"]
+            copy([*linear(encoder.embed), encoder.score, *linear(encoder.summary)],
+                 [*net["embed"], net["score"], net["summary"]])
+        else:
+            head = policy.action_net.linear if residual else policy.action_net
+            copy([*linear(extractor.policy_net), head], params["pi"])
+        copy([*linear(extractor.value_net), policy.value_net], params["vf"])
         policy.log_std.copy_(torch.as_tensor(np.array(params["log_std"])))
         if residual:
             policy.action_net.servo_gain.copy_(torch.as_tensor(np.array(params["servo_gain"])))
@@ -540,7 +649,8 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
                              checkpoint_dir=run.checkpoints, command=command,
                              stop=lambda: flag.stop_signal is not None,
                              obs_mode=config.run["obs_mode"],
-                             marker_track=config.run["marker_track"])
+                             marker_track=config.run["marker_track"],
+                             detection_fixes=config.run["detection_fixes"])
     except TrainingDiverged as exc:
         exc.run_dir = run.path
         info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))

@@ -102,7 +102,7 @@ _RUN_KEY_TYPES = {
 #: Run keys added after configs were first written, read with their defaults when absent.
 _LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track")
 #: The same for ``cppo``'s run keys (:data:`COMPILED_RUN_KEYS`).
-_LATER_COMPILED_RUN_KEYS = ("marker_track",)
+_LATER_COMPILED_RUN_KEYS = ("marker_track", "detection_fixes")
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
@@ -138,6 +138,7 @@ COMPILED_RUN_KEYS = {
     "evals": 10,
     "checkpoints": False,
     "marker_track": False,
+    "detection_fixes": False,
 }
 #: Keys of a cppo run's ``env_kwargs`` (LARS ``control`` and ``time_limit``: its
 #: ``control="position"`` policies; building the env checks them).
@@ -158,8 +159,10 @@ class CompiledSettings(NamedTuple):
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
-    # The policy: SB3's MlpPolicy, or JointResidualPolicy (a servo on the marker
-    # tracker's observation, marker_track: true) with its servo's initial gain.
+    # The policy: SB3's MlpPolicy, JointResidualPolicy (a servo on the marker
+    # tracker's observation, marker_track: true) with its servo's initial gain, or
+    # DetectionSetPolicy (the set encoder over the acoustic detection fixes,
+    # detection_fixes: true).
     policy: str = "MlpPolicy"
     servo_gain: float = 0.3
     log_std_init: float = 0.0
@@ -293,7 +296,7 @@ RANGES = {
     "checkpoint_freq": Range(int, _AT_LEAST_1),
     "keep_checkpoints": Range(int, _AT_LEAST_1),
     "torch_threads": Range(int, _AT_LEAST_1),
-    "evals": Range(int, _AT_LEAST_1),  # cppo
+    "evals": Range(int, "[0, inf)"),  # cppo (0: no evaluation during the run)
     # the update: PPO, A2C, cppo (learning_rate, gamma, batch_size: all)
     "learning_rate": Range(float, "(0, inf)", forms=("lin_<x>",)),
     "n_steps": Range(int, _AT_LEAST_1),  # rollout length; SAC/TD3/DDPG: n-step returns
@@ -650,7 +653,7 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
         RANGES[key].check(key, run[key])
-    for key in ("checkpoints", "marker_track"):
+    for key in ("checkpoints", "marker_track", "detection_fixes"):
         if not isinstance(run[key], bool):
             raise ConfigError(f"{key} must be true or false, got {run[key]!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
@@ -664,9 +667,17 @@ def _validate_compiled(config: TrainConfig) -> None:
                               f"{', '.join(sorted({*fields, *COMPILED_RUN_KEYS}))}")
         _check_argument(COMPILED, key, value, fields[key])
     settings = CompiledSettings(**config.hyperparams)
-    if settings.policy not in ("MlpPolicy", "JointResidualPolicy"):
-        raise ConfigError(f"cppo's policy is MlpPolicy or JointResidualPolicy, got "
-                          f"{settings.policy!r}")
+    if settings.policy not in ("MlpPolicy", "JointResidualPolicy", "DetectionSetPolicy"):
+        raise ConfigError(f"cppo's policy is MlpPolicy, JointResidualPolicy or "
+                          f"DetectionSetPolicy, got {settings.policy!r}")
+    if (settings.policy == "DetectionSetPolicy") != run["detection_fixes"] or (
+            run["detection_fixes"] and settings.normalize):
+        raise ConfigError("DetectionSetPolicy reads the detection fixes as they are, and they "
+                          "are read by it only: set policy: DetectionSetPolicy, "
+                          "detection_fixes: true and normalize: false together")
+    if run["detection_fixes"] and (config.env_id != "auv_envs/AcousticTracking-v2"
+                                   or run["obs_mode"] != "measurements"):
+        raise ConfigError("detection_fixes is AcousticTracking-v2's measurements front end")
     if settings.policy == "JointResidualPolicy":
         if not run["marker_track"] or settings.normalize:
             raise ConfigError("JointResidualPolicy reads the marker tracker's hold target as "

@@ -22,7 +22,7 @@ from baselines.rl.training import RunDirectory
 NAME = re.compile(r"^[a-z0-9][a-z0-9._-]*$")
 
 
-def _read_csv(path: Path) -> list[dict]:
+def read_csv(path: Path) -> list[dict]:
     if not path.is_file():
         return []
     with open(path, newline="") as handle:
@@ -39,8 +39,8 @@ def plot_curve(run: RunDirectory, out: Path, title: str) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    evals = _read_csv(run.eval_curve)
-    episodes = _read_csv(run.train_episodes)
+    evals = read_csv(run.eval_curve)
+    episodes = read_csv(run.train_episodes)
     fig = Figure(figsize=(7, 6))
     FigureCanvasAgg(fig)
     top, bottom = fig.subplots(2, 1, sharex=True)
@@ -102,7 +102,7 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
     for source in (run.eval_curve, run.train_episodes):
         if source.is_file():
             shutil.copy2(source, tmp / source.name)
-    evals = _read_csv(run.eval_curve)
+    evals = read_csv(run.eval_curve)
     plot_curve(run, tmp / "curve.png", f"{name}\n{manifest['env_id']}, {manifest['obs_mode']}")
     policy = {
         **manifest,
