@@ -184,6 +184,24 @@ def test_sigterm_writes_the_cppo_policy_so_far(tmp_path, monkeypatch):
         export_policy(run_dir, "half", tmp_path / "policies")
 
 
+def test_a_run_without_evaluations_ships_without_a_curve(tmp_path, capsys):
+    """evals: 0 (the acoustic recipe): no batched evaluation, an empty eval_curve.csv and
+    no empty plot, in the run nor in the shipped policy."""
+    import train as train_cli
+
+    run_dir = tmp_path / "run"
+    argv = ["--algo", "cppo", "--env", "DockingStation-v2", "--seed", "3", "--run-dir",
+            str(run_dir), *TINY, "--set", "evals=0", "--export-policy", "quiet",
+            "--policies-dir", str(tmp_path / "policies")]
+    assert train_cli.main(argv) == 0
+    assert "no learning curve: nothing was evaluated" in capsys.readouterr().out
+    assert (run_dir / "eval_curve.csv").read_text().splitlines() == ["step"]
+    assert not (run_dir / "curve.png").exists()
+    shipped = tmp_path / "policies" / "quiet"
+    assert (shipped / "model.zip").is_file() and not (shipped / "curve.png").exists()
+    assert json.loads((shipped / "policy.json").read_text())["final_heldout_eval"] is None
+
+
 @pytest.mark.parametrize(("overrides", "message"), [
     ({"learning_rate": "3e-4"}, "write 3.0e-4"),
     ({"num_envs": 0}, r"num_envs must be an integer in \[1, inf\)"),
@@ -222,8 +240,10 @@ def test_cppo_yml_holds_the_trainers_defaults_and_only_batched_envs():
         assert compiled.Settings(**config.hyperparams) == compiled.DEFAULT_SETTINGS
         assert config.run["n_timesteps"] == budget
         assert config.run["env_kwargs"] == {"difficulty": "paper"}
-    assert resolve_config("cppo", "auv_envs/AcousticTracking-v2", 0).run["obs_mode"] == \
-        "measurements"
+    acoustic = resolve_config("cppo", "auv_envs/AcousticTracking-v2", 0)
+    assert acoustic.run["obs_mode"] == "measurements" and acoustic.run["detection_fixes"]
+    assert acoustic.run["n_timesteps"] == 100_000 and acoustic.run["evals"] == 0
+    assert compiled.Settings(**acoustic.hyperparams).policy == compiled.SET_POLICY
     lars = resolve_config("cppo", "auv_envs/LARSCapture-v0", 0)  # cppo-lars-features
     assert lars.run["marker_track"] and lars.run["n_timesteps"] == 300_000
     assert lars.run["env_kwargs"] == {"difficulty": "paper", "control": "position",
@@ -261,9 +281,10 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
     assert default.parts[-2:] == ("auv_envs", "jax")
 
 
-@pytest.mark.parametrize("name", [f"cppo-{family}-features-s{seed}"
-                                  for family in ("docking", "lamp-array", "lars")
-                                  for seed in range(3)])
+@pytest.mark.parametrize("name", [*(f"cppo-{family}-features-s{seed}"
+                                    for family in ("docking", "lamp-array", "lars")
+                                    for seed in range(3)),
+                                  *(f"cppo-acoustic-measurements-s{seed}" for seed in range(3))])
 def test_shipped_cppo_policies_were_trained_from_cppo_yml(name):
     from baselines.rl.config import TrainConfig, resolve_config
     from baselines.rl.manifest import policies_root

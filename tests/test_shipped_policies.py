@@ -35,6 +35,7 @@ CHECKS = {
     "ppo-lars-features": ("paper", {}, "captured"),
     "cppo-lars-features": ("paper", {}, "captured"),
     "ppo-acoustic-measurements": ("paper", {"time_limit": 10.0}, "tracked"),
+    "cppo-acoustic-measurements": ("paper", {"time_limit": 10.0}, "tracked"),
 }
 
 

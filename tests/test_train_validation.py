@@ -109,7 +109,7 @@ INVALID = [
     ("cppo", DOCKING, "num_envs=0", "num_envs"),
     ("cppo", DOCKING, "n_minibatches=0", "n_minibatches"),
     ("cppo", DOCKING, "n_timesteps=0", "n_timesteps"),
-    ("cppo", DOCKING, "evals=0", "evals"),
+    ("cppo", DOCKING, "evals=-1", "evals"),
 ]
 
 

@@ -3,7 +3,8 @@
 A shipped policy directory holds what :class:`baselines.rl.policy.PolicyAgent`
 loads (``model.zip``, ``vecnormalize.pkl`` when training normalised) and what a
 reader needs to trust it: the resolved ``config.yml``, the held-out evaluation
-curve and the training episodes (CSV), a plot of both (``curve.png``) and
+curve and the training episodes (CSV), a plot of both (``curve.png``, when the run
+recorded either) and
 ``policy.json`` (command, seed, budget in steps, wall time, package versions,
 SHA-256 of every file the agent loads).
 """
@@ -103,7 +104,9 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
         if source.is_file():
             shutil.copy2(source, tmp / source.name)
     evals = read_csv(run.eval_curve)
-    plot_curve(run, tmp / "curve.png", f"{name}\n{manifest['env_id']}, {manifest['obs_mode']}")
+    if evals or read_csv(run.train_episodes):  # nothing to draw after cppo's evals: 0
+        plot_curve(run, tmp / "curve.png",
+                   f"{name}\n{manifest['env_id']}, {manifest['obs_mode']}")
     policy = {
         **manifest,
         "name": name,
