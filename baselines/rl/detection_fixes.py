@@ -34,6 +34,7 @@ import numpy as np
 from gymnasium import spaces
 
 from baselines.acoustic.perception.positioning import LeastSquaresPositioner
+from baselines.rl.batched_front_end import BatchedFrontEnd
 from baselines.rl.config import ConfigError
 
 #: The observation keys of one step's tokens.
@@ -183,42 +184,21 @@ class DetectionFixes(gym.ObservationWrapper):
         return out
 
 
-class DetectionFixesMJX:
+class DetectionFixesMJX(BatchedFrontEnd):
     """A batched acoustic env (:class:`~auv_envs.batched.acoustic_env.AcousticMJX`,
     ``measurements``) whose observation is :class:`DetectionFixes`'s, computed in JAX by
     the same functions. The held tokens ride in ``state.info["detection_fixes"]`` and start
-    afresh where an episode restarted. Everything else is the wrapped env's (its
-    attributes are passed through)."""
+    afresh where an episode restarted (:class:`~baselines.rl.batched_front_end.BatchedFrontEnd`)."""
 
     INFO_KEY = "detection_fixes"
 
     def __init__(self, env):
-        import jax
-        import jax.numpy as jnp
-
-        self.env, self._jax, self._jnp = env, jax, jnp
+        super().__init__(env)
         self.params = FixParams.of(env.cpu_env)
         self.observation_space = self.params.observation_space()
 
-    def __getattr__(self, name):
-        return getattr(self.env, name)
+    def start(self) -> Held:
+        return Held.start(self.params, self._jnp)
 
-    def _observed(self, state, restart):
-        jnp = self._jnp
-        held = self._jax.tree_util.tree_map(
-            lambda new, old: jnp.where(restart, new, old).astype(old.dtype),
-            Held.start(self.params, jnp), state.info[self.INFO_KEY])
-        return observe(self.params, held, state.obs, jnp)
-
-    def reset(self, rng):
-        jnp = self._jnp
-        state = self.env.reset(rng)
-        state = state.replace(info={**state.info,
-                                    self.INFO_KEY: Held.start(self.params, jnp)})
-        held, obs = self._observed(state, jnp.bool_(True))
-        return state.replace(obs=obs, info={**state.info, self.INFO_KEY: held})
-
-    def step_batch(self, states, actions):
-        stepped = self.env.step_batch(states, actions)
-        held, obs = self._jax.vmap(self._observed)(stepped, stepped.done)
-        return stepped.replace(obs=obs, info={**stepped.info, self.INFO_KEY: held})
+    def advance(self, carry: Held, obs) -> tuple[Held, dict]:
+        return observe(self.params, carry, obs, self._jnp)

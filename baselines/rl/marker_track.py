@@ -42,6 +42,7 @@ from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.stereo import points_from_disparity
 from baselines.lars.estimation.auv_state import ATTITUDE_MEMORY
 from baselines.lars.perception.marker import MIN_DISPARITY, attitude_rotation, marker_attitude
+from baselines.rl.batched_front_end import BatchedFrontEnd
 from baselines.rl.config import ConfigError
 
 #: The layout of the front ends' observation vector (``MarkerEstimate``'s and
@@ -271,46 +272,23 @@ class MarkerTrack(gym.ObservationWrapper):
         return observe(self.params, self.state, observation)
 
 
-class MarkerTrackMJX:
+class MarkerTrackMJX(BatchedFrontEnd):
     """A batched LARS env (:class:`~auv_envs.batched.lars_env.LARSMJX`, ``features``)
     whose observation is the marker tracker's (:data:`LAYOUT`), computed in JAX by the
     functions :class:`MarkerTrack` runs on the CPU. The tracker's state rides in
-    ``state.info["marker_track"]`` and starts afresh where an episode restarted.
-    Everything else is the wrapped env's (its attributes are passed through)."""
+    ``state.info["marker_track"]`` and starts afresh where an episode restarted
+    (:class:`~baselines.rl.batched_front_end.BatchedFrontEnd`)."""
 
     INFO_KEY = "marker_track"
 
     def __init__(self, env):
-        import jax
-        import jax.numpy as jnp
-
-        self.env, self._jax, self._jnp = env, jax, jnp
+        super().__init__(env)
         self.params = TrackParams.of(env.cpu_env)
         self.observation_space = spaces.Box(-np.inf, np.inf, (SIZE,), np.float32)
 
-    def __getattr__(self, name):
-        return getattr(self.env, name)
+    def start(self) -> TrackState:
+        return TrackState.start(self._jnp)
 
-    def _tracked(self, state, restart):
-        jnp = self._jnp
-
-        def one(carry, obs, again):
-            fresh = TrackState.start(jnp)
-            carry = self._jax.tree_util.tree_map(
-                lambda new, old: jnp.where(again, new, old).astype(old.dtype), fresh, carry)
-            carry = track(self.params, carry, obs, jnp)
-            return carry, observe(self.params, carry, obs, jnp)
-
-        return one(state.info[self.INFO_KEY], state.obs, restart)
-
-    def reset(self, rng):
-        jnp = self._jnp
-        state = self.env.reset(rng)
-        state = state.replace(info={**state.info, self.INFO_KEY: TrackState.start(jnp)})
-        carry, obs = self._tracked(state, jnp.bool_(True))
-        return state.replace(obs=obs, info={**state.info, self.INFO_KEY: carry})
-
-    def step_batch(self, states, actions):
-        stepped = self.env.step_batch(states, actions)
-        carry, obs = self._jax.vmap(self._tracked)(stepped, stepped.done)
-        return stepped.replace(obs=obs, info={**stepped.info, self.INFO_KEY: carry})
+    def advance(self, carry: TrackState, obs) -> tuple:
+        carry = track(self.params, carry, obs, self._jnp)
+        return carry, observe(self.params, carry, obs, self._jnp)

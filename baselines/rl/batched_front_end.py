@@ -1,0 +1,56 @@
+"""What the batched front ends share: a batched env whose observation a classical front end
+(pure functions of arrays, run with NumPy on the CPU by its Gymnasium wrapper) computes in
+JAX from the wrapped env's, its state riding along in ``state.info``.
+
+:class:`~baselines.rl.marker_track.MarkerTrackMJX` (LARS) and
+:class:`~baselines.rl.detection_fixes.DetectionFixesMJX` (acoustic) subclass it.
+"""
+
+from __future__ import annotations
+
+
+class BatchedFrontEnd:
+    """A batched env (a :class:`~auv_envs.batched.functional.FunctionalEnv`, auto-reset)
+    whose observation is the front end's. The front end's carry rides in
+    ``state.info[INFO_KEY]`` and starts afresh where an episode restarted. Everything
+    else is the wrapped env's (its attributes are passed through).
+
+    Subclasses set ``INFO_KEY`` and ``observation_space`` and define :meth:`start` (the
+    carry of a new episode) and :meth:`advance` (one observation: the next carry and
+    the front end's observation), both on ``jax.numpy``.
+    """
+
+    INFO_KEY = ""
+
+    def __init__(self, env):
+        import jax
+        import jax.numpy as jnp
+
+        self.env, self._jax, self._jnp = env, jax, jnp
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def start(self):
+        raise NotImplementedError
+
+    def advance(self, carry, obs) -> tuple:
+        raise NotImplementedError
+
+    def _observed(self, state, restart):
+        jnp = self._jnp
+        carry = self._jax.tree_util.tree_map(
+            lambda new, old: jnp.where(restart, new, old).astype(old.dtype),
+            self.start(), state.info[self.INFO_KEY])
+        return self.advance(carry, state.obs)
+
+    def reset(self, rng):
+        state = self.env.reset(rng)
+        state = state.replace(info={**state.info, self.INFO_KEY: self.start()})
+        carry, obs = self._observed(state, self._jnp.bool_(True))
+        return state.replace(obs=obs, info={**state.info, self.INFO_KEY: carry})
+
+    def step_batch(self, states, actions):
+        stepped = self.env.step_batch(states, actions)
+        carry, obs = self._jax.vmap(self._observed)(stepped, stepped.done)
+        return stepped.replace(obs=obs, info={**stepped.info, self.INFO_KEY: carry})
