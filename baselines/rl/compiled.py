@@ -18,7 +18,11 @@ normalised as ``VecNormalize`` (running mean and variance, clipped at 10).
 With ``policy: JointResidualPolicy`` (LARS capture, ``marker_track: true``) it is
 :class:`~baselines.rl.marker_estimate.JointResidualPolicy` instead: a learned correction
 on a servo over the marker tracker's observation (:mod:`baselines.rl.marker_track`,
-computed in JAX by :class:`~baselines.rl.marker_track.MarkerTrackMJX`), not normalised.
+computed in JAX by :class:`~baselines.rl.marker_track.MarkerTrackMJX`), not normalised;
+with ``policy: DetectionSetPolicy`` (acoustic tracking, ``detection_fixes: true``) it is
+:class:`~baselines.rl.detections.DetectionSetPolicy`, the set encoder over one
+least-squares fix per detection (:mod:`baselines.rl.detection_fixes`, computed in JAX by
+:class:`~baselines.rl.detection_fixes.DetectionFixesMJX`; :func:`set_features`).
 So a finished run is written *as* an SB3 policy (``model.zip``,
 ``vecnormalize.pkl``, ``policy.json``): it acts in the ordinary MuJoCo CPU
 environment through :class:`baselines.rl.policy.PolicyAgent`, and

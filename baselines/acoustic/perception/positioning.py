@@ -179,7 +179,9 @@ def _model_test_threshold(level: float, dof: int) -> float:
 
 def _spd_inverse(S, xp):
     """The inverse of symmetric positive definite matrices S (..., n, n) through their
-    Cholesky factor, unrolled over the (few) rows in elementwise arithmetic."""
+    Cholesky factor, unrolled over the (few) rows in elementwise arithmetic; NaN where S
+    is not positive definite in the arithmetic's precision (such a fix is not finite,
+    hence never valid)."""
     n = S.shape[-1]
     L = [[None] * n for _ in range(n)]
     for j in range(n):
