@@ -8,7 +8,11 @@ Times, at one batch size, each piece as one compiled ``vmap`` call (best of
 * one sample period of the rig (:meth:`RigPlantMJX.period`: two MJX steps with the
   ellipsoid fluid force);
 * one step of :class:`~auv_envs.batched.acoustic_env.AcousticMJX` in ``state`` and in
-  ``measurements`` mode (the estimate held at the tank's centre).
+  ``measurements`` mode (the estimate held at the tank's centre);
+* the detection fixes of a ``measurements`` observation per environment
+  (:func:`baselines.rl.detection_fixes.observe`, what ``cppo-acoustic-measurements``'
+  front end adds), and the ``measurements`` step through
+  :class:`~baselines.rl.detection_fixes.DetectionFixesMJX`.
 
     python benchmarks/acoustic_batched_pieces.py [--batch 64] [--difficulty hard]
 """
@@ -28,6 +32,7 @@ from auv_envs.batched.acoustic_env import AcousticMJX
 from auv_envs.batched.acoustic_plant import RigPlantMJX
 from auv_envs.core.difficulty import LEVELS
 from auv_envs.tasks.acoustic.transition import NOMINAL_POSTURE
+from baselines.rl.detection_fixes import DetectionFixesMJX, observe
 
 
 def best_ms(fn, args, repeats: int) -> float:
@@ -71,6 +76,16 @@ def main(argv=None) -> None:
         states = step(states, estimate)  # a stepped state: the types every later step has
         rows.append((f"env step, {mode}", best_ms(lambda s, step=step: step(s, estimate).obs,
                                                   (states,), args.repeats)))
+    fixes = DetectionFixesMJX(env)  # env: the measurements one
+    held = jax.vmap(lambda _: fixes.start())(jnp.arange(batch))
+    observe_all = jax.jit(jax.vmap(lambda h, o: observe(fixes.params, h, o, jnp)))
+    rows.append(("detection fixes of the observation", best_ms(
+        lambda h, o: observe_all(h, o)[1]["fix"], (held, states.obs), args.repeats)))
+    fixed = jax.jit(jax.vmap(fixes.reset))(jax.random.split(jax.random.key(0), batch))
+    step = jax.jit(fixes.step_batch)
+    fixed = step(fixed, estimate)
+    rows.append(("env step, measurements with the detection fixes", best_ms(
+        lambda s: step(s, estimate).obs["fix"], (fixed,), args.repeats)))
     print("\n| piece | ms a call | env-steps/s |")
     print("|---|---|---|")
     for name, ms in rows:

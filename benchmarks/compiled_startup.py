@@ -1,13 +1,15 @@
 """Where the compiled PPO's start-up time goes, part by part.
 
-Builds the batched ``DockingStation-v2`` environment at ``paper`` and a
-:class:`baselines.rl.compiled.Trainer` with the default settings, then times
+Builds the batched environment of ``--env`` (``DockingStation-v2`` by default) and a
+:class:`baselines.rl.compiled.Trainer` as ``cppo.yml``'s recipe for it sets them up
+(observation mode, front end, settings; the docking recipe is the default settings at
+``paper``), then times
 (seconds, wall clock): building the environment, the first reset, tracing and
 compiling one iteration, running it twice, and compiling and running the
 batched evaluation. With ``--compilation-cache DIR`` JAX's persistent cache
 is used: run it twice with the same directory to see a warm start.
 
-    python benchmarks/compiled_startup.py [--compilation-cache DIR]
+    python benchmarks/compiled_startup.py [--env AcousticTracking-v2] [--compilation-cache DIR]
 """
 
 from __future__ import annotations
@@ -21,13 +23,17 @@ import jax
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="DockingStation-v2", help="an id cppo trains")
     parser.add_argument("--compilation-cache", type=Path, metavar="DIR")
     args = parser.parse_args(argv)
-    from baselines.rl.compiled import DEFAULT_SETTINGS, Trainer, use_compilation_cache
+    from baselines.rl.compiled import Settings, Trainer, make_env, use_compilation_cache
+    from baselines.rl.config import resolve_config
 
     if args.compilation_cache is not None:
         use_compilation_cache(args.compilation_cache)
-    from auv_envs.batched.docking_env import DockingMJX
+    env_id = args.env if "/" in args.env else f"auv_envs/{args.env}"
+    recipe = resolve_config("cppo", env_id, 0)
+    settings = Settings(**recipe.hyperparams)
 
     rows = []
     clock = [time.perf_counter()]
@@ -38,11 +44,13 @@ def main(argv=None) -> None:
         clock[0] = now
 
     start = clock[0]
-    env = DockingMJX("auv_envs/DockingStation-v2", obs_mode="features", difficulty="paper")
-    trainer = Trainer(env, DEFAULT_SETTINGS, 100)
+    run = recipe.run
+    env = make_env(env_id, run["obs_mode"], {"difficulty": "paper", **run["env_kwargs"]},
+                   run["marker_track"], run["detection_fixes"])
+    trainer = Trainer(env, settings, 100)
     lap("build the batched env and trainer")
     state = jax.block_until_ready(trainer.init(jax.random.PRNGKey(0)))
-    lap(f"first reset of {DEFAULT_SETTINGS.num_envs} envs")
+    lap(f"first reset of {settings.num_envs} envs")
     lowered = trainer.iteration.lower(*state)
     lap("trace one iteration")
     iteration = lowered.compile()
@@ -55,7 +63,7 @@ def main(argv=None) -> None:
     lap("trace, compile and run the evaluation")
     jax.block_until_ready(trainer.evaluate(out[0], out[2], 64, env.max_episode_steps))
     lap("run the evaluation again")
-    print(f"device: {jax.devices()[0]}; cache: {args.compilation_cache or 'none'}\n")
+    print(f"{env_id}; device: {jax.devices()[0]}; cache: {args.compilation_cache or 'none'}\n")
     print("| part | s |\n|---|---|")
     for label, seconds in rows:
         print(f"| {label} | {seconds:.1f} |")

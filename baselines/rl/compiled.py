@@ -67,7 +67,7 @@ from baselines.rl.config import (
     save_config,
     validate,
 )
-from baselines.rl.detection_fixes import DetectionFixesMJX
+from baselines.rl.detection_fixes import DetectionFixesMJX, token_size
 from baselines.rl.marker_track import SLICES, MarkerTrackMJX
 from baselines.rl.training import (
     RunDirectory,
@@ -91,7 +91,8 @@ DEFAULT_SETTINGS = Settings()
 RESIDUAL = "JointResidualPolicy"
 #: ``policy`` of the acoustic set encoder over the detection fixes (the same).
 SET_POLICY = "DetectionSetPolicy"
-#: :class:`~baselines.rl.detections.DetectionSetExtractor`'s widths (its defaults).
+#: :class:`~baselines.rl.detections.DetectionSetExtractor`'s widths (its defaults; the
+#: export passes them).
 SET_EMBED, SET_SUMMARY = 64, 64
 
 
@@ -130,10 +131,9 @@ def _affine(layer: dict, x: jax.Array) -> jax.Array:
 def _set_init(key, bands: int) -> dict:
     """:class:`~baselines.rl.detections.DetectionSetExtractor`'s layers as SB3 starts
     them (orthogonal, gain sqrt(2), zero bias): the token MLP, the score, the summary."""
-    token_dim = 3 + 3 + 1 + bands + 2  # fix, log std, log fit, band one-hot, held, age
     keys = jax.random.split(key, 4)
     gain = math.sqrt(2.0)
-    return {"embed": [_dense(keys[0], token_dim, SET_EMBED, gain),
+    return {"embed": [_dense(keys[0], token_size(bands), SET_EMBED, gain),
                       _dense(keys[1], SET_EMBED, SET_EMBED, gain)],
             "score": _dense(keys[2], SET_EMBED, 1, gain),
             "summary": _dense(keys[3], SET_EMBED + 1, SET_SUMMARY, gain)}
@@ -421,6 +421,11 @@ class Trainer:
 EVAL_EPISODES = 64
 
 
+#: The batched twins of the front ends a run key switches on (the CPU wrappers:
+#: :data:`baselines.rl.config.FRONT_ENDS`), in the order they apply.
+BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX, "marker_track": MarkerTrackMJX}
+
+
 def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
              marker_track: bool = False, detection_fixes: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
@@ -435,12 +440,14 @@ def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc
-    if detection_fixes:
-        try:
-            return DetectionFixesMJX(env)
-        except ConfigError as exc:
-            raise ConfigError(f"detection_fixes: {exc}") from exc
-    return MarkerTrackMJX(env) if marker_track else env
+    chosen = {"detection_fixes": detection_fixes, "marker_track": marker_track}
+    for name, wrapper in BATCHED_FRONT_ENDS.items():
+        if chosen[name]:
+            try:
+                env = wrapper(env)
+            except ConfigError as exc:
+                raise ConfigError(f"{name}: {exc}") from exc
+    return env
 
 
 def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: Path,
@@ -544,7 +551,7 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     env_kwargs = run.get("env_kwargs") or {"difficulty": run["difficulty"]}
     settings = Settings(**run["settings"])
     residual = settings.policy == RESIDUAL
-    front_ends = tuple(name for name in ("detection_fixes", "marker_track") if run.get(name))
+    front_ends = tuple(name for name in BATCHED_FRONT_ENDS if run.get(name))
     cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"], **env_kwargs).unwrapped
     wrapped = wrap_env(cpu, flatten_obs=not front_ends, front_ends=front_ends)
     policy_kwargs = {"net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh}
@@ -552,7 +559,9 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         policy_kwargs["servo_gain"] = settings.servo_gain
     if settings.policy == SET_POLICY:
         policy_kwargs = {"net_arch": {"pi": [], "vf": list(HIDDEN_LAYERS)},
-                         "activation_fn": torch.nn.Tanh}
+                         "activation_fn": torch.nn.Tanh,
+                         "features_extractor_kwargs": {"embed_dim": SET_EMBED,
+                                                       "summary_dim": SET_SUMMARY}}
     policy_class = (LazyFactory(CUSTOM_POLICIES[settings.policy]).resolve()
                     if settings.policy in CUSTOM_POLICIES else "MlpPolicy")
     model = PPO(policy_class, wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)

@@ -45,6 +45,26 @@ OBS_KEYS = (*FIX_KEYS, *(f"held_{key}" for key in FIX_KEYS), "held_age")
 LOG_FLOOR = 1e-6
 
 
+def token_spaces(bands: int, slots: int) -> dict:
+    """The spaces of one step's tokens (:data:`FIX_KEYS`) for ``bands`` x ``slots``
+    detections."""
+    q, k = bands, slots
+    return {
+        "fix": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
+        "fix_log_std": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
+        "fix_log_fit": spaces.Box(-np.inf, np.inf, (q, k), np.float32),
+        "fix_valid": spaces.MultiBinary((q, k)),
+    }
+
+
+def token_size(bands: int) -> int:
+    """The width of one token as the set encoder reads it: the fix (3), its log standard
+    deviations (3), its log fit (1), the band one-hot (``bands``), the held flag and the
+    log age (:class:`~baselines.rl.detections.DetectionSetExtractor`, and
+    :func:`baselines.rl.compiled.set_features` in JAX)."""
+    return 3 + 3 + 1 + bands + 2
+
+
 @dataclasses.dataclass(frozen=True)
 class FixParams:
     """What the front end reads from the environment: the positioner (its calibration) and
@@ -79,13 +99,7 @@ class FixParams:
 
     def observation_space(self) -> spaces.Dict:
         """The front end's observation space (:data:`OBS_KEYS`)."""
-        q, k = self.bands, self.slots
-        tokens = {
-            "fix": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
-            "fix_log_std": spaces.Box(-np.inf, np.inf, (q, k, 3), np.float32),
-            "fix_log_fit": spaces.Box(-np.inf, np.inf, (q, k), np.float32),
-            "fix_valid": spaces.MultiBinary((q, k)),
-        }
+        tokens = token_spaces(self.bands, self.slots)
         return spaces.Dict({
             **tokens,
             **{f"held_{key}": space for key, space in tokens.items()},
@@ -129,11 +143,8 @@ class Held(NamedTuple):
 
     @classmethod
     def start(cls, p: FixParams, xp=np) -> Held:
-        q, k = p.bands, p.slots
-        zeros = {"fix": xp.zeros((q, k, 3), xp.float32),
-                 "fix_log_std": xp.zeros((q, k, 3), xp.float32),
-                 "fix_log_fit": xp.zeros((q, k), xp.float32),
-                 "fix_valid": xp.zeros((q, k), xp.int8)}
+        zeros = {key: xp.zeros(space.shape, space.dtype)
+                 for key, space in token_spaces(p.bands, p.slots).items()}
         return cls(zeros, xp.asarray(0, xp.int32))
 
 

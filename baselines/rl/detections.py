@@ -36,7 +36,12 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from baselines.rl.config import ConfigError
 
 # The front end lives beside its JAX twin; imported here under the names it had.
-from baselines.rl.detection_fixes import FIX_KEYS, OBS_KEYS, DetectionFixes  # noqa: F401
+from baselines.rl.detection_fixes import (  # noqa: F401 (DetectionFixes: its old home)
+    FIX_KEYS,
+    OBS_KEYS,
+    DetectionFixes,
+    token_size,
+)
 
 
 class DetectionSetExtractor(BaseFeaturesExtractor):
@@ -59,10 +64,8 @@ class DetectionSetExtractor(BaseFeaturesExtractor):
                               f"DetectionFixes (detection_fixes: true); missing {sorted(missing)}")
         super().__init__(observation_space, features_dim=3 + summary_dim)
         q, k = observation_space["fix_valid"].shape
-        # fix (3), log std (3), log fit (1), band one-hot (q), held flag (1), log age (1)
-        token_dim = 3 + 3 + 1 + q + 2
         self.embed = torch.nn.Sequential(
-            torch.nn.Linear(token_dim, embed_dim), torch.nn.ReLU(),
+            torch.nn.Linear(token_size(q), embed_dim), torch.nn.ReLU(),
             torch.nn.Linear(embed_dim, embed_dim), torch.nn.ReLU(),
         )
         self.score = torch.nn.Linear(embed_dim, 1)

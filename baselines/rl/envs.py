@@ -7,7 +7,7 @@ environment's action exactly as it did in training:
 * ``RescaleAction(-1, 1)`` when the action space is a Box with other bounds
   (``AcousticTracking-v2`` acts with a position in the tank);
 * the classical front ends the config asks for (:data:`FRONT_ENDS`):
-  :class:`~baselines.rl.detections.DetectionFixes` (``detection_fixes``: one
+  :class:`~baselines.rl.detection_fixes.DetectionFixes` (``detection_fixes``: one
   least-squares fix per acoustic detection) and
   :class:`~baselines.rl.marker_estimate.MarkerEstimate` (``marker_estimate``:
   ``ckf-pd``'s LARS state estimate relative to the capture tip);

@@ -126,7 +126,7 @@ class PolicyAgent:
 
     def reset(self, seed: int | None = None) -> None:
         """Clears what observation wrappers hold from the last episode (``clear()``, e.g.
-        :class:`~baselines.rl.detections.DetectionFixes`); the policy itself is
+        :class:`~baselines.rl.detection_fixes.DetectionFixes`); the policy itself is
         feed-forward and acts deterministically."""
         for wrapper in self._observation_wrappers:
             if hasattr(wrapper, "clear"):
