@@ -9,17 +9,22 @@ Times, at one batch size, each piece as one compiled ``vmap`` call (best of
   ellipsoid fluid force);
 * one step of :class:`~auv_envs.batched.acoustic_env.AcousticMJX` in ``state`` and in
   ``measurements`` mode (the estimate held at the tank's centre);
+* the random draws of one ``measurements`` step alone: every draw the step makes (read
+  off a trace of it), made from JAX keys at the same shapes, and the count of numbers
+  (on the CPU JAX's generator, not the arithmetic, bounds the batched step's speed);
 * the detection fixes of a ``measurements`` observation per environment
   (:func:`baselines.rl.detection_fixes.observe`, what ``cppo-acoustic-measurements``'
   front end adds), and the ``measurements`` step through
   :class:`~baselines.rl.detection_fixes.DetectionFixesMJX`.
 
     python benchmarks/acoustic_batched_pieces.py [--batch 64] [--difficulty hard]
+        [--skip-mjx-kinematics]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import gymnasium as gym
@@ -28,8 +33,10 @@ import jax.numpy as jnp
 from mujoco.mjx._src import smooth
 
 import auv_envs  # noqa: F401
+from auv_envs.batched import acoustic_env
 from auv_envs.batched.acoustic_env import AcousticMJX
 from auv_envs.batched.acoustic_plant import RigPlantMJX
+from auv_envs.batched.functional import KeyDraws
 from auv_envs.core.difficulty import LEVELS
 from auv_envs.tasks.acoustic.transition import NOMINAL_POSTURE
 from baselines.rl.detection_fixes import DetectionFixesMJX, observe
@@ -46,11 +53,57 @@ def best_ms(fn, args, repeats: int) -> float:
     return best * 1e3
 
 
+class _RecordedDraws(KeyDraws):
+    """:class:`KeyDraws` that notes the kind and shape of every uniform and normal draw
+    (``normal`` goes through ``standard_normal``; ``integers`` and ``permutation``, which
+    only a reset's plan draws, are not noted)."""
+
+    noted: list = []
+
+    def random(self, size=None):
+        self.noted.append(("uniform", self._shape(size)))
+        return super().random(size)
+
+    def standard_normal(self, size=None):
+        self.noted.append(("normal", self._shape(size)))
+        return super().standard_normal(size)
+
+    def uniform(self, low=0.0, high=1.0, size=None):
+        self.noted.append(("uniform", self._shape(size)))
+        return super().uniform(low, high, size)
+
+
+def step_draws(env: AcousticMJX, states) -> list[tuple[str, tuple]]:
+    """The (kind, shape) of every draw one environment's step makes (a trace of
+    ``env._step``, no episode ending)."""
+    one = jax.tree_util.tree_map(lambda leaf: leaf[0], states)
+    _RecordedDraws.noted = []
+    acoustic_env.KeyDraws = _RecordedDraws
+    try:
+        jax.eval_shape(env._step, one, jnp.zeros(3, jnp.float32))
+    finally:
+        acoustic_env.KeyDraws = KeyDraws
+    return list(_RecordedDraws.noted)
+
+
+def make_draws(draws, key):
+    """The draws ``draws`` made from ``key`` (split once per draw, as :class:`KeyDraws`
+    does); returns their sum, so none is left out of the compiled call."""
+    total = jnp.float32(0.0)
+    for kind, shape in draws:
+        key, sub = jax.random.split(key)
+        sample = jax.random.normal if kind == "normal" else jax.random.uniform
+        total = total + jnp.sum(sample(sub, shape))
+    return total
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--difficulty", default="hard", choices=LEVELS)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--skip-mjx-kinematics", action="store_true",
+                        help="leave out MJX's own kinematics (seconds a call to compile and run)")
     args = parser.parse_args(argv)
     batch = args.batch
     print(f"JAX backend: {jax.default_backend()}; batch {batch}, {args.difficulty}")
@@ -60,8 +113,9 @@ def main(argv=None) -> None:
     carrier, arm = tile([150.0, 150.0, -12.0, 0.3]), tile(NOMINAL_POSTURE)
     data = jax.jit(jax.vmap(plant.place))(carrier, arm)
     rows = []
-    kinematics = jax.jit(jax.vmap(lambda d: smooth.kinematics(plant.model, d)))
-    rows.append(("MJX smooth.kinematics", best_ms(kinematics, (data,), args.repeats)))
+    if not args.skip_mjx_kinematics:
+        kinematics = jax.jit(jax.vmap(lambda d: smooth.kinematics(plant.model, d)))
+        rows.append(("MJX smooth.kinematics", best_ms(kinematics, (data,), args.repeats)))
     rows.append(("ChainKinematics", best_ms(jax.jit(jax.vmap(plant.kinematics)), (data,),
                                             args.repeats)))
     period = jax.jit(jax.vmap(plant.period))
@@ -76,7 +130,12 @@ def main(argv=None) -> None:
         states = step(states, estimate)  # a stepped state: the types every later step has
         rows.append((f"env step, {mode}", best_ms(lambda s, step=step: step(s, estimate).obs,
                                                   (states,), args.repeats)))
-    fixes = DetectionFixesMJX(env)  # env: the measurements one
+    draws = step_draws(env, states)  # env: the measurements one
+    numbers = sum(math.prod(shape) for _, shape in draws)
+    rows.append((f"its random draws alone ({numbers:,} numbers an env)", best_ms(
+        jax.jit(jax.vmap(lambda key: make_draws(draws, key))),
+        (jax.random.split(jax.random.key(1), batch),), args.repeats)))
+    fixes = DetectionFixesMJX(env)
     held = jax.vmap(lambda _: fixes.start())(jnp.arange(batch))
     observe_all = jax.jit(jax.vmap(lambda h, o: observe(fixes.params, h, o, jnp)))
     rows.append(("detection fixes of the observation", best_ms(
