@@ -87,13 +87,13 @@ def step_draws(env: AcousticMJX, states) -> list[tuple[str, tuple]]:
 
 
 def make_draws(draws, key):
-    """The draws ``draws`` made from ``key`` (split once per draw, as :class:`KeyDraws`
-    does); returns their sum, so none is left out of the compiled call."""
+    """The draws ``draws`` made from ``key`` by :class:`KeyDraws`, as the step makes them;
+    returns their sum, so none is left out of the compiled call."""
+    source = KeyDraws(key)
     total = jnp.float32(0.0)
     for kind, shape in draws:
-        key, sub = jax.random.split(key)
-        sample = jax.random.normal if kind == "normal" else jax.random.uniform
-        total = total + jnp.sum(sample(sub, shape))
+        sample = source.standard_normal if kind == "normal" else source.random
+        total = total + jnp.sum(sample(shape))
     return total
 
 

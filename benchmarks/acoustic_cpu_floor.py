@@ -30,25 +30,12 @@ import time
 import gymnasium as gym
 import mujoco
 import numpy as np
+from throughput import TARGET, Stepper, best_us  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the ids)
 from auv_envs.core.acoustics import ORIGIN_CLUTTER, ORIGIN_EMPTY
 from auv_envs.core.difficulty import LEVELS
 from auv_envs.tasks.acoustic import transition
-
-TARGET = 0.8
-
-
-def best_us(fn, calls: int, repeats: int, per: int = 1) -> float:
-    """Microseconds of one ``fn()`` divided by ``per``, best of ``repeats`` passes of
-    ``calls`` calls."""
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(calls):
-            fn()
-        best = min(best, (time.perf_counter() - start) / calls)
-    return best * 1e6 / per
 
 
 class Clock:
@@ -69,8 +56,8 @@ class ClockedEnv:
     """The acoustic env with clocks around its block's calls (``follow``, ``measure``,
     ``simulate_block``), put back by :meth:`close`."""
 
-    def __init__(self, env):
-        self.env, self.inner = env, env.unwrapped
+    def __init__(self, stepper: Stepper):
+        self.stepper, self.inner = stepper, stepper.env.unwrapped
         self.follow = self.inner.physics.follow = Clock(self.inner.physics.follow)
         array = self.inner.params.array
         self.measure = array.measure = Clock(array.measure)
@@ -81,18 +68,14 @@ class ClockedEnv:
         del self.inner.physics.follow, self.inner.params.array.measure
         transition.simulate_block = self._simulate
 
-    def pass_us(self, action, steps: int) -> dict[str, float]:
-        """One pass of ``steps`` steps: its parts, microseconds a step."""
+    def pass_us(self) -> dict[str, float]:
+        """One pass through the stepper's actions: its parts, microseconds a step."""
         for clock in (self.follow, self.measure, self.block):
             clock.seconds = 0.0
-        env, inner = self.env, self.inner
         start = time.perf_counter()
-        for _ in range(steps):
-            if inner._episode.done:
-                env.reset()
-            env.step(action)
+        self.stepper.rate()
         total = time.perf_counter() - start
-        us = 1e6 / steps
+        us = 1e6 / len(self.stepper.actions)
         return {"acoustic step": total * us,
                 "in it: the rig (MuJoCo and its loop)": self.follow.seconds * us,
                 "in it: the measurement model": self.measure.seconds * us,
@@ -109,16 +92,12 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=7)
     args = parser.parse_args(argv)
 
-    cheetah = gym.make("HalfCheetah-v5")
-    cheetah.reset(seed=0)
-    cheetah_action = cheetah.action_space.sample()
-    env = gym.make("auv_envs/AcousticTracking-v2", obs_mode="measurements",
-                   difficulty=args.difficulty)
-    env.action_space.seed(0)
-    action = env.action_space.sample()
-    env.reset(seed=0)
-    inner = env.unwrapped
-    for _ in range(3 * transition.BLOCK):  # a few blocks in: a state mid-episode
+    # Both envs stepped as benchmarks/throughput.py steps them (seeded random actions).
+    cheetah = Stepper(gym.make("HalfCheetah-v5"), args.steps)
+    stepper = Stepper(gym.make("auv_envs/AcousticTracking-v2", obs_mode="measurements",
+                               difficulty=args.difficulty), args.steps)
+    env, inner = stepper.env, stepper.env.unwrapped
+    for action in stepper.actions[: 3 * transition.BLOCK]:  # a few blocks in: mid-episode
         env.step(action)
 
     # The parts alone, on copies of the episode's block and rig: the timed env is untouched.
@@ -147,15 +126,14 @@ def main(argv=None) -> None:
     count = len(block.positions)
     calls = max(args.steps // 50, 4)
 
-    clocked = ClockedEnv(env)
+    clocked = ClockedEnv(stepper)
     rows: dict[str, float] = {}
     best_pass: dict[str, float] = {}
     try:
         for _ in range(args.repeats):  # alternately: one pass of each, best kept
-            reference = best_us(lambda: cheetah.step(cheetah_action), args.steps, 1)
             rows["HalfCheetah-v5 step"] = min(rows.get("HalfCheetah-v5 step", np.inf),
-                                              reference)
-            one = clocked.pass_us(action, args.steps)
+                                              1e6 / cheetah.rate())
+            one = clocked.pass_us()
             if one["acoustic step"] < best_pass.get("acoustic step", np.inf):
                 best_pass = one
             alone = {

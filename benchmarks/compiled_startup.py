@@ -45,8 +45,8 @@ def main(argv=None) -> None:
 
     start = clock[0]
     run = recipe.run
-    env = make_env(env_id, run["obs_mode"], {"difficulty": "paper", **run["env_kwargs"]},
-                   run["marker_track"], run["detection_fixes"])
+    env = make_env(env_id, run["obs_mode"], run["env_kwargs"], run["marker_track"],
+                   run["detection_fixes"])
     trainer = Trainer(env, settings, 100)
     lap("build the batched env and trainer")
     state = jax.block_until_ready(trainer.init(jax.random.PRNGKey(0)))

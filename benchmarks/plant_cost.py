@@ -18,24 +18,13 @@ and the wrench alone and ``mj_forward`` alone.
 from __future__ import annotations
 
 import argparse
-import time
 
 import gymnasium as gym
 import mujoco
+from throughput import best_us  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401  (registers the environments)
 from auv_envs.core.plant import FreeBodyPlant
-
-
-def _best_us(function, steps: int, repeats: int, reset) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        reset()
-        start = time.perf_counter()
-        for _ in range(steps):
-            function()
-        best = min(best, (time.perf_counter() - start) / steps * 1e6)
-    return best
 
 
 def main(argv=None) -> None:
@@ -71,17 +60,17 @@ def main(argv=None) -> None:
 
         staged, callback, compiled = float("inf"), float("inf"), float("inf")
         for _ in range(args.repeats):  # alternately
-            staged = min(staged, _best_us(unwrapped.integrator.step, args.steps, 1, reset))
-            compiled = min(compiled, _best_us(compiled_step, args.steps, 1, reset))
+            staged = min(staged, best_us(unwrapped.integrator.step, args.steps, 1, reset=reset))
+            compiled = min(compiled, best_us(compiled_step, args.steps, 1, reset=reset))
             mujoco.set_mjcb_passive(hull.passive_force)
             try:
-                callback = min(callback, _best_us(callback_step, args.steps, 1, reset))
+                callback = min(callback, best_us(callback_step, args.steps, 1, reset=reset))
             finally:
                 mujoco.set_mjcb_passive(None)
-        wrench = _best_us(lambda: hull.passive_force(model, data), args.steps, args.repeats,
-                          reset)
-        forward = _best_us(lambda: mujoco.mj_forward(model, data), args.steps, args.repeats,
-                           reset)
+        wrench = best_us(lambda: hull.passive_force(model, data), args.steps, args.repeats,
+                         reset=reset)
+        forward = best_us(lambda: mujoco.mj_forward(model, data), args.steps, args.repeats,
+                          reset=reset)
     finally:
         env.close()
     print(f"| {args.env}, one 0.1 s RK4 step | us |")

@@ -60,6 +60,20 @@ class Stepper:
         return len(self.actions) / wall, len(self.actions) / cpu
 
 
+def best_us(fn, calls: int, repeats: int, per: int = 1, reset=None) -> float:
+    """Microseconds of one ``fn()`` divided by ``per``, best of ``repeats`` passes of
+    ``calls`` calls (``reset()``, when given, before each pass, outside the clock)."""
+    best = float("inf")
+    for _ in range(repeats):
+        if reset is not None:
+            reset()
+        start = time.perf_counter()
+        for _ in range(calls):
+            fn()
+        best = min(best, (time.perf_counter() - start) / calls)
+    return best * 1e6 / per
+
+
 def steps_per_second(env: gym.Env, n_steps: int, repeats: int) -> float:
     """Best of ``repeats`` timed runs of ``n_steps`` steps with random actions."""
     stepper = Stepper(env, n_steps)
