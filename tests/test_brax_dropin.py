@@ -13,10 +13,16 @@ with the libraries themselves:
   wrappers add survive a step;
 * ``brax.training.agents.ppo.train`` runs training iterations on each family and its
   evaluation returns finite rewards (``scripts/brax_ppo.py`` shows the reward rising over a
-  longer run).
+  longer run);
+* with ``load(..., privileged=True)`` it trains an asymmetric critic as on Playground's
+  tasks (``make_ppo_networks(..., policy_obs_key="state",
+  value_obs_key="privileged_state")``): the policy reads the flat observation, the
+  value network the family's state vector.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
@@ -25,6 +31,7 @@ jax = pytest.importorskip("jax")
 pytest.importorskip("brax")
 pytest.importorskip("mujoco_playground")
 import jax.numpy as jnp  # noqa: E402
+from brax.training.agents.ppo import networks as ppo_networks  # noqa: E402
 from brax.training.agents.ppo import train as ppo  # noqa: E402
 from mujoco_playground import wrapper  # noqa: E402
 
@@ -89,16 +96,38 @@ def test_docking_under_playground_wrappers_counts_truncates_and_restarts():
     assert np.abs(first_rewards[-1] - first_rewards[0]).max() > 0.0
 
 
-@pytest.mark.parametrize(("env_id", "obs_mode"), FAMILIES)
-def test_brax_ppo_trains_on_each_family(env_id, obs_mode):
-    env = auv_envs.batched.load(env_id, obs_mode=obs_mode)
+def train_briefly(env, **train_kwargs):
+    """A few iterations of Brax's PPO on ``env`` through Playground's wrappers: checks that
+    they ran and that the evaluations and the parameters are finite; returns the
+    parameters (normaliser, policy, value)."""
     progress = []
     _, params, metrics = ppo.train(
         environment=env, num_timesteps=240, episode_length=30,
         wrap_env_fn=wrapper.wrap_for_brax_training, num_envs=4, batch_size=4,
         num_minibatches=1, unroll_length=5, num_updates_per_batch=1, num_evals=2,
         num_eval_envs=2, seed=0,
-        progress_fn=lambda steps, m: progress.append((steps, m["eval/episode_reward"])))
+        progress_fn=lambda steps, m: progress.append((steps, m["eval/episode_reward"])),
+        **train_kwargs)
     assert [steps for steps, _ in progress][0] == 0 and progress[-1][0] >= 240
     assert all(np.isfinite(float(reward)) for _, reward in progress)
     assert all(np.isfinite(np.asarray(leaf)).all() for leaf in jax.tree_util.tree_leaves(params))
+    return params
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode"), FAMILIES)
+def test_brax_ppo_trains_on_each_family(env_id, obs_mode):
+    train_briefly(auv_envs.batched.load(env_id, obs_mode=obs_mode))
+
+
+@pytest.mark.parametrize(("env_id", "obs_mode"), FAMILIES)
+def test_brax_ppo_trains_an_asymmetric_critic_on_each_family(env_id, obs_mode):
+    env = auv_envs.batched.load(env_id, obs_mode=obs_mode, privileged=True)
+    sizes = {key: shape[0] for key, shape in env.observation_size.items()}
+    assert sizes["state"] == auv_envs.batched.load(env_id, obs_mode=obs_mode).observation_size
+    _, policy, value = train_briefly(env, network_factory=functools.partial(
+        ppo_networks.make_ppo_networks, policy_obs_key="state",
+        value_obs_key="privileged_state"))
+    # Each network's first layer reads its own entry (the two sizes differ for docking
+    # and acoustic; LARS's features flatten to as many entries as its state).
+    assert policy["params"]["hidden_0"]["kernel"].shape[0] == sizes["state"]
+    assert value["params"]["hidden_0"]["kernel"].shape[0] == sizes["privileged_state"]

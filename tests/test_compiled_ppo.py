@@ -212,7 +212,14 @@ def test_a_run_without_evaluations_ships_without_a_curve(tmp_path, capsys):
     ({"env_kwargs": {"sea_state": 3}}, "may set difficulty, control, time_limit only"),
     ({"policy": "CnnPolicy"}, "MlpPolicy, JointResidualPolicy or DetectionSetPolicy"),
     ({"policy": "DetectionSetPolicy", "normalize": False}, "detection_fixes: true"),
-    ({"detection_fixes": True}, "set policy: DetectionSetPolicy"),
+    ({"detection_fixes": True}, "AcousticTracking-v2's measurements front end"),
+    ({"lstm_hidden_size": -1}, r"lstm_hidden_size must be an integer in \[0, 4096\]"),
+    ({"lstm_hidden_size": 8, "policy": "JointResidualPolicy", "normalize": False,
+      "marker_track": True}, "has none"),
+    ({"lstm_hidden_size": 8, "num_envs": 12, "n_minibatches": 8, "n_steps": 2},
+     "whole rollouts"),
+    ({"teacher": "homing-pd", "privileged_critic": True}, "replaces the critic"),
+    ({"teacher_fraction": 1.5}, r"teacher_fraction must be a finite number in \[0, 1\]"),
     ({"detection_fixes": True, "policy": "DetectionSetPolicy", "normalize": False},
      "AcousticTracking-v2's measurements front end"),
     ({"policy": "JointResidualPolicy", "normalize": False}, "set marker_track: true"),
@@ -345,13 +352,13 @@ def test_the_residual_lars_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
     settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1,
                                  policy=compiled.RESIDUAL, normalize=False, log_std_init=-5.0)
     trainer = compiled.Trainer(env, settings)
-    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
-    obs = np.asarray(states.obs)
+    params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(0))
+    obs = np.asarray(rollout.env.obs)
     servo = obs[:, SLICES["hold_target"]] + 0.3 * obs[:, SLICES["joint_offset"]]
-    np.testing.assert_allclose(compiled.policy_mean(params, states.obs, states.obs), servo,
-                               atol=1e-6)
-    params, opt_state, normalizer, states, key, stats = trainer.iteration(
-        params, opt_state, normalizer, states, key)
+    np.testing.assert_allclose(compiled.policy_mean(params, rollout.env.obs, rollout.env.obs),
+                               servo, atol=1e-6)
+    params, opt_state, normalizer, rollout, key, stats = trainer.iteration(
+        params, opt_state, normalizer, rollout, key)
     assert bool(trainer.all_finite(params))
     params["pi"][-1]["w"] = params["pi"][-1]["w"] + 0.05  # a correction far from zero
     params["servo_gain"] = jnp.asarray([0.2, 0.4, 0.5])
@@ -386,9 +393,9 @@ def test_one_iteration_on_acoustic_exports_a_policy_for_its_cpu_env(tmp_path):
     env = compiled.make_env(env_id, obs_mode, "paper")
     settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1)
     trainer = compiled.Trainer(env, settings)
-    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
-    params, opt_state, normalizer, states, key, stats = trainer.iteration(
-        params, opt_state, normalizer, states, key)
+    params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(0))
+    params, opt_state, normalizer, rollout, key, stats = trainer.iteration(
+        params, opt_state, normalizer, rollout, key)
     assert bool(trainer.all_finite((params, normalizer))) and int(stats["episodes"]) == 0
     params["pi"][-1]["w"] = params["pi"][-1]["w"] * 300.0  # actions far from zero
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": 0, "n_timesteps": 16,
@@ -420,9 +427,9 @@ def test_the_set_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
                                  policy=compiled.SET_POLICY, normalize=False,
                                  log_std_init=-6.0, gamma=0.0)
     trainer = compiled.Trainer(env, settings)
-    params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(0))
-    params, opt_state, normalizer, states, key, stats = trainer.iteration(
-        params, opt_state, normalizer, states, key)
+    params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(0))
+    params, opt_state, normalizer, rollout, key, stats = trainer.iteration(
+        params, opt_state, normalizer, rollout, key)
     assert bool(trainer.all_finite(params))
     # scores far from their start, so that the weights differ from token to token
     params["set"]["score"]["w"] = params["set"]["score"]["w"] * 20.0

@@ -81,6 +81,9 @@ class AcousticMJX(FunctionalEnv):
     Args:
         obs_mode: ``"state"`` or ``"measurements"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
+        privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
+            9-entry state vector>}``, for an asymmetric critic
+            (:class:`~auv_envs.batched.functional.FunctionalEnv`).
         **env_kwargs: the CPU environment's arguments (``disturbance``, ``trajectory``,
             ``time_limit``, ``difficulty``, ...); they are checked by building that
             environment, whose model, calibration and transition parameters this one uses.
@@ -90,7 +93,8 @@ class AcousticMJX(FunctionalEnv):
             than ``"segments"`` (the tabulated route of v0/v1 is drawn in NumPy only).
     """
 
-    def __init__(self, obs_mode: str = "state", auto_reset: bool = True, **env_kwargs):
+    def __init__(self, obs_mode: str = "state", auto_reset: bool = True,
+                 privileged: bool = False, **env_kwargs):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"the batched acoustic environment builds obs_mode {OBS_MODES}, "
                              f"got {obs_mode!r}")
@@ -109,6 +113,7 @@ class AcousticMJX(FunctionalEnv):
         self.action_space = cpu.action_space
         self.ops = jax_ops()
         self.plant = RigPlantMJX(cpu.physics)
+        self._offer_privileged(privileged)
 
     @property
     def dt(self) -> float:
@@ -136,7 +141,7 @@ class AcousticMJX(FunctionalEnv):
         return self._first(rng, plant, episode, now, obs)
 
     def _first(self, rng, plant, episode, now, obs) -> State:
-        return self._started(rng, plant.data, episode, obs,
+        return self._started(rng, plant.data, episode, now, obs,
                              self._metrics(episode, now, {"estimate": jnp.float32(0.0)}))
 
     def _step(self, state: State, action: jax.Array) -> State:
@@ -147,10 +152,18 @@ class AcousticMJX(FunctionalEnv):
         episode, now, obs, terms = transition.step(
             self.params, state.episode, self._action(action),
             Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, plant.data, episode, obs, terms,
+        return self._conclude(state, rng, plant.data, episode, now, obs, terms,
                               jnp.bool_(False), self._metrics(episode, now, terms))
 
     # ------------------------------------------------------------------ internals
+    def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
+        """:func:`auv_envs.tasks.acoustic.transition.observe` in ``state`` mode (the source's
+        position and velocity and the current; it takes no draws) for the privileged
+        state."""
+        del truth  # the episode's block holds the truth
+        return transition.observe(dataclasses.replace(self.params, obs_mode="state"), episode,
+                                  self.ops.xp)
+
     def _metrics(self, episode, now: dict, terms: dict) -> dict:
         """The step's scores (:data:`STEP_METRICS`), its reward terms (``reward_<term>``)
         and the episode's running summary (``episode_rmse``, ``episode_steps``,

@@ -63,8 +63,11 @@ class DockingMJX(FunctionalEnv):
         env_id: ``"auv_envs/DockingStation-v2"``, ``"auv_envs/LampArrayDocking-v2"`` or
             ``"auv_envs/DockingMission-v0"`` (the RK4 plant; the v0 ids integrate with
             Euler and are refused).
-        obs_mode: ``"state"`` or ``"features"``.
+        obs_mode: ``"state"``, ``"features"``, ``"nav"`` or ``"nav_features"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
+        privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
+            16-entry state vector>}``, for an asymmetric critic
+            (:class:`~auv_envs.batched.functional.FunctionalEnv`).
         **env_kwargs: the CPU environment's arguments (``scenario``,
             ``current_direction``, ``image_size``, ``time_limit``, ...); they are
             checked by building that environment, whose model, calibration and
@@ -72,7 +75,7 @@ class DockingMJX(FunctionalEnv):
     """
 
     def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
-                 auto_reset: bool = True, **env_kwargs):
+                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"the batched environment builds obs_mode {OBS_MODES}, got "
                              f"{obs_mode!r}")
@@ -105,6 +108,7 @@ class DockingMJX(FunctionalEnv):
         physics = cpu.physics
         self._scenery = rays.static_primitives(physics.model, physics.data,
                                                physics.ray_groups, physics.hull_body)
+        self._offer_privileged(privileged)
 
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
@@ -153,8 +157,8 @@ class DockingMJX(FunctionalEnv):
             self.params, transition.Backend(self.ops, KeyDraws(key), plant), start, vehicle)
         zero = jnp.float32(0.0)
         metrics = self._metrics(truth, episode, {term: zero for term in self.cpu_env.reward_terms})
-        return self._started(rng, {"qpos": plant.qpos, "qvel": plant.qvel}, episode, obs,
-                             metrics)
+        return self._started(rng, {"qpos": plant.qpos, "qvel": plant.qvel}, episode, truth,
+                             obs, metrics)
 
     def _step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1]):
@@ -165,10 +169,16 @@ class DockingMJX(FunctionalEnv):
             self.params, state.episode, self.ops.unpack(self._action(action)),
             transition.Backend(self.ops, KeyDraws(key), plant))
         return self._conclude(state, rng, {"qpos": plant.qpos, "qvel": plant.qvel},
-                              episode, obs, judged.terms, judged.terminated,
+                              episode, truth, obs, judged.terms, judged.terminated,
                               self._metrics(truth, episode, judged.terms))
 
     # ------------------------------------------------------------------ internals
+    def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
+        """:func:`auv_envs.tasks.docking.transition.observe` in ``state`` mode (it draws
+        nothing: no draws are given) for the privileged state."""
+        return transition.observe(dataclasses.replace(self.params, obs_mode="state"), episode,
+                                  truth, transition.Backend(self.ops, None, None))
+
     def _truth(self, qpos, qvel) -> dict:
         ops = self.ops
         rotation = frames.rotation_rows_from_quat(qpos[3], qpos[4], qpos[5], qpos[6])

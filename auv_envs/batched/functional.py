@@ -3,7 +3,8 @@
 A batched environment is a task's transition (``auv_envs/tasks/<family>/transition.py``)
 evaluated on JAX arrays: :class:`State` is what its ``reset``/``step`` return (as
 MuJoCo Playground's ``mjx_env.State``), :class:`KeyDraws` the episode's random draws
-with NumPy ``Generator``'s interface over a JAX key.
+with NumPy ``Generator``'s interface over a JAX key, and :class:`FunctionalEnv` the shell
+every family's environment shares (its spaces, its conventions, the end of a step).
 """
 
 from __future__ import annotations
@@ -14,6 +15,10 @@ import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+#: The keys of an observation with the privileged state beside it (MuJoCo Playground's:
+#: Brax's PPO takes them as ``policy_obs_key`` and ``value_obs_key``).
+POLICY_KEY, PRIVILEGED_KEY = "state", "privileged_state"
 
 
 @jax.tree_util.register_dataclass
@@ -28,7 +33,8 @@ class State:
             Restoring ``data`` (and ``obs``) restarts an episode, as Playground's
             auto-reset does with a cached first state.
         obs: the observation (an array for ``state``, a dict for ``features``; a flat
-            vector under Playground's conventions).
+            vector under Playground's conventions; with ``privileged``,
+            ``{"state": <that>, "privileged_state": <the state-mode vector>}``).
         reward: the last step's reward.
         done: whether the last step ended the episode (terminated or truncated).
         metrics: the last step's metrics (the environment's ``STEP_METRICS``), its
@@ -105,8 +111,10 @@ class FunctionalEnv:
     auto-reset).
 
     A subclass sets ``cpu_env``, ``plant``, ``calibration``, ``observation_space``,
-    ``action_space``, ``max_episode_steps`` and ``auto_reset``, and defines ``reset`` and
-    ``_step`` (one step of its transition, without the auto-reset).
+    ``action_space``, ``max_episode_steps`` and ``auto_reset``, defines ``reset``,
+    ``_step`` (one step of its transition, without the auto-reset) and
+    ``_state_observation`` (its ``obs_mode="state"`` observation), and ends its
+    constructor with :meth:`_offer_privileged`.
 
     Two conventions. Gymnasium's (the default, what :mod:`auv_envs.batched.vector` and
     the compiled PPO use): the observation and action as the CPU env's spaces, ``done``
@@ -117,6 +125,13 @@ class FunctionalEnv:
     ``done``, ``info["truncation"]`` and metrics, no time limit and no reset inside
     the env (Brax's ``EpisodeWrapper`` ends an episode at ``episode_length`` steps and
     flags it as truncation; Playground's ``BraxAutoResetWrapper`` restores ``data``).
+
+    Either convention takes ``privileged=True`` (:meth:`_offer_privileged`), Playground's
+    observation for an asymmetric critic: ``{"state": ..., "privileged_state": ...}``,
+    the observation as without it beside the family's ``obs_mode="state"`` vector (the
+    true state, float32), for a critic that may read what the policy may not (Brax:
+    ``make_ppo_networks(..., policy_obs_key="state", value_obs_key="privileged_state")``).
+    The privileged state draws nothing: an episode is the same with or without it.
     """
 
     cpu_env = plant = calibration = observation_space = action_space = None
@@ -124,6 +139,10 @@ class FunctionalEnv:
     auto_reset: bool = True
     #: Playground's and Brax's conventions (:meth:`use_playground_conventions`).
     playground: bool = False
+    #: Observations ``{"state": ..., "privileged_state": ...}`` (:meth:`_offer_privileged`).
+    privileged: bool = False
+    #: The ``privileged_state`` entry's space (a float32 ``Box``) with ``privileged``.
+    privileged_space = None
     #: The CPU env's action box when actions are taken in [-1, 1] (:meth:`use_unit_actions`).
     _action_box = None
 
@@ -160,17 +179,49 @@ class FunctionalEnv:
     def unwrapped(self) -> FunctionalEnv:
         return self
 
+    def _policy_space(self) -> gym.spaces.Space:
+        """The space of the observation the policy reads: ``observation_space`` itself, or
+        its ``"state"`` entry with ``privileged``."""
+        return self.observation_space[POLICY_KEY] if self.privileged else self.observation_space
+
+    def _offer_privileged(self, privileged: bool) -> None:
+        """With ``privileged``, observations become ``{"state": ..., "privileged_state":
+        ...}`` (class docstring) and ``observation_space`` a ``Dict`` of the two: the space
+        as without it and a float32 ``Box`` of the state-mode vector's size (read off
+        what :meth:`_state_observation` gives at reset, so it cannot disagree with it).
+        The family's constructor calls this last, its ``observation_space`` set.
+
+        Raises:
+            TypeError: ``privileged`` is not a bool.
+        """
+        if not isinstance(privileged, bool | np.bool_):
+            raise TypeError(f"privileged must be True or False, got {privileged!r}")
+        self.privileged = bool(privileged)
+        if not self.privileged:
+            return
+        shape = jax.eval_shape(self.reset, jax.random.PRNGKey(0)).obs[PRIVILEGED_KEY].shape
+        self.privileged_space = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
+        self.observation_space = self._observation_space(self.observation_space)
+
+    def _observation_space(self, policy_space: gym.spaces.Space) -> gym.spaces.Space:
+        """The observation space around the policy's: itself, or with ``privileged`` the
+        ``Dict`` of it and the privileged state's."""
+        if not self.privileged:
+            return policy_space
+        return gym.spaces.Dict({POLICY_KEY: policy_space, PRIVILEGED_KEY: self.privileged_space})
+
     def use_playground_conventions(self) -> FunctionalEnv:
         """Switch to MuJoCo Playground's and Brax's conventions (class docstring): the
-        observation space becomes Gymnasium's flattening of the CPU env's (a ``Dict``'s
-        entries concatenated in its key order, as ``gymnasium.spaces.flatten``), the
-        action space [-1, 1]. Returns this env."""
+        policy's observation space (:meth:`_policy_space`) becomes Gymnasium's flattening of
+        the CPU env's (a ``Dict``'s entries concatenated in its key order, as
+        ``gymnasium.spaces.flatten``), the action space [-1, 1]; with ``privileged`` the
+        observation stays a dict, its ``"state"`` entry flattened. Returns this env."""
         self.playground, self.auto_reset = True, False
-        self._observation_keys = (tuple(self.observation_space.spaces)
-                                  if hasattr(self.observation_space, "spaces") else None)
-        flat = gym.spaces.flatten_space(self.observation_space)
-        self.observation_space = gym.spaces.Box(flat.low.astype(np.float32),
-                                                flat.high.astype(np.float32), dtype=np.float32)
+        space = self._policy_space()
+        self._observation_keys = tuple(space.spaces) if hasattr(space, "spaces") else None
+        flat = gym.spaces.flatten_space(space)
+        self.observation_space = self._observation_space(gym.spaces.Box(
+            flat.low.astype(np.float32), flat.high.astype(np.float32), dtype=np.float32))
         return self.use_unit_actions()
 
     def use_unit_actions(self) -> FunctionalEnv:
@@ -194,14 +245,25 @@ class FunctionalEnv:
             return low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
         return jnp.clip(action, self.action_space.low, self.action_space.high)
 
-    def _present(self, obs):
-        """The observation as this env gives it (flattened under Playground's conventions)."""
-        if not self.playground:
+    def _state_observation(self, episode, truth) -> jax.Array:
+        """The family's ``obs_mode="state"`` observation of ``episode`` at ``truth`` (what
+        its transition's ``observe`` gives in that mode), drawing nothing."""
+        raise NotImplementedError
+
+    def _present(self, obs, episode, truth):
+        """The observation as this env gives it: the transition's ``obs`` (flattened under
+        Playground's conventions) and, with ``privileged``, the state-mode vector of
+        ``episode`` at ``truth`` beside it."""
+        if self.playground:
+            if self._observation_keys is None:
+                obs = jnp.asarray(obs, jnp.float32).reshape(-1)
+            else:
+                obs = jnp.concatenate([jnp.asarray(obs[key], jnp.float32).reshape(-1)
+                                       for key in self._observation_keys])
+        if not self.privileged:
             return obs
-        if self._observation_keys is None:
-            return jnp.asarray(obs, jnp.float32).reshape(-1)
-        return jnp.concatenate([jnp.asarray(obs[key], jnp.float32).reshape(-1)
-                                for key in self._observation_keys])
+        state = jnp.asarray(self._state_observation(episode, truth), jnp.float32).reshape(-1)
+        return {POLICY_KEY: obs, PRIVILEGED_KEY: state}
 
     def _flag(self, value) -> jax.Array:
         """A bool of the step (``done``, ``terminated``, ``truncation``) as this env gives it."""
@@ -212,11 +274,11 @@ class FunctionalEnv:
             return metrics
         return {key: jnp.asarray(value, jnp.float32) for key, value in metrics.items()}
 
-    def _started(self, rng, plant, episode, obs, metrics: dict) -> State:
-        """The state of an episode just begun: no reward yet, not done, its first
-        observation as ``final_obs``."""
+    def _started(self, rng, plant, episode, truth, obs, metrics: dict) -> State:
+        """The state of an episode just begun (``truth``: the transition's at its start):
+        no reward yet, not done, its first observation as ``final_obs``."""
         false = self._flag(jnp.bool_(False))
-        obs = self._present(obs)
+        obs = self._present(obs, episode, truth)
         info = {"rng": rng, "terminated": false, "truncation": false, "final_obs": obs}
         return State({"plant": plant, "episode": episode}, obs, jnp.float32(0.0), false,
                      self._metrics_out(metrics), info)
@@ -265,12 +327,13 @@ class FunctionalEnv:
             obs=jax.tree_util.tree_map(restart, fresh.obs, stepped.obs),
             info={**stepped.info, "rng": restart(fresh.info["rng"], stepped.info["rng"])})
 
-    def _conclude(self, state: State, rng, plant, episode, obs, terms: dict, terminated,
-                  metrics: dict) -> State:
-        """The state a step from ``state`` returns: its reward (the terms' sum), ``done``
-        at termination or the time limit (``info["truncation"]``; under Playground's
-        conventions at termination only), and the keys of ``state.info`` and
-        ``state.metrics`` that this env does not write kept."""
+    def _conclude(self, state: State, rng, plant, episode, truth, obs, terms: dict,
+                  terminated, metrics: dict) -> State:
+        """The state a step from ``state`` returns (``truth``: the transition's after the
+        step): its reward (the terms' sum), ``done`` at termination or the time limit
+        (``info["truncation"]``; under Playground's conventions at termination only),
+        and the keys of ``state.info`` and ``state.metrics`` that this env does not
+        write kept."""
         reward = sum(terms.values())
         terminated = jnp.asarray(terminated, jnp.bool_)
         if self.playground:  # the time limit is the trainer's (Brax's EpisodeWrapper)
@@ -278,7 +341,7 @@ class FunctionalEnv:
         else:
             truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
         done = terminated | truncated
-        obs = self._present(obs)
+        obs = self._present(obs, episode, truth)
         info = {**state.info, "rng": rng, "terminated": self._flag(terminated),
                 "truncation": self._flag(truncated), "final_obs": obs}
         return State({"plant": plant, "episode": episode}, obs, reward, self._flag(done),

@@ -256,6 +256,9 @@ class LARSMJX(FunctionalEnv):
     Args:
         obs_mode: ``"state"`` or ``"features"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
+        privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
+            24-entry state vector>}``, for an asymmetric critic
+            (:class:`~auv_envs.batched.functional.FunctionalEnv`).
         **env_kwargs: the CPU environment's arguments (``sea_state``, ``control``,
             ``image_size``, ``pixel_noise_std``, ``time_limit``, ...); they are checked
             by building that environment, whose model, calibration and transition
@@ -265,7 +268,8 @@ class LARSMJX(FunctionalEnv):
         ValueError: for what is not built yet (module docstring).
     """
 
-    def __init__(self, obs_mode: str = "features", auto_reset: bool = True, **env_kwargs):
+    def __init__(self, obs_mode: str = "features", auto_reset: bool = True,
+                 privileged: bool = False, **env_kwargs):
         if obs_mode not in OBS_MODES:
             raise ValueError(f"the batched LARS environment builds obs_mode {OBS_MODES}, got "
                              f"{obs_mode!r}")
@@ -280,6 +284,7 @@ class LARSMJX(FunctionalEnv):
         self.action_space = cpu.action_space
         self.ops = jax_ops()
         self.plant = ArmPlantMJX(cpu)
+        self._offer_privileged(privileged)
 
     # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
@@ -314,7 +319,7 @@ class LARSMJX(FunctionalEnv):
 
     def _first(self, rng, plant, episode, truth, obs) -> State:
         terms = {term: jnp.float32(0.0) for term in self.cpu_env.reward_terms}
-        return self._started(rng, plant.data, episode, obs,
+        return self._started(rng, plant.data, episode, truth, obs,
                              self._metrics(truth, episode, None, terms))
 
     def _step(self, state: State, action: jax.Array) -> State:
@@ -325,7 +330,7 @@ class LARSMJX(FunctionalEnv):
         episode, truth, obs, judged = transition.step(
             self.params, state.episode, self._action(action),
             transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, plant.data, episode, obs, judged.terms,
+        return self._conclude(state, rng, plant.data, episode, truth, obs, judged.terms,
                               judged.terminated, self._metrics(truth, episode, judged,
                                                                judged.terms))
 
@@ -335,6 +340,13 @@ class LARSMJX(FunctionalEnv):
         return transition.truth_now(self.params, state.episode, plant, self.ops)
 
     # ------------------------------------------------------------------ internals
+    def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
+        """:func:`auv_envs.tasks.lars.transition.observe` in ``state`` mode (it draws
+        nothing: no draws are given) for the privileged state."""
+        _, obs = transition.observe(dataclasses.replace(self.params, obs_mode="state"),
+                                    episode, truth, transition.Backend(self.ops, None, None))
+        return obs
+
     def _metrics(self, truth: dict, episode, judged, terms: dict) -> dict:
         """The step's metrics (:data:`STEP_METRICS`), its reward terms (``reward_<term>``)
         and the episode's summary so far (``episode_<key>``,

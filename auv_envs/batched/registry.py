@@ -1,5 +1,5 @@
-"""``auv_envs.batched.load(env_id, **env_kwargs)``: any family's functional environment
-for the JAX RL ecosystem, as MuJoCo Playground's ``registry.load``.
+"""``auv_envs.batched.load(env_id, privileged=False, **env_kwargs)``: any family's
+functional environment for the JAX RL ecosystem, as MuJoCo Playground's ``registry.load``.
 
 ::
 
@@ -19,6 +19,26 @@ limit is Brax's ``EpisodeWrapper``'s, flagged as ``info["truncation"]``), no res
 inside the environment, everything an episode is in ``state.data`` (so Playground's
 auto-reset to a cached first state restarts it whole), and the keys wrappers add to
 ``info`` and ``metrics`` kept across a step.
+
+With ``privileged=True`` the observation is Playground's for an asymmetric critic,
+``{"state": <the flat observation above>, "privileged_state": <the family's
+obs_mode="state" vector>}`` (``observation_space`` a ``gymnasium.spaces.Dict`` of two
+float32 ``Box`` es, ``observation_size`` their shapes by key): the policy reads what the
+vehicle's sensors give, the critic the true state, which is known in simulation and
+needed only in training. The episodes are the same as without it. Brax's PPO takes the
+two keys::
+
+    import functools
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    env = auv_envs.batched.load("auv_envs/DockingStation-v2", obs_mode="features",
+                                privileged=True)
+    make_policy, params, metrics = ppo.train(
+        environment=env, num_timesteps=1_000_000, episode_length=env.episode_length,
+        wrap_env_fn=wrapper.wrap_for_brax_training,
+        network_factory=functools.partial(ppo_networks.make_ppo_networks,
+                                           policy_obs_key="state",
+                                           value_obs_key="privileged_state"))
 """
 
 from __future__ import annotations
@@ -47,7 +67,7 @@ IDS = {**{cpu: cpu for cpu in FAMILIES},
        **{batched: auv_envs.cpu_id(batched) for batched in auv_envs.BATCHED_ENVIRONMENTS}}
 
 
-def load(env_id: str, **env_kwargs) -> FunctionalEnv:
+def load(env_id: str, privileged: bool = False, **env_kwargs) -> FunctionalEnv:
     """The functional environment of ``env_id`` under Playground's conventions.
 
     Args:
@@ -55,14 +75,20 @@ def load(env_id: str, **env_kwargs) -> FunctionalEnv:
             ``auv_envs/DockingMission-v0``, ``auv_envs/LARSCapture-v0``,
             ``auv_envs/AcousticTracking-v2``) or its batched
             twin (``auv_envs/DockingStationMJX-v2``, ...).
+        privileged: observations ``{"state": <the flat observation>, "privileged_state":
+            <the family's obs_mode="state" vector, float32>}`` for an asymmetric critic
+            (Brax's ``make_ppo_networks(..., policy_obs_key="state",
+            value_obs_key="privileged_state")``; module docstring); False: the flat
+            observation alone.
         **env_kwargs: the environment's arguments (``obs_mode``, ``difficulty``, ...), as
             the CPU env takes them.
 
     Raises:
         ValueError: an id without a batched twin (superseded versions included).
+        TypeError: ``privileged`` is not a bool.
     """
     if env_id not in IDS:
         raise ValueError(f"no batched environment for {env_id!r}; load() takes "
                          f"{sorted(IDS)}")
-    env = FAMILIES[IDS[env_id]][0](**env_kwargs)
+    env = FAMILIES[IDS[env_id]][0](privileged=privileged, **env_kwargs)
     return env.use_playground_conventions()

@@ -23,20 +23,20 @@ ground truth is for metrics).
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
-from baselines.docking.control.homing import HomingPDController
+from baselines.docking.control.homing import HomingGains, HomingPDController, homing_action
 from baselines.docking.control.ofnmpc import OffsetFreeNMPC, OFNMPCConfig
-from baselines.docking.control.pd import DockingPDController
+from baselines.docking.control.pd import PDGains, pd_action
 from baselines.docking.estimation.navigation_filter import NavigationFilter
 from baselines.docking.estimation.observers import DockingEKF, DockingMHE, MHEConfig
 
 
 class DockingPDAgent:
-    """The PD reference controller (:class:`DockingPDController`) on the ``state`` observation.
+    """The PD reference controller (:func:`~baselines.docking.control.pd.pd_action`, on NumPy)
+    on the ``state`` observation.
 
     Reads the documented calibration only: target, thrust limits, nominal net buoyancy.
 
@@ -52,52 +52,45 @@ class DockingPDAgent:
     def __init__(self, env, kp=40.0, kd=140.0, kp_yaw=30.0, kd_yaw=60.0, max_axial_error=1.2):
         if env.obs_mode != "state":
             raise ValueError("DockingPDAgent needs obs_mode='state'")
-        cal = env.calibration
-        self.controller = DockingPDController(
-            cal.target_position, cal.nominal_params.net_buoyancy, kp=kp, kd=kd, kp_yaw=kp_yaw,
-            kd_yaw=kd_yaw, max_axial_error=max_axial_error,
-        )
-        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+        self.gains = PDGains.from_calibration(env.calibration, kp=kp, kd=kd, kp_yaw=kp_yaw,
+                                              kd_yaw=kd_yaw, max_axial_error=max_axial_error)
 
     def reset(self, seed: int | None = None) -> None:
         del seed  # deterministic controller
 
     def act(self, observation, info: dict) -> np.ndarray:
-        obs = np.asarray(observation, dtype=float)
-        tau = self.controller.force(obs[0:3], math.atan2(obs[6], obs[5]), obs[7:10], obs[12])
-        action = tau / self._limits
-        return np.clip(action, -1.0, 1.0).astype(np.float32)
-
-
+        return pd_action(self.gains, observation, np).astype(np.float32)
 
 
 class HomingPDAgent:
-    """The whole approach's privileged reference (:class:`HomingPDController`): line-of-sight
-    homing to the docking axis on the ``state`` observation, then :class:`DockingPDAgent`'s
-    controller. Reads the documented calibration only: target, thrust limits, nominal net
-    buoyancy.
+    """The whole approach's privileged reference
+    (:func:`~baselines.docking.control.homing.homing_action`, on NumPy): line-of-sight homing
+    to the docking axis on the ``state`` observation, then :class:`DockingPDAgent`'s law.
+    Reads the documented calibration only: target, thrust limits, nominal net buoyancy.
+
+    Attributes:
+        gains: the law's parameters (:class:`~baselines.docking.control.homing.HomingGains`).
+        docking: the hand-over latch: the terminal law has taken over this episode.
 
     Args:
         env: an unwrapped ``DockingMission`` env with ``obs_mode="state"``.
-        **gains: :class:`HomingPDController`'s keywords.
+        **gains: :meth:`~baselines.docking.control.homing.HomingGains.build`'s keywords.
     """
 
     def __init__(self, env, **gains):
         if env.obs_mode != "state":
             raise ValueError("HomingPDAgent needs obs_mode='state'")
-        cal = env.calibration
-        self.controller = HomingPDController(cal.target_position,
-                                             cal.nominal_params.net_buoyancy, **gains)
-        self._limits = np.asarray(cal.thrust_limits, dtype=float)
+        self.gains = HomingGains.from_calibration(env.calibration, **gains)
+        self.docking = False
 
     def reset(self, seed: int | None = None) -> None:
         del seed  # deterministic controller
-        self.controller.reset()
+        self.docking = False
 
     def act(self, observation, info: dict) -> np.ndarray:
-        obs = np.asarray(observation, dtype=float)
-        tau = self.controller.force(obs[0:3], math.atan2(obs[6], obs[5]), obs[7:10], obs[12])
-        return np.clip(tau / self._limits, -1.0, 1.0).astype(np.float32)
+        action, docking = homing_action(self.gains, observation, self.docking, np)
+        self.docking = bool(docking)
+        return action.astype(np.float32)
 
 
 class MissionAgent:

@@ -15,9 +15,11 @@ class BatchedFrontEnd:
     ``state.info[INFO_KEY]`` and starts afresh where an episode restarted. Everything
     else is the wrapped env's (its attributes are passed through).
 
-    Subclasses set ``INFO_KEY`` and ``observation_space`` and define :meth:`start` (the
-    carry of a new episode) and :meth:`advance` (one observation: the next carry and
-    the front end's observation), both on ``jax.numpy``.
+    Subclasses set ``INFO_KEY`` and ``observation_space`` (through :meth:`around`) and
+    define :meth:`start` (the carry of a new episode) and :meth:`advance` (one
+    observation: the next carry and the front end's observation), both on ``jax.numpy``.
+    Over an env built with ``privileged=True`` the front end reads and replaces the
+    ``"state"`` entry and passes ``"privileged_state"`` on.
     """
 
     INFO_KEY = ""
@@ -31,6 +33,17 @@ class BatchedFrontEnd:
     def __getattr__(self, name):
         return getattr(self.env, name)
 
+    def around(self, space):
+        """The observation space of this front end's observation ``space``: itself, or over
+        a privileged env the ``Dict`` of it and the privileged state's."""
+        if not getattr(self.env, "privileged", False):
+            return space
+        from gymnasium import spaces
+
+        from auv_envs.batched.functional import POLICY_KEY, PRIVILEGED_KEY
+
+        return spaces.Dict({POLICY_KEY: space, PRIVILEGED_KEY: self.env.privileged_space})
+
     def start(self):
         raise NotImplementedError
 
@@ -42,7 +55,12 @@ class BatchedFrontEnd:
         carry = self._jax.tree_util.tree_map(
             lambda new, old: jnp.where(restart, new, old).astype(old.dtype),
             self.start(), state.info[self.INFO_KEY])
-        return self.advance(carry, state.obs)
+        if not getattr(self.env, "privileged", False):
+            return self.advance(carry, state.obs)
+        from auv_envs.batched.functional import POLICY_KEY
+
+        carry, seen = self.advance(carry, state.obs[POLICY_KEY])
+        return carry, {**state.obs, POLICY_KEY: seen}
 
     def reset(self, rng):
         state = self.env.reset(rng)

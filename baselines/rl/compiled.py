@@ -69,6 +69,7 @@ from baselines.rl.config import (
 )
 from baselines.rl.detection_fixes import DetectionFixesMJX, token_size
 from baselines.rl.marker_track import SLICES, MarkerTrackMJX
+from baselines.rl.recurrent import LSTMState, lstm_cell, lstm_init, lstm_unroll, torch_weights
 from baselines.rl.training import (
     RunDirectory,
     TrainingDiverged,
@@ -180,24 +181,41 @@ def unflatten_observation(flat: jax.Array, space: gym.spaces.Dict) -> dict:
 
 
 def init_params(key, obs_size: int, action_size: int,
-                settings: Settings | None = None, space=None) -> dict:
+                settings: Settings | None = None, space=None,
+                value_size: int | None = None) -> dict:
     """SB3's PPO start: mean network (head gain 0.01), value network (gain 1), log std
     ``log_std_init`` (0 by default). With ``policy: JointResidualPolicy`` the mean's head
     starts at zero and the servo's per-joint gains at ``servo_gain``
     (:class:`~baselines.rl.marker_estimate.JointResidualPolicy`). With ``policy:
     DetectionSetPolicy`` (``space``: the observation space of
     :mod:`baselines.rl.detection_fixes`) the mean is the set encoder's pooled fix and
-    the value network reads its features."""
+    the value network reads its features.
+
+    With ``lstm_hidden_size`` (sb3-contrib's ``MlpLstmPolicy``): an LSTM core
+    (:mod:`baselines.rl.recurrent`) under the mean's MLP, and one under the value's.
+    ``value_size``: the critic reads a privileged vector of that size instead (an MLP on
+    it, no core: the privileged state is the whole state)."""
     settings = settings or DEFAULT_SETTINGS
+    log_std = jnp.full(action_size, settings.log_std_init, jnp.float32)
+    if settings.lstm_hidden_size:
+        hidden = settings.lstm_hidden_size
+        core_key, pi_key, vf_core_key, vf_key = jax.random.split(key, 4)
+        params = {"lstm": lstm_init(core_key, obs_size, hidden),
+                  "pi": _mlp_init(pi_key, (hidden, *HIDDEN_LAYERS), action_size, 0.01),
+                  "log_std": log_std}
+        if value_size is None:
+            params["vf_lstm"] = lstm_init(vf_core_key, obs_size, hidden)
+        params["vf"] = _mlp_init(vf_key, (value_size or hidden, *HIDDEN_LAYERS), 1, 1.0)
+        return params
     pi_key, vf_key = jax.random.split(key)
     if settings.policy == SET_POLICY:
         return {"set": _set_init(pi_key, space["fix_valid"].shape[0]),
-                "vf": _mlp_init(vf_key, (3 + SET_SUMMARY, *HIDDEN_LAYERS), 1, 1.0),
-                "log_std": jnp.full(action_size, settings.log_std_init, jnp.float32)}
-    sizes = (obs_size, *HIDDEN_LAYERS)
-    params = {"pi": _mlp_init(pi_key, sizes, action_size, 0.01),
-              "vf": _mlp_init(vf_key, sizes, 1, 1.0),
-              "log_std": jnp.full(action_size, settings.log_std_init, jnp.float32)}
+                "vf": _mlp_init(vf_key, (value_size or 3 + SET_SUMMARY, *HIDDEN_LAYERS), 1,
+                                1.0),
+                "log_std": log_std}
+    params = {"pi": _mlp_init(pi_key, (obs_size, *HIDDEN_LAYERS), action_size, 0.01),
+              "vf": _mlp_init(vf_key, (value_size or obs_size, *HIDDEN_LAYERS), 1, 1.0),
+              "log_std": log_std}
     if settings.policy == RESIDUAL:
         params["pi"][-1] = jax.tree_util.tree_map(jnp.zeros_like, params["pi"][-1])
         params["servo_gain"] = jnp.full(action_size, settings.servo_gain, jnp.float32)
@@ -240,6 +258,11 @@ class Normalizer(NamedTuple):
         return jnp.clip((obs - self.mean) / jnp.sqrt(self.var + NORM_EPSILON), -CLIP_OBS,
                         CLIP_OBS)
 
+    def part(self, start: int, stop: int | None = None) -> Normalizer:
+        """The statistics of the entries ``start:stop`` (one normaliser serves the
+        policy's observation and the critic's privileged state, concatenated)."""
+        return Normalizer(self.mean[start:stop], self.var[start:stop], self.count)
+
 
 def _all_finite(tree) -> jax.Array:
     leaves = jax.tree_util.tree_leaves(tree)
@@ -260,24 +283,109 @@ def _log_prob(params, mean, action):
 
 
 # ---------------------------------------------------------------------- training
+#: The observation key of the privileged state, and of what the policy sees beside it
+#: (MuJoCo Playground's names; the batched envs' ``privileged=True``).
+PRIVILEGED_KEY, POLICY_KEY = "privileged_state", "state"
+
+
+class Rollout(NamedTuple):
+    """What a batch of environments carries from one step to the next: their states, the
+    policy's and the value's memories (None without ``lstm_hidden_size``; no value memory
+    with a privileged critic) and which environments begin an episode at this step."""
+
+    env: object
+    actor: LSTMState | None
+    critic: LSTMState | None
+    starts: jax.Array
+    #: The teacher's memory (distillation; None otherwise).
+    teacher: object = None
+    #: Iterations done so far (the teacher's share of the actions decays with it).
+    iteration: jax.Array | int = 0
+
+
+class Steps(NamedTuple):
+    """A rollout's steps, arrays ``(time, envs, ...)``: what the update reads."""
+
+    obs: jax.Array
+    #: the privileged states (None without them)
+    privileged: jax.Array | None
+    #: where an episode begins at the step
+    starts: jax.Array
+    #: the sampled actions; with a teacher, its labels
+    action: jax.Array
+    #: their log probabilities (zero with a teacher)
+    log_prob: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    #: ``done`` as a float
+    done: jax.Array
+    #: success where an episode ended
+    success: jax.Array
+    #: the policy's mean action
+    mean: jax.Array
+
+
 class Trainer:
     """PPO on a batched environment (actions in [-1, 1]: :meth:`FunctionalEnv.use_unit_actions`);
-    :meth:`iteration` is one compiled call."""
+    :meth:`iteration` is one compiled call.
+
+    With ``lstm_hidden_size`` the policy and the value carry an LSTM core each
+    (:mod:`baselines.rl.recurrent`): the rollout holds their states per environment and
+    clears them where an episode begins (the auto-reset's ``done``), the update replays
+    each environment's whole rollout from the state it began with (truncated
+    backpropagation through time over ``n_steps``), minibatches being groups of
+    environments. With ``privileged_critic`` (the env built with ``privileged=True``:
+    observations ``{"state": ..., "privileged_state": ...}``) the value reads the
+    privileged state and the policy only the ``state`` entry. With a ``teacher``
+    (:mod:`baselines.rl.teachers`, reading the privileged state) the update is
+    distillation instead of PPO: the teacher labels every step the rollout visits, the
+    rollout acts with the teacher's action with a probability that decays from 1 to 0
+    over ``teacher_fraction`` of the run and with the policy's mean otherwise (DAgger:
+    Ross, Gordon and Bagnell 2011, "A Reduction of Imitation Learning and Structured
+    Prediction to No-Regret Online Learning", AISTATS), and the policy's mean is fitted
+    to the labels (squared error); there is no critic.
+    """
 
     def __init__(self, env: FunctionalEnv, settings: Settings = DEFAULT_SETTINGS,
                  total_iterations=1):
         self.env, self.settings = env, settings
         space = env.observation_space
+        self.privileged = settings.privileged_critic or bool(settings.teacher)
+        is_split = isinstance(space, gym.spaces.Dict) and PRIVILEGED_KEY in space.spaces
+        if self.privileged != is_split:
+            raise ConfigError("privileged_critic and teacher read the privileged state of an "
+                              "env built with privileged=True, and such an env is read by "
+                              "them only")
+        if settings.teacher and settings.privileged_critic:
+            raise ConfigError("a teacher replaces the critic: set privileged_critic: false")
+        #: What the value reads: nothing (distillation), the privileged state, the
+        #: policy's observation through a memory of its own, or that observation as it is.
+        self.critic = ("none" if settings.teacher else
+                       "privileged" if settings.privileged_critic else
+                       "memory" if settings.lstm_hidden_size else "obs")
+        self.privileged_size = None
+        if self.privileged:
+            self.privileged_size = int(gym.spaces.flatdim(space[PRIVILEGED_KEY]))
+            space = space[POLICY_KEY]
+        self.policy_space = space
         self.keys = tuple(space.spaces) if isinstance(space, gym.spaces.Dict) else None
         self.obs_size = int(gym.spaces.flatdim(space))
         self.action_size = env.action_size
+        self.recurrent = settings.lstm_hidden_size > 0
         if settings.policy == RESIDUAL and not isinstance(env, MarkerTrackMJX):
             raise ConfigError("policy JointResidualPolicy reads the marker tracker's observation: "
                               "set marker_track: true")
-        if (settings.policy == SET_POLICY) != isinstance(env, DetectionFixesMJX):
-            raise ConfigError("policy DetectionSetPolicy reads the detection fixes, and they are "
-                              "read by it only: set both policy: DetectionSetPolicy and "
-                              "detection_fixes: true, or neither")
+        if settings.policy == SET_POLICY and not isinstance(env, DetectionFixesMJX):
+            raise ConfigError("policy DetectionSetPolicy reads the detection fixes: set "
+                              "detection_fixes: true")
+        if self.recurrent and settings.policy != "MlpPolicy":
+            raise ConfigError("lstm_hidden_size gives MlpPolicy a memory only")
+        self.teacher = None
+        if settings.teacher:
+            from baselines.rl.teachers import make_teacher
+
+            self.teacher = make_teacher(settings.teacher, env)
+        self.total_iterations = total_iterations
         schedule = optax.linear_schedule(settings.learning_rate, 0.0,
                                          total_iterations * settings.n_epochs
                                          * settings.n_minibatches)
@@ -290,130 +398,314 @@ class Trainer:
         self.all_finite = jax.jit(_all_finite)  # one small program, one scalar to the host
         self.evaluate = jax.jit(self._evaluate, static_argnums=(2, 3))
 
-    def init(self, key) -> tuple:
-        net_key, env_key, key = jax.random.split(key, 3)
-        params = init_params(net_key, self.obs_size, self.action_size, self.settings,
-                             self.env.observation_space)
-        states = self._reset_batch(jax.random.split(env_key, self.settings.num_envs))
-        normalizer = Normalizer.create(self.obs_size).update(self._flat(states.obs))
-        return params, self.optimizer.init(params), normalizer, states, key
+    def init_params(self, key) -> dict:
+        """The networks' first parameters (:func:`init_params`)."""
+        params = init_params(key, self.obs_size, self.action_size, self.settings,
+                             self.policy_space,
+                             self.privileged_size if self.critic == "privileged" else None)
+        if self.critic == "none":
+            params = {name: part for name, part in params.items()
+                      if name not in ("vf", "vf_lstm")}
+        return params
 
+    def init(self, key) -> tuple:
+        """``(params, optimiser state, normaliser, rollout, key)`` to start training from."""
+        net_key, env_key, key = jax.random.split(key, 3)
+        params = self.init_params(net_key)
+        states = self._reset_batch(jax.random.split(env_key, self.settings.num_envs))
+        obs, privileged = self._split(states.obs)
+        normalizer = Normalizer.create(self.obs_size + (self.privileged_size or 0)).update(
+            self._joined(obs, privileged))
+        rollout = self._fresh_rollout(states)
+        return params, self.optimizer.init(params), normalizer, rollout, key
+
+    def _fresh_rollout(self, states) -> Rollout:
+        """Environments just reset: blank memories, every one at an episode's start."""
+        n = states.reward.shape[0]
+        memory = (LSTMState.zeros(n, self.settings.lstm_hidden_size)
+                  if self.recurrent else None)
+        return Rollout(states, memory, memory if self.critic == "memory" else None,
+                       jnp.ones(n, bool),
+                       self.teacher.init(n) if self.teacher is not None else None,
+                       jnp.int32(0))
+
+    # ------------------------------------------------------------------ observations
     def _flat(self, obs):
         return jax.vmap(lambda o: flatten_observation(o, self.keys))(obs)
 
+    def _split(self, obs) -> tuple:
+        """A batch of observations as ``(the policy's, flat; the privileged state or None)``."""
+        if not self.privileged:
+            return self._flat(obs), None
+        return self._flat(obs[POLICY_KEY]), obs[PRIVILEGED_KEY].astype(jnp.float32)
+
+    @staticmethod
+    def _joined(obs, privileged):
+        return obs if privileged is None else jnp.concatenate([obs, privileged], axis=-1)
+
     def _input(self, normalizer: Normalizer, obs: jax.Array) -> jax.Array:
-        """The networks' input: ``obs`` normalised, or as it is (``normalize: false``)."""
-        return normalizer(obs) if self.settings.normalize else obs
+        """The policy's input: ``obs`` normalised, or as it is (``normalize: false``)."""
+        if not self.settings.normalize:
+            return obs
+        return normalizer.part(0, self.obs_size)(obs) if self.privileged else normalizer(obs)
 
-    def _heads(self, params: dict, obs: jax.Array, x: jax.Array) -> tuple:
+    def _value_input(self, normalizer: Normalizer, privileged: jax.Array) -> jax.Array:
+        """The privileged critic's input, normalised like the policy's."""
+        if not self.settings.normalize:
+            return privileged
+        return normalizer.part(self.obs_size)(privileged)
+
+    # ------------------------------------------------------------------ networks
+    def _heads(self, params: dict, obs: jax.Array, x: jax.Array, privileged=None,
+               normalizer=None) -> tuple:
         """The Gaussian's mean and the value of a batch of flat observations ``obs``
-        (``x``: the networks' input, :meth:`_input`)."""
+        (``x``: the networks' input, :meth:`_input`; ``privileged``: the critic's, with
+        ``privileged_critic``) for a policy without memory."""
         if "set" not in params:
-            return policy_mean(params, obs, x), _mlp(params["vf"], x)[:, 0]
-        space = self.env.observation_space
-        features = jax.vmap(lambda flat: set_features(
-            params["set"], unflatten_observation(flat, space)))(x)
-        return features[:, :3], _mlp(params["vf"], features)[:, 0]
+            mean = policy_mean(params, obs, x)
+            features = x
+        else:
+            space = self.policy_space
+            features = jax.vmap(lambda flat: set_features(
+                params["set"], unflatten_observation(flat, space)))(x)
+            mean = features[:, :3]
+        if self.critic == "none":
+            return mean, jnp.zeros(mean.shape[:-1])
+        if self.critic == "privileged":
+            features = self._value_input(normalizer, privileged)
+        return mean, _mlp(params["vf"], features)[:, 0]
 
-    def _iteration(self, params, opt_state, normalizer, states, key):
+    def _recurrent_heads(self, params: dict, normalizer: Normalizer, rollout: Rollout, obs,
+                         privileged) -> tuple:
+        """One step of the recurrent policy and value on a batch: ``(mean, value,
+        actor memory, critic memory)``, the memories cleared where ``rollout.starts``."""
+        x = self._input(normalizer, obs)
+        actor = lstm_cell(params["lstm"], rollout.actor.cleared(rollout.starts), x)
+        critic = None
+        if self.critic == "memory":
+            critic = lstm_cell(params["vf_lstm"], rollout.critic.cleared(rollout.starts), x)
+            value = _mlp(params["vf"], critic.h)[:, 0]
+        else:
+            value = self._value_of_state(params, normalizer, privileged, actor.h)
+        return _mlp(params["pi"], actor.h), value, actor, critic
+
+    def _value_of_state(self, params, normalizer, privileged, like):
+        """The value without a memory of its own: from the privileged state, or none
+        (zeros shaped as ``like`` without its last axis) under distillation."""
+        if self.critic == "none":
+            return jnp.zeros(like.shape[:-1])
+        return _mlp(params["vf"], self._value_input(normalizer, privileged))[..., 0]
+
+    def policy_step(self, params: dict, normalizer: Normalizer, rollout: Rollout):
+        """The policy's mean action and value on the present observations of ``rollout``,
+        and the rollout's memories after them."""
+        obs, privileged = self._split(rollout.env.obs)
+        if self.recurrent:
+            mean, value, actor, critic = self._recurrent_heads(params, normalizer, rollout,
+                                                               obs, privileged)
+            return mean, value, rollout._replace(actor=actor, critic=critic)
+        mean, value = self._heads(params, obs, self._input(normalizer, obs), privileged,
+                                  normalizer)
+        return mean, value, rollout
+
+    def sequence_heads(self, params: dict, normalizer: Normalizer, first: Rollout, obs,
+                        privileged, starts) -> tuple:
+        """The recurrent policy's means ``(time, envs, actions)`` and values ``(time, envs)``
+        over stored rollouts, replayed from the memories ``first`` they began with."""
+        x = self._input(normalizer, obs)
+        _, hidden = lstm_unroll(params["lstm"], first.actor, x, starts)
+        if self.critic == "memory":
+            _, critic = lstm_unroll(params["vf_lstm"], first.critic, x, starts)
+            value = _mlp(params["vf"], critic)[..., 0]
+        else:
+            value = self._value_of_state(params, normalizer, privileged, hidden)
+        return _mlp(params["pi"], hidden), value
+
+    # ------------------------------------------------------------------ one iteration
+    def teacher_share(self, iteration) -> jax.Array:
+        """DAgger's probability of acting with the teacher's action at ``iteration``: 1
+        decaying linearly to 0 over ``teacher_fraction`` of the run."""
+        horizon = self.settings.teacher_fraction * self.total_iterations
+        if horizon <= 0:
+            return jnp.float32(0.0)
+        return jnp.clip(1.0 - iteration / horizon, 0.0, 1.0)
+
+    def collect(self, params, normalizer, rollout: Rollout, key) -> tuple:
+        """``n_steps`` of every environment: ``(rollout after, key, steps)``
+        (:class:`Steps`). Without a teacher the policy acts stochastically; with one, the
+        rollout acts with the teacher's action (:meth:`teacher_share`) or the policy's
+        mean."""
         s = self.settings
+        share = self.teacher_share(rollout.iteration) if self.teacher is not None else None
 
         def act(carry, _):
-            states, key = carry
+            rollout, key = carry
             key, sample_key = jax.random.split(key)
-            obs = self._flat(states.obs)
-            mean, value = self._heads(params, obs, self._input(normalizer, obs))
-            action = mean + jnp.exp(params["log_std"]) * jax.random.normal(sample_key,
-                                                                          mean.shape)
-            nxt = self._step(states, jnp.clip(action, -1.0, 1.0))
-            out = (obs, action, _log_prob(params, mean, action), value, nxt.reward,
-                   nxt.done.astype(jnp.float32), nxt.metrics["is_success"] & nxt.done)
-            return (nxt, key), out
+            obs, privileged = self._split(rollout.env.obs)
+            mean, value, stepped = self.policy_step(params, normalizer, rollout)
+            if self.teacher is None:
+                action = mean + jnp.exp(params["log_std"]) * jax.random.normal(sample_key,
+                                                                              mean.shape)
+                executed, log_prob = action, _log_prob(params, mean, action)
+            else:
+                action, teacher = self.teacher.act(rollout.teacher, privileged,
+                                                   rollout.starts)
+                stepped = stepped._replace(teacher=teacher)
+                taught = jax.random.uniform(sample_key, mean.shape[:1]) < share
+                executed = jnp.where(taught[:, None], action, mean)
+                log_prob = jnp.zeros(mean.shape[:1])
+            nxt = self._step(stepped.env, jnp.clip(executed, -1.0, 1.0))
+            out = Steps(obs, privileged, rollout.starts, action, log_prob, value, nxt.reward,
+                        nxt.done.astype(jnp.float32), nxt.metrics["is_success"] & nxt.done,
+                        mean)
+            return (stepped._replace(env=nxt, starts=nxt.done), key), out
 
-        (states, key), (obs, actions, log_probs, values, rewards, dones, successes) = \
-            jax.lax.scan(act, (states, key), None, length=s.n_steps)
-        last_obs = self._flat(states.obs)
-        last_value = self._heads(params, last_obs, self._input(normalizer, last_obs))[1]
+        (rollout, key), steps = jax.lax.scan(act, (rollout, key), None, length=s.n_steps)
+        return rollout._replace(iteration=rollout.iteration + 1), key, steps
 
-        def gae(carry, step):
-            advantage, next_value = carry
-            reward, done, value = step
-            delta = reward + s.gamma * next_value * (1.0 - done) - value
-            advantage = delta + s.gamma * s.gae_lambda * (1.0 - done) * advantage
-            return (advantage, value), advantage
+    def _iteration(self, params, opt_state, normalizer, rollout: Rollout, key):
+        s = self.settings
+        first = rollout
+        rollout, key, (obs, privileged, starts, actions, log_probs, values, rewards, dones,
+                       successes, means) = self.collect(params, normalizer, rollout, key)
+        if self.teacher is not None:
+            objective, targets = self._distillation_loss, (actions,)
+        else:
+            last_value = self.policy_step(params, normalizer, rollout)[1]
 
-        _, advantages = jax.lax.scan(gae, (jnp.zeros_like(last_value), last_value),
-                                     (rewards, dones, values), reverse=True)
-        returns = advantages + values
+            def gae(carry, step):
+                advantage, next_value = carry
+                reward, done, value = step
+                delta = reward + s.gamma * next_value * (1.0 - done) - value
+                advantage = delta + s.gamma * s.gae_lambda * (1.0 - done) * advantage
+                return (advantage, value), advantage
+
+            _, advantages = jax.lax.scan(gae, (jnp.zeros_like(last_value), last_value),
+                                         (rewards, dones, values), reverse=True)
+            objective = self._ppo_loss
+            targets = (actions, log_probs, advantages, advantages + values)
+        steps = (obs, privileged, starts, *targets)
+        epochs = self._recurrent_epochs if self.recurrent else self._epochs
+        params, opt_state = epochs(objective, params, opt_state, normalizer, first, steps, key)
+        key, _ = jax.random.split(key)
+        normalizer = normalizer.update(self._joined(*jax.tree_util.tree_map(
+            lambda a: a.reshape(-1, *a.shape[2:]), (obs, privileged))))
+        stats = {"episodes": dones.sum(), "successes": successes.sum(),
+                 "reward": rewards.mean()}
+        if self.teacher is not None:  # the student's actions against the labels, before
+            stats["imitation_error"] = self._distillation_loss(params, means, None, actions)
+        return params, opt_state, normalizer, rollout, key, stats
+
+    def _ppo_loss(self, params, mean, value, action, old_log_prob, advantage, ret):
+        """PPO's clipped surrogate, the value's squared error and the entropy bonus."""
+        s = self.settings
+        log_prob = _log_prob(params, mean, action)
+        ratio = jnp.exp(log_prob - old_log_prob)
+        advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
+        policy_loss = -jnp.minimum(
+            ratio * advantage,
+            jnp.clip(ratio, 1 - s.clip_range, 1 + s.clip_range) * advantage).mean()
+        value_loss = jnp.mean((ret - value) ** 2)
+        entropy = jnp.sum(params["log_std"] + 0.5 * math.log(2 * math.pi * math.e))
+        return policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
+
+    @staticmethod
+    def _distillation_loss(params, mean, value, label):
+        """The squared error of the policy's mean to the teacher's action (summed over the
+        action's entries, averaged over the steps)."""
+        del params, value
+        return jnp.mean(jnp.sum((mean - label) ** 2, axis=-1))
+
+    def _update(self, loss_fn):
+        """One optimiser step per minibatch of ``loss_fn(params, minibatch)``."""
+        def update(carry, mb):
+            params, opt_state = carry
+            grads = jax.grad(loss_fn)(params, mb)
+            updates, opt_state = self.optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), None
+        return update
+
+    def _epochs(self, objective, params, opt_state, normalizer, first, steps, key):
+        """``n_epochs`` passes over the rollout's steps, shuffled into minibatches:
+        ``objective(params, mean, value, *targets)`` minimised."""
+        s = self.settings
+        obs, privileged, _, *targets = steps
         batch = jax.tree_util.tree_map(lambda a: a.reshape(-1, *a.shape[2:]),
-                                       (obs, actions, log_probs, advantages, returns))
+                                       (obs, privileged, *targets))
 
         def loss_fn(params, mb):
-            obs, action, old_log_prob, advantage, ret = mb
-            mean, value = self._heads(params, obs, self._input(normalizer, obs))
-            log_prob = _log_prob(params, mean, action)
-            ratio = jnp.exp(log_prob - old_log_prob)
-            advantage = (advantage - advantage.mean()) / (advantage.std() + 1e-8)
-            policy_loss = -jnp.minimum(
-                ratio * advantage,
-                jnp.clip(ratio, 1 - s.clip_range, 1 + s.clip_range) * advantage).mean()
-            value_loss = jnp.mean((ret - value) ** 2)
-            entropy = jnp.sum(params["log_std"] + 0.5 * math.log(2 * math.pi * math.e))
-            return policy_loss + s.vf_coef * value_loss - s.ent_coef * entropy
+            obs, privileged, *targets = mb
+            mean, value = self._heads(params, obs, self._input(normalizer, obs), privileged,
+                                      normalizer)
+            return objective(params, mean, value, *targets)
 
         def epoch(carry, key):
-            params, opt_state = carry
             order = jax.random.permutation(key, batch[0].shape[0])
             minibatches = jax.tree_util.tree_map(
                 lambda a: a[order].reshape(s.n_minibatches, -1, *a.shape[1:]), batch)
+            return jax.lax.scan(self._update(loss_fn), carry, minibatches)[0], None
 
-            def update(carry, mb):
-                params, opt_state = carry
-                grads = jax.grad(loss_fn)(params, mb)
-                updates, opt_state = self.optimizer.update(grads, opt_state, params)
-                return (optax.apply_updates(params, updates), opt_state), None
+        _, epoch_key = jax.random.split(key)
+        return jax.lax.scan(epoch, (params, opt_state),
+                            jax.random.split(epoch_key, s.n_epochs))[0]
 
-            return jax.lax.scan(update, (params, opt_state), minibatches)[0], None
+    def _recurrent_epochs(self, objective, params, opt_state, normalizer, first: Rollout,
+                          steps, key):
+        """``n_epochs`` passes over the rollout, minibatches being groups of environments,
+        each replayed whole from the memories it began with."""
+        s = self.settings
+        memories = (first.actor, first.critic)
 
-        key, epoch_key = jax.random.split(key)
-        (params, opt_state), _ = jax.lax.scan(epoch, (params, opt_state),
-                                              jax.random.split(epoch_key, s.n_epochs))
-        normalizer = normalizer.update(batch[0])
-        stats = {"episodes": dones.sum(), "successes": successes.sum(),
-                 "reward": rewards.mean()}
-        return params, opt_state, normalizer, states, key, stats
+        def loss_fn(params, mb):
+            (actor, critic), (obs, privileged, starts, *targets) = mb
+            mean, value = self.sequence_heads(
+                params, normalizer, first._replace(actor=actor, critic=critic), obs,
+                privileged, starts)
+            return objective(params, mean, value, *targets)
 
+        def epoch(carry, key):
+            order = jax.random.permutation(key, s.num_envs)
+            groups = (jax.tree_util.tree_map(  # envs first: (groups, envs, ...)
+                lambda a: a[order].reshape(s.n_minibatches, -1, *a.shape[1:]), memories),
+                jax.tree_util.tree_map(  # time first: (groups, time, envs, ...)
+                lambda a: jnp.swapaxes(a[:, order].reshape(
+                    a.shape[0], s.n_minibatches, -1, *a.shape[2:]), 0, 1), steps))
+            return jax.lax.scan(self._update(loss_fn), carry, groups)[0], None
+
+        _, epoch_key = jax.random.split(key)
+        return jax.lax.scan(epoch, (params, opt_state),
+                            jax.random.split(epoch_key, s.n_epochs))[0]
+
+    # ------------------------------------------------------------------ evaluation
     def compile_evaluation(self, episodes: int, steps: int):
         """:meth:`evaluate` compiled ahead of time for ``episodes`` x ``steps``, from the
         shapes of the parameters alone: ``f(params, normalizer) -> (success rate, mean
         return, standard deviation of the returns)``. Needing no trained parameters, it
         compiles in a thread while the first reset and iteration compile (most of XLA's
         compiling runs on one core)."""
-        params = jax.eval_shape(lambda: init_params(jax.random.PRNGKey(0), self.obs_size,
-                                                    self.action_size, self.settings,
-                                                    self.env.observation_space))
-        normalizer = jax.eval_shape(lambda: Normalizer.create(self.obs_size))
+        params = jax.eval_shape(lambda: self.init_params(jax.random.PRNGKey(0)))
+        normalizer = jax.eval_shape(
+            lambda: Normalizer.create(self.obs_size + (self.privileged_size or 0)))
         return self.evaluate.lower(params, normalizer, episodes, steps).compile()
 
     def _evaluate(self, params, normalizer, episodes: int, steps: int, key=None):
         """Deterministic (mean) actions on ``episodes`` fresh batched episodes:
         ``(success rate, mean return, standard deviation of the returns)``."""
         key = jax.random.PRNGKey(12345) if key is None else key
-        states = self._reset(jax.random.split(key, episodes))
+        rollout = self._fresh_rollout(self._reset(jax.random.split(key, episodes)))
 
         def act(carry, _):
-            states, done, success, total = carry
-            obs = self._flat(states.obs)
-            mean = self._heads(params, obs, self._input(normalizer, obs))[0]
-            nxt = self._step(states, jnp.clip(mean, -1.0, 1.0))
+            rollout, done, success, total = carry
+            mean, _, rollout = self.policy_step(params, normalizer, rollout)
+            nxt = self._step(rollout.env, jnp.clip(mean, -1.0, 1.0))
             ended = nxt.done & ~done
             total = total + jnp.where(done, 0.0, nxt.reward)
-            return (nxt, done | nxt.done, success | (ended & nxt.metrics["is_success"]),
-                    total), None
+            return (rollout._replace(env=nxt, starts=nxt.done), done | nxt.done,
+                    success | (ended & nxt.metrics["is_success"]), total), None
 
         false = jnp.zeros(episodes, bool)
         (_, _, success, total), _ = jax.lax.scan(
-            act, (states, false, false, jnp.zeros(episodes)), None, length=steps)
+            act, (rollout, false, false, jnp.zeros(episodes)), None, length=steps)
         return success.mean(), total.mean(), total.std()
 
 
@@ -427,16 +719,20 @@ BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX, "marker_track": Mark
 
 
 def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
-             marker_track: bool = False, detection_fixes: bool = False) -> FunctionalEnv:
+             marker_track: bool = False, detection_fixes: bool = False,
+             privileged: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
     trains on, built with ``env_kwargs`` (a difficulty level alone: a string): episodes
     reset themselves, actions in [-1, 1]; with ``marker_track``, the LARS ``features``
     observation replaced by the marker tracker's (:class:`MarkerTrackMJX`); with
     ``detection_fixes``, the acoustic ``measurements`` by the detection fixes
-    (:class:`DetectionFixesMJX`)."""
+    (:class:`DetectionFixesMJX`); with ``privileged``, observations ``{"state": ...,
+    "privileged_state": ...}`` for a privileged critic or a teacher (a front end reads and
+    replaces the ``"state"`` entry)."""
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
+    extra = {"privileged": True} if privileged else {}
     try:
-        env = FAMILIES[env_id][0](obs_mode=obs_mode, **env_kwargs).use_unit_actions()
+        env = FAMILIES[env_id][0](obs_mode=obs_mode, **extra, **env_kwargs).use_unit_actions()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc
@@ -475,7 +771,8 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     statistic non-finite raises :class:`~baselines.rl.training.TrainingDiverged` at once,
     writing nothing more (the checkpoints written before it stay).
     """
-    env = make_env(env_id, obs_mode, env_kwargs, marker_track, detection_fixes)
+    env = make_env(env_id, obs_mode, env_kwargs, marker_track, detection_fixes,
+                   settings.privileged_critic or bool(settings.teacher))
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else dict(env_kwargs)
     difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
@@ -490,7 +787,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     with ThreadPoolExecutor(max_workers=1) as pool:
         compiling = (pool.submit(trainer.compile_evaluation, EVAL_EPISODES,
                                  env.max_episode_steps) if evals else None)
-        params, opt_state, normalizer, states, key = trainer.init(jax.random.PRNGKey(seed))
+        params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(seed))
         evaluate = None
         curve = []
         every = max(1, iterations // evals) if evals else iterations + 1
@@ -498,8 +795,8 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
         last_checkpoint = None
         while i < iterations and not (i and stop()):
             i += 1
-            params, opt_state, normalizer, states, key, stats = trainer.iteration(
-                params, opt_state, normalizer, states, key)
+            params, opt_state, normalizer, rollout, key, stats = trainer.iteration(
+                params, opt_state, normalizer, rollout, key)
             if not bool(trainer.all_finite((params, normalizer))):
                 if compiling is not None:
                     compiling.cancel()
@@ -516,21 +813,36 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
                    "success_rate": success, "episodes": EVAL_EPISODES,
                    "train_success_rate": float(stats["successes"]) / max(
                        1.0, float(stats["episodes"]))}
+            if "imitation_error" in stats:
+                row["imitation_error"] = float(stats["imitation_error"])
             curve.append(row)
+            imitation = (f", imitation error {row['imitation_error']:.3g}"
+                         if "imitation_error" in row else "")
             print(f"[eval] step {row['step']}: success {100 * success:.0f} % over "
-                  f"{EVAL_EPISODES} batched episodes ({row['wall_s']} s)", flush=True)
+                  f"{EVAL_EPISODES} batched episodes{imitation} ({row['wall_s']} s)",
+                  flush=True)
             if checkpoints and i < iterations:
                 last_checkpoint = checkpoint_dir / f"step_{row['step']}"
-                export(params, normalizer, last_checkpoint,
+                export(params, normalizer.part(0, trainer.obs_size), last_checkpoint,
                        {**run, "n_timesteps": row["step"], "wall_time_s": row["wall_s"],
                         "curve": list(curve), "group": None})
         if evaluate is None and compiling is not None:
             compiling.cancel()  # stopped before the first evaluation
     wall = time.perf_counter() - start
-    manifest = export(params, normalizer, Path(out), {
+    manifest = export(params, normalizer.part(0, trainer.obs_size), Path(out), {
         **run, "n_timesteps": i * per_iteration, "wall_time_s": round(wall, 1),
         "curve": curve, "group": group})
     return {**manifest, "finished": i == iterations}
+
+
+def _description(settings: Settings, difficulty: str) -> str:
+    """What a policy directory's manifest says of how it learned."""
+    how = (f"distilled (DAgger) from the privileged teacher {settings.teacher}"
+           if settings.teacher else "PPO")
+    memory = " with an LSTM memory" if settings.lstm_hidden_size else ""
+    critic = ", privileged critic" if settings.privileged_critic else ""
+    return (f"{how}, compiled in JAX{memory}{critic} (batched env, trained at "
+            f"{difficulty})")
 
 
 def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
@@ -545,7 +857,7 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     from baselines.registry import LazyFactory
     from baselines.rl.config import CUSTOM_POLICIES
     from baselines.rl.envs import wrap_env
-    from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
+    from baselines.rl.manifest import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, RECURRENT_ALGO
 
     out.mkdir(parents=True, exist_ok=True)
     env_kwargs = run.get("env_kwargs") or {"difficulty": run["difficulty"]}
@@ -553,7 +865,9 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
     residual = settings.policy == RESIDUAL
     front_ends = tuple(name for name in BATCHED_FRONT_ENDS if run.get(name))
     cpu = gym.make(run["env_id"], obs_mode=run["obs_mode"], **env_kwargs).unwrapped
-    wrapped = wrap_env(cpu, flatten_obs=not front_ends, front_ends=front_ends)
+    # MlpPolicy reads the observation flattened (after any front end), as the trainer does
+    flatten = not front_ends or settings.policy == "MlpPolicy"
+    wrapped = wrap_env(cpu, flatten_obs=flatten, front_ends=front_ends)
     policy_kwargs = {"net_arch": list(HIDDEN_LAYERS), "activation_fn": torch.nn.Tanh}
     if residual:
         policy_kwargs["servo_gain"] = settings.servo_gain
@@ -564,7 +878,17 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
                                                        "summary_dim": SET_SUMMARY}}
     policy_class = (LazyFactory(CUSTOM_POLICIES[settings.policy]).resolve()
                     if settings.policy in CUSTOM_POLICIES else "MlpPolicy")
-    model = PPO(policy_class, wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)
+    recurrent = settings.lstm_hidden_size > 0
+    if recurrent:  # sb3-contrib's RecurrentPPO: one LSTM under the mean, one under the value
+        from sb3_contrib import RecurrentPPO
+
+        policy_kwargs.update(lstm_hidden_size=settings.lstm_hidden_size, n_lstm_layers=1,
+                             shared_lstm=False,
+                             enable_critic_lstm=not settings.privileged_critic)
+        model = RecurrentPPO("MlpLstmPolicy", wrapped, seed=0, device="cpu",
+                             policy_kwargs=policy_kwargs)
+    else:
+        model = PPO(policy_class, wrapped, seed=0, device="cpu", policy_kwargs=policy_kwargs)
     policy = model.policy
 
     def copy(modules, layers):
@@ -574,6 +898,10 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
 
     def linear(sequence):
         return [m for m in sequence if isinstance(m, torch.nn.Linear)]
+
+    def core(module, cell):
+        for name, value in torch_weights(cell).items():
+            getattr(module, name).copy_(torch.as_tensor(value))
 
     # JointResidualPolicy wraps SB3's extractor and puts the servo before the mean's head
     extractor = policy.mlp_extractor.inner if residual else policy.mlp_extractor
@@ -585,7 +913,15 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         else:
             head = policy.action_net.linear if residual else policy.action_net
             copy([*linear(extractor.policy_net), head], params["pi"])
-        copy([*linear(extractor.value_net), policy.value_net], params["vf"])
+        if recurrent:
+            core(policy.lstm_actor, params["lstm"])
+        # A privileged critic read what the exported policy never sees, and a distilled
+        # policy has none: neither is written (the model's value head stays at its start
+        # and is never used to act).
+        if not (settings.privileged_critic or settings.teacher):
+            if recurrent:
+                core(policy.lstm_critic, params["vf_lstm"])
+            copy([*linear(extractor.value_net), policy.value_net], params["vf"])
         policy.log_std.copy_(torch.as_tensor(np.array(params["log_std"])))
         if residual:
             policy.action_net.servo_gain.copy_(torch.as_tensor(np.array(params["servo_gain"])))
@@ -605,18 +941,22 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         writer.writeheader()
         writer.writerows(run["curve"])
     manifest = {
-        "name": out.name, "algo": "ppo", "env_id": run["env_id"], "obs_mode": run["obs_mode"],
-        "flatten_obs": not front_ends, "env_kwargs": env_kwargs,
+        "name": out.name, "algo": RECURRENT_ALGO if recurrent else "ppo",
+        "env_id": run["env_id"], "obs_mode": run["obs_mode"],
+        "flatten_obs": flatten, "env_kwargs": env_kwargs,
         **{name: True for name in front_ends},
         "trainer": "baselines.rl.compiled (PPO fused in JAX on the batched MJX env)",
         "seed": run["seed"], "n_timesteps": run["n_timesteps"],
         "wall_time_s": run["wall_time_s"], "settings": run["settings"],
         "command": run.get("command", ""),
         "versions": {"jax": jax.__version__, "optax": optax.__version__},
-        "description": f"PPO compiled in JAX (batched env, trained at "
-                       f"{run['difficulty']})",
+        "description": _description(settings, run["difficulty"]),
         "files": {name: sha256_file(out / name) for name in files},
     }
+    if settings.privileged_critic:
+        manifest["critic"] = "privileged_state (training only; not exported)"
+    if settings.teacher:
+        manifest["teacher"] = settings.teacher
     if run.get("group"):
         manifest["group"] = run["group"]
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")

@@ -168,6 +168,18 @@ class CompiledSettings(NamedTuple):
     log_std_init: float = 0.0
     # VecNormalize-style observation statistics (false: the observation as it is).
     normalize: bool = True
+    # Memory: the width of an LSTM core under the policy's and the value's MLPs
+    # (sb3-contrib's MlpLstmPolicy; 0: none, the policy sees one step).
+    lstm_hidden_size: int = 0
+    # The critic reads the privileged state (the env's state observation) during training;
+    # the policy never does.
+    privileged_critic: bool = False
+    # Distillation (DAgger) instead of PPO: a privileged teacher of baselines.rl.teachers
+    # labels every step the policy visits and the policy learns its actions ("": PPO).
+    teacher: str = ""
+    # The share of the run over which the teacher's own actions give way to the
+    # policy's (DAgger's mixing probability, from 1 down to 0).
+    teacher_fraction: float = 0.25
 
 
 class ConfigError(ValueError):
@@ -314,6 +326,8 @@ RANGES = {
     "stats_window_size": Range(int, _AT_LEAST_1),
     "rms_prop_eps": Range(float, "(0, inf)"),
     "num_envs": Range(int, _AT_LEAST_1),  # cppo
+    "lstm_hidden_size": Range(int, "[0, 4096]"),  # cppo
+    "teacher_fraction": Range(float, "[0, 1]"),  # cppo with a teacher
     "servo_gain": Range(float, "[0, inf)"),  # cppo JointResidualPolicy
     "log_std_init": Range(float, "[-20, 2]"),
     "n_minibatches": Range(int, _AT_LEAST_1),  # cppo
@@ -670,11 +684,18 @@ def _validate_compiled(config: TrainConfig) -> None:
     if settings.policy not in ("MlpPolicy", "JointResidualPolicy", "DetectionSetPolicy"):
         raise ConfigError(f"cppo's policy is MlpPolicy, JointResidualPolicy or "
                           f"DetectionSetPolicy, got {settings.policy!r}")
-    if (settings.policy == "DetectionSetPolicy") != run["detection_fixes"] or (
-            run["detection_fixes"] and settings.normalize):
-        raise ConfigError("DetectionSetPolicy reads the detection fixes as they are, and they "
-                          "are read by it only: set policy: DetectionSetPolicy, "
-                          "detection_fixes: true and normalize: false together")
+    if settings.lstm_hidden_size:
+        if settings.policy != "MlpPolicy":
+            raise ConfigError(f"lstm_hidden_size gives MlpPolicy a memory; {settings.policy} "
+                              "has none: set policy: MlpPolicy or lstm_hidden_size: 0")
+        if settings.num_envs % settings.n_minibatches:
+            raise ConfigError(f"a recurrent policy learns from whole rollouts of each env: "
+                              f"num_envs ({settings.num_envs}) must split into n_minibatches "
+                              f"({settings.n_minibatches}) equal groups")
+    if settings.policy == "DetectionSetPolicy" and (not run["detection_fixes"]
+                                                    or settings.normalize):
+        raise ConfigError("DetectionSetPolicy reads the detection fixes as they are: set "
+                          "detection_fixes: true and normalize: false with it")
     if run["detection_fixes"] and (config.env_id != "auv_envs/AcousticTracking-v2"
                                    or run["obs_mode"] != "measurements"):
         raise ConfigError("detection_fixes is AcousticTracking-v2's measurements front end")
@@ -689,6 +710,9 @@ def _validate_compiled(config: TrainConfig) -> None:
     if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
         raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
                           f"split into n_minibatches ({settings.n_minibatches}) equal parts")
+    if settings.teacher:  # its name and env: baselines.rl.teachers.make_teacher
+        if settings.privileged_critic:
+            raise ConfigError("a teacher replaces the critic: set privileged_critic: false")
 
 
 def _check_argument(algo: str, key: str, value, default) -> None:

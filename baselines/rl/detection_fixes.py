@@ -206,7 +206,7 @@ class DetectionFixesMJX(BatchedFrontEnd):
     def __init__(self, env):
         super().__init__(env)
         self.params = FixParams.of(env.cpu_env)
-        self.observation_space = self.params.observation_space()
+        self.observation_space = self.around(self.params.observation_space())
 
     def start(self) -> Held:
         return Held.start(self.params, self._jnp)

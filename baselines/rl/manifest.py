@@ -19,6 +19,11 @@ MANIFEST_FILE = "policy.json"
 #: The Stable-Baselines3 algorithms a policy may name; :data:`baselines.rl.config.ALGORITHMS`
 #: maps each to its class (here without importing Stable-Baselines3).
 ALGORITHM_NAMES = ("ppo", "sac", "td3", "a2c", "ddpg")
+#: sb3-contrib's ``RecurrentPPO``: a policy with a memory (the compiled PPO's
+#: ``lstm_hidden_size``), which acts on its hidden state as well as the observation.
+RECURRENT_ALGO = "recurrentppo"
+#: Every algorithm a policy directory may name.
+POLICY_ALGORITHMS = (*ALGORITHM_NAMES, RECURRENT_ALGO)
 
 
 def policies_root() -> Path:
@@ -42,7 +47,7 @@ def read_manifest(directory: Path) -> dict:
     needed = {"name", "algo", "env_id", "obs_mode", "flatten_obs", "files"}
     if not isinstance(manifest, dict) or not needed <= set(manifest):
         raise PolicyFileError(f"policy manifest {path} lacks {sorted(needed)}")
-    if manifest["algo"] not in ALGORITHM_NAMES:
+    if manifest["algo"] not in POLICY_ALGORITHMS:
         raise PolicyFileError(f"policy manifest {path}: unknown algorithm {manifest['algo']!r}")
     return manifest
 

@@ -284,7 +284,7 @@ class MarkerTrackMJX(BatchedFrontEnd):
     def __init__(self, env):
         super().__init__(env)
         self.params = TrackParams.of(env.cpu_env)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (SIZE,), np.float32)
+        self.observation_space = self.around(spaces.Box(-np.inf, np.inf, (SIZE,), np.float32))
 
     def start(self) -> TrackState:
         return TrackState.start(self._jnp)

@@ -27,6 +27,7 @@ from baselines.rl.envs import front_ends_of, wrap_env
 from baselines.rl.manifest import (
     MODEL_FILE,
     NORMALIZER_FILE,
+    RECURRENT_ALGO,
     PolicyFileError,
     read_manifest,
     verify_files,
@@ -49,10 +50,20 @@ def load_normalizer(path: Path) -> VecNormalize:
     return normalizer
 
 
+def _algorithm(algo: str):
+    """The class of a policy's algorithm: Stable-Baselines3's, or sb3-contrib's
+    ``RecurrentPPO``."""
+    if algo == RECURRENT_ALGO:
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    return ALGORITHMS[algo]
+
+
 def load_model(algo: str, path: Path):
     """An SB3 model for acting (CPU, no env, no training schedules)."""
     try:
-        return ALGORITHMS[algo].load(path, device="cpu", custom_objects=_ACTING_ONLY)
+        return _algorithm(algo).load(path, device="cpu", custom_objects=_ACTING_ONLY)
     except Exception as exc:  # zip/pickle/torch errors all mean a bad file
         raise PolicyFileError(f"cannot load {algo} model {path}: {exc}") from exc
 
@@ -69,6 +80,9 @@ def _as_learner_sees(space):
 
 class PolicyAgent:
     """Deterministic actions of a trained SB3 model, in the environment's own units.
+
+    A recurrent model (sb3-contrib's ``RecurrentPPO``) carries its hidden state from one
+    :meth:`act` to the next and starts each episode (:meth:`reset`) from a blank one.
 
     Args:
         env: the environment the agent acts in (unwrapped or not; never stepped).
@@ -91,6 +105,8 @@ class PolicyAgent:
             raise PolicyFileError(f"the policy does not fit this environment: {exc}") from exc
         self._model = model
         self._normalizer = normalizer
+        self.recurrent = hasattr(model.policy, "lstm_actor")
+        self._memory = None  # the recurrent model's (h, c); None: blank
 
     @classmethod
     def from_directory(cls, env: gym.Env, directory: str | Path) -> PolicyAgent:
@@ -126,8 +142,9 @@ class PolicyAgent:
 
     def reset(self, seed: int | None = None) -> None:
         """Clears what observation wrappers hold from the last episode (``clear()``, e.g.
-        :class:`~baselines.rl.detection_fixes.DetectionFixes`); the policy itself is
-        feed-forward and acts deterministically."""
+        :class:`~baselines.rl.detection_fixes.DetectionFixes`) and a recurrent model's
+        memory; the policy acts deterministically."""
+        self._memory = None
         for wrapper in self._observation_wrappers:
             if hasattr(wrapper, "clear"):
                 wrapper.clear()
@@ -148,5 +165,11 @@ class PolicyAgent:
         return np.clip(np.asarray(action, dtype=space.dtype), space.low, space.high)
 
     def act(self, observation, info: dict) -> np.ndarray:
-        action, _ = self._model.predict(self.learner_observation(observation), deterministic=True)
+        observation = self.learner_observation(observation)
+        if not self.recurrent:
+            action, _ = self._model.predict(observation, deterministic=True)
+            return self.env_action(action)
+        starts = np.array([self._memory is None])
+        action, self._memory = self._model.predict(observation, state=self._memory,
+                                                   episode_start=starts, deterministic=True)
         return self.env_action(action)

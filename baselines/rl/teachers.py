@@ -1,0 +1,105 @@
+"""Privileged teachers for distillation on the batched environments.
+
+A teacher reads the privileged state (the family's ``state`` observation, which the
+batched env gives as ``obs["privileged_state"]`` when built with ``privileged=True``)
+and answers the action a student should have taken, in the unit action box [-1, 1] the
+compiled trainer acts in. The compiled PPO's distillation (``teacher:`` in ``cppo.yml``,
+:class:`baselines.rl.compiled.Trainer`) asks it at every step the student visits
+(DAgger) and fits the student, which reads only the non-privileged observation.
+
+A teacher is an object with two pure functions over a batch, so that it runs inside the
+compiled rollout:
+
+* ``init(n)``: its memory for ``n`` environments (a pytree; None when it has none);
+* ``act(memory, privileged, starts) -> (actions (n, A), memory)``: ``privileged`` the
+  batch's privileged states ``(n, P)``, ``starts`` where an episode begins at this step
+  (a teacher with a memory clears it there).
+
+:data:`TEACHERS` names them, with the environments each can teach.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from baselines.docking.control.homing import HomingGains, homing_action
+from baselines.rl.config import ConfigError
+
+
+class TruthTeacher:
+    """Acoustic tracking's oracle: the estimate is the end effector's true position,
+    the first three entries of the ``state`` observation (the tank frame, the action's),
+    mapped into the unit box as the batched env maps unit actions onto the tank."""
+
+    def __init__(self, env):
+        from auv_envs.batched.acoustic_env import AcousticMJX
+
+        if not isinstance(getattr(env, "env", env), AcousticMJX):  # a front end's or itself
+            raise ConfigError(f"the truth teacher teaches acoustic tracking, not "
+                              f"{type(env).__name__}")
+        box = env._action_box
+        if box is None:
+            raise ConfigError("the truth teacher answers unit actions: the env must take "
+                              "actions in [-1, 1] (use_unit_actions)")
+        self._low = jnp.asarray(box.low, jnp.float32)
+        self._span = jnp.asarray(np.asarray(box.high) - np.asarray(box.low), jnp.float32)
+
+    @staticmethod
+    def init(n: int):
+        del n
+        return None
+
+    def act(self, memory, privileged, starts):
+        del starts
+        position = privileged[:, :3]
+        return jnp.clip(2.0 * (position - self._low) / self._span - 1.0, -1.0, 1.0), memory
+
+
+class HomingTeacher:
+    """``homing-pd-state`` (:mod:`baselines.docking.control.homing`) on the whole approach:
+    line-of-sight homing to the staging point, then the PD terminal controller, from the
+    true state; its memory is the hand-over latch of each environment, cleared where an
+    episode begins."""
+
+    def __init__(self, env):
+        if getattr(env, "env_id", None) != "auv_envs/DockingMission-v0":
+            raise ConfigError(f"the homing-pd teacher teaches auv_envs/DockingMission-v0, not "
+                              f"{getattr(env, 'env_id', type(env).__name__)}")
+        if env._action_box is None or not np.allclose(env._action_box.low, -1.0) \
+                or not np.allclose(env._action_box.high, 1.0):
+            raise ConfigError("the homing-pd teacher answers the normalised thrust in [-1, 1]")
+        gains = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32),
+                                       HomingGains.from_calibration(env.calibration))
+        self._act = jax.vmap(functools.partial(homing_action, gains, xp=jnp))
+
+    @staticmethod
+    def init(n: int) -> jax.Array:
+        return jnp.zeros(n, bool)
+
+    def act(self, memory, privileged, starts):
+        return self._act(privileged, memory & jnp.logical_not(starts))
+
+
+#: Teacher name -> its class (built on the batched env; it refuses an env it cannot teach).
+TEACHERS = {
+    "homing-pd": HomingTeacher,
+    "truth": TruthTeacher,
+}
+
+
+def make_teacher(name: str, env):
+    """The teacher ``name`` of :data:`TEACHERS` for the batched ``env``.
+
+    Raises:
+        ConfigError: an unknown name, or an env the teacher cannot teach.
+    """
+    if name not in TEACHERS:
+        raise ConfigError(f"unknown teacher {name!r}; teachers: {', '.join(sorted(TEACHERS))}")
+    return TEACHERS[name](env)
+
+
+__all__ = ["TEACHERS", "HomingTeacher", "TruthTeacher", "make_teacher"]
