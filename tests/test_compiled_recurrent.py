@@ -215,8 +215,37 @@ def test_distillation_fits_the_student_to_the_teacher():
 
 def test_teachers_refuse_envs_they_cannot_teach():
     env = compiled.make_env(ENV_ID, "features", KWARGS, privileged=True)
-    for teacher in ("homing-pd", "truth"):
+    for teacher in ("homing-pd", "homing-pd-corridor", "truth"):
         with pytest.raises(ConfigError, match="teach"):
             compiled.Trainer(env, SETTINGS._replace(teacher=teacher))
     with pytest.raises(ConfigError, match="unknown teacher"):
         compiled.Trainer(env, SETTINGS._replace(teacher="oracle"))
+
+
+def test_the_corridor_teacher_is_the_homing_law_with_a_state_hand_over():
+    """Its labels are homing_action's on NumPy with the latch replaced by in_corridor, on
+    states inside and outside the corridor."""
+    from baselines.docking.control.homing import HomingGains, homing_action, in_corridor
+    from baselines.docking.control.pd import read_state
+    from baselines.rl.teachers import make_teacher
+
+    env = compiled.make_env("auv_envs/DockingMission-v0", "nav_features", "paper",
+                            privileged=True)
+    teacher = make_teacher("homing-pd-corridor", env)
+    gains = HomingGains.from_calibration(env.calibration)
+    rng = np.random.default_rng(5)
+    states = np.zeros((40, 16), np.float32)
+    states[:, 0] = gains.staging_point[0] + rng.uniform(-3.0, 11.0, 40)
+    states[:, 1:3] = np.asarray(gains.staging_point)[1:] + rng.normal(0.0, 2.0, (40, 2))
+    yaw = rng.uniform(-0.8, 0.8, 40)
+    states[:, 5], states[:, 6] = np.cos(yaw), np.sin(yaw)
+    states[:, 7:10] = rng.normal(0, 0.3, (40, 3))
+    states[:, 12] = rng.normal(0, 0.1, 40)
+    got, memory = teacher.act(teacher.init(40), jnp.asarray(states), jnp.ones(40, bool))
+    corridor = []
+    for k, obs in enumerate(states.astype(np.float64)):
+        position, heading, _, _ = read_state(obs, np)
+        corridor.append(bool(in_corridor(gains, position, heading, teacher.CORRIDOR_WIDTH, np)))
+        want, _ = homing_action(gains, obs, corridor[-1], np)
+        np.testing.assert_allclose(np.asarray(got[k]), want, atol=1e-5)
+    assert 5 < sum(corridor) < 35 and memory is None  # both laws were checked

@@ -184,3 +184,23 @@ def test_jax_pd_matches_numpy_batched():
     batched = jax.jit(jax.vmap(functools.partial(pd_action, gains, xp=jnp)))(
         jnp.asarray(observations))
     np.testing.assert_allclose(np.asarray(batched), actions, rtol=0.0, atol=ACTION_ATOL)
+
+
+def test_the_corridor_is_the_approach_between_staging_and_entrance():
+    """The state-decided hand-over: inside between the staging point's capture distance and
+    the entrance, near the axis, heading along it; the latch's own condition lies in it."""
+    from baselines.docking.control.homing import in_corridor
+
+    env = gym.make(MISSION, obs_mode="state", difficulty="paper").unwrapped
+    gains = HomingGains.from_calibration(env.calibration)
+    staging, target = np.asarray(gains.staging_point), np.asarray(gains.target)
+
+    def inside(offset, yaw=0.0, base=staging):
+        return bool(in_corridor(gains, base + np.asarray(offset), yaw, 3.0, np))
+
+    assert inside([0, 0, 0]) and inside([gains.capture * 0.9, 0.5, -0.5])
+    assert inside([0, 0, 0], base=target) and inside([-1.0, 2.9, 0.0], base=target)
+    assert not inside([-gains.capture - 0.1, 0, 0])  # before the staging point
+    assert not inside([0.1, 0, 0], base=target)  # past the entrance
+    assert not inside([0, 3.1, 0]) and not inside([0, 0, -3.1])  # off the axis
+    assert not inside([0, 0, 0], yaw=0.6)  # heading off the axis

@@ -26,7 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines.docking.control.homing import HomingGains, homing_action
+from baselines.docking.control.homing import HomingGains, homing_action, in_corridor
+from baselines.docking.control.pd import read_state
 from baselines.rl.config import ConfigError
 
 
@@ -74,6 +75,7 @@ class HomingTeacher:
             raise ConfigError("the homing-pd teacher answers the normalised thrust in [-1, 1]")
         gains = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32),
                                        HomingGains.from_calibration(env.calibration))
+        self._gains = gains
         self._act = jax.vmap(functools.partial(homing_action, gains, xp=jnp))
 
     @staticmethod
@@ -84,9 +86,41 @@ class HomingTeacher:
         return self._act(privileged, memory & jnp.logical_not(starts))
 
 
+class CorridorHomingTeacher(HomingTeacher):
+    """``homing-pd``'s laws with a hand-over the state decides
+    (:func:`~baselines.docking.control.homing.in_corridor`): the terminal law within
+    :data:`CORRIDOR_WIDTH` m of the docking axis between the staging point and the
+    entrance, homing elsewhere. It has no memory, so its student need not infer a latch
+    that the teacher set long before."""
+
+    #: The corridor's half-width (m): twice the staging point's capture distance.
+    CORRIDOR_WIDTH = 3.0
+
+    def __init__(self, env):
+        super().__init__(env)
+        gains = self._gains
+
+        def act(obs):
+            position, yaw, _, _ = read_state(obs, jnp)
+            corridor = in_corridor(gains, position, yaw, self.CORRIDOR_WIDTH, jnp)
+            return homing_action(gains, obs, corridor, jnp)[0]
+
+        self._act_state = jax.vmap(act)
+
+    @staticmethod
+    def init(n: int):
+        del n
+        return None
+
+    def act(self, memory, privileged, starts):
+        del starts
+        return self._act_state(privileged), memory
+
+
 #: Teacher name -> its class (built on the batched env; it refuses an env it cannot teach).
 TEACHERS = {
     "homing-pd": HomingTeacher,
+    "homing-pd-corridor": CorridorHomingTeacher,
     "truth": TruthTeacher,
 }
 
@@ -102,4 +136,4 @@ def make_teacher(name: str, env):
     return TEACHERS[name](env)
 
 
-__all__ = ["TEACHERS", "HomingTeacher", "TruthTeacher", "make_teacher"]
+__all__ = ["TEACHERS", "CorridorHomingTeacher", "HomingTeacher", "TruthTeacher", "make_teacher"]

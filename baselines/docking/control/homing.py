@@ -175,6 +175,28 @@ def homing_force(gains: HomingGains, position, yaw, body_velocity, yaw_rate, doc
     return xp.where(docking, terminal, homing), docking
 
 
+def in_corridor(gains: HomingGains, position, yaw, width: float, xp):
+    """Whether the vehicle is in the approach corridor: between the staging point's capture
+    distance and the entrance along the docking axis, within ``width`` m of the axis
+    sideways and in height, heading within :data:`HANDOVER_HEADING` of it. A hand-over
+    decided by the state alone: the terminal law holds there, homing elsewhere, with no
+    latch to remember (a student that imitates this law need not infer one).
+
+    Args:
+        gains: the law's parameters.
+        position: CG position, DS frame (3,).
+        yaw: heading psi, rad (scalar).
+        width: the corridor's half-width, m (at least ``capture``, so that the latch's
+            own condition lies inside it).
+        xp: the array namespace.
+    """
+    staging, target = xp.asarray(gains.staging_point), xp.asarray(gains.target)
+    return ((position[0] >= staging[0] - gains.capture) & (position[0] <= target[0])
+            & (xp.abs(position[1] - target[1]) <= width)
+            & (xp.abs(position[2] - target[2]) <= width)
+            & (xp.abs(wrap_angle(yaw)) < HANDOVER_HEADING))
+
+
 def homing_action(gains: HomingGains, state_obs, docking, xp):
     """The privileged teacher: the normalised action of :func:`homing_force` on one
     ``state`` observation of ``auv_envs/DockingMission-v0``, and the updated latch.
