@@ -33,10 +33,10 @@ import numpy as np
 from scipy.stats import binomtest
 
 import auv_envs  # noqa: F401  (registers the environments)
+from auv_envs.tasks.docking.rules import FAILURE_REASONS
 from baselines.parsing import parse_value
 from baselines.rl import compiled
 from baselines.rl.config import resolve_config
-from auv_envs.tasks.docking.rules import FAILURE_REASONS
 
 DEFAULT_DIR = Path(__file__).resolve().parents[1] / "baselines" / "rl" / "hyperparams" / "memory"
 
