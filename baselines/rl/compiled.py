@@ -23,6 +23,12 @@ with ``policy: DetectionSetPolicy`` (acoustic tracking, ``detection_fixes: true`
 :class:`~baselines.rl.detections.DetectionSetPolicy`, the set encoder over one
 least-squares fix per detection (:mod:`baselines.rl.detection_fixes`, computed in JAX by
 :class:`~baselines.rl.detection_fixes.DetectionFixesMJX`; :func:`set_features`).
+Three settings serve partially observed tasks (:class:`Trainer`): ``lstm_hidden_size``
+puts an LSTM core (:mod:`baselines.rl.recurrent`) under the mean's and the value's MLPs
+(sb3-contrib's ``MlpLstmPolicy``), ``privileged_critic`` lets the value read the privileged
+state of an env built with ``privileged=True``, and ``teacher`` replaces PPO's update by
+distillation from a privileged teacher (:mod:`baselines.rl.teachers`, DAgger).
+
 So a finished run is written *as* an SB3 policy (``model.zip``,
 ``vecnormalize.pkl``, ``policy.json``): it acts in the ordinary MuJoCo CPU
 environment through :class:`baselines.rl.policy.PolicyAgent`, and
@@ -57,7 +63,7 @@ from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.
     default_compilation_cache,
     use_compilation_cache,
 )
-from auv_envs.batched.functional import FunctionalEnv
+from auv_envs.batched.functional import POLICY_KEY, PRIVILEGED_KEY, FunctionalEnv
 from auv_envs.batched.registry import FAMILIES
 from baselines.rl.config import (
     COMPILED,
@@ -283,9 +289,6 @@ def _log_prob(params, mean, action):
 
 
 # ---------------------------------------------------------------------- training
-#: The observation key of the privileged state, and of what the policy sees beside it
-#: (MuJoCo Playground's names; the batched envs' ``privileged=True``).
-PRIVILEGED_KEY, POLICY_KEY = "privileged_state", "state"
 
 
 class Rollout(NamedTuple):
@@ -945,7 +948,7 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
         "env_id": run["env_id"], "obs_mode": run["obs_mode"],
         "flatten_obs": flatten, "env_kwargs": env_kwargs,
         **{name: True for name in front_ends},
-        "trainer": "baselines.rl.compiled (PPO fused in JAX on the batched MJX env)",
+        "trainer": "baselines.rl.compiled (compiled in JAX on the batched MJX env)",
         "seed": run["seed"], "n_timesteps": run["n_timesteps"],
         "wall_time_s": run["wall_time_s"], "settings": run["settings"],
         "command": run.get("command", ""),
