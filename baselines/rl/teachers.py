@@ -15,7 +15,7 @@ compiled rollout:
   batch's privileged states ``(n, P)``, ``starts`` where an episode begins at this step
   (a teacher with a memory clears it there).
 
-:data:`TEACHERS` names them, with the environments each can teach.
+:data:`TEACHERS` names them; each refuses an environment it cannot teach.
 """
 
 from __future__ import annotations
