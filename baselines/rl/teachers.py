@@ -31,7 +31,24 @@ from baselines.docking.control.pd import read_state
 from baselines.rl.config import ConfigError
 
 
-class TruthTeacher:
+class MemorylessTeacher:
+    """A teacher whose answer depends on the present privileged state alone: no memory,
+    ``act`` is :meth:`answer` on the batch."""
+
+    @staticmethod
+    def init(n: int):
+        del n
+        return None
+
+    def act(self, memory, privileged, starts):
+        del starts
+        return self.answer(privileged), memory
+
+    def answer(self, privileged):
+        raise NotImplementedError
+
+
+class TruthTeacher(MemorylessTeacher):
     """Acoustic tracking's oracle: the estimate is the end effector's true position,
     the first three entries of the ``state`` observation (the tank frame, the action's),
     mapped into the unit box as the batched env maps unit actions onto the tank."""
@@ -49,15 +66,9 @@ class TruthTeacher:
         self._low = jnp.asarray(box.low, jnp.float32)
         self._span = jnp.asarray(np.asarray(box.high) - np.asarray(box.low), jnp.float32)
 
-    @staticmethod
-    def init(n: int):
-        del n
-        return None
-
-    def act(self, memory, privileged, starts):
-        del starts
+    def answer(self, privileged):
         position = privileged[:, :3]
-        return jnp.clip(2.0 * (position - self._low) / self._span - 1.0, -1.0, 1.0), memory
+        return jnp.clip(2.0 * (position - self._low) / self._span - 1.0, -1.0, 1.0)
 
 
 class HomingTeacher:
@@ -86,7 +97,7 @@ class HomingTeacher:
         return self._act(privileged, memory & jnp.logical_not(starts))
 
 
-class CorridorHomingTeacher(HomingTeacher):
+class CorridorHomingTeacher(MemorylessTeacher, HomingTeacher):
     """``homing-pd``'s laws with a hand-over the state decides
     (:func:`~baselines.docking.control.homing.in_corridor`): the terminal law within
     :data:`CORRIDOR_WIDTH` m of the docking axis between the staging point and the
@@ -97,7 +108,7 @@ class CorridorHomingTeacher(HomingTeacher):
     CORRIDOR_WIDTH = 3.0
 
     def __init__(self, env):
-        super().__init__(env)
+        HomingTeacher.__init__(self, env)
         gains = self._gains
 
         def act(obs):
@@ -105,16 +116,7 @@ class CorridorHomingTeacher(HomingTeacher):
             corridor = in_corridor(gains, position, yaw, self.CORRIDOR_WIDTH, jnp)
             return homing_action(gains, obs, corridor, jnp)[0]
 
-        self._act_state = jax.vmap(act)
-
-    @staticmethod
-    def init(n: int):
-        del n
-        return None
-
-    def act(self, memory, privileged, starts):
-        del starts
-        return self._act_state(privileged), memory
+        self.answer = jax.vmap(act)
 
 
 #: Teacher name -> its class (built on the batched env; it refuses an env it cannot teach).
