@@ -284,8 +284,24 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
     assert out.returncode == 0, out.stderr
     assert float(out.stdout.split()[-1]) == pytest.approx(3.0 * np.sin(0.5), rel=1e-6)
     assert any(cache.iterdir())  # the program was written
+    # Asked for on the CPU, the cache is used with a warning of the loader's crashes.
+    assert "RuntimeWarning" in out.stderr and "can crash" in out.stderr
     default = compiled.default_compilation_cache()
     assert default.parts[-2:] == ("auv_envs", "jax")
+
+
+def test_the_default_cache_is_none_on_the_cpu():
+    from auv_envs.batched.compile_cache import cache_for
+
+    assert cache_for("cpu") is None
+    assert cache_for("gpu") == cache_for("tpu") == compiled.default_compilation_cache()
+    # train.py's default on this machine: the backend decides.
+    expected = None if jax.default_backend() == "cpu" else compiled.default_compilation_cache()
+    assert compiled.cache_for() == expected
+    # Without a directory, nothing is set on the CPU.
+    if not jax.config.jax_compilation_cache_dir:
+        assert compiled.use_compilation_cache(platform="cpu") is None
+        assert not jax.config.jax_compilation_cache_dir
 
 
 @pytest.mark.parametrize("name", [*(f"cppo-{family}-features-s{seed}"

@@ -14,7 +14,7 @@
   under MuJoCo Playground's and Brax's conventions, for ``wrap_for_brax_training``;
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,
   ``gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=N)``, whose compiled
-  programs are kept on disk (:mod:`auv_envs.batched.compile_cache`).
+  programs are kept on disk on a GPU or TPU (:mod:`auv_envs.batched.compile_cache`).
 """
 
 import contextlib

@@ -77,7 +77,8 @@ class TransitionVectorEnv(VectorEnv):
         self.single_action_space = self.env.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        #: Where compiled programs are kept (a later process loads them instead).
+        #: Where compiled programs are kept (a later process loads them instead); None on
+        #: the CPU, where jaxlib's loader can crash (:mod:`auv_envs.batched.compile_cache`).
         self.compilation_cache = use_compilation_cache()
         self._reset = jax.jit(jax.vmap(self.env.reset))
         self._step = jax.jit(self.env.step_batch)

@@ -94,9 +94,10 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
     parser.add_argument("--policies-dir", type=Path, help="default: assets/policies")
     parser.add_argument("--no-progress-bar", action="store_true")
     parser.add_argument("--compilation-cache", type=Path, metavar="DIR",
-                        help="cppo: JAX's persistent compilation cache (default: "
-                             "~/.cache/auv_envs/jax); a later run of the same shapes loads "
-                             "its programs instead of compiling them")
+                        help="cppo: JAX's persistent compilation cache; a later run of "
+                             "the same shapes loads its programs instead of compiling them "
+                             "(default: ~/.cache/auv_envs/jax on a GPU or TPU, none on the "
+                             "CPU, where jaxlib can crash loading a large program)")
     parser.add_argument("--no-compilation-cache", action="store_true",
                         help="cppo: compile everything afresh, write no cache")
     args = parser.parse_args(argv)
@@ -200,13 +201,14 @@ def _after_divergence(exc, config: TrainConfig | None, prog: str) -> str:
 
 def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespace):
     """``--algo cppo``: :func:`baselines.rl.compiled.train_run`, with JAX's compilation
-    cache unless ``--no-compilation-cache``."""
+    cache (``--compilation-cache``, else the default on this backend,
+    :func:`auv_envs.batched.compile_cache.cache_for`) unless ``--no-compilation-cache``."""
     try:
         from baselines.rl import compiled
     except ImportError as exc:
         raise ConfigError(f"--algo cppo needs JAX: pip install -e \".[jax]\" ({exc})") from exc
     cache = None if args.no_compilation_cache else (
-        args.compilation_cache or compiled.default_compilation_cache())
+        args.compilation_cache or compiled.cache_for())
     return compiled.train_run(config, run_dir, command, cache)
 
 

@@ -60,6 +60,7 @@ import numpy as np
 import optax
 
 from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.py, tests)
+    cache_for,
     default_compilation_cache,
     use_compilation_cache,
 )
