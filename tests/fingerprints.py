@@ -5,7 +5,7 @@ registered id and non-image observation mode as released before the
 ``difficulty`` presets existed; ``tests/test_difficulty.py`` checks that the
 default and ``difficulty="easy"`` still produce them.
 ``tests/data/level_fingerprints.json`` holds those of the ``paper`` and
-``hard`` levels (recorded at stop 47, when the LARS and acoustic episodes
+``hard`` levels (recorded when the LARS and acoustic episodes
 became transitions; :func:`level_cases`). Regenerate only when a behaviour
 change is intended (and bump the id's version):
 

@@ -208,7 +208,7 @@ class ArmPlantMJX:
         """One control period under ``action`` (3,): ``(data, effort)``, the running
         control effort with the period's added."""
         # The FRAME_SKIP physics steps as a loop, not unrolled: XLA compiles the step
-        # once instead of FRAME_SKIP times (docs/speed.md, stop 57).
+        # once instead of FRAME_SKIP times (docs/speed.md).
         model = self.model
         if self.torque_mode:
             data = jax.lax.fori_loop(0, FRAME_SKIP, lambda _, now: self._physics_step(now),

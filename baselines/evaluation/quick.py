@@ -47,7 +47,7 @@ from baselines.evaluation.episodes import EpisodeTask
 #:   always and the others never (6 episodes tell 6/6, [61 %, 100 %], from 0/6); at
 #:   ``hard`` the classical pipeline docks about 60 %. An episode of up to 6,000 steps
 #:   costs 0.2-6 s, but 3-72 s for the classical pipeline, whose time-outs at ``hard``
-#:   run its NMPC to the end (stop 53's boards, ``docs/mission.md``).
+#:   run its NMPC to the end (the mission's boards, ``docs/mission.md``).
 EPISODES = {
     "auv_envs/DockingStation": {"easy": 10, "paper": 10, "hard": 30},
     "auv_envs/LampArrayDocking": {"easy": 10, "paper": 10, "hard": 30},
