@@ -33,7 +33,7 @@ from matplotlib.ticker import MaxNLocator
 from baselines import aggregate
 from baselines.evaluation import jsonable, row_to_dict
 from baselines.fileio import atomic_write
-from baselines.stats import RANK_METRICS, paired_p_value, tied_ranks
+from baselines.stats import RANK_METRICS, beaten_ranks, differ, paired_p_value
 
 #: Metrics shown in the tables and plots when an environment reports them:
 #: key -> (label, format, which way is better). The final deviations appear as
@@ -159,20 +159,22 @@ def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
     for a failed row and for a group's member (its group row is ranked:
     :func:`is_member`).
 
-    By :func:`rank_metric`: a row shares the rank of the one above it (a tie) unless
-    they differ: on the same seeds, by the paired permutation test of the mean per-seed
-    difference at 5 %; otherwise by disjoint 95 % intervals
-    (:func:`baselines.stats.tied_ranks`).
+    By :func:`rank_metric`: a row's rank is one more than the number of rows that beat it
+    significantly (:func:`baselines.stats.beaten_ranks`): on the same seeds by the paired
+    permutation test of the mean per-seed difference at 5 %, otherwise by disjoint 95 %
+    intervals (:func:`baselines.stats.differ`). ``tied``: another row has its rank.
     """
     key, _ = rank_metric(rows)
     out: list[tuple[int, bool] | None] = [None] * len(rows)
     for scenario in dict.fromkeys(r["scenario"] for r in rows):
         ok = [i for i, r in enumerate(rows) if r["scenario"] == scenario
               and r["status"] != "failed" and not is_member(r) and not is_reference(r)]
-        p_values = [None] + [_paired(rows[a], rows[b], key)
-                             for a, b in zip(ok[:-1], ok[1:], strict=True)]
-        for i, rank in zip(ok, tied_ranks([_rank_interval(rows[i], key) for i in ok],
-                                          p_values), strict=True):
+        intervals = [_rank_interval(rows[i], key) for i in ok]
+
+        def beats(j, i, ok=ok, intervals=intervals):
+            return differ(intervals[j], intervals[i], _paired(rows[ok[j]], rows[ok[i]], key))
+
+        for i, rank in zip(ok, beaten_ranks(len(ok), beats), strict=True):
             out[i] = rank
     return out
 
@@ -253,9 +255,10 @@ COMPACT_METRICS = ("success", "docking_time", "final_capture_error", "rmse", "ma
 
 INTERVAL_NOTE = ("Each cell: mean [95 % interval] over the episodes (success: Wilson; "
                  "others: percentile bootstrap of the mean). Rank by success rate (tracking: "
-                 "by RMSE); a row shares the rank of the one above it (tie) unless they differ: "
-                 "on the same seeds by a paired permutation test of the per-seed difference "
-                 "at 5 %, otherwise by disjoint intervals.")
+                 "by RMSE): a row's rank is one more than the number of rows that beat it "
+                 "significantly, on the same seeds by a paired permutation test of the "
+                 "per-seed difference at 5 %, otherwise by disjoint intervals; (tie): "
+                 "another row has the same rank.")
 
 
 def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
@@ -316,18 +319,34 @@ def markdown(summary: Sequence[Mapping], skipped: Sequence[Mapping] = (),
 
 
 # ----------------------------------------------------------------------- csv
+def with_ranks(summary: Sequence[Mapping]) -> list[dict]:
+    """``summary``'s rows, each with its ``rank`` (:func:`ranks`; None for a failed row,
+    a group's member and a reference) and ``tied`` (another row of its environment and
+    scenario has that rank), as the tables show them."""
+    ranked = {}
+    for rows in by_env(summary).values():
+        for row, rank in zip(rows, ranks(rows), strict=True):
+            ranked[id(row)] = rank
+    return [{**row, "rank": None if ranked.get(id(row)) is None else ranked[id(row)][0],
+             "tied": bool(ranked.get(id(row)) and ranked[id(row)][1])} for row in summary]
+
+
 def csv_text(summary: Sequence[Mapping]) -> str:
-    """One line per leaderboard row; ``<metric>_mean``, ``_std``, ``_ci_low`` and
-    ``_ci_high`` for every metric (the interval empty for a single episode)."""
+    """One line per leaderboard row: its rank and tie (:func:`with_ranks`; empty where it
+    is not ranked), then ``<metric>_mean``, ``_std``, ``_ci_low`` and ``_ci_high`` for
+    every metric (the interval empty for a single episode)."""
     keys = headline_keys(summary)
     keys += sorted({k for r in summary for k in r["metrics"]} - set(keys))
-    fields = ["env_id", "obs_mode", "scenario", "agent", "episodes", "failed", "status", "errors"]
+    summary = with_ranks(summary)
+    fields = ["env_id", "obs_mode", "scenario", "agent", "rank", "tied", "episodes", "failed",
+              "status", "errors"]
     parts = ("mean", "std", "ci_low", "ci_high")
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(fields + [f"{k}_{s}" for k in keys for s in parts])
     for row in summary:
-        values = [row[f] for f in fields[:-1]] + ["; ".join(row["errors"])]
+        values = (["" if row[f] is None else row[f] for f in fields[:-1]]
+                  + ["; ".join(row["errors"])])
         for key in keys:
             stat = row["metrics"].get(key)
             if stat is None:
@@ -592,8 +611,9 @@ document.querySelectorAll("table.leaderboard").forEach(function (table) {
 });
 """
 
-OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE); =2: tied with the row "
-                 "above (no difference at 95 %); –: the agent failed. Each cell: mean "
+OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE): a rank is one more than "
+                 "the number of agents that beat it at 95 %; =2: another agent shares "
+                 "rank 2; –: the agent failed. Each cell: mean "
                  "[95 % interval] over the episodes. Full tables, clips and plots per "
                  "environment below.")
 
@@ -669,7 +689,7 @@ def _card_html(env_id: str, scenario: str | None, rows: Sequence[Mapping]) -> st
            f"{head}</tr></thead><tbody>"]
     for row, rank in zip(rows, ranks(rows), strict=True):
         cells = "".join(f'<td class="num">{_cell_html(row, k)}</td>' for k in keys)
-        tie = ' title="tied: no difference at 95 % from the row above"' if rank and rank[1] else ""
+        tie = ' title="tied: another row has this rank"' if rank and rank[1] else ""
         cls = ' class="failed"' if row["status"] == "failed" else ""
         out.append(f'<tr{cls}><td class="rank"{tie}>{esc(short_rank(rank))}</td>'
                    f'<td class="agent">{_agent_html(row, rows)}</td>{cells}</tr>')
@@ -852,7 +872,7 @@ def write(out_dir: str | Path, summary: Sequence[Mapping], skipped: Sequence[Map
                                       *(f"![across tasks {lv}]({quote(p)})"
                                         for lv, p in across.items())]),
         "leaderboard.csv": csv_text(summary),
-        "leaderboard.json": json.dumps(jsonable(list(summary)), indent=1),
+        "leaderboard.json": json.dumps(jsonable(with_ranks(summary)), indent=1),
         "leaderboard.html": page(summary, skipped, plots, meta, clips,
                                  clip_outcomes(episodes, clips), across),
         "skipped.json": json.dumps(list(skipped), indent=1),

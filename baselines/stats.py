@@ -109,24 +109,29 @@ def overlap(a: Sequence[float], b: Sequence[float]) -> bool:
     return a[0] <= b[1] and b[0] <= a[1]
 
 
-def tied_ranks(intervals: Sequence[Sequence[float]],
-               p_values: Sequence[float | None] = ()) -> list[tuple[int, bool]]:
-    """Ranks of entries already sorted best first, with ties.
+def differ(interval_a: Sequence[float], interval_b: Sequence[float],
+           p_value: float | None = None) -> bool:
+    """Whether two entries differ at 95 %: by the paired test's ``p_value`` (below
+    :data:`ALPHA`) where they share seeds (:func:`paired_p_value`), otherwise by disjoint
+    ``intervals``."""
+    if p_value is not None:
+        return p_value < ALPHA
+    return not overlap(interval_a, interval_b)
 
-    An entry shares the rank of the one above it unless they differ: when
-    ``p_values[i]`` (entry ``i`` against entry ``i - 1``, :func:`paired_p_value`) is
-    given, when it is below :data:`ALPHA`; otherwise when their ``intervals`` are
-    disjoint. An entry that differs takes its position (1-based) as its rank, as in
-    sports tables. Returns ``(rank, tied)`` per entry; ``tied`` is True when another
-    entry has the same rank.
+
+def beaten_ranks(count: int, beats) -> list[tuple[int, bool]]:
+    """Ranks of ``count`` entries already sorted best first.
+
+    ``beats(j, i)`` (``j < i``) says whether entry ``j`` beats entry ``i`` significantly
+    (:func:`differ`); an entry below never beats one above. An entry's rank is one more
+    than the number of entries that beat it, and never less than one more than the rank
+    of any of them: an entry never shares a rank with one that beats it, and ties do not
+    chain (with 6/6, 4/6, 0/6 where only the first and last differ, the ranks are 1, 1,
+    2). Returns ``(rank, tied)`` per entry; ``tied`` is True when another entry has the
+    same rank.
     """
-    ranks = []
-    for i, interval in enumerate(intervals):
-        p = p_values[i] if i < len(p_values) else None
-        same = (p >= ALPHA if p is not None
-                else overlap(interval, intervals[i - 1]) if i else False)
-        if i and same:
-            ranks.append(ranks[-1])
-        else:
-            ranks.append(i + 1)
+    ranks: list[int] = []
+    for i in range(count):
+        above = [j for j in range(i) if beats(j, i)]
+        ranks.append(max([len(above) + 1, *(ranks[j] + 1 for j in above)]))
     return [(rank, ranks.count(rank) > 1) for rank in ranks]

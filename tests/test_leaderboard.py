@@ -461,6 +461,32 @@ def test_tables_rank_each_difficulty_level_on_its_own():
     assert sorted(r[0] for r in ranks) == [1, 1, 2, 2]
 
 
+def test_a_row_is_ranked_below_every_row_that_beats_it(tmp_path):
+    """The default run's mission table at hard, 6 shared seeds: 6/6, 4/6, 0/6, 0/6. Each
+    neighbour pair ties (McNemar: p = 0.5, 0.125, 1), but 6/6 beats 0/6 (p = 0.031): the
+    0/6 rows rank 2, not 1 through a chain of ties, and the files carry the ranks."""
+    mission = "auv_envs/DockingMission-v0"
+    seeds = [str(s) for s in range(100000, 100006)]
+    rows = []
+    for agent, wins in [("homing-pd-state", 6), ("nav-homing-ofnmpc-ekf", 4),
+                        ("cppo-mission-nav-features", 0), ("random", 0)]:
+        row = _summary_row(mission, agent, wins, 6)
+        row["by_seed"] = {"success": {s: float(i < wins) for i, s in enumerate(seeds)}}
+        rows.append(row)
+    ordered = leaderboard.by_env(rows)[mission]
+    assert [r["agent"] for r in ordered] == ["homing-pd-state", "nav-homing-ofnmpc-ekf",
+                                             "cppo-mission-nav-features", "random"]
+    assert leaderboard.rank_labels(ordered) == ["1 (tie)", "1 (tie)", "2 (tie)", "2 (tie)"]
+    leaderboard.write(tmp_path, rows)
+    written = {r["agent"]: (r["rank"], r["tied"])
+               for r in json.loads((tmp_path / "leaderboard.json").read_text())}
+    assert written == {"homing-pd-state": (1, True), "nav-homing-ofnmpc-ekf": (1, True),
+                       "cppo-mission-nav-features": (2, True), "random": (2, True)}
+    with open(tmp_path / "leaderboard.csv", newline="") as handle:
+        table = {r["agent"]: (r["rank"], r["tied"]) for r in csv.DictReader(handle)}
+    assert table["random"] == ("2", "True") and table["homing-pd-state"] == ("1", "True")
+
+
 def test_clips_show_as_videos_under_their_environment():
     rows = [_summary_row(DOCK, "a", 3, 3), _summary_row(DOCK, "b", 1, 3),
             _summary_row(LARS, "a", 0, 3)]

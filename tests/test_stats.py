@@ -9,10 +9,11 @@ import pytest
 from scipy import stats as scipy_stats
 
 from baselines.stats import (
+    beaten_ranks,
     bootstrap_interval,
+    differ,
     overlap,
     paired_p_value,
-    tied_ranks,
     wilson_interval,
 )
 
@@ -79,17 +80,44 @@ def test_overlap():
     assert not overlap((0.0, 0.4), (0.5, 1.0))
 
 
-def test_tied_ranks():
-    # Sorted best first: the first two overlap (tie at 1), the third is apart
-    # (rank 3), the last two overlap each other (tie at 4).
+def _interval_ranks(intervals, p_values=()):
+    """beaten_ranks on marginal intervals, or on neighbours' paired p-values."""
+    def beats(j, i):
+        paired = p_values[i] if j == i - 1 and i < len(p_values) else None
+        return differ(intervals[j], intervals[i], paired)
+    return beaten_ranks(len(intervals), beats)
+
+
+def test_beaten_ranks():
+    # Sorted best first: the first two overlap (tie at 1), the third is beaten by both
+    # (rank 3), the last two by the first three and not by each other (tie at 4).
     intervals = [(0.8, 1.0), (0.7, 0.9), (0.3, 0.5), (0.0, 0.2), (0.1, 0.25)]
-    assert tied_ranks(intervals) == [(1, True), (1, True), (3, False), (4, True), (4, True)]
-    assert tied_ranks([(0.5, 1.0)]) == [(1, False)]
+    assert _interval_ranks(intervals) == [(1, True), (1, True), (3, False), (4, True),
+                                          (4, True)]
+    assert _interval_ranks([(0.5, 1.0)]) == [(1, False)]
     # 3 episodes cannot separate 3/3 from 0/3 at 95 %: Wilson intervals overlap.
-    assert tied_ranks([wilson_interval(3, 3), wilson_interval(0, 3)]) == [(1, True), (1, True)]
+    assert _interval_ranks([wilson_interval(3, 3), wilson_interval(0, 3)]) == [(1, True),
+                                                                              (1, True)]
     # 30 episodes can.
-    assert tied_ranks([wilson_interval(30, 30), wilson_interval(0, 30)]) == [(1, False),
-                                                                             (2, False)]
+    assert _interval_ranks([wilson_interval(30, 30), wilson_interval(0, 30)]) == [
+        (1, False), (2, False)]
+
+
+def test_ties_do_not_chain():
+    """Each entry ties with its neighbour, but the first beats the last: the last is not
+    first (a chain of neighbour ties would rank all three 1)."""
+    intervals = [(0.6, 1.0), (0.35, 0.65), (0.0, 0.4)]
+    assert _interval_ranks(intervals) == [(1, True), (1, True), (2, False)]
+
+
+def test_an_entry_never_shares_the_rank_of_one_that_beats_it():
+    # 0 beats 1; 1 beats 3; 0 does not beat 3 (significance is not transitive): counted
+    # alone, 3 would have 1 beater and share 1's rank 2.
+    wins = {(0, 1), (0, 2), (1, 3)}
+    ranks = beaten_ranks(4, lambda j, i: (j, i) in wins)
+    assert ranks == [(1, False), (2, True), (2, True), (3, False)]
+    for j, i in wins:
+        assert ranks[j][0] < ranks[i][0]
 
 
 def _by_seed(values):
@@ -115,8 +143,8 @@ def test_paired_test_cancels_what_the_seeds_share():
     assert overlap(bootstrap_interval(a), bootstrap_interval(b))
     assert paired_p_value(_by_seed(a), _by_seed(b)) < 0.01
     # The ranks follow the test: b is below a.
-    ranks = tied_ranks([bootstrap_interval(a), bootstrap_interval(b)],
-                       [None, paired_p_value(_by_seed(a), _by_seed(b))])
+    ranks = _interval_ranks([bootstrap_interval(a), bootstrap_interval(b)],
+                            [None, paired_p_value(_by_seed(a), _by_seed(b))])
     assert ranks == [(1, False), (2, False)]
 
 
@@ -125,4 +153,5 @@ def test_paired_test_needs_the_same_seeds():
     assert paired_p_value({"1": 1.0}, {"1": 0.0}) is None
     assert paired_p_value(_by_seed([1, 0, 1]), _by_seed([1, 0, 1])) == 1.0
     # Not paired: the marginal rule decides (overlapping intervals tie).
-    assert tied_ranks([(0.5, 0.9), (0.4, 0.6)], [None, None]) == [(1, True), (1, True)]
+    assert _interval_ranks([(0.5, 0.9), (0.4, 0.6)], [None, None]) == [(1, True),
+                                                                      (1, True)]

@@ -9,8 +9,8 @@ Installed, the same command is ``auv-evaluate``. Writes
 ``episodes.json`` under ``--out`` and prints one compact Markdown table per
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
 mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
-and a row shares the rank of the one above it unless they differ (on the same seeds,
-by a paired permutation test of the per-seed difference at 5 %).
+and a row's rank is one more than the number of rows that beat it significantly (on
+the same seeds by a paired permutation test of the per-seed difference at 5 %).
 A run merges into the board already in ``--out`` (``board.json``): the rows it
 evaluates are replaced, the others kept, so the page always shows one whole
 board (``--new-board`` starts afresh). Finished episodes are cached under

@@ -384,6 +384,9 @@ class Trainer:
                               "detection_fixes: true")
         if self.recurrent and settings.policy != "MlpPolicy":
             raise ConfigError("lstm_hidden_size gives MlpPolicy a memory only")
+        if settings.state_prediction_coef and not (self.recurrent and self.privileged):
+            raise ConfigError("state_prediction_coef needs lstm_hidden_size and a teacher or "
+                              "privileged_critic: true")
         self.teacher = None
         if settings.teacher:
             from baselines.rl.teachers import make_teacher
@@ -410,6 +413,10 @@ class Trainer:
         if self.critic == "none":
             params = {name: part for name, part in params.items()
                       if name not in ("vf", "vf_lstm")}
+        if self.settings.state_prediction_coef:  # training only: never exported
+            params["state_head"] = _dense(jax.random.fold_in(key, 1),
+                                          self.settings.lstm_hidden_size,
+                                          self.privileged_size, 1.0)
         return params
 
     def init(self, key) -> tuple:
@@ -516,6 +523,10 @@ class Trainer:
                         privileged, starts) -> tuple:
         """The recurrent policy's means ``(time, envs, actions)`` and values ``(time, envs)``
         over stored rollouts, replayed from the memories ``first`` they began with."""
+        return self._sequence(params, normalizer, first, obs, privileged, starts)[:2]
+
+    def _sequence(self, params, normalizer, first: Rollout, obs, privileged, starts):
+        """:meth:`sequence_heads` and the policy's LSTM outputs ``(time, envs, hidden)``."""
         x = self._input(normalizer, obs)
         _, hidden = lstm_unroll(params["lstm"], first.actor, x, starts)
         if self.critic == "memory":
@@ -523,7 +534,14 @@ class Trainer:
             value = _mlp(params["vf"], critic)[..., 0]
         else:
             value = self._value_of_state(params, normalizer, privileged, hidden)
-        return _mlp(params["pi"], hidden), value
+        return _mlp(params["pi"], hidden), value, hidden
+
+    def state_prediction_loss(self, params, normalizer, hidden, privileged) -> jax.Array:
+        """The auxiliary loss of ``state_prediction_coef``: the squared error of a linear
+        head on the LSTM's outputs ``hidden`` to the privileged state, normalised as the
+        critic reads it (summed over its entries, averaged over the steps)."""
+        target = self._value_input(normalizer, privileged)
+        return jnp.mean(jnp.sum((_affine(params["state_head"], hidden) - target) ** 2, -1))
 
     # ------------------------------------------------------------------ one iteration
     def teacher_share(self, iteration) -> jax.Array:
@@ -662,10 +680,14 @@ class Trainer:
 
         def loss_fn(params, mb):
             (actor, critic), (obs, privileged, starts, *targets) = mb
-            mean, value = self.sequence_heads(
+            mean, value, hidden = self._sequence(
                 params, normalizer, first._replace(actor=actor, critic=critic), obs,
                 privileged, starts)
-            return objective(params, mean, value, *targets)
+            loss = objective(params, mean, value, *targets)
+            if s.state_prediction_coef:
+                loss += s.state_prediction_coef * self.state_prediction_loss(
+                    params, normalizer, hidden, privileged)
+            return loss
 
         def epoch(carry, key):
             order = jax.random.permutation(key, s.num_envs)

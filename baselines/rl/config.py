@@ -180,6 +180,11 @@ class CompiledSettings(NamedTuple):
     # The share of the run over which the teacher's own actions give way to the
     # policy's (DAgger's mixing probability, from 1 down to 0).
     teacher_fraction: float = 0.25
+    # An auxiliary loss for a recurrent policy trained with the privileged state (a
+    # privileged critic or a teacher): a linear head on the LSTM's output regresses the
+    # privileged state (normalised), weighted by this coefficient, so that the memory
+    # learns to estimate what it cannot see; training only, never exported (0: none).
+    state_prediction_coef: float = 0.0
 
 
 class ConfigError(ValueError):
@@ -328,6 +333,7 @@ RANGES = {
     "num_envs": Range(int, _AT_LEAST_1),  # cppo
     "lstm_hidden_size": Range(int, "[0, 4096]"),  # cppo
     "teacher_fraction": Range(float, "[0, 1]"),  # cppo with a teacher
+    "state_prediction_coef": Range(float, "[0, inf)"),  # cppo, recurrent and privileged
     "servo_gain": Range(float, "[0, inf)"),  # cppo JointResidualPolicy
     "log_std_init": Range(float, "[-20, 2]"),
     "n_minibatches": Range(int, _AT_LEAST_1),  # cppo
@@ -710,6 +716,11 @@ def _validate_compiled(config: TrainConfig) -> None:
     if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
         raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
                           f"split into n_minibatches ({settings.n_minibatches}) equal parts")
+    if settings.state_prediction_coef and not (
+            settings.lstm_hidden_size and (settings.teacher or settings.privileged_critic)):
+        raise ConfigError("state_prediction_coef trains a memory to predict the privileged "
+                          "state: it needs lstm_hidden_size and a teacher or "
+                          "privileged_critic: true")
     if settings.teacher:  # its name and env: baselines.rl.teachers.make_teacher
         if settings.privileged_critic:
             raise ConfigError("a teacher replaces the critic: set privileged_critic: false")
