@@ -11,6 +11,7 @@ from baselines.commands.evaluate import default_agents
 from baselines.evaluation import plan, quick
 from baselines.registry import agent_groups, group_members
 from baselines.seeds import default_seeds
+from baselines.stats import ALPHA, paired_p_value
 
 DOCK = "auv_envs/DockingStation-v2"
 ACOUSTIC = "auv_envs/AcousticTracking-v2"
@@ -64,6 +65,19 @@ def test_the_quick_board_leaves_the_full_board_agents_out_and_says_which():
 def test_every_level_has_a_count(level):
     assert quick.episodes_for(DOCK, {"difficulty": level}) >= 10
     assert quick.episodes_for(ACOUSTIC, {"difficulty": level}) >= 10
+
+
+@pytest.mark.parametrize("env_id", list(auv_envs.ENVIRONMENTS))
+@pytest.mark.parametrize("level", ["easy", "paper", "hard"])
+def test_every_table_can_tell_its_best_agent_from_random_by_rank(env_id, level):
+    """Paired on the table's seeds, a row that succeeds (or tracks better) on all but two
+    of them beats random's failures at 5 %: the ranks, not only the intervals, can tell
+    the best agent from random."""
+    n = quick.episodes_for(env_id, {"difficulty": level})
+    seeds = [str(s) for s in range(n)]
+    best = {s: float(i < n - 2) for i, s in enumerate(seeds)}
+    random = dict.fromkeys(seeds, 0.0)
+    assert paired_p_value(best, random) < ALPHA
 
 
 def test_the_quick_board_on_other_seeds_takes_each_tables_first_ones(tmp_path):
