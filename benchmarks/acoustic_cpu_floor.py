@@ -1,6 +1,6 @@
 """Where a CPU ``AcousticTracking-v2`` step's time goes, against ``HalfCheetah-v5``'s step.
 
-Issue 39 asks every ``measurements`` single env for >= 0.8x HalfCheetah-v5's steps per
+The target asks every ``measurements`` single env for >= 0.8x HalfCheetah-v5's steps per
 second. This script times, alternately in one process (best of ``--repeats`` passes
 each, so load on the shared machine hits every row alike):
 

@@ -8,7 +8,7 @@ compare them on this machine:
   :class:`auv_envs.batched.docking_env.DockingMJX`; ``lars``:
   :class:`auv_envs.batched.lars_env.LARSMJX`; ``acoustic``:
   :class:`auv_envs.batched.acoustic_env.AcousticMJX`) against its CPU
-  environment through Gymnasium's ``SyncVectorEnv`` of 8 (issue 40's target:
+  environment through Gymnasium's ``SyncVectorEnv`` of 8 (target:
   >= 10x at the best batch size). Two ways to drive the batch: through
   ``gym.make_vec`` of the batched id (NumPy in and out every step, as a Python
   learner uses it) and fused, ``steps`` steps in one compiled ``jax.lax.scan``

@@ -1,7 +1,7 @@
 """Cost of one cubature Kalman filter step (predict + update) as ``ckf-pd`` runs it.
 
 [LTAT]'s filter: 6 states, 3 measured, eq. 8's heave/surge model, a
-per-fix measurement covariance and the innovation gate. Target (issue 6): a
+per-fix measurement covariance and the innovation gate. Target: a
 step <= 100 us. Also prints the step's share of the LARS control period and
 the whole agent's ``act`` (perception geometry + CKF + planning + IK + PD)
 for context, and the CKF's ratio to a plain Kalman filter step timed in the

@@ -6,7 +6,7 @@ growing ``n``, and times ``mjr_render`` plus ``mjr_readPixels`` (the read-back
 waits for the rasteriser), best of ``--repeats`` passes of ``--frames``
 frames. Under a software rasteriser (Mesa llvmpipe) the difference between
 rows is what those geoms' triangles cost; the first row is the frame's fixed
-cost. Issue 21 item 5 (84x84 >= 4x as fast as 320x240) depends on it. The
+cost. The image-size target (84x84 >= 4x as fast as 320x240) depends on it. The
 scene is drawn as the observation draws it, far parts with their coarser
 meshes (``DetailLevels``), unless ``--finest``.
 

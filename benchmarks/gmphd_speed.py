@@ -8,7 +8,7 @@
    after 100 warm-up steps. Printed: median, mean and 90th percentile in
    ms/step, and the real-time factor at the environment's fs
    (``(1 / fs) / median``; 3.3 means 3.3x faster than real time).
-   Issue 7's target: ``gmphd-gci`` median <= 3 ms, i.e. a factor >= 3.33 at
+   Target: ``gmphd-gci`` median <= 3 ms, i.e. a factor >= 3.33 at
    fs = 100 Hz. Run it on one core (``OMP_NUM_THREADS=1``).
 2. **GM-PHD update.** Along a ``gmphd-gci`` run on the same episode, the
    inputs of the bank's update (each band's predicted mixture with the
@@ -25,7 +25,7 @@
    Soup and ours back to back, each side is timed by its fastest round (the
    ``timeit`` convention), and the ratio printed is the median over steps of
    the per-step ratio. Stone Soup gets fresh hypotheses every round (it
-   caches measurement predictions in them). Issue 7's target: ours >= 10x
+   caches measurement predictions in them). Target: ours >= 10x
    faster per band.
 """
 

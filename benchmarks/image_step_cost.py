@@ -1,6 +1,6 @@
 """Where a docking ``image`` step's time goes, at two image sizes, and what 4x would need.
 
-Issue 21 item 5 asks for ``image`` steps at 84x84 to run >= 4x as fast as at
+The target asks for ``image`` steps at 84x84 to run >= 4x as fast as at
 320x240. One env per size, in one process, steps through the same seeded
 random actions, passes alternating between the sizes so both see the machine
 in the same minute. MuJoCo's own calls are timed as the step makes them

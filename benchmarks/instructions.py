@@ -1,6 +1,6 @@
 """Instructions a step, counted by Valgrind's callgrind: each env against ``HalfCheetah-v5``.
 
-Wall-clock ratios (``benchmarks/throughput.py``, issue 39's target) swing by 10-20 %
+Wall-clock ratios (``benchmarks/throughput.py``'s 0.8x target) swing by 10-20 %
 from run to run on a shared 2-core machine. An instruction count does not: it is the
 same on every run of the same tree, so it shows whether a change made a step cheaper.
 It is not the target: a Python-heavy step runs fewer instructions a cycle than

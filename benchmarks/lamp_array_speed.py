@@ -4,7 +4,7 @@ Renders a docking approach of each layout once (the reference ``pd-state`` contr
 rendering is not timed), then times the front end over those frames: segmentation, identity,
 per-lamp EKFs, the array filter and the assignment -- everything ``front_end(obs, info)`` does.
 OpenCV is held to one thread (``cv2.setNumThreads(1)``) and numpy's BLAS should be too (set
-``OMP_NUM_THREADS=1``). Target (issue 5): >= 100 frames/s; [LAMP] ran 13.1 FPS (MATLAB,
+``OMP_NUM_THREADS=1``). Target: >= 100 frames/s; [LAMP] ran 13.1 FPS (MATLAB,
 i7-4720HQ). Printed as the ratio to 100 frames/s and to the 10 Hz control rate (real-time
 factor). Wall and CPU time are both printed: on a shared machine CPU time leaves out the time
 spent waiting for a core.

@@ -2,7 +2,7 @@
 
 Measured in one run (these machines are noisy, so only same-run ratios mean
 much); the single view and the pair are timed in alternating blocks.
-Targets (issue 3): a stereo pair <= 1.3x a single view of the same size;
+Targets: a stereo pair <= 1.3x a single view of the same size;
 ``stereo`` at 640x480 >= 50 env steps/s; ``features`` >= 0.5x Gymnasium
 ``HalfCheetah-v5`` env steps/s.
 

@@ -9,7 +9,7 @@ rendering excluded -- and, for reference, the Siamese tracker alone. Best of
 
     python benchmarks/ltat_speed.py [--frames 150] [--repeats 3] [--seed 100012]
 
-Target (issue 6): LTAT >= 25 stereo pairs/s on this 2-core CPU; the printed
+Target: LTAT >= 25 stereo pairs/s on this 2-core CPU; the printed
 ratio is LTAT's rate over 25.
 """
 

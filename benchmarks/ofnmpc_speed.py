@@ -15,7 +15,7 @@ Variants: the NLP functions compiled to C (the agents' default; compiled once
 per problem and cached, so the build time printed is the compile on a first
 run and the library load afterwards) and evaluated in CasADi's virtual machine
 (``OFNMPCConfig(compile=False)``, what runs where no C compiler exists).
-Targets (issue 5): ``ofnmpc-ekf`` median <= 10 ms and p95 <= 25 ms, ``ofnmpc-mhe`` median <= 30 ms.
+Targets: ``ofnmpc-ekf`` median <= 10 ms and p95 <= 25 ms, ``ofnmpc-mhe`` median <= 30 ms.
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 The docking plant steps with :class:`auv_envs.core.plant.StagedIntegrator`
 (MuJoCo's RK4 written out, the hull wrench added at every stage, no
-process-global state). The reference is what ``-v1`` shipped with until
-issue 39: MuJoCo's own ``mj_step`` with the same wrench in the global
+process-global state). The reference is what ``-v1`` shipped with before
+the staged integrator: MuJoCo's own ``mj_step`` with the same wrench in the global
 ``mjcb_passive`` callback, installed here only for the timing and removed
 after. Both step one docking env's model from the same state with the same
 held command, alternately in one process (best of ``--repeats`` each), and

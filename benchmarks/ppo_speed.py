@@ -12,7 +12,7 @@ the machine disturb less (the target stays on wall clock). The
 (:func:`baselines.rl.training.build_model`): ``Dict`` observations with
 ``MultiInputPolicy``, and, as a second row, ``flatten_obs`` with ``MlpPolicy``.
 
-Target (issue 8): >= 0.8x on a ``features`` environment.
+Target: >= 0.8x on a ``features`` environment.
 
     python benchmarks/ppo_speed.py [--steps N] [--repeats R] [--envs ID ...]
 """

@@ -4,9 +4,9 @@ Prints each figure beside Gymnasium's ``HalfCheetah-v5`` measured in the same
 run, alternately with the env it is compared to (these machines are shared and
 noisy, so only the ratio means much). Targets: every non-image mode
 (``state``, ``features``, ``measurements``) >= 0.8x HalfCheetah-v5 per env
-step (issue 39; issues 2 and 4 asked 0.5x); docking ``image`` at
+step (an earlier target was 0.5x); docking ``image`` at
 320x240 >= 100 steps/s. Docking ``image`` is timed at 84x84 and 320x240,
-alternately, with their ratio (issue 21: 84x84 >= 4x as fast as 320x240 and
+alternately, with their ratio (target: 84x84 >= 4x as fast as 320x240 and
 >= 1000 steps/s). Stereo rendering has its own benchmark
 (``benchmarks/lars_speed.py``); here it is reported at 320x240 without a target.
 
@@ -15,7 +15,7 @@ alternately, with their ratio (issue 21: 84x84 >= 4x as fast as 320x240 and
 ``--envs`` takes superseded ids too (``auv_envs.PREVIOUS_VERSIONS``, e.g.
 ``auv_envs/DockingStation-v1``), to time a version against the current one.
 
-The issue's check: ``--steps 2000 --envs auv_envs/DockingStation-v2
+The targets' check: ``--steps 2000 --envs auv_envs/DockingStation-v2
 auv_envs/LampArrayDocking-v2``.
 """
 
@@ -31,7 +31,7 @@ import auv_envs
 from baselines.registry import env_obs_modes
 
 IMAGE_MODES = ("image", "stereo")
-#: Steps per second of a non-image mode over HalfCheetah-v5's (issue 39).
+#: Steps per second of a non-image mode over HalfCheetah-v5's: the target.
 TARGET = 0.8
 
 

@@ -1,4 +1,4 @@
-"""The batched JAX docking env against the MuJoCo CPU env: the figures of issue 21, item 3.
+"""The batched JAX docking env against the MuJoCo CPU env: the equivalence figures.
 
 * **Trajectories**: the CPU env and the batched env start from the same
   plant state and take the same actions (a fixed controller's, computed on

@@ -1,4 +1,4 @@
-"""The docking mission's ``hard`` headroom against the AHRS heading deviation (issue 43).
+"""The docking mission's ``hard`` headroom against the AHRS heading deviation.
 
 Runs agents on ``auv_envs/DockingMission-v0`` at ``difficulty="hard"`` with the level's
 navigation sensors, the AHRS's per-episode heading deviation from the station's frame

@@ -11,7 +11,7 @@ Fossen 2021 eq. 10.1 with full-matrix C(nu) from ``m2c``, quaternion kinematics,
 RK4 at 2 ms) receive the same smooth full-range surge/sway/heave/yaw commands.
 Per run the largest position, attitude and velocity errors over ``--duration``
 seconds; the table gives their median and range over the seeds. Limits
-(converged-physics issue): 2 cm, 0.5 deg, 0.01 m/s. Runs use
+(converged physics): 2 cm, 0.5 deg, 0.01 m/s. Runs use
 ``lights_lost_timeout=1e6`` so that no lights-lost failure cuts them short; a
 run cut short by seabed contact or leaving the arena is reported as shorter.
 

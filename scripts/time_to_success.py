@@ -5,7 +5,7 @@ deterministically on ``--episodes`` seeds from ``--first-seed`` (default:
 300000, seeds no training or leaderboard run uses) at ``--difficulty``. It
 prints the training steps, the training wall time recorded with the
 checkpoint and the success, and the first checkpoint at or above
-``--target``: issue 21's comparison of the compiled PPO's wall time with
+``--target``: the figure that compares the compiled PPO's wall time with
 Stable-Baselines3's. Two kinds of run:
 
 * a ``train.py`` run (``--set checkpoint_freq=N --set keep_checkpoints=K``

@@ -1,4 +1,4 @@
-"""Hydrophone-node dropouts (issue 18): the Gilbert-Elliott outage process against an
+"""Hydrophone-node dropouts: the Gilbert-Elliott outage process against an
 independent derivation, what an out node leaves in the observation, and every acoustic
 agent's handling of it."""
 

@@ -1,4 +1,4 @@
-"""Across-task statistics (issue 42, item 6), checked against values worked by hand."""
+"""Across-task statistics, checked against values worked by hand."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The batched JAX docking environment against the MuJoCo CPU environment (issue 21, item 3).
+"""The batched JAX docking environment against the MuJoCo CPU environment.
 
 The same start state and action sequence must give positions within 1 cm and
 light pixels within 1 px over 20 s (float32 against float64), and a fixed

@@ -3,7 +3,7 @@
 Started alike (:meth:`LARSMJX.reset_to` the CPU episode's scene and joint
 angles) and driven by the same actions, the batched episodes (float32, the arm
 on MJX, two under ``vmap``) follow the CPU ones: the arm's end within 1 cm and
-the marker's pixels within 1 px over 20 s (issue 40's bound), the same corners
+the marker's pixels within 1 px over 20 s (the equivalence bound), the same corners
 seen, the same rewards to float32 rounding.
 """
 
@@ -216,7 +216,7 @@ def _servo(params, obs, ops):
 
 
 def test_a_fixed_policys_outcomes_agree_on_100_seeds():
-    """Issue 40's check: the fixed policy's success on the CPU env and on the batched env
+    """The outcome check: the fixed policy's success on the CPU env and on the batched env
     started alike agree on at least 95 of 100 seeds of ``paper``'s sea."""
     from auv_envs.core.ops import FLOATS
 

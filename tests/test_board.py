@@ -1,4 +1,4 @@
-"""Outputs that last (issue 42, item 4): a run merges into the board in its output
+"""Outputs that last: a run merges into the board in its output
 directory; rows it evaluates are replaced, the others kept; no stale plot remains."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``auv_envs/DockingMission-v0`` (issue 43): the start, the rules a long approach needs,
+"""``auv_envs/DockingMission-v0``: the start, the rules a long approach needs,
 the phase metrics, the privileged reference, the batched twin."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""One name for one thing (issue 42, item 3): pooled names work wherever a name does,
+"""One name for one thing: pooled names work wherever a name does,
 unknown names get the closest matches, a bare env id gets a hint about its namespace."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Navigation sensors (issue 43): their statistics against their stated models, the USBL fix
+"""Navigation sensors: their statistics against their stated models, the USBL fix
 against the Cramer-Rao bound of its array, the fix schedule, and the ``nav`` modes."""
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 C(nu) from M via ``m2c``, quaternion kinematics, RK4 at 2 ms) without any of the
 package's hydrodynamics code. Each env here starts the reference from its own
 reset state read through ``info`` and sends both 10 s of smooth full-range
-surge/sway/heave/yaw commands. Limits (issue: converged physics): 2 cm position,
+surge/sway/heave/yaw commands. Limits (converged physics): 2 cm position,
 0.5 deg attitude, 0.01 m/s (rad/s) velocity at the shipped settings, calm and in
 the 0.3 m/s current; measured 1e-5 m, 0.001 deg, 1e-4 m/s (docs/physics.md).
 """

@@ -1,4 +1,4 @@
-"""Every shipped RL policy still works with its environment (issue 42, item 2).
+"""Every shipped RL policy still works with its environment.
 
 Each group's training seeds play two fixed episodes each at the level the group is
 ranked on; the group must end them where a working policy does, far from where

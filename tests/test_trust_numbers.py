@@ -1,4 +1,4 @@
-"""Nothing a user types or a file holds silently changes a result (issue 41).
+"""Nothing a user types or a file holds silently changes a result.
 
 Cached episodes carry a checksum and are checked against their task and the row
 schema; a rejected file is named and its episode rerun. NaN metrics are counted,
