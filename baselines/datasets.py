@@ -63,6 +63,7 @@ import numpy as np
 
 import auv_envs
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.extras import MissingExtra, one_line_errors, require
 from baselines.commands.evaluate import resolve_env_ids
 from baselines.evaluation import check_names, jsonable, resolve_env_kwargs
 from baselines.registry import agent_spec, make_agent
@@ -87,12 +88,7 @@ class RecordingError(RuntimeError):
 
 
 def _minari():
-    try:
-        import minari
-    except ImportError as exc:
-        raise ImportError("expert datasets need Minari: pip install -e '.[datasets]' "
-                          "(Python 3.11+)") from exc
-    return minari
+    return require("minari", "datasets", "expert datasets (Minari)", "; Python 3.11+")
 
 
 def default_dataset_id(env_id: str, agent: str, obs_mode: str, difficulty: str) -> str:
@@ -510,6 +506,12 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv=None, prog: str = "python -m baselines.datasets") -> int:
+    """The command line (a missing Minari is one line naming the extra)."""
+    with one_line_errors(prog):
+        return _main(argv, prog)
+
+
+def _main(argv, prog: str) -> int:
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     out = args.out or os.environ.get(PATH_VARIABLE) or DEFAULT_OUT
@@ -529,6 +531,8 @@ def main(argv=None, prog: str = "python -m baselines.datasets") -> int:
             first_seed=args.first_seed, difficulty=args.difficulty, out=out,
             env_kwargs=env_kwargs, dataset_id=args.dataset_id, overwrite=args.overwrite,
             jpeg=args.jpeg, progress=report)
+    except MissingExtra:
+        raise  # one line: one_line_errors
     except (ValueError, KeyError, FileExistsError, ImportError) as exc:
         parser.error(str(exc.args[0]) if isinstance(exc, KeyError) else str(exc))
     except RecordingError as exc:

@@ -21,6 +21,8 @@ import contextlib
 import io
 import sys
 
+from auv_envs.extras import MissingExtra
+
 try:
     import jax  # noqa: F401
 
@@ -31,10 +33,8 @@ try:
     sys.stdout.write("".join(line for line in _printed.getvalue().splitlines(keepends=True)
                              if not line.startswith(("Failed to import warp:",
                                                      "Failed to import mujoco_warp:"))))
-except ImportError as exc:  # pragma: no cover - the message is the point
-    raise ImportError(
-        "auv_envs.batched needs JAX and MuJoCo MJX: pip install -e \".[jax]\""
-    ) from exc
+except ImportError:  # pragma: no cover - the message is the point
+    raise MissingExtra("auv_envs.batched (the *MJX ids, --algo cppo)", "jax") from None
 
 from auv_envs.batched.registry import load  # noqa: E402  (after the import check above)
 

@@ -48,6 +48,7 @@ from pathlib import Path
 
 import auv_envs
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.extras import one_line_errors, require
 from auv_envs.record import check_speed, parse_size
 from baselines import leaderboard
 from baselines.evaluation import (
@@ -320,10 +321,12 @@ def main(argv=None, prog: str = "python evaluate.py") -> int:
     ``prog`` is how the user ran it (recorded in the leaderboard's metadata).
     """
     if threading.current_thread() is not threading.main_thread():
-        return _main(argv, prog)
+        with one_line_errors(prog):
+            return _main(argv, prog)
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        return _main(argv, prog)
+        with one_line_errors(prog):
+            return _main(argv, prog)
     except KeyboardInterrupt:
         print("\ninterrupted: finished episodes are cached; run the same command again to "
               "resume", file=sys.stderr)
@@ -341,6 +344,8 @@ def _main(argv, prog: str) -> int:
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     argv = sys.argv[1:] if argv is None else list(argv)
+    if args.backend == "ray":  # before any work
+        require("ray", "ray", "--backend ray")
     try:
         if args.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {args.workers}")

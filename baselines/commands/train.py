@@ -37,6 +37,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from auv_envs.extras import one_line_errors, require
 from baselines.rl.checkpoint import CheckpointError
 from baselines.rl.config import (
     COMPILED,
@@ -109,7 +110,13 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
 
 
 def main(argv=None, prog: str = "python train.py") -> int:
-    """The command line; ``prog`` is how the user ran it (recorded in the run directory)."""
+    """The command line; ``prog`` is how the user ran it (recorded in the run directory).
+    A missing optional dependency is one line naming its extra."""
+    with one_line_errors(prog):
+        return _main(argv, prog)
+
+
+def _main(argv, prog: str) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv, prog)
     command = " ".join([prog, shlex.join(argv)]).strip()
@@ -203,10 +210,8 @@ def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespac
     """``--algo cppo``: :func:`baselines.rl.compiled.train_run`, with JAX's compilation
     cache (``--compilation-cache``, else the default on this backend,
     :func:`auv_envs.batched.compile_cache.cache_for`) unless ``--no-compilation-cache``."""
-    try:
-        from baselines.rl import compiled
-    except ImportError as exc:
-        raise ConfigError(f"--algo cppo needs JAX: pip install -e \".[jax]\" ({exc})") from exc
+    require("auv_envs.batched", "jax", "--algo cppo")
+    from baselines.rl import compiled
     cache = None if args.no_compilation_cache else (
         args.compilation_cache or compiled.cache_for())
     return compiled.train_run(config, run_dir, command, cache)

@@ -17,6 +17,7 @@ import socket
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 
+from auv_envs.extras import require
 from baselines.evaluation.cache import EpisodeCache
 from baselines.evaluation.episodes import (
     POLICY_PREFIX,
@@ -87,13 +88,7 @@ def _terminate_workers(pool: concurrent.futures.ProcessPoolExecutor) -> None:
 
 
 def _import_ray():
-    try:
-        import ray
-    except ImportError as exc:
-        raise RuntimeError(
-            "--backend ray needs Ray: pip install 'auv_envs[ray]' (or pip install ray)"
-        ) from exc
-    return ray
+    return require("ray", "ray", "--backend ray")
 
 
 def _check_reachable(address: str, timeout: float = 5.0) -> None:

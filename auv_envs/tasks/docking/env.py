@@ -862,6 +862,10 @@ def nav_space() -> spaces.Dict:
 
 class DockingStationEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
+        "AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).",
+        "AUV approach to a recovery fork guided by an L-shaped four-lamp array ([LAMP]).",
+        1,
+    ).replace(
         "**Version history.**",
         "Layout: six lights around the entrance [OFNMPC].\n\n    **Version history.**",
     )
@@ -870,6 +874,10 @@ class DockingStationEnv(DockingEnv):
 
 class LampArrayDockingEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
+        "AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).",
+        "AUV approach to a recovery fork guided by an L-shaped four-lamp array ([LAMP]).",
+        1,
+    ).replace(
         "**Version history.**",
         "Layout: L-shaped four-lamp array A, B, C, D [LAMP]; camera tilted 20 deg down."
         "\n\n    **Version history.**",

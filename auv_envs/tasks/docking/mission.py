@@ -1,4 +1,4 @@
-"""The whole docking approach: ``auv_envs/DockingMission-v0`` (issue 43).
+"""The whole docking approach: ``auv_envs/DockingMission-v0``.
 
 The docking family's transition (:mod:`auv_envs.tasks.docking.transition`) with a
 :class:`~auv_envs.tasks.docking.transition.MissionSpec`: the episode starts 100-300 m
@@ -25,7 +25,7 @@ CLEAR_OCEAN = WaterOptics.jerlov("IA")
 
 class DockingMissionEnv(DockingEnv):
     """The whole approach to a docking station: acoustic homing from 100-300 m, the
-    hand-over to the lights, and the terminal docking (issue 43).
+    hand-over to the lights, and the terminal docking.
 
     **Description.** The vehicle, the plant, the currents, the station (either layout)
     and the success tolerances are those of ``DockingStation-v2`` /
