@@ -102,3 +102,16 @@ def test_the_quick_board_refuses_an_episode_count(tmp_path, capsys):
         evaluate.main(["--design", "quick", "--episodes", "3", "--out", str(tmp_path)])
     assert exit_info.value.code == 2
     assert "--episodes sets the full board's episodes" in capsys.readouterr().err
+
+
+def test_the_help_gives_the_tables_sizes_without_markup():
+    from baselines.commands.evaluate import build_parser
+
+    text = build_parser("python evaluate.py").format_help()
+    assert "``" not in text and ":mod:" not in text and ":class:" not in text
+    flat = " ".join(text.split())
+    for family, table in quick.EPISODES.items():
+        name = family.split("/")[-1]
+        assert name in flat
+        for level in ("paper", "hard"):
+            assert f"{table[level]} at {level}" in flat

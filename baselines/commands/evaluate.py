@@ -25,10 +25,10 @@ difficulty levels (``DEFAULT_LEVELS``), every registered agent in its default ob
 mode except the heavy ones (``AgentSpec.heavy``: the image front ends, about a minute
 an episode; ``--all-agents`` adds them) and those of the full board only
 (``quick.FULL_BOARD_ONLY``: superseded, second or comparator agents), on the frozen
-seeds from 100000: 10 episodes a table at ``paper``, 30 at ``hard`` (acoustic
-tracking, ranked by RMSE: 6 and 10), a group's training seeds taking the seeds in
-turn; each environment's default arguments except the acoustic episodes, shortened
-to 30 s (``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local worker processes.
+seeds from 100000, each table as many episodes as it needs to rank its agents
+(``quick.EPISODES``), a group's training seeds taking the seeds in turn; each
+environment's default arguments except the acoustic episodes, shortened to 30 s
+(``DEFAULT_ENV_KWARGS``), on min(4, CPUs) local worker processes.
 ``--episodes N`` (or ``--seeds``) runs the full board instead: N episodes for every
 agent and every training seed of a group, every agent but the heavy ones.
 ``--design quick --seeds A-B`` runs the quick board on other seeds (each table its
@@ -43,6 +43,7 @@ import re
 import shlex
 import signal
 import sys
+import textwrap
 import threading
 from pathlib import Path
 
@@ -161,12 +162,21 @@ def default_agents(env_ids, quick_board: bool = False) -> tuple[list[str], list[
     return agents, list(dict.fromkeys(left_out))
 
 
+def plain_text(text: str) -> str:
+    """A docstring's reST markup as a terminal shows text: ````x```` and
+    ``:role:`x``` as ``x``."""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", text)
+    return re.sub(r"``([^`]+)``", r"\1", text)
+
+
 def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog,
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="\n\n".join(__doc__.split("\n\n")[2:]),
+        epilog=plain_text("\n\n".join(__doc__.split("\n\n")[2:]))
+        + "\n\n" + textwrap.fill("Episodes a table in the default run: "
+                                 f"{quick.describe_episodes(DEFAULT_LEVELS)}.", 84),
     )
     parser.add_argument("--envs", nargs="+", default=None, metavar="ID",
                         help="environment ids, or their names without 'auv_envs/' (default: all)")
@@ -181,9 +191,9 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=None,
                         help="the full board: this many episodes per pair (every training "
                              f"seed of a group) on the frozen seeds from {EVAL_SEED_BASE} "
-                             "(default: the quick board, 10 episodes a table at paper and 30 "
-                             "at hard, 6 and 10 for acoustic tracking, a group's training "
-                             "seeds in turn; docs/evaluation.md)")
+                             "(default: the quick board, a group's training seeds in turn, "
+                             f"{quick.describe_episodes(DEFAULT_LEVELS)}; "
+                             "docs/evaluation.md)")
     parser.add_argument("--design", choices=("quick", "full"), default=None,
                         help="quick: each table its own number of episodes, a group's "
                              "training seeds in turn, the full board's extra agents left out "

@@ -46,8 +46,8 @@ from baselines.evaluation.episodes import EpisodeTask
 #: * the docking mission: the privileged reference and the classical pipeline dock nearly
 #:   always and the others never; at ``hard`` the classical pipeline docks about 60 %.
 #:   Paired on the same seeds, a row beats ``random``'s 0/n at 5 % with 6 successes
-#:   (McNemar: p = 2 / 2^6); 8 episodes leave the best row two failures to spare. An episode of up to 6,000 steps
-#:   costs 0.2-6 s, but 3-72 s for the classical pipeline, whose time-outs at ``hard``
+#:   (McNemar: p = 2 / 2^6); 8 episodes leave the best row two failures to spare. An
+#:   episode of up to 6,000 steps costs 0.2-6 s, but 3-72 s for the classical pipeline, whose time-outs at ``hard``
 #:   run its NMPC to the end (the mission's boards, ``docs/mission.md``).
 EPISODES = {
     "auv_envs/DockingStation": {"easy": 10, "paper": 10, "hard": 30},
@@ -81,6 +81,21 @@ def episodes_for(env_id: str, env_kwargs: Mapping) -> int:
     level = dict(env_kwargs).get("difficulty", DEFAULT_LEVEL)
     family = env_id.rsplit("-v", 1)[0]
     return EPISODES.get(family, OTHER_EPISODES)[level]
+
+
+def describe_episodes(levels: Sequence[str]) -> str:
+    """The table sizes as words, from :data:`EPISODES`: ``"DockingStation 10 at paper and
+    30 at hard, ..."`` (families with the same sizes together)."""
+    by_sizes: dict[tuple[int, ...], list[str]] = {}
+    for family, table in EPISODES.items():
+        by_sizes.setdefault(tuple(table[level] for level in levels), []).append(
+            family.split("/")[-1])
+    parts = []
+    for sizes, families in by_sizes.items():
+        counts = " and ".join(f"{n} at {level}" for n, level in zip(sizes, levels,
+                                                                     strict=True))
+        parts.append(f"{' and '.join(families)} {counts}")
+    return "; ".join(parts)
 
 
 def max_episodes() -> int:
