@@ -47,8 +47,8 @@ from baselines.evaluation.episodes import EpisodeTask
 #:   always and the others never; at ``hard`` the classical pipeline docks about 60 %.
 #:   Paired on the same seeds, a row beats ``random``'s 0/n at 5 % with 6 successes
 #:   (McNemar: p = 2 / 2^6); 8 episodes leave the best row two failures to spare. An
-#:   episode of up to 6,000 steps costs 0.2-6 s, but 3-72 s for the classical pipeline, whose time-outs at ``hard``
-#:   run its NMPC to the end (the mission's boards, ``docs/mission.md``).
+#:   episode of up to 6,000 steps costs 0.2-6 s, but 3-72 s for the classical pipeline,
+#:   whose time-outs at ``hard`` run its NMPC to the end (``docs/mission.md``).
 EPISODES = {
     "auv_envs/DockingStation": {"easy": 10, "paper": 10, "hard": 30},
     "auv_envs/LampArrayDocking": {"easy": 10, "paper": 10, "hard": 30},
