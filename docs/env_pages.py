@@ -46,14 +46,14 @@ def pages() -> dict[str, str]:
     """``{path under docs/: Markdown}``: the overview and one page per id of
     :data:`auv_envs.ENVIRONMENTS`."""
     gallery = _gallery()
-    out = {f"{FOLDER}/index.md": _overview()}
+    out = {f"{FOLDER}/index.md": _overview(gallery)}
     for env_id in auv_envs.ENVIRONMENTS:
         out[page_path(env_id)] = _page(env_id, gallery.get(env_id))
     return out
 
 
 # ---------------------------------------------------------------------- pages
-def _overview() -> str:
+def _overview(gallery: dict[str, dict]) -> str:
     lines = [
         "# Environments",
         "",
@@ -63,13 +63,16 @@ def _overview() -> str:
         "signature), from an instance of each observation mode (the spaces) and from",
         "the class docstring, so they say what the code does.",
         "",
-        "| id | summary | obs modes | reward terms | steps |",
-        "|---|---|---|---|---|",
+        "| picture | id | summary | obs modes | reward terms | steps |",
+        "|---|---|---|---|---|---|",
     ]
     for env_id in auv_envs.ENVIRONMENTS:
         cls = auv_envs.env_class(env_id)
         name = env_id.split("/")[-1]
-        lines.append(f"| [`{env_id}`]({name}.md) | {_summary(cls)} | "
+        picture = gallery.get(env_id)
+        thumb = (f"![{name}](../images/{picture['file']}){{ width=\"160\" }}" if picture
+                 else "–")
+        lines.append(f"| {thumb} | [`{env_id}`]({name}.md) | {_summary(cls)} | "
                      f"{_codes(cls.obs_modes)} | {_codes(cls.reward_terms)} | "
                      f"{gym.spec(env_id).max_episode_steps} |")
     lines += [

@@ -27,6 +27,10 @@ GALLERY = {
                       100_001, 0.5),
     "acoustic.png": ("auv_envs/AcousticTracking-v2", {"time_limit": 12.0}, "gmphd-gci",
                      100_000, 1.0),
+    "lamp_array.png": ("auv_envs/LampArrayDocking-v2", {"render_camera": "onboard"},
+                       "pd-state", 100_000, 0.5),
+    "mission.png": ("auv_envs/DockingMission-v0", {"render_camera": "onboard"},
+                    "homing-pd-state", 100_000, 0.9),
 }
 
 
@@ -55,9 +59,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("docs/images"))
     parser.add_argument("--size", type=parse_size, default=(640, 480))
+    parser.add_argument("--only", nargs="+", choices=sorted(GALLERY), default=None,
+                        metavar="FILE", help="render these pictures only (default: all)")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     for name, (env_id, kwargs, agent, seed, fraction) in GALLERY.items():
+        if args.only and name not in args.only:
+            continue
         iio.imwrite(args.out / name, render(env_id, kwargs, agent, seed, fraction, args.size))
         print(args.out / name)
     return 0

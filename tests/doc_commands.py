@@ -48,6 +48,10 @@ def commands(text: str) -> list[str]:
     for block in _FENCE.findall(text):
         lines += re.sub(r"\\\n\s*", " ", block).splitlines()
     rest = _FENCE.sub("", text)
+    # Indented code blocks (four spaces), continuation lines joined.
+    indented = re.sub(r"\\\n\s*", " ", "\n".join(
+        line for line in rest.splitlines() if line.startswith("    ")))
+    lines += [line.strip() for line in indented.splitlines()]
     lines += [m.group(1) for m in _INLINE.finditer(rest)]
     out = []
     for line in lines:
@@ -194,7 +198,8 @@ def check(command: str, history: bool = False) -> str | None:
                             f"({', '.join(auv_envs.ENVIRONMENTS)})")
     known = set(agent_names())
     custom = getattr(args, "agent_module", None)  # the reader's own agents
-    for name in [] if custom else _given(args, ("agent", "agents", "teacher"), command):
+    given = [] if custom else _given(args, ("agent", "agents", "teacher"), command)
+    for name in (part for value in given for part in value.split(",")):  # or "a,b"
         if name not in known and not group_members(name):
             problems.append(f"no agent {name!r}")
     for key in ("hyperparams_dir", "agent_module_dir"):

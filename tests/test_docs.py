@@ -9,7 +9,9 @@ reward terms and observation modes; the agents page is written from the registry
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -97,3 +99,34 @@ def test_rest_roles_and_literal_blocks():
             in out)
     assert '<autoref identifier="pkg.mod.helper" optional><code>helper</code></autoref>:' in out
     assert "```text\nx = 1\n```" in out
+
+
+def test_every_environment_has_its_own_summary_and_a_picture(site):
+    index = (site / "env" / "index.html").read_text()
+    summaries = set()
+    for env_id in auv_envs.ENVIRONMENTS:
+        name = env_id.split("/")[-1]
+        page = (site / "env" / name / "index.html").read_text()
+        assert "<img" in page, f"{env_id}: no picture on its page"
+        summaries.add(inspect.cleandoc(auv_envs.env_class(env_id).__doc__).split("\n\n")[0])
+    assert len(summaries) == len(auv_envs.ENVIRONMENTS)  # no two share a summary
+    assert index.count("<img") == len(auv_envs.ENVIRONMENTS)
+
+
+#: Internal work-item numbers ("stop 12", "issue 43") that no reader can follow.
+INTERNAL_NUMBER = re.compile(r"\bstop [0-9]+|\bissues? #?[0-9]+", re.IGNORECASE)
+
+
+def test_no_page_or_code_speaks_of_internal_work_items():
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True,
+                             check=True).stdout.split()
+    found = []
+    for name in tracked:
+        path = REPO / name
+        if path.suffix not in {".md", ".py", ".yml", ".yaml", ".toml", ".cfg", ".txt", ""} \
+                or not path.is_file() or name == "tests/test_docs.py":
+            continue
+        for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            if INTERNAL_NUMBER.search(line):
+                found.append(f"{name}:{number}: {line.strip()}")
+    assert not found, "\n".join(found)

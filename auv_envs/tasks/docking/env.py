@@ -863,7 +863,8 @@ def nav_space() -> spaces.Dict:
 class DockingStationEnv(DockingEnv):
     __doc__ = DockingEnv.__doc__.replace(
         "AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).",
-        "AUV approach to a recovery fork guided by an L-shaped four-lamp array ([LAMP]).",
+        "AUV approach to a seabed docking station guided by six lights around its "
+        "entrance ([OFNMPC]).",
         1,
     ).replace(
         "**Version history.**",
