@@ -287,7 +287,21 @@ def test_compilation_cache_keeps_compiled_programs(tmp_path):
     # Asked for on the CPU, the cache is used with a warning of the loader's crashes.
     assert "RuntimeWarning" in out.stderr and "can crash" in out.stderr
     default = compiled.default_compilation_cache()
-    assert default.parts[-2:] == ("auv_envs", "jax")
+    assert default.parts[-3:-1] == ("auv_envs", "jax")
+
+
+def test_another_host_never_shares_the_default_cache(monkeypatch):
+    """The default cache is one directory per kind of host: a second host with other CPU
+    features (faked) gets another directory, one with the same features the same."""
+    from auv_envs.batched import compile_cache
+
+    here = compile_cache.default_compilation_cache()
+    assert here.name == compile_cache.host_key()
+    features = compile_cache.cpu_features()
+    monkeypatch.setattr(compile_cache, "cpu_features", lambda: features + " avx512f_fake")
+    assert compile_cache.default_compilation_cache() != here
+    monkeypatch.setattr(compile_cache, "cpu_features", lambda: features)
+    assert compile_cache.default_compilation_cache() == here
 
 
 def test_the_default_cache_is_none_on_the_cpu():

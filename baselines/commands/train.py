@@ -97,7 +97,7 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
     parser.add_argument("--compilation-cache", type=Path, metavar="DIR",
                         help="cppo: JAX's persistent compilation cache; a later run of "
                              "the same shapes loads its programs instead of compiling them "
-                             "(default: ~/.cache/auv_envs/jax on a GPU or TPU, none on the "
+                             "(default: ~/.cache/auv_envs/jax/<host> on a GPU or TPU, none on the "
                              "CPU, where jaxlib can crash loading a large program)")
     parser.add_argument("--no-compilation-cache", action="store_true",
                         help="cppo: compile everything afresh, write no cache")
