@@ -204,7 +204,7 @@ def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
     """Rows grouped per environment (first-seen order), best first.
 
     Best: better mean of the environment's :func:`rank_metric` (success rate,
-    or RMSE for tracking), then higher success rate and mean return; failed
+    or the mean OSPA for tracking), then higher success rate and mean return; failed
     rows last. A group's members follow its row.
     """
     groups: dict[str, list[Mapping]] = {}
@@ -250,12 +250,12 @@ def _row_name(row: Mapping, rows: Sequence[Mapping]) -> str:
 
 # ------------------------------------------------------------------ markdown
 #: The columns of the terminal's compact tables, where an environment reports them.
-COMPACT_METRICS = ("success", "docking_time", "final_capture_error", "rmse", "max_error",
-                   "estimate_error_mean")
+COMPACT_METRICS = ("success", "docking_time", "final_capture_error", "mean_ospa", "rmse",
+                   "max_error", "estimate_error_mean")
 
 INTERVAL_NOTE = ("Each cell: mean [95 % interval] over the episodes (success: Wilson; "
                  "others: percentile bootstrap of the mean). Rank by success rate (tracking: "
-                 "by RMSE): a row's rank is one more than the number of rows that beat it "
+                 "by mean OSPA): a row's rank is one more than the number of rows that beat it "
                  "significantly, on the same seeds by a paired permutation test of the "
                  "per-seed difference at 5 %, otherwise by disjoint intervals; (tie): "
                  "another row has the same rank.")
@@ -611,7 +611,7 @@ document.querySelectorAll("table.leaderboard").forEach(function (table) {
 });
 """
 
-OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE): a rank is one more than "
+OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by mean OSPA): a rank is one more than "
                  "the number of agents that beat it at 95 %; =2: another agent shares "
                  "rank 2; –: the agent failed. Each cell: mean "
                  "[95 % interval] over the episodes. Full tables, clips and plots per "
@@ -621,7 +621,7 @@ OVERVIEW_NOTE = ("Agents ranked by success rate (tracking: by RMSE): a rank is o
 def overview_metric(rows: Sequence[Mapping]) -> str | None:
     """The metric the overview shows beside success for one environment's ``rows``.
 
-    Its ranking metric when that is not success (tracking: RMSE), else the first
+    Its ranking metric when that is not success (tracking: mean OSPA), else the first
     of :data:`COMPACT_METRICS` after success that the rows report (docking
     time, capture error); None when they report none.
     """

@@ -11,7 +11,8 @@ disjoint sets of seeds: the evidence behind the acoustic board's ranking metric
 For each level, set and candidate metric it prints the trackers' order by the metric's
 point value and their ranks (one more than the number of trackers that beat one at 95 %,
 paired on the set's seeds: :func:`baselines.stats.beaten_ranks`), then whether the order
-and the ranks are the same on every set. The candidates, each over a set's episodes:
+and the ranks are the same on every set, and per set the share of its one-seed-out
+subsets that keep its order (how far a single episode decides it). The candidates, each over a set's episodes:
 
 * ``mean_rmse``: the mean of the episodes' RMSE (the board's metric until this study);
 * ``median_rmse``: their median (ranks: the paired test on the per-seed RMSE);
@@ -66,6 +67,29 @@ def table(episodes: Sequence[Mapping], level: str, seeds: Sequence[int], metric:
             for a, r in zip(agents, ranks, strict=True)]
 
 
+def one_episode_robustness(episodes: Sequence[Mapping], level: str, seeds: Sequence[int],
+                           metric: str) -> float:
+    """The share of the set's one-seed-out subsets whose order (by the point value) is the
+    whole set's: 1 when no single episode decides the order."""
+    whole = [a for a, _, _ in _points(episodes, level, seeds, metric)]
+    same = sum([a for a, _, _ in _points(episodes, level, [s for s in seeds if s != left],
+                                          metric)] == whole for left in seeds)
+    return same / len(seeds)
+
+
+def _points(episodes, level, seeds, metric):
+    key, point, better = CANDIDATES[metric]
+    wanted = set(seeds)
+    values: dict[str, list[float]] = {}
+    for ep in episodes:
+        if ep["env_kwargs"].get("difficulty") == level and ep["seed"] in wanted \
+                and ep["status"] == "ok":
+            values.setdefault(ep["agent"], []).append(float(ep["metrics"][key]))
+    sign = 1.0 if better == "lower" else -1.0
+    return sorted(((a, point(np.array(v)), 0) for a, v in values.items()),
+                  key=lambda t: sign * t[1])
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("episodes", type=Path, help="an evaluate.py run's episodes.json")
@@ -78,17 +102,20 @@ def main(argv=None) -> int:
     sets = [parse_seeds(text) for text in args.sets]
     print("| level | metric | " + " | ".join(f"set {i + 1}: order (rank)" for i in
                                               range(len(sets)))
-          + " | same order | same ranks |")
-    print("|---|---|" + "---|" * len(sets) + "---|---|")
+          + " | same order | same ranks | one-episode robustness |")
+    print("|---|---|" + "---|" * len(sets) + "---|---|---|")
     for level in args.levels:
         for metric in CANDIDATES:
             tables = [table(episodes, level, seeds, metric) for seeds in sets]
             cells = [", ".join(f"`{a}` {v:.3g} ({r})" for a, v, r in t) for t in tables]
             orders = {tuple(a for a, _, _ in t) for t in tables}
             ranks = {tuple(sorted((a, r) for a, _, r in t)) for t in tables}
+            robust = [one_episode_robustness(episodes, level, seeds, metric)
+                      for seeds in sets]
             print(f"| {level} | {metric} | " + " | ".join(cells)
                   + f" | {'yes' if len(orders) == 1 else 'no'}"
-                  f" | {'yes' if len(ranks) == 1 else 'no'} |")
+                  f" | {'yes' if len(ranks) == 1 else 'no'}"
+                  f" | {', '.join(f'{r:.0%}' for r in robust)} |")
     return 0
 
 

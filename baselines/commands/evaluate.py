@@ -8,7 +8,7 @@ Installed, the same command is ``auv-evaluate``. Writes
 ``leaderboard.{md,csv,json,html}``, ``plots/*.png``, ``skipped.json`` and
 ``episodes.json`` under ``--out`` and prints one compact Markdown table per
 environment (``--verbose``: every column and the skipped pairs). Each cell is a
-mean with its 95 % interval; agents are ranked by success rate (tracking: RMSE),
+mean with its 95 % interval; agents are ranked by success rate (tracking: mean OSPA),
 and a row's rank is one more than the number of rows that beat it significantly (on
 the same seeds by a paired permutation test of the per-seed difference at 5 %).
 A run merges into the board already in ``--out`` (``board.json``): the rows it

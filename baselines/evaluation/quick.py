@@ -38,11 +38,11 @@ from baselines.evaluation.episodes import EpisodeTask
 #:   from zero and from the RL agent's ~80 % (30); an MPC episode costs 1-3 s.
 #: * LARS: at ``hard`` the RL agent captures ~93 % and the classical pipeline ~70 %,
 #:   which takes about 90 episodes a row to tell apart; an episode costs 0.05-0.3 s.
-#: * acoustic tracking ranks by RMSE: at ``paper`` the best trackers (0.12 m) and the
-#:   least-squares filter (0.16 m) differ by about one episode's spread, which takes
-#:   about 20 episodes. At ``hard`` (10) the means rest on rare divergent episodes,
-#:   and the published board's order there did not hold on ten fresh seeds
-#:   (``docs/evaluation.md``). An episode (30 s, 3,000 steps of a tracker) costs 2-9 s.
+#: * acoustic tracking ranks by mean OSPA: at ``paper`` the best trackers (0.12 m RMSE)
+#:   and the least-squares filter (0.16 m) differ by about one episode's spread, which
+#:   takes about 20 episodes. At ``hard`` (10) RMSE's means rested on rare divergent
+#:   episodes, which OSPA's cut-off bounds (``docs/evaluation.md``). An episode (30 s,
+#:   3,000 steps of a tracker) costs 2-9 s.
 #: * the docking mission: the privileged reference and the classical pipeline dock nearly
 #:   always and the others never; at ``hard`` the classical pipeline docks about 60 %.
 #:   Paired on the same seeds, a row beats ``random``'s 0/n at 5 % with 6 successes

@@ -76,7 +76,7 @@ def summarise(rows: Sequence[EpisodeRow], groups: Mapping[str, str] | None = Non
 
 #: The agent name and label of a bound row (:func:`bound_rows`).
 BOUND_AGENT = "pcrb"
-BOUND_LABEL = "posterior Cramér–Rao bound"
+BOUND_LABEL = "posterior Cramér–Rao bound of the RMSE only"
 
 
 def bound_rows(summary: Sequence[Mapping]) -> list[dict]:
