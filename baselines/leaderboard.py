@@ -154,21 +154,23 @@ def is_member(row: Mapping) -> bool:
 
 
 def ranks(rows: Sequence[Mapping]) -> list[tuple[int, bool] | None]:
-    """``(rank, tied)`` of each of an environment's rows (sorted best first by
-    :func:`by_env`) among the rows of its scenario (a difficulty level is one); None
-    for a failed row and for a group's member (its group row is ranked:
-    :func:`is_member`).
+    """``(rank, tied)`` of each of an environment's rows (in any order) among the rows of
+    its scenario (a difficulty level is one); None for a failed row, a reference and a
+    group's member (its group row is ranked: :func:`is_member`).
 
     By :func:`rank_metric`: a row's rank is one more than the number of rows that beat it
-    significantly (:func:`baselines.stats.beaten_ranks`): on the same seeds by the paired
-    permutation test of the mean per-seed difference at 5 %, otherwise by disjoint 95 %
-    intervals (:func:`baselines.stats.differ`). ``tied``: another row has its rank.
+    significantly (:func:`baselines.stats.beaten_ranks`, the rows taken best first by the
+    metric's mean): on the same seeds by the paired permutation test of the mean
+    per-seed difference at 5 %, otherwise by disjoint 95 % intervals
+    (:func:`baselines.stats.differ`). ``tied``: another row has its rank.
     """
     key, _ = rank_metric(rows)
+    best_first = _sort_key(rows)
     out: list[tuple[int, bool] | None] = [None] * len(rows)
     for scenario in dict.fromkeys(r["scenario"] for r in rows):
-        ok = [i for i, r in enumerate(rows) if r["scenario"] == scenario
-              and r["status"] != "failed" and not is_member(r) and not is_reference(r)]
+        ok = sorted((i for i, r in enumerate(rows) if r["scenario"] == scenario
+                     and r["status"] != "failed" and not is_member(r)
+                     and not is_reference(r)), key=lambda i: best_first(rows[i]))
         intervals = [_rank_interval(rows[i], key) for i in ok]
 
         def beats(j, i, ok=ok, intervals=intervals):
@@ -200,30 +202,44 @@ def ranked_rows(rows: Sequence[Mapping]) -> list[Mapping]:
     return [r for r in rows if not is_member(r)]
 
 
-def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
-    """Rows grouped per environment (first-seen order), best first.
+def _sort_key(rows: Sequence[Mapping]):
+    """Best first by the mean of ``rows``' :func:`rank_metric`, then higher success rate
+    and mean return; failed rows last."""
+    key, better = rank_metric(rows)
 
-    Best: better mean of the environment's :func:`rank_metric` (success rate,
-    or the mean OSPA for tracking), then higher success rate and mean return; failed
-    rows last. A group's members follow its row.
+    def sort_key(row):
+        metrics = row["metrics"]
+        value = metrics.get(key, {}).get("mean", math.inf if better == "lower" else -math.inf)
+        primary = value if better == "lower" else -value
+        ret = metrics.get("return", {}).get("mean", -math.inf)
+        success = metrics.get("success", {}).get("mean", 0.0)
+        return (row["status"] == "failed", primary, -success, -ret, row["agent"])
+
+    return sort_key
+
+
+def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
+    """Rows grouped per environment (first-seen order), in rank order.
+
+    Within a scenario: by :func:`ranks` (a row that more rows beat comes later), rows of
+    one rank by the mean of the environment's :func:`rank_metric` (success rate, or the
+    mean OSPA for tracking), then higher success rate and mean return; failed rows last;
+    a reference stays beside the rows its metric puts it among. A group's members
+    follow its row.
     """
     groups: dict[str, list[Mapping]] = {}
     for row in summary:
         groups.setdefault(row["env_id"], []).append(row)
 
     def order(rows):
-        key, better = rank_metric(rows)
-
-        def rank(row):
-            metrics = row["metrics"]
-            value = metrics.get(key, {}).get("mean", math.inf if better == "lower" else -math.inf)
-            primary = value if better == "lower" else -value
-            ret = metrics.get("return", {}).get("mean", -math.inf)
-            success = metrics.get("success", {}).get("mean", 0.0)
-            return (row["status"] == "failed", primary, -success, -ret,
-                    row["agent"])
-
-        ranked = sorted(ranked_rows(rows), key=rank)
+        by_metric = sorted(ranked_rows(rows), key=_sort_key(rows))
+        placed, last = [], {}
+        for row, rank in zip(by_metric, ranks(by_metric), strict=True):
+            scenario = row["scenario"]  # a reference: where its metric puts it
+            last[scenario] = rank[0] if rank else last.get(scenario, 0)
+            placed.append((row["status"] == "failed", last[scenario]))
+        ranked = [row for _, row in sorted(zip(placed, by_metric, strict=True),
+                                           key=lambda pair: pair[0])]
         members = sorted((r for r in rows if is_member(r)), key=lambda r: r["agent"])
         out = []
         for row in ranked:  # a group's seeds right after it

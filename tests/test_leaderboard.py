@@ -487,6 +487,20 @@ def test_a_row_is_ranked_below_every_row_that_beats_it(tmp_path):
     assert table["random"] == ("2", "True") and table["homing-pd-state"] == ("1", "True")
 
 
+def test_rows_are_shown_in_rank_order():
+    """A tracker with a worse mean but a spread so wide that nothing beats it ranks 1 and
+    is shown among the rank-1 rows, before a row that a better one beats."""
+    acoustic = "auv_envs/AcousticTracking-v2"
+    rows = [_summary_row(acoustic, "tight", 3, 3, rmse=(0.30, 0.29, 0.31)),
+            _summary_row(acoustic, "beaten", 3, 3, rmse=(0.35, 0.34, 0.36)),
+            _summary_row(acoustic, "wide", 3, 3, rmse=(0.60, 0.20, 1.50))]
+    ordered = leaderboard.by_env(rows)[acoustic]
+    assert [r["agent"] for r in ordered] == ["tight", "wide", "beaten"]
+    assert leaderboard.rank_labels(ordered) == ["1 (tie)", "1 (tie)", "2"]
+    # ranks do not depend on the order the rows come in
+    assert leaderboard.rank_labels(ordered[::-1]) == ["2", "1 (tie)", "1 (tie)"]
+
+
 def test_clips_show_as_videos_under_their_environment():
     rows = [_summary_row(DOCK, "a", 3, 3), _summary_row(DOCK, "b", 1, 3),
             _summary_row(LARS, "a", 0, 3)]
