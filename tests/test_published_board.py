@@ -80,3 +80,23 @@ def test_the_readme_lists_every_agent_group_and_nothing_else():
 
 def test_the_readme_stays_short():
     assert len((ROOT / "README.md").read_text().splitlines()) <= 200
+
+
+def _readme_python_blocks() -> list[str]:
+    readme = (ROOT / "README.md").read_text()
+    return re.findall(r"```python\n(.*?)```", readme, re.S)
+
+
+def test_the_readme_environment_snippet_runs_quietly_twice():
+    """The README's first snippet, run as a user would, twice: it works and prints no error
+    or warning line either time."""
+    import subprocess
+    import sys
+
+    snippet = _readme_python_blocks()[0]
+    assert "gym.make(" in snippet
+    for _ in range(2):
+        result = subprocess.run([sys.executable, "-c", snippet], capture_output=True,
+                                text=True, cwd=ROOT, timeout=300)
+        assert result.returncode == 0, result.stderr
+        assert not result.stderr.strip(), result.stderr
