@@ -61,11 +61,19 @@ def _learned() -> set[str]:
     return {s.name for s in specs} | {s.group for s in specs if s.group}
 
 
-def _cell(row: Mapping | None, rank) -> str:
+def _cell(row: Mapping | None, rank, key: str) -> str:
+    """An agent's headline cell: ``key`` (success, or for tracking the mean OSPA, with
+    the RMSE beside it), and its rank; a bound gives the RMSE it bounds."""
     if row is None:
         return "–"
-    key, _ = leaderboard.rank_metric([row])
-    text = f"`{row['agent']}` {leaderboard.cell_text(row, key)}"
+    if leaderboard.is_reference(row):
+        return f"`{row['agent']}` RMSE ≥ {leaderboard.cell_text(row, 'rmse')} m (a bound)"
+    if key == "success":
+        text = leaderboard.cell_text(row, key)
+    else:
+        text = ", ".join(f"{name} {leaderboard.cell_text(row, k)} m" for name, k in
+                         (("OSPA", key), ("RMSE", "rmse")) if k in row["metrics"])
+    text = f"`{row['agent']}` {text}"
     return text if rank is None else f"{text} (rank {rank[0]})"
 
 
@@ -73,27 +81,31 @@ def headline_table(summary: Sequence[Mapping]) -> str:
     """The README's headline table from the published board's rows: per environment and
     level, the best classical agent, the best learned agent (each with its rank among the
     level's rows) and the best privileged reference (it reads the true state; ``random``
-    is neither)."""
+    is neither), or where there is none the level's bound (acoustic tracking's ``pcrb``,
+    a bound of the RMSE)."""
     learned = _learned()
     lines = ["| environment | level | best classical | best learned | privileged reference |",
              "|---|---|---|---|---|"]
     for env_id, rows in leaderboard.by_env(summary).items():
         ranks = dict(zip(map(id, rows), leaderboard.ranks(rows), strict=True))
+        key, _ = leaderboard.rank_metric(rows)
         for level in LEVELS:
             at = [r for r in rows if r.get("env_kwargs", {}).get("difficulty") == level
                   and r["status"] != "failed" and not leaderboard.is_member(r)
                   and not leaderboard.is_reference(r) and r["agent"] != "random"]
             if not at:
                 continue
-            privileged = [r for r in at if r["obs_mode"] == "state"]
+            privileged = [r for r in at if r["obs_mode"] == "state"] or [
+                r for r in rows if leaderboard.is_reference(r)
+                and r.get("env_kwargs", {}).get("difficulty") == level]  # a bound
             sensing = [r for r in at if r["obs_mode"] != "state"]
             classical = next((r for r in sensing if r["agent"] not in learned), None)
             rl = next((r for r in sensing if r["agent"] in learned), None)
             reference = privileged[0] if privileged else None
             lines.append(f"| `{env_id.split('/')[-1]}` | `{level}` | "
-                         f"{_cell(classical, classical and ranks[id(classical)])} | "
-                         f"{_cell(rl, rl and ranks[id(rl)])} | "
-                         f"{_cell(reference, None)} |")
+                         f"{_cell(classical, classical and ranks[id(classical)], key)} | "
+                         f"{_cell(rl, rl and ranks[id(rl)], key)} | "
+                         f"{_cell(reference, None, key)} |")
     return "\n".join(lines)
 
 
@@ -117,15 +129,20 @@ def _git(*args: str) -> str:
                           check=False).stdout.strip()
 
 
-def page(body: str, summary: Sequence[Mapping], wall_s: float, argv: Sequence[str]) -> str:
+def _dirty() -> str:
+    """`` (with uncommitted changes)`` where the package code or assets differ from the
+    commit."""
+    return (" (with uncommitted changes)"
+            if _git("status", "--porcelain", "--", "auv_envs", "baselines", "assets") else "")
+
+
+def page(body: str, summary: Sequence[Mapping], run: Mapping, argv: Sequence[str]) -> str:
     """``docs/leaderboard.md``: a header (what was run, where, when) over the board."""
     ids = sorted({r["env_id"] for r in summary})
-    episodes = len({(r["env_id"], r["scenario"], s) for r in summary
-                    for s in r.get("seeds", [])})
+    episodes = sum(r["episodes"] for r in summary
+                   if not leaderboard.is_member(r) and not leaderboard.is_reference(r))
     seeds = sorted({s for r in summary for s in r.get("seeds", [])})
-    commit = _git("rev-parse", "--short", "HEAD")
-    dirty = " (with uncommitted changes)" if _git("status", "--porcelain", "--",
-                                                   "auv_envs", "baselines", "assets") else ""
+    written = _git("rev-parse", "--short", "HEAD") + _dirty()
     header = [
         "# The published leaderboard",
         "",
@@ -138,24 +155,44 @@ def page(body: str, summary: Sequence[Mapping], wall_s: float, argv: Sequence[st
         "",
         f"- command: `python -m baselines.evaluation.publish` (that is, `python evaluate.py "
         f"{' '.join(argv)}`)",
-        f"- commit: `{commit}`{dirty}; date: {datetime.date.today().isoformat()}",
+        f"- commit: `{run['commit']}` (the episodes; the tables written at `{written}`); "
+        f"date: {datetime.date.today().isoformat()}",
         f"- ids: {', '.join(f'`{i}`' for i in ids)}",
         f"- levels: {', '.join(f'`{level}`' for level in LEVELS)}; seeds "
-        f"{seeds[0]}–{seeds[-1]} (frozen); {episodes} (table, seed) cells",
-        f"- wall time: {wall_s / 60:.1f} min on {os.cpu_count()} cores, episodes from "
-        "scratch unless the run's cache held them",
+        f"{seeds[0]}–{seeds[-1]} (frozen); {episodes:,} episodes",
+        f"- wall time: {run['wall_s'] / 60:.1f} min on {os.cpu_count()} cores, "
+        f"{run['ran']:,} episodes run (the others, if any, from the episode cache)",
         "- the same rows, each with its rank and tie: [`published/leaderboard.json`]"
         "(published/leaderboard.json), [`published/leaderboard.csv`]"
         "(published/leaderboard.csv)",
         "",
+        "",
     ]
-    body = body.split("\n", 1)[1] if body.startswith("# Leaderboard") else body
+    # The run's own title and metadata (an absolute --out) give way to the header above.
+    body = body[body.index(leaderboard.INTERVAL_NOTE):]
     body = body.replace("](plots/", "](published/plots/")
     return "\n".join(header) + body
 
 
-def publish(out: Path, wall_s: float, argv: Sequence[str]) -> None:
-    """Write the board in ``out`` to the docs and the README (no evaluation)."""
+def render(out: Path, argv: Sequence[str]) -> list[dict]:
+    """The board in ``out`` written again from its episodes (``episodes.json``) with this
+    code's summary, ranks and tables (no episode runs): its summary rows."""
+    from baselines.evaluation import EpisodeRow, bound_rows, summarise
+    from baselines.registry import agent_groups
+
+    rows = [EpisodeRow(**{**row, "nan_metrics": tuple(row.get("nan_metrics", ()))})
+            for row in json.loads((out / "episodes.json").read_text())]
+    skipped = json.loads((out / "skipped.json").read_text())
+    summary = summarise(rows, agent_groups())
+    summary += bound_rows(summary)
+    meta = {"command": f"python evaluate.py {' '.join(argv)}"}
+    leaderboard.write(out, summary, skipped, rows, meta)
+    return summary
+
+
+def publish(out: Path, run: Mapping, argv: Sequence[str]) -> None:
+    """Write the board in ``out`` (:func:`render`) to the docs and the README."""
+    render(out, argv)
     summary = json.loads((out / "leaderboard.json").read_text())
     PUBLISHED.mkdir(parents=True, exist_ok=True)
     for name in ("leaderboard.json", "leaderboard.csv"):
@@ -163,7 +200,7 @@ def publish(out: Path, wall_s: float, argv: Sequence[str]) -> None:
     shutil.rmtree(PUBLISHED / "plots", ignore_errors=True)
     shutil.copytree(out / "plots", PUBLISHED / "plots")
     body = (out / "leaderboard.md").read_text()
-    atomic_write(PAGE, page(body, summary, wall_s, argv).encode())
+    atomic_write(PAGE, page(body, summary, run, argv).encode())
     table = headline_table(summary)
     atomic_write(README, readme_with(table, README.read_text()).encode())
 
@@ -176,23 +213,30 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="evaluate.py's --workers (default: its own)")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "published")
     parser.add_argument("--write-only", action="store_true",
-                        help="write the board already in --out, evaluate nothing")
+                        help="write the board already in --out again from its episodes "
+                             "(this code's ranks and tables), evaluate nothing")
     args = parser.parse_args(argv)
     evaluate_argv = evaluate_arguments(args.episodes, args.out, args.workers)
-    start = time.perf_counter()
+    record = args.out / "evaluation.json"  # the evaluation's wall time and episodes run
     if not args.write_only:
         from baselines.commands.evaluate import main as evaluate
 
+        commit = _git("rev-parse", "--short", "HEAD") + _dirty()
+        cache = args.out / "episodes"
+        before = len(list(cache.glob("*"))) if cache.is_dir() else 0
+        start = time.perf_counter()
         code = evaluate(evaluate_argv, prog="python evaluate.py")
         if code:
             return code
         wall = time.perf_counter() - start
-        (args.out / "wall_time_s").write_text(f"{wall:.1f}\n")
-    wall = float((args.out / "wall_time_s").read_text())
+        ran = len(list(cache.glob("*"))) - before
+        atomic_write(record, json.dumps({"wall_s": round(wall, 1), "ran": ran,
+                                         "commit": commit}) + "\n")
+    run = json.loads(record.read_text())
     shown = evaluate_arguments(args.episodes, Path("results/published"), args.workers)
-    publish(args.out, wall, shown)
+    publish(args.out, run, shown)
     print(f"wrote {PAGE.relative_to(ROOT)}, {PUBLISHED.relative_to(ROOT)}/ and the README's "
-          f"headline table ({wall / 60:.1f} min)", file=sys.stderr)
+          f"headline table ({run['wall_s'] / 60:.1f} min)", file=sys.stderr)
     return 0
 
 
