@@ -219,7 +219,8 @@ def _sort_key(rows: Sequence[Mapping]):
 
 
 def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
-    """Rows grouped per environment (first-seen order), in rank order.
+    """Rows grouped per environment (first-seen order), scenario by scenario (first-seen
+    order), in rank order.
 
     Within a scenario: by :func:`ranks` (a row that more rows beat comes later), rows of
     one rank by the mean of the environment's :func:`rank_metric` (success rate, or the
@@ -233,11 +234,13 @@ def by_env(summary: Sequence[Mapping]) -> dict[str, list[Mapping]]:
 
     def order(rows):
         by_metric = sorted(ranked_rows(rows), key=_sort_key(rows))
+        scenarios = list(dict.fromkeys(r["scenario"] for r in rows))  # first seen first
         placed, last = [], {}
         for row, rank in zip(by_metric, ranks(by_metric), strict=True):
             scenario = row["scenario"]  # a reference: where its metric puts it
             last[scenario] = rank[0] if rank else last.get(scenario, 0)
-            placed.append((row["status"] == "failed", last[scenario]))
+            placed.append((scenarios.index(scenario), row["status"] == "failed",
+                           last[scenario]))
         ranked = [row for _, row in sorted(zip(placed, by_metric, strict=True),
                                            key=lambda pair: pair[0])]
         members = sorted((r for r in rows if is_member(r)), key=lambda r: r["agent"])
