@@ -12,9 +12,10 @@ For each level, set and candidate metric it prints the trackers' order by the me
 point value and their ranks (one more than the number of trackers that beat one at 95 %,
 paired on the set's seeds: :func:`baselines.stats.beaten_ranks`), then whether the order
 and the ranks are the same on every set, and per set the share of its one-seed-out
-subsets that keep its order (how far a single episode decides it). The candidates, each over a set's episodes:
+subsets that keep its order (how far a single episode decides it). The candidates, each
+over a set's episodes:
 
-* ``mean_rmse``: the mean of the episodes' RMSE (the board's metric until this study);
+* ``mean_rmse``: the mean of the episodes' RMSE (the board's metric before this study);
 * ``median_rmse``: their median (ranks: the paired test on the per-seed RMSE);
 * ``trimmed_rmse``: their mean with the best and worst 10 % left out (likewise);
 * ``mean_ospa``: the mean of the episodes' mean OSPA with its cut-off (the env's
