@@ -59,6 +59,13 @@ def test_the_readme_headline_table_is_the_published_boards(board):
     assert publish.readme_table(readme) == publish.headline_table(board)
 
 
+def test_writing_needs_an_evaluation_first(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        publish.main(["--write-only", "--out", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "run without --write-only first" in capsys.readouterr().err
+
+
 def test_the_readme_markers_are_needed():
     with pytest.raises(ValueError, match="markers"):
         publish.readme_with("| table |", "# a README without them\n")

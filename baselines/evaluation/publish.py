@@ -232,6 +232,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         ran = len(list(cache.glob("*"))) - before
         atomic_write(record, json.dumps({"wall_s": round(wall, 1), "ran": ran,
                                          "commit": commit}) + "\n")
+    if not record.is_file():
+        parser.error(f"no evaluation in {args.out} ({record.name} is missing): run without "
+                     "--write-only first")
     run = json.loads(record.read_text())
     shown = evaluate_arguments(args.episodes, Path("results/published"), args.workers)
     publish(args.out, run, shown)
