@@ -113,7 +113,8 @@ def test_every_environment_has_its_own_summary_and_a_picture(site):
     assert index.count("<img") == len(auv_envs.ENVIRONMENTS)
 
 
-#: Internal work-item numbers ("stop 12", "issue 43") that no reader can follow.
+#: Internal work-item numbers (the word "stop" or "issue" and a number) that no reader
+#: can follow.
 INTERNAL_NUMBER = re.compile(r"\bstop [0-9]+|\bissues? #?[0-9]+", re.IGNORECASE)
 
 
