@@ -46,49 +46,50 @@ CANDIDATES: dict[str, tuple[str, Callable[[np.ndarray], float], str]] = {
 }
 
 
-def table(episodes: Sequence[Mapping], level: str, seeds: Sequence[int], metric: str
-          ) -> list[tuple[str, float, int]]:
-    """``(agent, point value, rank)`` best first, for one level, set and metric."""
-    key, point, better = CANDIDATES[metric]
+def _values(episodes: Sequence[Mapping], level: str, seeds: Sequence[int], key: str
+            ) -> dict[str, dict[str, float]]:
+    """agent -> seed -> the episode's ``key``, for one level and set of seeds."""
     wanted = set(seeds)
     values: dict[str, dict[str, float]] = {}
     for ep in episodes:
         if ep["env_kwargs"].get("difficulty") == level and ep["seed"] in wanted \
                 and ep["status"] == "ok":
             values.setdefault(ep["agent"], {})[str(ep["seed"])] = float(ep["metrics"][key])
+    return values
+
+
+def _order(values: Mapping[str, Mapping[str, float]], metric: str) -> list[tuple[str, float]]:
+    """``(agent, point value)`` best first by ``metric``."""
+    _, point, better = CANDIDATES[metric]
     sign = 1.0 if better == "lower" else -1.0
-    agents = sorted(values, key=lambda a: sign * point(np.array(list(values[a].values()))))
+    points = [(a, float(point(np.array(list(v.values()))))) for a, v in values.items()]
+    return sorted(points, key=lambda t: sign * t[1])
+
+
+def table(episodes: Sequence[Mapping], level: str, seeds: Sequence[int], metric: str
+          ) -> list[tuple[str, float, int]]:
+    """``(agent, point value, rank)`` best first, for one level, set and metric."""
+    values = _values(episodes, level, seeds, CANDIDATES[metric][0])
+    order = _order(values, metric)
 
     def beats(j, i):
-        p = paired_p_value(values[agents[j]], values[agents[i]])
+        p = paired_p_value(values[order[j][0]], values[order[i][0]])
         return p is not None and p < ALPHA
 
-    ranks = beaten_ranks(len(agents), beats)
-    return [(a, float(point(np.array(list(values[a].values())))), r[0])
-            for a, r in zip(agents, ranks, strict=True)]
+    ranks = beaten_ranks(len(order), beats)
+    return [(a, v, r[0]) for (a, v), r in zip(order, ranks, strict=True)]
 
 
 def one_episode_robustness(episodes: Sequence[Mapping], level: str, seeds: Sequence[int],
                            metric: str) -> float:
     """The share of the set's one-seed-out subsets whose order (by the point value) is the
     whole set's: 1 when no single episode decides the order."""
-    whole = [a for a, _, _ in _points(episodes, level, seeds, metric)]
-    same = sum([a for a, _, _ in _points(episodes, level, [s for s in seeds if s != left],
-                                          metric)] == whole for left in seeds)
-    return same / len(seeds)
+    def order(subset):
+        return [a for a, _ in _order(_values(episodes, level, subset, CANDIDATES[metric][0]),
+                                     metric)]
 
-
-def _points(episodes, level, seeds, metric):
-    key, point, better = CANDIDATES[metric]
-    wanted = set(seeds)
-    values: dict[str, list[float]] = {}
-    for ep in episodes:
-        if ep["env_kwargs"].get("difficulty") == level and ep["seed"] in wanted \
-                and ep["status"] == "ok":
-            values.setdefault(ep["agent"], []).append(float(ep["metrics"][key]))
-    sign = 1.0 if better == "lower" else -1.0
-    return sorted(((a, point(np.array(v)), 0) for a, v in values.items()),
-                  key=lambda t: sign * t[1])
+    whole = order(seeds)
+    return sum(order([s for s in seeds if s != left]) == whole for left in seeds) / len(seeds)
 
 
 def main(argv=None) -> int:

@@ -177,11 +177,10 @@ def page(body: str, summary: Sequence[Mapping], run: Mapping, argv: Sequence[str
 def render(out: Path, argv: Sequence[str]) -> list[dict]:
     """The board in ``out`` written again from its episodes (``episodes.json``) with this
     code's summary, ranks and tables (no episode runs): its summary rows."""
-    from baselines.evaluation import EpisodeRow, bound_rows, summarise
+    from baselines.evaluation import bound_rows, row_from_dict, summarise
     from baselines.registry import agent_groups
 
-    rows = [EpisodeRow(**{**row, "nan_metrics": tuple(row.get("nan_metrics", ()))})
-            for row in json.loads((out / "episodes.json").read_text())]
+    rows = [row_from_dict(row) for row in json.loads((out / "episodes.json").read_text())]
     skipped = json.loads((out / "skipped.json").read_text())
     summary = summarise(rows, agent_groups())
     summary += bound_rows(summary)
