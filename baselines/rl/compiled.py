@@ -76,6 +76,7 @@ from baselines.rl.config import (
 )
 from baselines.rl.detection_fixes import DetectionFixesMJX, token_size
 from baselines.rl.marker_track import SLICES, MarkerTrackMJX
+from baselines.rl.nav_filter import NavFilterMJX
 from baselines.rl.recurrent import LSTMState, lstm_cell, lstm_init, lstm_unroll, torch_weights
 from baselines.rl.training import (
     RunDirectory,
@@ -741,20 +742,22 @@ EVAL_EPISODES = 64
 
 #: The batched twins of the front ends a run key switches on (the CPU wrappers:
 #: :data:`baselines.rl.config.FRONT_ENDS`), in the order they apply.
-BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX, "marker_track": MarkerTrackMJX}
+BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX, "marker_track": MarkerTrackMJX,
+                      "nav_filter": NavFilterMJX}
 
 
 def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
              marker_track: bool = False, detection_fixes: bool = False,
-             privileged: bool = False) -> FunctionalEnv:
+             privileged: bool = False, nav_filter: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
     trains on, built with ``env_kwargs`` (a difficulty level alone: a string): episodes
     reset themselves, actions in [-1, 1]; with ``marker_track``, the LARS ``features``
     observation replaced by the marker tracker's (:class:`MarkerTrackMJX`); with
     ``detection_fixes``, the acoustic ``measurements`` by the detection fixes
-    (:class:`DetectionFixesMJX`); with ``privileged``, observations ``{"state": ...,
-    "privileged_state": ...}`` for a privileged critic or a teacher (a front end reads and
-    replaces the ``"state"`` entry)."""
+    (:class:`DetectionFixesMJX`); with ``nav_filter``, the mission's ``nav_features`` with
+    the navigation filter's estimate added (:class:`NavFilterMJX`); with ``privileged``,
+    observations ``{"state": ..., "privileged_state": ...}`` for a privileged critic or a
+    teacher (a front end reads and replaces the ``"state"`` entry)."""
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
     extra = {"privileged": True} if privileged else {}
     try:
@@ -762,7 +765,8 @@ def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc
-    chosen = {"detection_fixes": detection_fixes, "marker_track": marker_track}
+    chosen = {"detection_fixes": detection_fixes, "marker_track": marker_track,
+              "nav_filter": nav_filter}
     for name, wrapper in BATCHED_FRONT_ENDS.items():
         if chosen[name]:
             try:
@@ -776,12 +780,12 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
           stop=lambda: False, obs_mode: str = "features", marker_track: bool = False,
-          detection_fixes: bool = False) -> dict:
+          detection_fixes: bool = False, nav_filter: bool = False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``env_kwargs``: the environment's arguments (a difficulty level alone: a string);
-    ``marker_track``, ``detection_fixes``: train on the marker tracker's observation, on
-    the detection fixes (:func:`make_env`).
+    ``marker_track``, ``detection_fixes``, ``nav_filter``: train on the marker tracker's
+    observation, on the detection fixes, with the navigation filter (:func:`make_env`).
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
     ``evals``: batched evaluations of :data:`EVAL_EPISODES` episodes during the run, the
@@ -798,7 +802,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     writing nothing more (the checkpoints written before it stay).
     """
     env = make_env(env_id, obs_mode, env_kwargs, marker_track, detection_fixes,
-                   settings.privileged_critic or bool(settings.teacher))
+                   settings.privileged_critic or bool(settings.teacher), nav_filter)
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else dict(env_kwargs)
     difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
@@ -806,7 +810,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     trainer = Trainer(env, settings, iterations)
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
            "env_kwargs": env_kwargs, "marker_track": marker_track,
-           "detection_fixes": detection_fixes,
+           "detection_fixes": detection_fixes, "nav_filter": nav_filter,
            "settings": settings._asdict(), "command": command}
     checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
@@ -1029,7 +1033,8 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
                              stop=lambda: flag.stop_signal is not None,
                              obs_mode=config.run["obs_mode"],
                              marker_track=config.run["marker_track"],
-                             detection_fixes=config.run["detection_fixes"])
+                             detection_fixes=config.run["detection_fixes"],
+                             nav_filter=config.run["nav_filter"])
     except TrainingDiverged as exc:
         exc.run_dir = run.path
         info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))

@@ -87,6 +87,7 @@ RUN_KEYS = {
     "detection_fixes": False,
     "marker_estimate": False,
     "marker_track": False,
+    "nav_filter": False,
 }
 #: Types of the run keys that are not numbers (the numbers are rows of :data:`RANGES`).
 _RUN_KEY_TYPES = {
@@ -98,17 +99,19 @@ _RUN_KEY_TYPES = {
     "detection_fixes": bool,
     "marker_estimate": bool,
     "marker_track": bool,
+    "nav_filter": bool,
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
-_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track")
+_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track", "nav_filter")
 #: The same for ``cppo``'s run keys (:data:`COMPILED_RUN_KEYS`).
-_LATER_COMPILED_RUN_KEYS = ("marker_track", "detection_fixes")
+_LATER_COMPILED_RUN_KEYS = ("marker_track", "detection_fixes", "nav_filter")
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
     "detection_fixes": "baselines.rl.detection_fixes:DetectionFixes",
     "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
     "marker_track": "baselines.rl.marker_track:MarkerTrack",
+    "nav_filter": "baselines.rl.nav_filter:NavFilter",
 }
 POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy",
             "JointResidualPolicy")
@@ -139,6 +142,7 @@ COMPILED_RUN_KEYS = {
     "checkpoints": False,
     "marker_track": False,
     "detection_fixes": False,
+    "nav_filter": False,
 }
 #: Keys of a cppo run's ``env_kwargs`` (LARS ``control`` and ``time_limit``: its
 #: ``control="position"`` policies; building the env checks them).
@@ -673,7 +677,7 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
         RANGES[key].check(key, run[key])
-    for key in ("checkpoints", "marker_track", "detection_fixes"):
+    for key in ("checkpoints", "marker_track", "detection_fixes", "nav_filter"):
         if not isinstance(run[key], bool):
             raise ConfigError(f"{key} must be true or false, got {run[key]!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
@@ -713,6 +717,9 @@ def _validate_compiled(config: TrainConfig) -> None:
     if run["marker_track"] and (config.env_id != "auv_envs/LARSCapture-v0"
                                 or run["obs_mode"] != "features"):
         raise ConfigError("marker_track is LARSCapture-v0's features front end")
+    if run["nav_filter"] and (config.env_id != "auv_envs/DockingMission-v0"
+                              or run["obs_mode"] != "nav_features"):
+        raise ConfigError("nav_filter is DockingMission-v0's nav_features front end")
     if (settings.num_envs * settings.n_steps) % settings.n_minibatches:
         raise ConfigError(f"num_envs x n_steps ({settings.num_envs} x {settings.n_steps}) must "
                           f"split into n_minibatches ({settings.n_minibatches}) equal parts")
