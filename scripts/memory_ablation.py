@@ -7,9 +7,9 @@ Each row is a ``cppo`` recipe (``--hyperparams-dir``, default
 ``--episodes`` batched episodes from one fixed key (the same episodes for every row):
 
     python scripts/memory_ablation.py --env DockingMission-v0 --steps 10000000 \\
-        --row lstm: --row none:lstm_hidden_size=0 \\
-        --row ppo-lstm:teacher=,n_epochs=5,learning_rate=3.0e-4 \\
-        --row ppo-lstm-privileged:teacher=,privileged_critic=true,n_epochs=5,learning_rate=3.0e-4
+        --row filter: --row none:nav_filter=false \\
+        --row ppo:teacher=,n_epochs=5,learning_rate=3.0e-4 \\
+        --row ppo-privileged:teacher=,privileged_critic=true,n_epochs=5,learning_rate=3.0e-4
 
 A row is ``NAME:KEY=VALUE,KEY=VALUE`` (cppo settings; ``teacher=`` clears the recipe's
 teacher, so the row learns by PPO). It prints, per row: the wall time, the training
@@ -59,7 +59,8 @@ def train_row(env_id: str, overrides: dict, steps: int, hyperparams_dir: Path, s
     run = config.run
     env = compiled.make_env(env_id, run["obs_mode"], run["env_kwargs"], run["marker_track"],
                             run["detection_fixes"],
-                            settings.privileged_critic or bool(settings.teacher))
+                            settings.privileged_critic or bool(settings.teacher),
+                            nav_filter=run["nav_filter"])
     iterations = max(1, math.ceil(steps / (settings.num_envs * settings.n_steps)))
     trainer = compiled.Trainer(env, settings, iterations)
     params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(seed))

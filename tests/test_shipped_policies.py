@@ -28,6 +28,7 @@ CHECKS = {
     "cppo-docking-features-hard": ("hard", {}, "near"),
     "cppo-lamp-array-features": ("paper", {}, "near"),
     "cppo-lamp-array-features-hard": ("hard", {}, "near"),
+    "cppo-mission-nav-filter": ("paper", {}, "near"),
     # Trained at easy (the release's water and plant), where they dock; half and a third at
     # paper on the published board.
     "ppo-docking-features": ("easy", {}, "near"),
