@@ -136,3 +136,13 @@ def test_a_policy_on_the_filter_exports_and_acts_on_the_cpu_as_on_jax(tmp_path):
                                        atol=1e-3)
             obs, _, terminated, truncated, info = cpu.step(action)
             assert not (terminated or truncated)
+
+
+def test_a_shipped_policy_says_which_front_end_it_reads_through():
+    from baselines.rl.config import FRONT_END_WORDS, FRONT_ENDS
+    from baselines.rl.manifest import policies_root, read_manifest
+
+    assert set(FRONT_END_WORDS) == set(FRONT_ENDS)
+    manifest = read_manifest(policies_root() / "cppo-mission-nav-filter-s0")
+    assert manifest["nav_filter"] is True
+    assert "through the navigation filter" in manifest["description"]

@@ -113,6 +113,11 @@ FRONT_ENDS = {
     "marker_track": "baselines.rl.marker_track:MarkerTrack",
     "nav_filter": "baselines.rl.nav_filter:NavFilter",
 }
+#: How a shipped policy's description names each front end it reads through.
+FRONT_END_WORDS = {"detection_fixes": "the detection fixes",
+                   "marker_estimate": "ckf-pd's estimator",
+                   "marker_track": "the marker tracker",
+                   "nav_filter": "the navigation filter"}
 POLICIES = ("auto", "MlpPolicy", "CnnPolicy", "MultiInputPolicy", "DetectionSetPolicy",
             "JointResidualPolicy")
 #: Policy names of this package's own policy classes (``module:class``, imported by

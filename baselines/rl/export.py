@@ -17,6 +17,7 @@ import re
 import shutil
 from pathlib import Path
 
+from baselines.rl.config import FRONT_END_WORDS
 from baselines.rl.manifest import MANIFEST_FILE, policies_root, read_manifest, verify_files
 from baselines.rl.training import RunDirectory
 
@@ -126,7 +127,10 @@ def export_policy(run_dir: str | Path, name: str, dest_root: str | Path | None =
         **({"group": group} if group else {}),
         "description": (
             f"{manifest.get('description') or manifest['algo'].upper()} on "
-            f"{manifest['obs_mode']} observations, {info['steps']} steps"
+            f"{manifest['obs_mode']} observations"
+            + "".join(f" through {words}" for name, words in FRONT_END_WORDS.items()
+                      if manifest.get(name))
+            + f", {info['steps']} steps"
         ),
     }
     (tmp / MANIFEST_FILE).write_text(json.dumps(policy, indent=2))
