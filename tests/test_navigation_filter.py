@@ -25,19 +25,20 @@ def _stone_soup_kalman(steps, velocities, depths, fixes, filt: NavigationFilter)
     from stonesoup.types.state import GaussianState, State
     from stonesoup.updater.kalman import KalmanUpdater
 
-    dt = filt.dt
-    q = dt**2 * filt.dvl_var * np.eye(3) + filt.random_walk * np.eye(3)
+    params = filt.params
+    dt = params.dt
+    q = dt**2 * params.dvl_var * np.eye(3) + params.random_walk * np.eye(3)
     transition = _Identity(q)
     control = LinearControlModel(control_matrix=dt * np.eye(3),
                                  control_noise=np.zeros((3, 3)))
     predictor = KalmanPredictor(transition, control_model=control)
     state = GaussianState(StateVector(np.zeros(3)),
-                          CovarianceMatrix(np.eye(3) * filt.initial_std**2))
+                          CovarianceMatrix(np.eye(3) * params.initial_var))
     out = []
     for k in range(steps):
         state = predictor.predict(state, control_input=State(StateVector(velocities[k])))
         # Depth: d - s = -p_z, a linear measurement of p.
-        depth_model = LinearGaussian(3, [2], np.array([[filt.depth_var]]))
+        depth_model = LinearGaussian(3, [2], np.array([[params.depth_var]]))
         hyp = SingleHypothesis(state, Detection(StateVector([SURFACE - depths[k]]),
                                                 measurement_model=depth_model))
         state = KalmanUpdater(depth_model).update(hyp)

@@ -33,25 +33,162 @@ DVL dead reckoning and §14.3.4 on delayed measurements):
   three degrees of freedom (16.27) is rejected: the mirror-path and spurious fixes.
 * The error is injected into the nominal state after each update and reset to zero
   (``P`` kept), as the error-state filter does.
+
+The filter is pure functions of arrays (:class:`FilterParams`, :class:`FilterState`,
+:func:`step`) over an array namespace: NumPy for :class:`NavigationFilter`, the stateful
+object ``nav-homing-ofnmpc-ekf`` holds, and ``jax.numpy`` under ``jit`` and ``vmap`` for
+the learners' front end (:mod:`baselines.rl.nav_filter`). So that it holds in float32 the
+updates are written in forms that cancel nothing: the depth's covariance as
+``P_zz R / (P_zz + R)``, and the USBL fix, whose ``H = -R_ping^T`` is orthogonal and whose
+noise ``r I`` is isotropic, as the same measurement of the position ``t - R_ping y`` with
+``H = I``; the last steps' states are a ring buffer of fixed length.
 """
 
 from __future__ import annotations
 
-import collections
-import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
 
-from auv_envs.core import frames
-
 #: Squared Mahalanobis distance beyond which a USBL fix is rejected: chi-square, 3 dof,
 #: 99.9 % point (16.27).
 USBL_GATE = float(stats.chi2.ppf(0.999, 3))
+#: The ``usbl_age`` the filter remembers when no fix is valid.
+NO_FIX_AGE = 1.0e9
+
+
+class FilterParams(NamedTuple):
+    """What the filter knows: the navigation suite's nominal figures (variances, m and
+    m/s squared) and the step (s); :class:`NavigationFilter`'s arguments give them."""
+
+    transponder: tuple
+    surface_z: float
+    dt: float
+    dvl_var: float = 0.02**2
+    depth_var: float = 0.014**2
+    usbl_sigma0: float = 0.1
+    usbl_k: float = 0.015
+    random_walk: float = 1e-4
+    initial_var: float = 1000.0**2
+    history: int = 50
+    held_dvl_var: float = 0.1**2
+
+
+class FilterState(NamedTuple):
+    """The filter between observations (a JAX pytree, as it is a tuple)."""
+
+    position: object   # (3,) nominal CG position, station frame, m
+    covariance: object  # (3, 3) of the error state, m^2
+    velocity: object   # (3,) the last bottom-locked DVL velocity, body, m/s
+    last_age: object   # the last valid fix's usbl_age (NO_FIX_AGE: none)
+    fixes: object      # fixes accepted
+    rejected: object   # fixes gated out
+    past_position: object    # (history, 3) ring buffer, after each step's updates
+    past_covariance: object  # (history, 3, 3)
+    past_rotation: object    # (history, 3, 3)
+    length: object     # entries in the ring buffer
+    head: object       # where the next entry goes
+
+    @classmethod
+    def start(cls, params: FilterParams, xp=np) -> FilterState:
+        h = params.history
+        dtype = np.float64 if xp is np else xp.float32
+        eye = xp.eye(3, dtype=dtype)
+        return cls(xp.zeros(3, dtype), eye * params.initial_var, xp.zeros(3, dtype),
+                   xp.asarray(NO_FIX_AGE, dtype), xp.asarray(0), xp.asarray(0),
+                   xp.zeros((h, 3), dtype), xp.zeros((h, 3, 3), dtype),
+                   xp.zeros((h, 3, 3), dtype), xp.asarray(0), xp.asarray(0))
+
+
+def rotation(attitude, xp=np):
+    """Body to station frame of the AHRS ``attitude`` (roll, pitch, yaw), a (3, 3) array
+    (:func:`auv_envs.core.frames.rotation_rows`)."""
+    from auv_envs.core.frames import rotation_rows
+
+    ops = _Trig(xp)
+    rows = rotation_rows(attitude[0], attitude[1], attitude[2], ops)
+    return xp.stack([xp.stack(row) for row in rows])
+
+
+class _Trig:
+    """The two functions :func:`rotation_rows` asks its ``ops`` for."""
+
+    def __init__(self, xp):
+        self.cos, self.sin = xp.cos, xp.sin
+
+
+def step(params: FilterParams, state: FilterState, obs, xp=np) -> FilterState:
+    """Take one ``nav_features`` observation (after the step it describes)."""
+    dtype = state.position.dtype
+    R = rotation(xp.asarray(obs["attitude"], dtype), xp)
+    # dead reckoning (the prediction)
+    locked = xp.asarray(obs["dvl_valid"])[0] > 0
+    velocity = xp.where(locked, xp.asarray(obs["dvl_velocity"], dtype), state.velocity)
+    noise = params.dvl_var + xp.where(locked, 0.0, params.held_dvl_var)
+    position = state.position + R @ velocity * params.dt
+    P = (state.covariance + params.dt**2 * noise * (R @ R.T)
+         + params.random_walk * xp.eye(3, dtype=dtype))
+    # depth d = surface_z - z: H = [0, 0, -1], written so that float32 cancels nothing
+    s = P[2, 2] + params.depth_var
+    column = P[:, 2]
+    innovation = xp.asarray(obs["depth"], dtype)[0] - (params.surface_z - position[2])
+    position = position - column * innovation / s
+    kept = params.depth_var / s
+    P = _depth_corner(xp, P - xp.outer(column, column) / s, column, kept)
+    # a late USBL fix , through the state at its ping
+    valid = xp.asarray(obs["usbl_valid"])[0] > 0
+    age = xp.asarray(obs["usbl_age"], dtype)[0]
+    new_fix = valid & (age < state.last_age)
+    back = xp.round(age / params.dt).astype(np.int32)
+    taken = xp.minimum(back, state.length)
+    from_past = (back > 0) & (state.length > 0)
+    index = (state.head - taken) % params.history
+    p_then = xp.where(from_past, state.past_position[index], position)
+    P_then = xp.where(from_past, state.past_covariance[index], P)
+    R_then = xp.where(from_past, state.past_rotation[index], R)
+    fix = xp.asarray(obs["usbl"], dtype)
+    # the fix as a position at the ping, with an isotropic noise (the module docstring)
+    noise = params.usbl_sigma0**2 + (params.usbl_k * xp.linalg.norm(fix))**2
+    residual = xp.asarray(params.transponder, dtype) - R_then @ fix - p_then
+    inverse = xp.linalg.inv(P_then + noise * xp.eye(3, dtype=dtype))
+    accepted = new_fix & (residual @ inverse @ residual <= USBL_GATE)
+    P_fixed = P - P_then + noise * P_then @ inverse
+    position = xp.where(accepted, position + P_then @ inverse @ residual, position)
+    P = xp.where(accepted, 0.5 * (P_fixed + P_fixed.T), P)
+    last_age = xp.where(valid, age, NO_FIX_AGE).astype(dtype)
+    # this step's state, for later fixes
+    head = state.head
+    past = (_put(xp, state.past_position, head, position),
+            _put(xp, state.past_covariance, head, P), _put(xp, state.past_rotation, head, R))
+    return FilterState(position, P, velocity, last_age, state.fixes + accepted,
+                       state.rejected + (new_fix & ~accepted), *past,
+                       xp.minimum(state.length + 1, params.history),
+                       (head + 1) % params.history)
+
+
+def _row_or_column(xp, k):
+    eye = xp.arange(3)
+    return (eye[:, None] == k) | (eye[None, :] == k)
+
+
+def _depth_corner(xp, P, column, kept):
+    """Row and column 2 of the depth update's covariance: ``P_i2 R / (P_22 + R)``."""
+    mask = _row_or_column(xp, 2)
+    fixed = xp.where(xp.arange(3)[:, None] == 2, column[None, :], column[:, None]) * kept
+    return xp.where(mask, fixed, P)
+
+
+def _put(xp, buffer, index, value):
+    if xp is np:
+        buffer = buffer.copy()
+        buffer[index] = value
+        return buffer
+    return buffer.at[index].set(value)
 
 
 class NavigationFilter:
-    """The error-state filter of the module docstring.
+    """The error-state filter of the module docstring, as an object that keeps its state.
 
     Args:
         transponder: the USBL transponder's position, station frame (m).
@@ -69,89 +206,38 @@ class NavigationFilter:
     def __init__(self, transponder, surface_z: float, dt: float, dvl_std: float = 0.02,
                  depth_std: float = 0.014, usbl_std: tuple = (0.1, 0.015),
                  random_walk: float = 1e-4, initial_std: float = 1000.0, history: int = 50):
-        self.transponder = np.asarray(transponder, dtype=float)
-        self.surface_z = float(surface_z)
-        self.dt = float(dt)
-        self.dvl_var = dvl_std**2
-        self.depth_var = depth_std**2
-        self.usbl_std = usbl_std
-        self.random_walk = random_walk
-        self.initial_std = initial_std
-        self.history_steps = history
+        self.params = FilterParams(
+            tuple(float(v) for v in transponder), float(surface_z), float(dt),
+            dvl_var=dvl_std**2, depth_var=depth_std**2, usbl_sigma0=usbl_std[0],
+            usbl_k=usbl_std[1], random_walk=random_walk, initial_var=initial_std**2,
+            history=history)
         self.reset()
 
     def reset(self) -> None:
-        self.p = np.zeros(3)
-        self.P = np.eye(3) * self.initial_std**2
-        self.velocity = np.zeros(3)
-        self.time = 0.0
-        self.fixes = self.rejected = 0
-        #: (time, nominal position, covariance, attitude) of the last steps, for late fixes.
-        self.history: collections.deque = collections.deque(maxlen=self.history_steps)
-        self._last_age = math.inf
+        self.state = FilterState.start(self.params)
 
-    # ------------------------------------------------------------------ the filter
-    def predict(self, rotation: np.ndarray, velocity, valid: bool) -> None:
-        """Dead-reckon one step: ``rotation`` body to station frame, ``velocity`` the DVL's
-        (body, m/s), ``valid`` its bottom lock (else the last locked velocity is held)."""
-        noise = self.dvl_var
-        if valid:
-            self.velocity = np.asarray(velocity, dtype=float)
-        else:
-            noise = noise + 0.1**2  # held velocity: far less sure
-        self.p = self.p + rotation @ self.velocity * self.dt
-        self.P = self.P + self.dt**2 * noise * (rotation @ rotation.T) \
-            + self.random_walk * np.eye(3)
-        self.time += self.dt
-
-    def update(self, H: np.ndarray, innovation: np.ndarray, R: np.ndarray,
-               P_then: np.ndarray | None = None, gate: float | None = None) -> bool:
-        """One update of the error state (``P_then``: the covariance at a late measurement's
-        time, :meth:`update_usbl`), injected into the nominal state; False if gated out."""
-        P_then = self.P if P_then is None else P_then
-        S = H @ P_then @ H.T + R
-        if gate is not None and float(innovation @ np.linalg.solve(S, innovation)) > gate:
-            return False
-        K = P_then @ H.T @ np.linalg.inv(S)
-        self.p = self.p + K @ innovation  # inject dp, reset it to zero
-        self.P = self.P - K @ H @ P_then
-        self.P = 0.5 * (self.P + self.P.T)
-        return True
-
-    def update_depth(self, depth: float) -> None:
-        H = np.array([[0.0, 0.0, -1.0]])
-        self.update(H, np.array([depth - (self.surface_z - self.p[2])]),
-                    np.array([[self.depth_var]]))
-
-    def update_usbl(self, fix, age: float, rotation: np.ndarray) -> bool:
-        """A USBL fix (body axes at the ping) measured ``age`` seconds ago (``rotation``
-        the attitude now); False if rejected by the gate."""
-        back = int(round(age / self.dt))
-        if back == 0 or not self.history:
-            p_then, P_then, rotation_then = self.p, self.P, rotation
-        else:
-            _, p_then, P_then, rotation_then = self.history[-min(back, len(self.history))]
-        fix = np.asarray(fix, dtype=float)
-        predicted = rotation_then.T @ (self.transponder - p_then)
-        sigma0, k = self.usbl_std
-        R = (sigma0**2 + (k * np.linalg.norm(fix))**2) * np.eye(3)
-        accepted = self.update(-rotation_then.T, fix - predicted, R, P_then, gate=USBL_GATE)
-        self.fixes += accepted
-        self.rejected += not accepted
-        return accepted
-
-    # ------------------------------------------------------------------ observations
     def step(self, observation: dict) -> np.ndarray:
         """Take one ``nav`` observation (after the step it describes); the position
         estimate."""
-        roll, pitch, yaw = (float(a) for a in observation["attitude"])
-        rotation = np.array(frames.rotation_rows(roll, pitch, yaw))
-        self.predict(rotation, observation["dvl_velocity"], bool(observation["dvl_valid"][0]))
-        self.update_depth(float(observation["depth"][0]))
-        valid = bool(observation["usbl_valid"][0])
-        age = float(observation["usbl_age"][0])
-        if valid and age < self._last_age:  # a new fix arrived
-            self.update_usbl(observation["usbl"], age, rotation)
-        self._last_age = age if valid else math.inf
-        self.history.append((self.time, self.p.copy(), self.P.copy(), rotation))
-        return self.p.copy()
+        self.state = step(self.params, self.state, observation)
+        return self.state.position.copy()
+
+    @property
+    def p(self) -> np.ndarray:
+        """The position estimate, station frame (m)."""
+        return self.state.position
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (m^2)."""
+        return self.state.covariance
+
+    @property
+    def fixes(self) -> int:
+        """USBL fixes accepted this episode."""
+        return int(self.state.fixes)
+
+    @property
+    def rejected(self) -> int:
+        """USBL fixes the gate rejected this episode."""
+        return int(self.state.rejected)
