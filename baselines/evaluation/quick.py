@@ -73,6 +73,8 @@ FULL_BOARD_ONLY = {
                              "better at both levels)",
     "cppo-lamp-array-features": "superseded by cppo-lamp-array-features-hard (trained at "
                                 "hard, better at both levels)",
+    "cppo-mission-nav-features": "superseded by cppo-mission-nav-filter (it docks; this "
+                                 "one never does)",
 }
 
 
