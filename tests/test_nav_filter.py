@@ -147,3 +147,27 @@ def test_a_shipped_policy_says_which_front_end_it_reads_through():
     manifest = read_manifest(policies_root() / "cppo-mission-nav-filter-s0")
     assert manifest["nav_filter"] is True
     assert "through the navigation filter" in manifest["description"]
+
+
+def test_the_shipped_agent_reports_its_filters_estimate():
+    """The leaderboard scores a policy agent's position estimate where its front end makes
+    one (the navigation filter), as it scores the pipeline's; other policy agents have
+    none."""
+    from baselines.registry import make_agent
+
+    env = gym.make(MISSION, obs_mode="nav_features", difficulty="paper")
+    agent = make_agent("cppo-mission-nav-filter-s0", env.unwrapped)
+    obs, info = env.reset(seed=7)
+    agent.reset(7)
+    estimates = []
+    for _ in range(100):
+        action = agent.act(obs, info)
+        estimates.append(agent.position_estimate())
+        obs, _, terminated, truncated, info = env.step(action)
+        assert not (terminated or truncated)
+    assert estimates[0] is None  # no fix yet
+    assert np.linalg.norm(estimates[-1] - info["true_position"]) \
+        < 0.1 * np.linalg.norm(info["true_position"])
+    docking = gym.make("auv_envs/DockingStation-v2", obs_mode="features").unwrapped
+    assert not hasattr(make_agent("cppo-docking-features-hard-s0", docking),
+                       "position_estimate")

@@ -98,6 +98,11 @@ class NavFilter(gym.ObservationWrapper):
         self.state = step(self.params, self.state, observation)
         return observe(self.state, observation)
 
+    def position_estimate(self) -> np.ndarray | None:
+        """The filter's estimate of the CG position (station frame, m), once a USBL fix
+        has placed it (None before), as ``nav-homing-ofnmpc-ekf`` reports its own."""
+        return self.state.position.copy() if int(self.state.fixes) else None
+
 
 class NavFilterMJX(BatchedFrontEnd):
     """A batched ``DockingMission-v0`` (``nav_features``) whose observation is

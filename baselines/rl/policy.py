@@ -98,6 +98,11 @@ class PolicyAgent:
         self._base = env.unwrapped
         self._wrapped = wrap_env(self._base, flatten_obs, front_ends)
         self._observation_wrappers, self._action_wrappers = self._wrapper_chain()
+        for wrapper in self._observation_wrappers:
+            # a front end that estimates the position (the navigation filter): the agent
+            # reports it, and the leaderboard scores it (``position_estimate()``)
+            if callable(getattr(wrapper, "position_estimate", None)):
+                self.position_estimate = wrapper.position_estimate
         try:
             check_for_correct_spaces(self._wrapped, _as_learner_sees(model.observation_space),
                                      model.action_space)
