@@ -121,9 +121,7 @@ class MissionAgent:
             raise ValueError("MissionAgent acts on obs_mode='nav_features'")
         cal = env.calibration
         nav = env.navigation
-        self.filter = NavigationFilter(
-            nav.transponder, nav.station_depth, cal.control_period,
-            dvl_std=nav.dvl.noise_std, depth_std=max(nav.depth.noise_std, 1e-3))
+        self.filter = NavigationFilter.for_suite(nav, cal.control_period)
         self.homing = HomingPDController(cal.target_position, cal.nominal_params.net_buoyancy)
         self._terminal_env = _FeaturesView(env)
         self.observer = observer

@@ -29,6 +29,7 @@ from gymnasium import spaces
 from baselines.docking.estimation.navigation_filter import (  # noqa: F401 (re-exported)
     FilterParams,
     FilterState,
+    NavigationFilter,
     rotation,
     step,
 )
@@ -47,9 +48,7 @@ def params_of(env: gym.Env) -> FilterParams:
     if getattr(base, "obs_mode", None) != "nav_features" or nav is None:
         raise ConfigError("the navigation filter needs a docking env with navigation "
                           "sensors in obs_mode='nav_features' (auv_envs/DockingMission-v0)")
-    return FilterParams(tuple(float(v) for v in nav.transponder), float(nav.station_depth),
-                        float(base.calibration.control_period), dvl_var=nav.dvl.noise_std**2,
-                        depth_var=max(nav.depth.noise_std, 1e-3)**2)
+    return NavigationFilter.for_suite(nav, base.calibration.control_period).params
 
 
 def observation_space(space: spaces.Dict) -> spaces.Dict:

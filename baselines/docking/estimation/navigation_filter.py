@@ -136,7 +136,7 @@ def step(params: FilterParams, state: FilterState, obs, xp=np) -> FilterState:
     position = position - column * innovation / s
     kept = params.depth_var / s
     P = _depth_corner(xp, P - xp.outer(column, column) / s, column, kept)
-    # a late USBL fix , through the state at its ping
+    # a late USBL fix, through the state at its ping
     valid = xp.asarray(obs["usbl_valid"])[0] > 0
     age = xp.asarray(obs["usbl_age"], dtype)[0]
     new_fix = valid & (age < state.last_age)
@@ -212,6 +212,15 @@ class NavigationFilter:
             usbl_k=usbl_std[1], random_walk=random_walk, initial_var=initial_std**2,
             history=history)
         self.reset()
+
+    @classmethod
+    def for_suite(cls, navigation, dt: float) -> NavigationFilter:
+        """The filter for a navigation suite (``auv_envs.core.navigation.NavigationSensors``)
+        at step ``dt``: its transponder and station depth, its DVL's and depth sensor's
+        data-sheet noise (the depth's at least 1 mm)."""
+        return cls(navigation.transponder, navigation.station_depth, dt,
+                   dvl_std=navigation.dvl.noise_std,
+                   depth_std=max(navigation.depth.noise_std, 1e-3))
 
     def reset(self) -> None:
         self.state = FilterState.start(self.params)
