@@ -1,12 +1,47 @@
-"""What the batched front ends share: a batched env whose observation a classical front end
-(pure functions of arrays, run with NumPy on the CPU by its Gymnasium wrapper) computes in
-JAX from the wrapped env's, its state riding along in ``state.info``.
+"""What the classical front ends of the learners share. Each is pure functions of arrays with
+a carry (the episode so far), served by two shells:
 
-:class:`~baselines.rl.marker_track.MarkerTrackMJX` (LARS) and
-:class:`~baselines.rl.detection_fixes.DetectionFixesMJX` (acoustic) subclass it.
+* :class:`FrontEnd`, the Gymnasium wrapper that runs them with NumPy on the CPU (the shipped
+  agents apply it);
+* :class:`BatchedFrontEnd`, a batched env whose observation they compute in JAX from the
+  wrapped env's, the carry riding along in ``state.info`` (the compiled PPO trains on it).
+
+:mod:`~baselines.rl.marker_track` (LARS), :mod:`~baselines.rl.detection_fixes` (acoustic) and
+:mod:`~baselines.rl.nav_filter` (the docking mission) subclass both.
 """
 
 from __future__ import annotations
+
+import gymnasium as gym
+
+
+class FrontEnd(gym.ObservationWrapper):
+    """A front end on the CPU: the carry (``self.state``) starts afresh at :meth:`reset`
+    and :meth:`clear` (which the policy agent calls at each episode's start) and advances
+    with each observation, so each observation must be passed once and in order.
+
+    Subclasses set ``observation_space``, call :meth:`clear` once built, and define
+    :meth:`start` (the carry of a new episode) and :meth:`advance` (one observation: the
+    next carry and the front end's observation), both on NumPy.
+    """
+
+    def start(self):
+        raise NotImplementedError
+
+    def advance(self, carry, obs) -> tuple:
+        raise NotImplementedError
+
+    def clear(self) -> None:
+        """Forget the episode: the front end starts afresh at the next observation."""
+        self.state = self.start()
+
+    def reset(self, **kwargs):
+        self.clear()
+        return super().reset(**kwargs)
+
+    def observation(self, observation):
+        self.state, seen = self.advance(self.state, observation)
+        return seen
 
 
 class BatchedFrontEnd:

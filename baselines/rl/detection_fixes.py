@@ -34,7 +34,7 @@ import numpy as np
 from gymnasium import spaces
 
 from baselines.acoustic.perception.positioning import LeastSquaresPositioner
-from baselines.rl.batched_front_end import BatchedFrontEnd
+from baselines.rl.batched_front_end import BatchedFrontEnd, FrontEnd
 from baselines.rl.config import ConfigError
 
 #: The observation keys of one step's tokens.
@@ -159,7 +159,7 @@ def observe(p: FixParams, held: Held, observation: dict, xp=np) -> tuple[Held, d
     return Held(kept, xp.where(fixed, 1, held.steps + 1).astype(xp.int32)), out
 
 
-class DetectionFixes(gym.ObservationWrapper):
+class DetectionFixes(FrontEnd):
     """Replaces the ``measurements`` observation by one least-squares fix per detection,
     with the fixes of the last step that had any held beside them (module docstring).
 
@@ -170,7 +170,8 @@ class DetectionFixes(gym.ObservationWrapper):
     ``fix_valid`` ``MultiBinary((Q, K))``. Tokens that are not valid fixes are zero.
     The same four under ``held_fix*`` are those of the latest earlier step with at least
     one valid fix (all zero before there was one), and ``held_age`` (1,) is how many
-    steps ago that was, as ln(1 + steps). :meth:`reset` (and :meth:`clear`) forget them.
+    steps ago that was, as ln(1 + steps). :meth:`reset` (and :meth:`clear`) forget them
+    (:class:`~baselines.rl.batched_front_end.FrontEnd`).
 
     Raises:
         ConfigError: the environment is not an acoustic one in ``measurements`` mode.
@@ -182,17 +183,11 @@ class DetectionFixes(gym.ObservationWrapper):
         self.observation_space = self.params.observation_space()
         self.clear()
 
-    def clear(self) -> None:
-        """Forget the held fixes (a new episode)."""
-        self._held = Held.start(self.params)
+    def start(self) -> Held:
+        return Held.start(self.params)
 
-    def reset(self, **kwargs):
-        self.clear()
-        return super().reset(**kwargs)
-
-    def observation(self, observation):
-        self._held, out = observe(self.params, self._held, observation)
-        return out
+    def advance(self, carry: Held, obs) -> tuple:
+        return observe(self.params, carry, obs)
 
 
 class DetectionFixesMJX(BatchedFrontEnd):

@@ -42,7 +42,7 @@ from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.stereo import points_from_disparity
 from baselines.lars.estimation.auv_state import ATTITUDE_MEMORY
 from baselines.lars.perception.marker import MIN_DISPARITY, attitude_rotation, marker_attitude
-from baselines.rl.batched_front_end import BatchedFrontEnd
+from baselines.rl.batched_front_end import BatchedFrontEnd, FrontEnd
 from baselines.rl.config import ConfigError
 
 #: The layout of the front ends' observation vector (``MarkerEstimate``'s and
@@ -240,14 +240,13 @@ def observe(p: TrackParams, state: TrackState, obs: dict, xp=np):
                            estimate, joint.reshape(-1)]).astype(xp.float32)
 
 
-class MarkerTrack(gym.ObservationWrapper):
+class MarkerTrack(FrontEnd):
     """The LARS ``features`` observation replaced by the marker tracker's
     (:data:`LAYOUT`, a ``Box((27,), float32)``; module docstring), on the CPU with NumPy.
 
     ``marker_track: true`` in a training config or a policy manifest applies it
-    (:data:`baselines.rl.config.FRONT_ENDS`). The tracker keeps the episode's state, so
-    each observation must be passed once and in order; :meth:`reset` (and :meth:`clear`,
-    which the policy agent calls at each episode's start) start afresh.
+    (:data:`baselines.rl.config.FRONT_ENDS`); the tracker keeps the episode's state
+    (:class:`~baselines.rl.batched_front_end.FrontEnd`).
 
     Raises:
         ConfigError: the environment is not ``LARSCapture-v0`` in ``features`` mode.
@@ -259,17 +258,12 @@ class MarkerTrack(gym.ObservationWrapper):
         self.observation_space = spaces.Box(-np.inf, np.inf, (SIZE,), np.float32)
         self.clear()
 
-    def clear(self) -> None:
-        """Forget the episode: the tracker starts afresh at the next observation."""
-        self.state = TrackState.start()
+    def start(self) -> TrackState:
+        return TrackState.start()
 
-    def reset(self, **kwargs):
-        self.clear()
-        return super().reset(**kwargs)
-
-    def observation(self, observation):
-        self.state = track(self.params, self.state, observation)
-        return observe(self.params, self.state, observation)
+    def advance(self, carry: TrackState, obs) -> tuple:
+        carry = track(self.params, carry, obs)
+        return carry, observe(self.params, carry, obs)
 
 
 class MarkerTrackMJX(BatchedFrontEnd):

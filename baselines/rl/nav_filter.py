@@ -33,7 +33,7 @@ from baselines.docking.estimation.navigation_filter import (  # noqa: F401 (re-e
     rotation,
     step,
 )
-from baselines.rl.batched_front_end import BatchedFrontEnd
+from baselines.rl.batched_front_end import BatchedFrontEnd, FrontEnd
 from baselines.rl.config import ConfigError
 
 #: The entries the front end adds (name, length).
@@ -66,14 +66,13 @@ def observe(state: FilterState, obs, xp=np) -> dict:
     return {**obs, **{k: v.astype(xp.float32) for k, v in added.items()}}
 
 
-class NavFilter(gym.ObservationWrapper):
+class NavFilter(FrontEnd):
     """The ``nav_features`` observation with the navigation filter's estimate added (the
     module docstring), on the CPU with NumPy.
 
     ``nav_filter: true`` in a training config or a policy manifest applies it
-    (:data:`baselines.rl.config.FRONT_ENDS`). The filter keeps the episode's state, so
-    each observation must be passed once and in order; :meth:`reset` (and :meth:`clear`,
-    which the policy agent calls at each episode's start) start afresh.
+    (:data:`baselines.rl.config.FRONT_ENDS`); the filter keeps the episode's state
+    (:class:`~baselines.rl.batched_front_end.FrontEnd`).
 
     Raises:
         ConfigError: the environment is not ``DockingMission-v0`` in ``nav_features`` mode.
@@ -85,17 +84,12 @@ class NavFilter(gym.ObservationWrapper):
         self.observation_space = observation_space(env.observation_space)
         self.clear()
 
-    def clear(self) -> None:
-        """Forget the episode: the filter starts afresh at the next observation."""
-        self.state = FilterState.start(self.params)
+    def start(self) -> FilterState:
+        return FilterState.start(self.params)
 
-    def reset(self, **kwargs):
-        self.clear()
-        return super().reset(**kwargs)
-
-    def observation(self, observation):
-        self.state = step(self.params, self.state, observation)
-        return observe(self.state, observation)
+    def advance(self, carry: FilterState, obs) -> tuple:
+        carry = step(self.params, carry, obs)
+        return carry, observe(carry, obs)
 
     def position_estimate(self) -> np.ndarray | None:
         """The filter's estimate of the CG position (station frame, m), once a USBL fix
