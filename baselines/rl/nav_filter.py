@@ -58,8 +58,9 @@ def observation_space(space: spaces.Dict) -> spaces.Dict:
 
 
 def observe(state: FilterState, obs, xp=np) -> dict:
-    """``obs`` with the entries of :data:`ADDED` from the filter ``state``."""
-    R = rotation(xp.asarray(obs["attitude"], state.position.dtype), xp)
+    """``obs`` with the entries of :data:`ADDED` from the filter ``state`` that took it (its
+    latest entry holds the attitude's rotation)."""
+    R = state.past_rotation[(state.head - 1) % state.past_rotation.shape[0]]
     std = xp.sqrt(xp.maximum(xp.diagonal(state.covariance), 1e-12))
     added = {"nav_entrance": R.T @ -state.position, "nav_log_std": xp.log(std),
              "nav_position": state.position}

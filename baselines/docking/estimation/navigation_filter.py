@@ -51,6 +51,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
+from auv_envs.core.frames import rotation_rows
+
 #: Squared Mahalanobis distance beyond which a USBL fix is rejected: chi-square, 3 dof,
 #: 99.9 % point (16.27).
 USBL_GATE = float(stats.chi2.ppf(0.999, 3))
@@ -104,8 +106,6 @@ class FilterState(NamedTuple):
 def rotation(attitude, xp=np):
     """Body to station frame of the AHRS ``attitude`` (roll, pitch, yaw), a (3, 3) array
     (:func:`auv_envs.core.frames.rotation_rows`)."""
-    from auv_envs.core.frames import rotation_rows
-
     ops = _Trig(xp)
     rows = rotation_rows(attitude[0], attitude[1], attitude[2], ops)
     return xp.stack([xp.stack(row) for row in rows])
