@@ -86,6 +86,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
@@ -304,12 +305,12 @@ class LeastSquaresPositioner:
         """
         return self._c * np.hypot(self.tdoa_std, clock_std)
 
-    def _row_scales(self, clock_std) -> np.ndarray:
+    def _row_scales(self, clock_std, xp=np) -> np.ndarray:
         """Per band, the factor multiplying each row's range (see :meth:`_row_std`)."""
-        tdoa = 2.0 * self.range_diff_std(clock_std)
-        angles = (self.azimuth_std, self.elevation_std)
+        tdoa = 2.0 * self._c * xp.hypot(xp.asarray(self.tdoa_std), clock_std)
+        angles = (xp.asarray(self.azimuth_std), xp.asarray(self.elevation_std))
         blocks = {"fused": (tdoa, *angles), "tdoa": (tdoa,), "doa": angles}[self.method]
-        return np.concatenate(blocks, axis=-1)
+        return xp.concatenate(blocks, axis=-1)
 
     # ------------------------------------------------------------------ systems
     def _system(self, tdoa, azimuth, elevation, xp=np):
@@ -364,15 +365,17 @@ class LeastSquaresPositioner:
             covariance = covariance * xp.where(factor > threshold, factor, 1.0)[..., None, None]
         return position, covariance, rss, ok
 
-    def solve_fixed(self, tdoa, azimuth, elevation, mask, nodes=None, xp=np) -> PositionFixes:
+    def solve_fixed(self, tdoa, azimuth, elevation, mask, nodes=None, xp=np,
+                    clock=None) -> PositionFixes:
         """:meth:`solve`'s fixes of one measurement set at fixed shapes, on any array
         namespace (``jax.numpy`` under ``jit`` and ``vmap``; float32 there): every entry
         is solved, real or not, and the entries that are not real detections are never
-        valid (their numbers, finite or not, mean nothing). No clock correction.
+        valid (their numbers, finite or not, mean nothing).
 
         Args:
           tdoa: (Q, K, N-1); azimuth, elevation: (Q, K, N); mask: (Q, K); nodes: (N,) or
-            None, as for :meth:`solve`. Shapes are not checked beyond broadcasting.
+            None; clock: ``(offset, std)`` or None, as for :meth:`solve`. Shapes are not
+            checked beyond broadcasting.
 
         Returns:
           :class:`PositionFixes` whose ``dof`` is an array (it depends on ``nodes``).
@@ -385,8 +388,12 @@ class LeastSquaresPositioner:
             rows = used.astype(tdoa.dtype)
             dof = xp.sum(used) - unknowns
             threshold = xp.asarray(self._thresholds)[xp.clip(dof, 0, len(self._thresholds) - 1)]
+        row_scale = self._row_scale
+        if clock is not None:
+            tdoa = tdoa - clock[0]
+            row_scale = self._row_scales(clock[1], xp)
         position, covariance, chi2, ok = self._fix(
-            tdoa, azimuth, elevation, band, rows, self._row_scale, dof, threshold, xp)
+            tdoa, azimuth, elevation, band, rows, row_scale, dof, threshold, xp)
         return PositionFixes(position, covariance, chi2, dof, ok & xp.asarray(mask).astype(bool))
 
     def solve(self, tdoa, azimuth, elevation, mask=None, clock=None,
@@ -460,6 +467,13 @@ class LeastSquaresPositioner:
         return PositionFixes(out_position, out_covariance, chi2, dof, valid)
 
 
+class ClockState(NamedTuple):
+    """A clock-offset estimate: the offsets (N-1,) s and their precisions (N-1,) 1/s^2."""
+
+    offset: np.ndarray
+    precision: np.ndarray
+
+
 class ClockOffsetEstimator:
     """Online estimate of the nodes' clock offsets against node 1 (see the module docstring).
 
@@ -522,20 +536,55 @@ class ClockOffsetEstimator:
         sel = np.nonzero(fixes.valid)
         if not len(sel[0]):
             return
-        p = fixes.position[sel]  # (M, 3)
-        diff = p[:, None, :] - self._nodes  # (M, N, 3)
-        ranges = np.linalg.norm(diff, axis=-1)
+        state, kept = self._fold(ClockState(self.offset, self._precision),
+                                 np.asarray(tdoa, dtype=np.float64)[sel], fixes.position[sel],
+                                 fixes.covariance[sel], sel[0], measured)
+        self.offset, self._precision = state
+        self.samples += int(kept)
+
+    def _fold(self, state: ClockState, tdoa, position, covariance, band, keep, xp=np):
+        """The estimate after the DOA fixes ``position`` (M, 3), ``covariance`` (M, 3, 3)
+        of detections in bands ``band`` (M,) with TDOAs ``tdoa`` (M, N-1), the residuals
+        that ``keep`` (broadcast to (M, N-1)) allows and the gate passes; and how many
+        residuals it took."""
+        diff = position[:, None, :] - xp.asarray(self._nodes, position.dtype)  # (M, N, 3)
+        ranges = xp.linalg.norm(diff, axis=-1)
         units = diff / ranges[..., None]
         predicted = (ranges[:, 1:] - ranges[:, :1]) / self._c
-        residual = np.asarray(tdoa, dtype=np.float64)[sel] - predicted
         g = units[:, 1:] - units[:, :1]  # (M, N-1, 3)
-        variance = (np.einsum("mni,mij,mnj->mn", g, fixes.covariance[sel], g) / self._c ** 2
-                    + self._tdoa_var[sel[0]])
-        innovation = residual - self.offset
-        keep = innovation ** 2 <= self.gate ** 2 * (variance + 1.0 / self._precision)
-        keep &= measured
-        information = np.where(keep, 1.0 / variance, 0.0)
-        precision = self._precision + information.sum(axis=0)
-        self.offset = self.offset + np.sum(information * innovation, axis=0) / precision
-        self._precision = precision
-        self.samples += int(np.count_nonzero(keep))
+        variance = (xp.einsum("mni,mij,mnj->mn", g, covariance, g) / self._c ** 2
+                    + xp.asarray(self._tdoa_var)[band])
+        innovation = tdoa - predicted - state.offset
+        keep = keep & (innovation ** 2 <= self.gate ** 2 * (variance + 1.0 / state.precision))
+        information = xp.where(keep, 1.0 / variance, 0.0)
+        precision = state.precision + information.sum(axis=0)
+        offset = state.offset + xp.sum(xp.where(keep, information * innovation, 0.0),
+                                       axis=0) / precision
+        return ClockState(offset, precision), xp.sum(keep)
+
+    def start(self, xp=np) -> ClockState:
+        """The estimate of a new episode for :meth:`step` (the prior)."""
+        n = len(self._nodes) - 1
+        return ClockState(xp.zeros(n, xp.float32 if xp is not np else np.float64),
+                          xp.full(n, self._prior_precision,
+                                  xp.float32 if xp is not np else np.float64))
+
+    def step(self, state: ClockState, tdoa, azimuth, elevation, valid, nodes=None,
+             xp=np) -> ClockState:
+        """:meth:`update` as a pure function at fixed shapes on any array namespace (the
+        DOA fixes by :meth:`LeastSquaresPositioner.solve_fixed`): the estimate after one
+        measurement set's detections flagged ``valid`` (Q, K)."""
+        q, k = valid.shape
+        fixes = self._doa.solve_fixed(tdoa, azimuth, elevation, valid, nodes=nodes, xp=xp)
+        measured = xp.ones(len(self._nodes) - 1, bool)
+        if nodes is not None:
+            nodes = xp.asarray(nodes).astype(bool)
+            measured = nodes[1:] & nodes[0]
+        ok = fixes.valid.reshape(-1)
+        position = xp.where(ok[:, None], fixes.position.reshape(-1, 3), 0.0)
+        covariance = xp.where(ok[:, None, None], fixes.covariance.reshape(-1, 3, 3),
+                              xp.eye(3))
+        band = xp.broadcast_to(xp.arange(q)[:, None], (q, k)).reshape(-1)
+        state, _ = self._fold(state, xp.asarray(tdoa).reshape(q * k, -1), position,
+                              covariance, band, ok[:, None] & measured, xp)
+        return state
