@@ -57,10 +57,9 @@ def train_row(env_id: str, overrides: dict, steps: int, hyperparams_dir: Path, s
                             hyperparams_dir=hyperparams_dir)
     settings = compiled.Settings(**config.hyperparams)
     run = config.run
-    env = compiled.make_env(env_id, run["obs_mode"], run["env_kwargs"], run["marker_track"],
-                            run["detection_fixes"],
-                            settings.privileged_critic or bool(settings.teacher),
-                            nav_filter=run["nav_filter"])
+    env = compiled.make_env(env_id, run["obs_mode"], run["env_kwargs"],
+                            privileged=settings.privileged_critic or bool(settings.teacher),
+                            **{name: run[name] for name in compiled.BATCHED_FRONT_ENDS})
     iterations = max(1, math.ceil(steps / (settings.num_envs * settings.n_steps)))
     trainer = compiled.Trainer(env, settings, iterations)
     params, opt_state, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(seed))

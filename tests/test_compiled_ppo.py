@@ -445,14 +445,15 @@ def test_one_iteration_on_acoustic_exports_a_policy_for_its_cpu_env(tmp_path):
     assert cpu.action_space.contains(agent.act(obs, info))
 
 
-def test_the_set_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
+@pytest.mark.parametrize("front_end", ["detection_fixes", "detection_track"])
+def test_the_set_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path, front_end):
     """cppo-acoustic-measurements' recipe: an iteration of 4 envs x 4 steps on the detection
-    fixes, then the DetectionSetPolicy written and acting in the CPU env (through
-    DetectionFixes) as the JAX set encoder acts."""
-    from baselines.rl.detection_fixes import DetectionFixes
+    fixes (or the fixes and their track), then the DetectionSetPolicy written and acting in
+    the CPU env (through the CPU front end) as the JAX set encoder acts."""
+    from baselines.rl.detection_fixes import DetectionFixes, DetectionTrack
 
     env_id, kwargs = "auv_envs/AcousticTracking-v2", {"difficulty": "hard", "time_limit": 20.0}
-    env = compiled.make_env(env_id, "measurements", kwargs, detection_fixes=True)
+    env = compiled.make_env(env_id, "measurements", kwargs, **{front_end: True})
     settings = compiled.Settings(num_envs=4, n_steps=4, n_minibatches=2, n_epochs=1,
                                  policy=compiled.SET_POLICY, normalize=False,
                                  log_std_init=-6.0, gamma=0.0)
@@ -465,13 +466,14 @@ def test_the_set_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):
     params["set"]["score"]["w"] = params["set"]["score"]["w"] * 20.0
     run = {"env_id": env_id, "obs_mode": "measurements", "seed": 0, "n_timesteps": 16,
            "wall_time_s": 0.0, "difficulty": "hard", "env_kwargs": kwargs,
-           "detection_fixes": True, "settings": settings._asdict(), "curve": []}
+           front_end: True, "settings": settings._asdict(), "curve": []}
     manifest = compiled.export(params, normalizer, tmp_path / "policy", run)
-    assert manifest["detection_fixes"] and not manifest["flatten_obs"]
+    assert manifest[front_end] and not manifest["flatten_obs"]
     assert set(manifest["files"]) == {"model.zip"}
     cpu = gym.make(env_id, obs_mode="measurements", **kwargs).unwrapped
     agent = load_policy_agent(tmp_path / "policy", cpu)
-    front = DetectionFixes(gym.make(env_id, obs_mode="measurements", **kwargs))
+    front = {"detection_fixes": DetectionFixes, "detection_track": DetectionTrack}[front_end](
+        gym.make(env_id, obs_mode="measurements", **kwargs))
     space = front.observation_space
     obs, info = cpu.reset(seed=6)
     agent.reset(6)

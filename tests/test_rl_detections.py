@@ -13,6 +13,7 @@ from baselines.acoustic.perception.positioning import LeastSquaresPositioner
 from baselines.evaluation import run_episode
 from baselines.rl import agents
 from baselines.rl.config import TRAIN_EVAL_SEED_BASE, ConfigError, resolve_config
+from baselines.rl.detection_fixes import DetectionTrack
 from baselines.rl.detections import DetectionFixes, DetectionSetExtractor
 from baselines.rl.envs import wrap_env
 from tests.conftest import make_env
@@ -23,9 +24,9 @@ ACOUSTIC = "auv_envs/AcousticTracking-v2"
 CONFIG_DIR = ROOT / "baselines/rl/hyperparams/acoustic-measurements"
 
 
-def _fixed_observations(level: str, steps: int, seed: int = 3):
+def _fixed_observations(level: str, steps: int, seed: int = 3, front_end=DetectionFixes):
     env = make_env(ACOUSTIC, "measurements", difficulty=level, time_limit=5.0)
-    wrapped = DetectionFixes(env)
+    wrapped = front_end(env)
     raw, _ = env.reset(seed=seed)
     out = []
     for _ in range(steps):
@@ -99,8 +100,15 @@ def _batch(observations):
             for k in observations[0]}
 
 
-def test_extractor_ignores_order_and_padding_and_pools_inside_the_valid_fixes():
-    _, wrapped, pairs = _fixed_observations("hard", 20)
+@pytest.mark.parametrize("front_end", [DetectionFixes, DetectionTrack])
+def test_extractor_ignores_order_and_padding_and_pools_inside_the_valid_fixes(front_end):
+    """Over the fixes, and over the fixes with their track (each token with its deviation
+    from the track, the track's token among the pooled ones)."""
+    _, wrapped, pairs = _fixed_observations("hard", 20, front_end=front_end)
+    track = front_end is DetectionTrack
+    keys = ("fix", "fix_log_std", "fix_log_fit", "fix_valid", *(("fix_deviation",) if track
+                                                                 else ()))
+    prefixes = ("", "held_", *(("track_",) if track else ()))
     torch.manual_seed(0)
     extractor = DetectionSetExtractor(wrapped.observation_space)
     rng = np.random.default_rng(0)
@@ -112,7 +120,7 @@ def test_extractor_ignores_order_and_padding_and_pools_inside_the_valid_fixes():
         for prefix in ("", "held_"):  # each band's detections, in a new order
             order = np.stack([rng.permutation(k) for _ in range(q)])
             invalid = ~obs[f"{prefix}fix_valid"].astype(bool)
-            for key in ("fix", "fix_log_std", "fix_log_fit", "fix_valid"):
+            for key in keys:
                 v = obs[prefix + key]
                 permuted[prefix + key] = np.take_along_axis(
                     v, order.reshape(order.shape + (1,) * (v.ndim - 2)), axis=1)
@@ -127,7 +135,7 @@ def test_extractor_ignores_order_and_padding_and_pools_inside_the_valid_fixes():
     pooled = base[:, :3].numpy()
     for obs, p in zip(observations, pooled, strict=True):
         fixes = np.concatenate([obs[f"{prefix}fix"][obs[f"{prefix}fix_valid"].astype(bool)]
-                                for prefix in ("", "held_")])
+                                for prefix in prefixes])
         if len(fixes):  # a convex combination of the valid fixes
             assert np.all(p >= fixes.min(axis=0) - 1e-6) and np.all(p <= fixes.max(axis=0) + 1e-6)
         else:

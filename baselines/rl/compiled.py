@@ -74,7 +74,7 @@ from baselines.rl.config import (
     save_config,
     validate,
 )
-from baselines.rl.detection_fixes import DetectionFixesMJX, token_size
+from baselines.rl.detection_fixes import DetectionFixesMJX, DetectionTrackMJX, token_size
 from baselines.rl.marker_track import SLICES, MarkerTrackMJX
 from baselines.rl.nav_filter import NavFilterMJX
 from baselines.rl.recurrent import LSTMState, lstm_cell, lstm_init, lstm_unroll, torch_weights
@@ -137,12 +137,12 @@ def _affine(layer: dict, x: jax.Array) -> jax.Array:
     return x @ layer["w"] + layer["b"]
 
 
-def _set_init(key, bands: int) -> dict:
+def _set_init(key, bands: int, track: bool = False) -> dict:
     """:class:`~baselines.rl.detections.DetectionSetExtractor`'s layers as SB3 starts
     them (orthogonal, gain sqrt(2), zero bias): the token MLP, the score, the summary."""
     keys = jax.random.split(key, 4)
     gain = math.sqrt(2.0)
-    return {"embed": [_dense(keys[0], token_size(bands), SET_EMBED, gain),
+    return {"embed": [_dense(keys[0], token_size(bands, track), SET_EMBED, gain),
                       _dense(keys[1], SET_EMBED, SET_EMBED, gain)],
             "score": _dense(keys[2], SET_EMBED, 1, gain),
             "summary": _dense(keys[3], SET_EMBED + 1, SET_SUMMARY, gain)}
@@ -152,22 +152,30 @@ def set_features(net: dict, obs: dict) -> jax.Array:
     """:class:`~baselines.rl.detections.DetectionSetExtractor`'s output for one
     observation of :mod:`baselines.rl.detection_fixes` (``vmap`` it over a batch): the
     attention-weighted mean of the valid fixes (zero when none is), then the set's
-    summary."""
+    summary. With a track (:class:`~baselines.rl.detection_fixes.DetectionTrack`'s
+    observation) its token joins the set, every token with the track flag and its
+    deviation from the track."""
     q, k = obs["fix_valid"].shape
+    track = "track_fix" in obs
     bands = jnp.repeat(jnp.eye(q, dtype=jnp.float32), k, axis=0)  # (Q*K, Q)
 
-    def part(prefix: str, held: float, age):
-        fix = obs[f"{prefix}fix"].reshape(q * k, 3)
-        flags = jnp.stack([jnp.full(q * k, held, jnp.float32),
-                           jnp.broadcast_to(age, (q * k,))], axis=-1)
-        tokens = jnp.concatenate([fix, obs[f"{prefix}fix_log_std"].reshape(q * k, 3),
-                                  obs[f"{prefix}fix_log_fit"].reshape(q * k, 1), bands,
-                                  flags], axis=-1)
-        return fix, obs[f"{prefix}fix_valid"].reshape(q * k) > 0.5, tokens
+    def part(prefix: str, held: float, age, one_hot, flag: float):
+        n = one_hot.shape[0]
+        fix = obs[f"{prefix}fix"].reshape(n, 3)
+        columns = [fix, obs[f"{prefix}fix_log_std"].reshape(n, 3),
+                   obs[f"{prefix}fix_log_fit"].reshape(n, 1), one_hot,
+                   jnp.full((n, 1), held, jnp.float32), jnp.broadcast_to(age, (n, 1))]
+        if track:
+            columns += [jnp.full((n, 1), flag, jnp.float32),
+                        obs[f"{prefix}fix_deviation"].reshape(n, 1)]
+        return fix, obs[f"{prefix}fix_valid"].reshape(n) > 0.5, jnp.concatenate(columns, -1)
 
-    now = part("", 0.0, jnp.float32(0.0))
-    before = part("held_", 1.0, obs["held_age"][0])
-    fix, valid, tokens = (jnp.concatenate(pair) for pair in zip(now, before, strict=True))
+    parts = [part("", 0.0, jnp.float32(0.0), bands, 0.0),
+             part("held_", 1.0, obs["held_age"][0], bands, 0.0)]
+    if track:
+        parts.append(part("track_", 0.0, jnp.float32(0.0), jnp.zeros((1, q), jnp.float32),
+                          1.0))
+    fix, valid, tokens = (jnp.concatenate(group) for group in zip(*parts, strict=True))
     h = jax.nn.relu(_affine(net["embed"][1], jax.nn.relu(_affine(net["embed"][0], tokens))))
     scores = jnp.where(valid, _affine(net["score"], h)[:, 0], -jnp.inf)
     weights = jax.nn.softmax(jnp.where(valid.any(), scores, 0.0)) * valid
@@ -217,7 +225,7 @@ def init_params(key, obs_size: int, action_size: int,
         return params
     pi_key, vf_key = jax.random.split(key)
     if settings.policy == SET_POLICY:
-        return {"set": _set_init(pi_key, space["fix_valid"].shape[0]),
+        return {"set": _set_init(pi_key, space["fix_valid"].shape[0], "track_fix" in space.spaces),
                 "vf": _mlp_init(vf_key, (value_size or 3 + SET_SUMMARY, *HIDDEN_LAYERS), 1,
                                 1.0),
                 "log_std": log_std}
@@ -382,7 +390,7 @@ class Trainer:
                               "set marker_track: true")
         if settings.policy == SET_POLICY and not isinstance(env, DetectionFixesMJX):
             raise ConfigError("policy DetectionSetPolicy reads the detection fixes: set "
-                              "detection_fixes: true")
+                              "detection_fixes: true (or detection_track: true)")
         if self.recurrent and settings.policy != "MlpPolicy":
             raise ConfigError("lstm_hidden_size gives MlpPolicy a memory only")
         if settings.state_prediction_coef and not (self.recurrent and self.privileged):
@@ -742,19 +750,22 @@ EVAL_EPISODES = 64
 
 #: The batched twins of the front ends a run key switches on (the CPU wrappers:
 #: :data:`baselines.rl.config.FRONT_ENDS`), in the order they apply.
-BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX, "marker_track": MarkerTrackMJX,
+BATCHED_FRONT_ENDS = {"detection_fixes": DetectionFixesMJX,
+                      "detection_track": DetectionTrackMJX, "marker_track": MarkerTrackMJX,
                       "nav_filter": NavFilterMJX}
 
 
 def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
              marker_track: bool = False, detection_fixes: bool = False,
-             privileged: bool = False, nav_filter: bool = False) -> FunctionalEnv:
+             privileged: bool = False, nav_filter: bool = False,
+             detection_track: bool = False) -> FunctionalEnv:
     """The batched env of ``env_id`` (a CPU id with a batched twin) that the compiled PPO
     trains on, built with ``env_kwargs`` (a difficulty level alone: a string): episodes
     reset themselves, actions in [-1, 1]; with ``marker_track``, the LARS ``features``
     observation replaced by the marker tracker's (:class:`MarkerTrackMJX`); with
     ``detection_fixes``, the acoustic ``measurements`` by the detection fixes
-    (:class:`DetectionFixesMJX`); with ``nav_filter``, the mission's ``nav_features`` with
+    (:class:`DetectionFixesMJX`; with ``detection_track`` the same with a Kalman track's
+    token, :class:`DetectionTrackMJX`); with ``nav_filter``, the mission's ``nav_features`` with
     the navigation filter's estimate added (:class:`NavFilterMJX`); with ``privileged``,
     observations ``{"state": ..., "privileged_state": ...}`` for a privileged critic or a
     teacher (a front end reads and replaces the ``"state"`` entry)."""
@@ -765,8 +776,8 @@ def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc
-    chosen = {"detection_fixes": detection_fixes, "marker_track": marker_track,
-              "nav_filter": nav_filter}
+    chosen = {"detection_fixes": detection_fixes, "detection_track": detection_track,
+              "marker_track": marker_track, "nav_filter": nav_filter}
     for name, wrapper in BATCHED_FRONT_ENDS.items():
         if chosen[name]:
             try:
@@ -780,12 +791,14 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
           settings: Settings = DEFAULT_SETTINGS, evals: int = 10, group: str | None = None,
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
           stop=lambda: False, obs_mode: str = "features", marker_track: bool = False,
-          detection_fixes: bool = False, nav_filter: bool = False) -> dict:
+          detection_fixes: bool = False, nav_filter: bool = False,
+          detection_track: bool = False) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``env_kwargs``: the environment's arguments (a difficulty level alone: a string);
-    ``marker_track``, ``detection_fixes``, ``nav_filter``: train on the marker tracker's
-    observation, on the detection fixes, with the navigation filter (:func:`make_env`).
+    ``marker_track``, ``detection_fixes``, ``detection_track``, ``nav_filter``: train on
+    the marker tracker's observation, on the detection fixes (with a track), with the
+    navigation filter (:func:`make_env`).
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
     ``evals``: batched evaluations of :data:`EVAL_EPISODES` episodes during the run, the
@@ -802,7 +815,8 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     writing nothing more (the checkpoints written before it stay).
     """
     env = make_env(env_id, obs_mode, env_kwargs, marker_track, detection_fixes,
-                   settings.privileged_critic or bool(settings.teacher), nav_filter)
+                   settings.privileged_critic or bool(settings.teacher), nav_filter,
+                   detection_track)
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else dict(env_kwargs)
     difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
@@ -810,7 +824,8 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     trainer = Trainer(env, settings, iterations)
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
            "env_kwargs": env_kwargs, "marker_track": marker_track,
-           "detection_fixes": detection_fixes, "nav_filter": nav_filter,
+           "detection_fixes": detection_fixes, "detection_track": detection_track,
+           "nav_filter": nav_filter,
            "settings": settings._asdict(), "command": command}
     checkpoint_dir = Path(checkpoint_dir or Path(out) / "checkpoints")
     start = time.perf_counter()
@@ -1032,9 +1047,7 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
                              checkpoint_dir=run.checkpoints, command=command,
                              stop=lambda: flag.stop_signal is not None,
                              obs_mode=config.run["obs_mode"],
-                             marker_track=config.run["marker_track"],
-                             detection_fixes=config.run["detection_fixes"],
-                             nav_filter=config.run["nav_filter"])
+                             **{name: config.run[name] for name in BATCHED_FRONT_ENDS})
     except TrainingDiverged as exc:
         exc.run_dir = run.path
         info["segments"][0].update(status="diverged", diverged_at=exc.step, error=str(exc))

@@ -85,6 +85,7 @@ RUN_KEYS = {
     "keep_checkpoints": 2,
     "torch_threads": 1,
     "detection_fixes": False,
+    "detection_track": False,
     "marker_estimate": False,
     "marker_track": False,
     "nav_filter": False,
@@ -97,24 +98,29 @@ _RUN_KEY_TYPES = {
     "flatten_obs": bool,
     "env_kwargs": dict,
     "detection_fixes": bool,
+    "detection_track": bool,
     "marker_estimate": bool,
     "marker_track": bool,
     "nav_filter": bool,
 }
 #: Run keys added after configs were first written, read with their defaults when absent.
-_LATER_RUN_KEYS = ("detection_fixes", "marker_estimate", "marker_track", "nav_filter")
+_LATER_RUN_KEYS = ("detection_fixes", "detection_track", "marker_estimate", "marker_track",
+                   "nav_filter")
 #: The same for ``cppo``'s run keys (:data:`COMPILED_RUN_KEYS`).
-_LATER_COMPILED_RUN_KEYS = ("marker_track", "detection_fixes", "nav_filter")
+_LATER_COMPILED_RUN_KEYS = ("marker_track", "detection_fixes", "detection_track",
+                            "nav_filter")
 #: Classical front ends a run key switches on (an observation wrapper each,
 #: ``module:class``, applied by :func:`baselines.rl.envs.wrap_env` in this order).
 FRONT_ENDS = {
     "detection_fixes": "baselines.rl.detection_fixes:DetectionFixes",
+    "detection_track": "baselines.rl.detection_fixes:DetectionTrack",
     "marker_estimate": "baselines.rl.marker_estimate:MarkerEstimate",
     "marker_track": "baselines.rl.marker_track:MarkerTrack",
     "nav_filter": "baselines.rl.nav_filter:NavFilter",
 }
 #: How a shipped policy's description names each front end it reads through.
 FRONT_END_WORDS = {"detection_fixes": "the detection fixes",
+                   "detection_track": "the detection fixes and their Kalman track",
                    "marker_estimate": "ckf-pd's estimator",
                    "marker_track": "the marker tracker",
                    "nav_filter": "the navigation filter"}
@@ -147,6 +153,7 @@ COMPILED_RUN_KEYS = {
     "checkpoints": False,
     "marker_track": False,
     "detection_fixes": False,
+    "detection_track": False,
     "nav_filter": False,
 }
 #: Keys of a cppo run's ``env_kwargs`` (LARS ``control`` and ``time_limit``: its
@@ -563,6 +570,18 @@ def _type_name(types) -> str:
     return " or ".join(t.__name__ for t in types)
 
 
+def _check_detection_front_end(policy: str, run: dict) -> None:
+    """DetectionSetPolicy reads the detection fixes, with or without their track; the two
+    front ends are one or the other."""
+    if run["detection_fixes"] and run["detection_track"]:
+        raise ConfigError("detection_track is the detection fixes with their track: set "
+                          "detection_fixes: false with it")
+    if policy == "DetectionSetPolicy" and not (run["detection_fixes"]
+                                               or run["detection_track"]):
+        raise ConfigError("DetectionSetPolicy reads the per-detection fixes: set "
+                          "detection_fixes: true (or detection_track: true)")
+
+
 def validate(config: TrainConfig) -> None:
     """Raise :class:`ConfigError` for anything train.py could not run.
 
@@ -598,9 +617,7 @@ def validate(config: TrainConfig) -> None:
         raise ConfigError(f"unknown policy {config.run['policy']!r}; valid: {', '.join(POLICIES)}")
     if config.run["policy"] in CUSTOM_POLICIES and config.algo != "ppo":
         raise ConfigError(f"policy {config.run['policy']} is a PPO policy, not {config.algo}")
-    if config.run["policy"] == "DetectionSetPolicy" and not config.run["detection_fixes"]:
-        raise ConfigError("DetectionSetPolicy reads the per-detection fixes: set "
-                          "detection_fixes: true")
+    _check_detection_front_end(config.run["policy"], config.run)
     if config.run["policy"] == "JointResidualPolicy":
         front_end = config.run["marker_estimate"] or config.run["marker_track"]
         if not front_end or config.run["normalize"] is not False:
@@ -682,7 +699,8 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
         RANGES[key].check(key, run[key])
-    for key in ("checkpoints", "marker_track", "detection_fixes", "nav_filter"):
+    for key in ("checkpoints", "marker_track", "detection_fixes", "detection_track",
+                "nav_filter"):
         if not isinstance(run[key], bool):
             raise ConfigError(f"{key} must be true or false, got {run[key]!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \
@@ -707,13 +725,15 @@ def _validate_compiled(config: TrainConfig) -> None:
             raise ConfigError(f"a recurrent policy learns from whole rollouts of each env: "
                               f"num_envs ({settings.num_envs}) must split into n_minibatches "
                               f"({settings.n_minibatches}) equal groups")
-    if settings.policy == "DetectionSetPolicy" and (not run["detection_fixes"]
-                                                    or settings.normalize):
+    _check_detection_front_end(settings.policy, run)
+    if settings.policy == "DetectionSetPolicy" and settings.normalize:
         raise ConfigError("DetectionSetPolicy reads the detection fixes as they are: set "
-                          "detection_fixes: true and normalize: false with it")
-    if run["detection_fixes"] and (config.env_id != "auv_envs/AcousticTracking-v2"
-                                   or run["obs_mode"] != "measurements"):
-        raise ConfigError("detection_fixes is AcousticTracking-v2's measurements front end")
+                          "normalize: false with it")
+    if (run["detection_fixes"] or run["detection_track"]) and (
+            config.env_id != "auv_envs/AcousticTracking-v2"
+            or run["obs_mode"] != "measurements"):
+        raise ConfigError("detection_fixes and detection_track are AcousticTracking-v2's "
+                          "measurements front ends")
     if settings.policy == "JointResidualPolicy":
         if not run["marker_track"] or settings.normalize:
             raise ConfigError("JointResidualPolicy reads the marker tracker's hold target as "

@@ -64,8 +64,10 @@ class DetectionSetExtractor(BaseFeaturesExtractor):
                               f"DetectionFixes (detection_fixes: true); missing {sorted(missing)}")
         super().__init__(observation_space, features_dim=3 + summary_dim)
         q, k = observation_space["fix_valid"].shape
+        #: With a track (DetectionTrack's observation) its token joins the set.
+        self.track = "track_fix" in observation_space.spaces
         self.embed = torch.nn.Sequential(
-            torch.nn.Linear(token_size(q), embed_dim), torch.nn.ReLU(),
+            torch.nn.Linear(token_size(q, self.track), embed_dim), torch.nn.ReLU(),
             torch.nn.Linear(embed_dim, embed_dim), torch.nn.ReLU(),
         )
         self.score = torch.nn.Linear(embed_dim, 1)
@@ -73,26 +75,32 @@ class DetectionSetExtractor(BaseFeaturesExtractor):
                                            torch.nn.ReLU())
         self.register_buffer("bands", torch.eye(q).repeat_interleave(k, dim=0))
 
-    def _tokens(self, observations: dict, prefix: str, held: float, age) -> tuple:
-        fix = observations[f"{prefix}fix"].flatten(1, 2)  # (B, Q*K, 3)
+    def _tokens(self, observations: dict, prefix: str, held: float, age,
+                one_hot: torch.Tensor, flag: float) -> tuple:
+        fix = observations[f"{prefix}fix"].flatten(1, -2)  # (B, n, 3)
         batch, tokens = fix.shape[:2]
         valid = observations[f"{prefix}fix_valid"].reshape(batch, tokens) > 0.5
-        flags = torch.stack([torch.full((batch, tokens), held, dtype=fix.dtype,
-                                        device=fix.device),
-                             age.reshape(batch, 1).expand(batch, tokens)], dim=-1)
+        columns = [held, age.reshape(batch, 1).expand(batch, tokens)]
+        if self.track:
+            columns += [flag, observations[f"{prefix}fix_deviation"].reshape(batch, tokens)]
+        flags = torch.stack([torch.full((batch, tokens), c, dtype=fix.dtype, device=fix.device)
+                             if isinstance(c, float) else c for c in columns], dim=-1)
         features = torch.cat([
-            fix, observations[f"{prefix}fix_log_std"].flatten(1, 2),
+            fix, observations[f"{prefix}fix_log_std"].flatten(1, -2),
             observations[f"{prefix}fix_log_fit"].reshape(batch, tokens, 1),
-            self.bands.expand(batch, -1, -1), flags,
+            one_hot.expand(batch, -1, -1), flags,
         ], dim=-1)
         return fix, valid, features
 
     def forward(self, observations: dict) -> torch.Tensor:
         age = observations["held_age"]
-        now = self._tokens(observations, "", 0.0, torch.zeros_like(age))
-        before = self._tokens(observations, "held_", 1.0, age)
-        fix, valid, tokens_in = (torch.cat(pair, dim=1) for pair in zip(now, before,
-                                                                         strict=True))
+        parts = [self._tokens(observations, "", 0.0, torch.zeros_like(age), self.bands, 0.0),
+                 self._tokens(observations, "held_", 1.0, age, self.bands, 0.0)]
+        if self.track:
+            parts.append(self._tokens(observations, "track_", 0.0, torch.zeros_like(age),
+                                      torch.zeros_like(self.bands[:1]), 1.0))
+        fix, valid, tokens_in = (torch.cat(group, dim=1) for group in zip(*parts,
+                                                                          strict=True))
         h = self.embed(tokens_in)
         scores = self.score(h).squeeze(-1).masked_fill(~valid, -torch.inf)
         any_valid = valid.any(dim=1, keepdim=True)
