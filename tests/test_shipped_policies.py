@@ -37,6 +37,7 @@ CHECKS = {
     "cppo-lars-features": ("paper", {}, "captured"),
     "ppo-acoustic-measurements": ("paper", {"time_limit": 10.0}, "tracked"),
     "cppo-acoustic-measurements": ("paper", {"time_limit": 10.0}, "tracked"),
+    "cppo-acoustic-track": ("hard", {"time_limit": 10.0}, "tracked"),
 }
 
 
