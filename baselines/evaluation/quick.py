@@ -75,6 +75,8 @@ FULL_BOARD_ONLY = {
                                 "hard, better at both levels)",
     "cppo-mission-nav-features": "superseded by cppo-mission-nav-filter (it docks; this "
                                  "one never does)",
+    "cppo-acoustic-measurements": "superseded by cppo-acoustic-track (the same encoder with "
+                                  "a track; better at paper and at hard)",
 }
 
 
