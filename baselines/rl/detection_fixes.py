@@ -267,8 +267,8 @@ DEVIATION_KEYS = ("fix_deviation", "held_fix_deviation", "track_fix_deviation")
 class Track(NamedTuple):
     """A constant-velocity Kalman filter on each axis: position and velocity (3,) m and
     m/s, and the covariance of each axis's (position, velocity) as its three entries
-    ``pp``, ``pv``, ``vv`` (3,); the steps since its last gated fix; whether it has
-    started."""
+    ``pp``, ``pv``, ``vv`` (3,), float32 on NumPy as on JAX; the steps since its last
+    gated fix; whether it has started."""
 
     position: object
     velocity: object
