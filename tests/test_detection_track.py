@@ -231,3 +231,31 @@ def test_the_pure_clock_step_is_the_estimators_update(difficulty):
     np.testing.assert_allclose(np.asarray(traced.offset), estimator.offset,
                                atol=0.02 * float(np.max(estimator.std)))
     np.testing.assert_allclose(np.asarray(traced.precision), estimator._precision, rtol=1e-3)
+
+
+@pytest.mark.parametrize("difficulty", ["paper", "hard"])
+def test_the_track_follows_ls_kf(difficulty):
+    """On the same episode the track stays within decimetres of ``ls-kf``'s estimate (the
+    same filter, gate and clock calibration; the track takes the fixes' covariances by
+    their diagonals): median 3.4 cm at paper and 6.8 cm at hard on this seed."""
+    from baselines.acoustic.agents import LSKalmanAgent
+
+    env = gym.make(ACOUSTIC, obs_mode="measurements", difficulty=difficulty, time_limit=10.0)
+    wrapper = DetectionTrack(gym.make(ACOUSTIC, obs_mode="measurements",
+                                      difficulty=difficulty))
+    agent = LSKalmanAgent(env.unwrapped)
+    obs, info = env.reset(seed=31)
+    agent.reset()
+    wrapper.clear()
+    gaps, done = [], False
+    while not done:
+        wrapper.state, _ = wrapper.advance(wrapper.state, obs)
+        action = agent.act(obs, info)
+        track = wrapper.state[1]
+        if track.started:
+            gaps.append(float(np.linalg.norm(track.position - action)))
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    assert len(gaps) > 900
+    assert np.median(gaps) < 0.1 and np.percentile(gaps, 99) < 0.3, np.percentile(
+        gaps, [50, 99])
