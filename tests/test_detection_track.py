@@ -23,6 +23,7 @@ from baselines.rl.detection_fixes import (
     TRACK_VARIANCE_FLOOR,
     DetectionTrack,
     Held,
+    Motion,
     Track,
     observe_track,
     track_step,
@@ -89,7 +90,7 @@ def test_the_track_is_a_constant_velocity_kalman_filter_with_a_gate_and_a_restar
         valid = not 120 <= step < 120 + TRACK_MAX_MISSES + 5  # a long dropout
         if step in (40, 41, 90):
             z = z + np.array([8.0, 0.0, 0.0])  # outliers, outside the gate
-        track = track_step(DT, track, *_fixes(z, r, valid))
+        track = track_step(Motion.of(DT), track, *_fixes(z, r, valid))
         floored = r + TRACK_VARIANCE_FLOOR
         if reference.x is None:
             reference.start(z, floored)
@@ -120,11 +121,11 @@ def test_the_track_starts_at_the_fix_nearest_the_median():
     position = np.array([[[1.0, 0.0, 0.0], [1.2, 0.1, 0.0], [40.0, 40.0, 0.0]],
                          [[0.9, 0.0, 0.1], [0.0, 0.0, 0.0], [-30.0, 5.0, 0.0]]])
     valid = np.array([[True, True, True], [True, False, True]])
-    track = track_step(DT, Track.start(), position, np.full((2, 3, 3), 0.01), valid)
+    track = track_step(Motion.of(DT), Track.start(), position, np.full((2, 3, 3), 0.01), valid)
     assert bool(track.started) and int(track.misses) == 0
     np.testing.assert_allclose(track.position, [1.0, 0.0, 0.0])
     np.testing.assert_array_equal(track.velocity, 0.0)
-    nothing = track_step(DT, Track.start(), position, np.ones((2, 3, 3)),
+    nothing = track_step(Motion.of(DT), Track.start(), position, np.ones((2, 3, 3)),
                          np.zeros((2, 3), bool))
     assert not bool(nothing.started)
 

@@ -61,6 +61,9 @@ OBS_KEYS = ("tdoa", "azimuth", "elevation", "mask")
 #: with the clock calibration, the error left in their estimates) bias all
 #: fixes of an episode alike, which the per-fix LS covariance ignores.
 FIX_VARIANCE_FLOOR = 1e-4
+#: ``ls-kf``'s defaults: sigma_q of the constant-velocity model (m/s^2), the chi-square gate
+#: on the innovation (3 dof, 99.7 %) and the steps without a gated fix before it restarts.
+LSKF_ACCEL_STD, LSKF_GATE, LSKF_MAX_MISSES = 1.0, 14.16, 20
 
 
 def _check_env(env, name: str):
@@ -204,8 +207,8 @@ class LSKalmanAgent:
       clock_calibration: as for :class:`GMPHDGCIAgent`.
     """
 
-    def __init__(self, env, accel_std: float = 1.0, gate: float = 14.16,
-                 max_misses: int = 20, clock_calibration: bool = True):
+    def __init__(self, env, accel_std: float = LSKF_ACCEL_STD, gate: float = LSKF_GATE,
+                 max_misses: int = LSKF_MAX_MISSES, clock_calibration: bool = True):
         cal = _check_env(env, type(self).__name__)
         self._fixes = _FixSource(cal, range(len(cal.band_centres)), clock_calibration)
         self._motion = ConstantVelocityModel(1.0 / cal.sample_rate, accel_std)

@@ -699,8 +699,7 @@ def _validate_compiled(config: TrainConfig) -> None:
         raise ConfigError(f"difficulty must be one of {LEVELS}, got {kwargs['difficulty']!r}")
     for key in ("n_timesteps", "evals"):
         RANGES[key].check(key, run[key])
-    for key in ("checkpoints", "marker_track", "detection_fixes", "detection_track",
-                "nav_filter"):
+    for key in (key for key, default in COMPILED_RUN_KEYS.items() if isinstance(default, bool)):
         if not isinstance(run[key], bool):
             raise ConfigError(f"{key} must be true or false, got {run[key]!r}")
     if not isinstance(config.seed, int) or isinstance(config.seed, bool) \

@@ -42,11 +42,18 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from baselines.acoustic.agents import (
+    FIX_VARIANCE_FLOOR,
+    LSKF_ACCEL_STD,
+    LSKF_GATE,
+    LSKF_MAX_MISSES,
+)
 from baselines.acoustic.perception.positioning import (
     ClockOffsetEstimator,
     ClockState,
     LeastSquaresPositioner,
 )
+from baselines.kalman import constant_velocity_blocks
 from baselines.rl.batched_front_end import BatchedFrontEnd, FrontEnd
 from baselines.rl.config import ConfigError
 
@@ -89,8 +96,8 @@ class FixParams:
     span: np.ndarray
     bands: int
     slots: int
-    #: The measurement interval (s): the track's time step.
-    dt: float
+    #: The track's constant-velocity model over one measurement interval.
+    motion: Motion
     #: The clock offsets' estimator (its constants; the track's front end carries the
     #: estimate).
     clock: ClockOffsetEstimator
@@ -114,7 +121,7 @@ class FixParams:
         q, k = base.observation_space["mask"].shape
         return cls(LeastSquaresPositioner(base.calibration, method="fused"),
                    space.low.astype(np.float64), (space.high - space.low).astype(np.float64),
-                   q, k, 1.0 / float(base.calibration.sample_rate),
+                   q, k, Motion.of(1.0 / float(base.calibration.sample_rate)),
                    ClockOffsetEstimator(base.calibration))
 
     def observation_space(self) -> spaces.Dict:
@@ -252,12 +259,10 @@ class DetectionFixesMJX(BatchedFrontEnd):
 
 
 # ---------------------------------------------------------------------- the track
-#: The track's constant-velocity model, gate and re-initialisation: ``ls-kf``'s
-#: (:class:`~baselines.acoustic.agents.LSKalmanAgent`'s defaults): sigma_q (m/s^2), the
-#: chi-square gate (3 dof, 99.7 %), steps without a gated fix before it restarts, and the
-#: floor added to each fix's variances (m^2).
-TRACK_ACCEL_STD, TRACK_GATE, TRACK_MAX_MISSES = 1.0, 14.16, 20
-TRACK_VARIANCE_FLOOR = 1e-4
+#: The track's constant-velocity model, gate and re-initialisation, and the floor added to
+#: each fix's variances: ``ls-kf``'s (:class:`~baselines.acoustic.agents.LSKalmanAgent`).
+TRACK_ACCEL_STD, TRACK_GATE, TRACK_MAX_MISSES = LSKF_ACCEL_STD, LSKF_GATE, LSKF_MAX_MISSES
+TRACK_VARIANCE_FLOOR = FIX_VARIANCE_FLOOR
 #: The observation keys of the track's token.
 TRACK_KEYS = tuple(f"track_{key}" for key in FIX_KEYS)
 #: The keys of every token's deviation from the track.
@@ -285,14 +290,30 @@ class Track(NamedTuple):
                    xp.asarray(0, xp.int32), xp.asarray(False))
 
 
-def _predict(dt: float, track: Track) -> Track:
+class Motion(NamedTuple):
+    """One axis of the track's constant-velocity model over a step: the step ``dt`` (s) and
+    the white-acceleration noise's covariance entries ``q_pp``, ``q_pv``, ``q_vv``
+    (:func:`baselines.kalman.constant_velocity_blocks`, sigma_q :data:`TRACK_ACCEL_STD`)."""
+
+    dt: float
+    q_pp: float
+    q_pv: float
+    q_vv: float
+
+    @classmethod
+    def of(cls, dt: float) -> Motion:
+        _, q = constant_velocity_blocks(dt, TRACK_ACCEL_STD)
+        return cls(float(dt), float(q[0, 0]), float(q[0, 1]), float(q[1, 1]))
+
+
+def _predict(motion: Motion, track: Track) -> Track:
     """The track one step later by its constant-velocity model (nothing measured)."""
-    q = TRACK_ACCEL_STD ** 2
+    dt = motion.dt
     return track._replace(
         position=track.position + dt * track.velocity,
-        pp=track.pp + 2.0 * dt * track.pv + dt * dt * track.vv + q * dt ** 4 / 4.0,
-        pv=track.pv + dt * track.vv + q * dt ** 3 / 2.0,
-        vv=track.vv + q * dt ** 2)
+        pp=track.pp + 2.0 * dt * track.pv + dt * dt * track.vv + motion.q_pp,
+        pv=track.pv + dt * track.vv + motion.q_pv,
+        vv=track.vv + motion.q_vv)
 
 
 def _distance(track: Track, position, variance, xp=np):
@@ -303,7 +324,7 @@ def _distance(track: Track, position, variance, xp=np):
     return xp.sum(nu * nu / (track.pp + variance + TRACK_VARIANCE_FLOOR), axis=-1), nu
 
 
-def track_step(dt: float, track: Track, position, variance, valid, xp=np) -> Track:
+def track_step(motion: Motion, track: Track, position, variance, valid, xp=np) -> Track:
     """One step of the track over one observation's fixes (position (Q, K, 3) m, their
     variances (Q, K, 3) m^2, validity (Q, K)): ``ls-kf``'s filter on each axis alone,
     the fixes' covariances taken by their diagonals. Predict by the constant-velocity
@@ -314,7 +335,7 @@ def track_step(dt: float, track: Track, position, variance, valid, xp=np) -> Tra
     z = position.reshape(-1, 3)
     r = variance.reshape(-1, 3) + TRACK_VARIANCE_FLOOR
     ok = valid.reshape(-1) > 0
-    predicted = _predict(dt, track)
+    predicted = _predict(motion, track)
     x, pp, pv, vv = predicted.position, predicted.pp, predicted.pv, predicted.vv
     d2, nu = _distance(predicted, z, variance.reshape(-1, 3), xp)
     d2 = xp.where(ok, d2, xp.inf)
@@ -369,11 +390,11 @@ def observe_track(p: FixParams, carry: tuple, observation: dict, xp=np) -> tuple
     clock = p.clock.step(clock, *(xp.asarray(observation[key], dtype) for key in (
         "tdoa", "azimuth", "elevation")), valid, observation.get("node_mask"), xp)
     held, out = _hold(held, _token(p, position, variance, fit, valid, xp), xp)
-    predicted = _predict(p.dt, track)
+    predicted = _predict(p.motion, track)
     deviations = {f"{prefix}fix_deviation": deviation(
         p, predicted, {key: out[f"{prefix}{key}"] for key in FIX_KEYS}, xp)
         for prefix in ("", "held_")}
-    track = track_step(p.dt, track, position, variance, valid, xp)
+    track = track_step(p.motion, track, position, variance, valid, xp)
     tokens = track_token(p, track, xp)
     return (held, track, clock), {**out, **deviations, **tokens,
                            "track_fix_deviation": xp.zeros(1, xp.float32)}

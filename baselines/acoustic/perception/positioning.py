@@ -564,10 +564,8 @@ class ClockOffsetEstimator:
 
     def start(self, xp=np) -> ClockState:
         """The estimate of a new episode for :meth:`step` (the prior)."""
-        n = len(self._nodes) - 1
-        return ClockState(xp.zeros(n, xp.float32 if xp is not np else np.float64),
-                          xp.full(n, self._prior_precision,
-                                  xp.float32 if xp is not np else np.float64))
+        n, dtype = len(self._nodes) - 1, np.float64 if xp is np else xp.float32
+        return ClockState(xp.zeros(n, dtype), xp.full(n, self._prior_precision, dtype))
 
     def step(self, state: ClockState, tdoa, azimuth, elevation, valid, nodes=None,
              xp=np) -> ClockState:
