@@ -15,7 +15,7 @@ import pytest
 import auv_envs  # noqa: F401  (registers the ids)
 from baselines.docking.agents import DockingPDAgent, HomingPDAgent
 from baselines.docking.control.homing import HomingGains, homing_action, homing_force
-from baselines.docking.control.pd import PDGains, pd_action, pd_force
+from baselines.docking.control.pd import PDGains, pd_action, pd_force, read_state
 
 MISSION = "auv_envs/DockingMission-v0"
 STATION = "auv_envs/DockingStation-v2"
@@ -186,10 +186,11 @@ def test_jax_pd_matches_numpy_batched():
     np.testing.assert_allclose(np.asarray(batched), actions, rtol=0.0, atol=ACTION_ATOL)
 
 
-def test_the_corridor_is_the_approach_between_staging_and_entrance():
-    """The state-decided hand-over: inside between the staging point's capture distance and
-    the entrance, near the axis, heading along it; the latch's own condition lies in it."""
-    from baselines.docking.control.homing import in_corridor
+def test_the_corridor_is_the_approach_from_staging_into_the_funnel():
+    """The state-decided hand-over: inside from the staging point's capture distance to
+    CORRIDOR_BEYOND past the docking point, near the axis, heading along it except within
+    STATION_ZONE of the docking point; the latch's own condition lies in it."""
+    from baselines.docking.control.homing import CORRIDOR_BEYOND, STATION_ZONE, in_corridor
 
     env = gym.make(MISSION, obs_mode="state", difficulty="paper").unwrapped
     gains = HomingGains.from_calibration(env.calibration)
@@ -200,7 +201,31 @@ def test_the_corridor_is_the_approach_between_staging_and_entrance():
 
     assert inside([0, 0, 0]) and inside([gains.capture * 0.9, 0.5, -0.5])
     assert inside([0, 0, 0], base=target) and inside([-1.0, 2.9, 0.0], base=target)
+    assert inside([CORRIDOR_BEYOND - 0.05, 0.4, 0], base=target)  # the nose in the funnel
     assert not inside([-gains.capture - 0.1, 0, 0])  # before the staging point
-    assert not inside([0.1, 0, 0], base=target)  # past the entrance
+    assert not inside([CORRIDOR_BEYOND + 0.05, 0, 0], base=target)  # past the funnel
     assert not inside([0, 3.1, 0]) and not inside([0, 0, -3.1])  # off the axis
-    assert not inside([0, 0, 0], yaw=0.6)  # heading off the axis
+    assert not inside([0, 0, 0], yaw=0.6)  # heading off the axis, far from the station
+    assert not inside([-STATION_ZONE - 0.05, 0, 0], yaw=0.6, base=target)
+    # Near the station any heading is in: homing's turn there would pin the hull.
+    assert inside([-STATION_ZONE + 0.05, 0, 0], yaw=1.3, base=target)
+    assert inside([0.0, -0.45, 0], yaw=-1.2, base=target)
+
+
+def test_the_corridor_teacher_docks_where_it_used_to_pin_the_hull():
+    """A CPU episode (paper, seed 700011) in which the corridor, when it ended at the
+    docking point, handed a hull 0.46 m off the axis at the entrance back to homing, whose
+    turn pinned it on the funnel until the time limit: the corridor through the funnel
+    docks it."""
+    from baselines.docking.control.homing import in_corridor
+
+    env = gym.make(MISSION, obs_mode="state", difficulty="paper")
+    gains = HomingGains.from_calibration(env.unwrapped.calibration)
+    obs, info = env.reset(seed=700011)
+    while True:
+        position, yaw, _, _ = read_state(obs, np)
+        action = homing_action(gains, obs, in_corridor(gains, position, yaw, 3.0, np), np)[0]
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    assert info["is_success"], info["failure_reason"]

@@ -36,6 +36,14 @@ from baselines.docking.control.pd import PDGains, normalised_action, pd_force, r
 
 #: Largest heading error (rad) from the docking axis at which homing hands over.
 HANDOVER_HEADING = 0.5
+#: How far the approach corridor (:func:`in_corridor`) runs on past the docking point along
+#: the axis (m): a hull whose nose is in the funnel is never handed back to homing.
+CORRIDOR_BEYOND = 1.0
+#: Within this distance of the docking point along the axis (m; about the hull's length,
+#: 1.8 m, and the funnel's depth) the corridor holds at any heading: there homing's turn
+#: towards its waypoint sweeps the hull into the funnel's petals, where it is held
+#: (MuJoCo's contacts in the CPU environment).
+STATION_ZONE = 2.0
 
 
 class HomingGains(NamedTuple):
@@ -175,12 +183,18 @@ def homing_force(gains: HomingGains, position, yaw, body_velocity, yaw_rate, doc
     return xp.where(docking, terminal, homing), docking
 
 
-def in_corridor(gains: HomingGains, position, yaw, width: float, xp):
-    """Whether the vehicle is in the approach corridor: between the staging point's capture
-    distance and the entrance along the docking axis, within ``width`` m of the axis
-    sideways and in height, heading within :data:`HANDOVER_HEADING` of it. A hand-over
-    decided by the state alone: the terminal law holds there, homing elsewhere, with no
-    latch to remember (a student that imitates this law need not infer one).
+def in_corridor(gains: HomingGains, position, yaw, width: float, xp,
+                beyond: float = CORRIDOR_BEYOND, zone: float = STATION_ZONE):
+    """Whether the vehicle is in the approach corridor: along the docking axis from the
+    staging point's capture distance to ``beyond`` past the docking point, within
+    ``width`` m of the axis sideways and in height, and heading within
+    :data:`HANDOVER_HEADING` of it except in the last ``zone`` m, where any heading is in.
+    A hand-over decided by the state alone: the terminal law holds there, homing
+    elsewhere, with no latch to remember (a student that imitates this law need not infer
+    one). The corridor runs into the funnel, and holds there at any heading, because
+    homing's turn to its waypoint from a hull at the entrance pins the hull on the funnel
+    (the CPU environment's contacts; ``homing-pd-state``, whose latch never lets go, does
+    not meet this).
 
     Args:
         gains: the law's parameters.
@@ -189,12 +203,19 @@ def in_corridor(gains: HomingGains, position, yaw, width: float, xp):
         width: the corridor's half-width, m (at least ``capture``, so that the latch's
             own condition lies inside it).
         xp: the array namespace.
+        beyond: how far the corridor runs on past the docking point (m);
+            :data:`CORRIDOR_BEYOND` (0: it ends at the docking point).
+        zone: the distance before the docking point within which any heading is in (m);
+            :data:`STATION_ZONE` (0: the heading counts everywhere).
     """
     staging, target = xp.asarray(gains.staging_point), xp.asarray(gains.target)
-    return ((position[0] >= staging[0] - gains.capture) & (position[0] <= target[0])
+    aligned = ((xp.abs(wrap_angle(yaw)) < HANDOVER_HEADING)
+               | (position[0] >= target[0] - zone))
+    return ((position[0] >= staging[0] - gains.capture)
+            & (position[0] <= target[0] + beyond)
             & (xp.abs(position[1] - target[1]) <= width)
             & (xp.abs(position[2] - target[2]) <= width)
-            & (xp.abs(wrap_angle(yaw)) < HANDOVER_HEADING))
+            & aligned)
 
 
 def homing_action(gains: HomingGains, state_obs, docking, xp):
