@@ -100,8 +100,8 @@ class HomingTeacher:
 class CorridorHomingTeacher(MemorylessTeacher, HomingTeacher):
     """``homing-pd``'s laws with a hand-over the state decides
     (:func:`~baselines.docking.control.homing.in_corridor`): the terminal law within
-    :data:`CORRIDOR_WIDTH` m of the docking axis between the staging point and the
-    entrance, homing elsewhere. It has no memory, so its student need not infer a latch
+    :data:`CORRIDOR_WIDTH` m of the docking axis from the staging point into the funnel,
+    homing elsewhere. It has no memory, so its student need not infer a latch
     that the teacher set long before."""
 
     #: The corridor's half-width (m): twice the staging point's capture distance.
