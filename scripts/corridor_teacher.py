@@ -2,8 +2,7 @@
 
 The distillation's teacher (:class:`baselines.rl.teachers.CorridorHomingTeacher`) labels
 the batched twin, whose hull has no contacts; this script flies its law
-(:func:`baselines.docking.control.homing.homing_action` with the hand-over
-:func:`~baselines.docking.control.homing.in_corridor`) from the true state in the CPU
+(:func:`baselines.docking.control.homing.corridor_action`) from the true state in the CPU
 environment, where MuJoCo's contacts hold a hull that meets the station. It prints the
 success rate with its 95 % Wilson interval per level, and each failure with its reason,
 the heading error and the hull's contacts at the end. ``--beyond`` and ``--zone`` set the
@@ -24,34 +23,23 @@ import gymnasium as gym
 import numpy as np
 
 import auv_envs  # noqa: F401  (registers the ids)
+from baselines.commands.evaluate import parse_seeds
 from baselines.docking.control.homing import (
     CORRIDOR_BEYOND,
     STATION_ZONE,
     HomingGains,
-    homing_action,
-    in_corridor,
+    corridor_action,
 )
-from baselines.docking.control.pd import read_state
-from baselines.rl.teachers import CorridorHomingTeacher
 from baselines.stats import wilson_interval
 
 ENV_ID = "auv_envs/DockingMission-v0"
-
-
-def seed_range(text: str) -> range:
-    """``"A-B"`` (inclusive) as a range."""
-    first, _, last = text.partition("-")
-    return range(int(first), int(last or first) + 1)
 
 
 def episode(env, gains: HomingGains, seed: int, beyond: float, zone: float) -> dict:
     """One seeded episode of the corridor teacher; its outcome."""
     obs, info = env.reset(seed=seed)
     while True:
-        position, yaw, _, _ = read_state(obs, np)
-        corridor = in_corridor(gains, position, yaw, CorridorHomingTeacher.CORRIDOR_WIDTH, np,
-                               beyond=beyond, zone=zone)
-        action = homing_action(gains, obs, corridor, np)[0]
+        action = corridor_action(gains, obs, np, beyond=beyond, zone=zone)
         obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
         if terminated or truncated:
             return {"seed": seed, "success": bool(info["is_success"]),
@@ -64,8 +52,8 @@ def episode(env, gains: HomingGains, seed: int, beyond: float, zone: float) -> d
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--difficulty", nargs="+", default=["paper", "hard"])
-    parser.add_argument("--seeds", type=seed_range, default=seed_range("700000-700099"),
-                        help="first-last, inclusive")
+    parser.add_argument("--seeds", type=parse_seeds, default=parse_seeds("700000-700099"),
+                        help="'A-B' (inclusive) or 'A,B,C'")
     parser.add_argument("--beyond", type=float, default=CORRIDOR_BEYOND)
     parser.add_argument("--zone", type=float, default=STATION_ZONE)
     args = parser.parse_args()

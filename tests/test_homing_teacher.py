@@ -15,7 +15,7 @@ import pytest
 import auv_envs  # noqa: F401  (registers the ids)
 from baselines.docking.agents import DockingPDAgent, HomingPDAgent
 from baselines.docking.control.homing import HomingGains, homing_action, homing_force
-from baselines.docking.control.pd import PDGains, pd_action, pd_force, read_state
+from baselines.docking.control.pd import PDGains, pd_action, pd_force
 
 MISSION = "auv_envs/DockingMission-v0"
 STATION = "auv_envs/DockingStation-v2"
@@ -217,15 +217,13 @@ def test_the_corridor_teacher_docks_where_it_used_to_pin_the_hull():
     docking point, handed a hull 0.46 m off the axis at the entrance back to homing, whose
     turn pinned it on the funnel until the time limit: the corridor through the funnel
     docks it."""
-    from baselines.docking.control.homing import in_corridor
+    from baselines.docking.control.homing import corridor_action
 
     env = gym.make(MISSION, obs_mode="state", difficulty="paper")
     gains = HomingGains.from_calibration(env.unwrapped.calibration)
     obs, info = env.reset(seed=700011)
     while True:
-        position, yaw, _, _ = read_state(obs, np)
-        action = homing_action(gains, obs, in_corridor(gains, position, yaw, 3.0, np), np)[0]
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, _, terminated, truncated, info = env.step(corridor_action(gains, obs, np))
         if terminated or truncated:
             break
     assert info["is_success"], info["failure_reason"]

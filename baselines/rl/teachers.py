@@ -26,8 +26,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from baselines.docking.control.homing import HomingGains, homing_action, in_corridor
-from baselines.docking.control.pd import read_state
+from baselines.docking.control.homing import (
+    CORRIDOR_WIDTH,
+    HomingGains,
+    corridor_action,
+    homing_action,
+)
 from baselines.rl.config import ConfigError
 
 
@@ -105,18 +109,12 @@ class CorridorHomingTeacher(MemorylessTeacher, HomingTeacher):
     that the teacher set long before."""
 
     #: The corridor's half-width (m): twice the staging point's capture distance.
-    CORRIDOR_WIDTH = 3.0
+    CORRIDOR_WIDTH = CORRIDOR_WIDTH
 
     def __init__(self, env):
         HomingTeacher.__init__(self, env)
-        gains = self._gains
-
-        def act(obs):
-            position, yaw, _, _ = read_state(obs, jnp)
-            corridor = in_corridor(gains, position, yaw, self.CORRIDOR_WIDTH, jnp)
-            return homing_action(gains, obs, corridor, jnp)[0]
-
-        self.answer = jax.vmap(act)
+        self.answer = jax.vmap(functools.partial(corridor_action, self._gains, xp=jnp,
+                                                 width=self.CORRIDOR_WIDTH))
 
 
 #: Teacher name -> its class (built on the batched env; it refuses an env it cannot teach).

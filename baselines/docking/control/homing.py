@@ -36,6 +36,9 @@ from baselines.docking.control.pd import PDGains, normalised_action, pd_force, r
 
 #: Largest heading error (rad) from the docking axis at which homing hands over.
 HANDOVER_HEADING = 0.5
+#: The approach corridor's half-width (m; :func:`in_corridor`): twice the staging point's
+#: capture distance.
+CORRIDOR_WIDTH = 3.0
 #: How far the approach corridor (:func:`in_corridor`) runs on past the docking point along
 #: the axis (m): a hull whose nose is in the funnel is never handed back to homing.
 CORRIDOR_BEYOND = 1.0
@@ -216,6 +219,26 @@ def in_corridor(gains: HomingGains, position, yaw, width: float, xp,
             & (xp.abs(position[1] - target[1]) <= width)
             & (xp.abs(position[2] - target[2]) <= width)
             & aligned)
+
+
+def corridor_action(gains: HomingGains, state_obs, xp, width: float = CORRIDOR_WIDTH,
+                    beyond: float = CORRIDOR_BEYOND, zone: float = STATION_ZONE):
+    """The corridor teacher's law (``homing-pd-corridor``): :func:`homing_action` on one
+    ``state`` observation with the hand-over :func:`in_corridor` decides instead of a latch.
+    One observation: a batch is ``jax.vmap`` of this function.
+
+    Args:
+        gains: the law's parameters, with ``thrust_limits``.
+        state_obs: one ``state`` observation of ``auv_envs/DockingMission-v0``.
+        xp: the array namespace.
+        width, beyond, zone: :func:`in_corridor`'s.
+
+    Returns:
+        The action (4,) in ``[-1, 1]``.
+    """
+    position, yaw, _, _ = read_state(state_obs, xp)
+    corridor = in_corridor(gains, position, yaw, width, xp, beyond=beyond, zone=zone)
+    return homing_action(gains, state_obs, corridor, xp)[0]
 
 
 def homing_action(gains: HomingGains, state_obs, docking, xp):
