@@ -42,7 +42,7 @@ def test_the_filter_estimates_as_the_pipelines_navigation_filter(level):
     """NumPy: the pipeline's own estimates, the same fixes taken and rejected; JAX (float32,
     jit): the same fixes, and within 2 mm of the float64 estimates at every step."""
     env, observations, expected, oracle, truth = _episode(level, seed=11)
-    params = nf.params_of(env)
+    params = nf.params_of(env).nav
     state, state32 = nf.FilterState.start(params), nf.FilterState.start(params, jnp)
     step32 = jax.jit(lambda s, o: nf.step(params, s, o, jnp))
     got, got32 = [], []
@@ -69,12 +69,12 @@ def test_the_wrapper_adds_the_estimate_and_starts_afresh_each_episode():
     assert added <= set(obs) and set(env.unwrapped.observation_space.spaces) < set(obs)
     for _ in range(30):
         obs, *_ = env.step(np.zeros(4, np.float32))
-    assert int(env.state.length) == 31
+    assert int(env.state.nav.length) == 31
     # nav_entrance is the entrance from the estimate, in body axes
     R = nf.rotation(np.asarray(obs["attitude"], float))
     np.testing.assert_allclose(R @ obs["nav_entrance"], -obs["nav_position"], atol=1e-3)
     env.reset(seed=3)
-    assert int(env.state.length) == 1 and int(env.state.fixes) <= 1
+    assert int(env.state.nav.length) == 1 and int(env.state.nav.fixes) <= 1
 
 
 def test_the_filter_refuses_other_envs_and_modes():
@@ -98,7 +98,7 @@ def test_the_batched_filter_restarts_with_each_episode():
     lengths = []
     for _ in range(25):  # 2 s at 0.1 s: one restart
         states = step(states, zero)
-        lengths.append(np.asarray(states.info["nav_filter"].length))
+        lengths.append(np.asarray(states.info["nav_filter"].nav.length))
     lengths = np.array(lengths)
     assert lengths.max() == 20 and (lengths[-1] < 10).all()
     assert np.isfinite(np.asarray(states.obs["nav_position"])).all()

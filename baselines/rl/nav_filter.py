@@ -11,7 +11,16 @@ applies) and with ``jax.numpy`` under ``jit`` and ``vmap`` (:class:`NavFilterMJX
 the batched env the compiled PPO trains on): one definition for the pipeline, the learner
 in training and the shipped learner.
 
-The learner's observation is the ``nav_features`` ``Dict`` with three entries added:
+The lamps add what the navigation sensors cannot see: a heading read off the station's
+frame (``hard``: 8 deg RMS) turns the filter's whole world about the transponder, and a
+learner homing on it meets the entrance that far off the axis. The lights' heading filter
+(:mod:`baselines.docking.estimation.light_heading`) learns the deviation from the detected
+lamps; the navigation filter is turned back by each change of its estimate and reads the
+heading with the estimate taken off, and so does the learner (its ``attitude``). Where
+the level has no deviation (``easy``, ``paper``) the estimate stays 0 and nothing changes.
+
+The learner's observation is the ``nav_features`` ``Dict``, its ``attitude`` corrected so,
+with three entries added:
 
 * ``nav_position`` (3): the estimate of the CG position, station frame (m);
 * ``nav_entrance`` (3): the entrance centre (the station frame's origin) from the
@@ -22,16 +31,21 @@ The learner's observation is the ``nav_features`` ``Dict`` with three entries ad
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from baselines.docking.estimation import light_heading
+from baselines.docking.estimation.light_heading import HeadingParams, HeadingState
 from baselines.docking.estimation.navigation_filter import (  # noqa: F401 (re-exported)
     FilterParams,
     FilterState,
     NavigationFilter,
     rotation,
     step,
+    turned,
 )
 from baselines.rl.batched_front_end import BatchedFrontEnd, FrontEnd
 from baselines.rl.config import ConfigError
@@ -40,15 +54,54 @@ from baselines.rl.config import ConfigError
 ADDED = (("nav_entrance", 3), ("nav_log_std", 3), ("nav_position", 3))
 
 
-def params_of(env: gym.Env) -> FilterParams:
-    """The parameters ``MissionAgent`` gives its filter, for ``env`` (a
-    ``DockingMission-v0`` CPU env in ``nav_features`` mode, wrapped or not)."""
+class Params(NamedTuple):
+    """The front end's parameters: the navigation filter's and the lights' heading
+    filter's."""
+
+    nav: FilterParams
+    heading: HeadingParams
+
+
+class Carry(NamedTuple):
+    """The front end between observations (a JAX pytree)."""
+
+    nav: FilterState
+    heading: HeadingState
+
+
+def params_of(env: gym.Env) -> Params:
+    """The parameters for ``env`` (a ``DockingMission-v0`` CPU env in ``nav_features``
+    mode, wrapped or not): those ``MissionAgent`` gives its filter, and the lights' heading
+    filter's from the calibration and the navigation suite."""
     base = env.unwrapped
     nav = getattr(base, "navigation", None)
     if getattr(base, "obs_mode", None) != "nav_features" or nav is None:
         raise ConfigError("the navigation filter needs a docking env with navigation "
                           "sensors in obs_mode='nav_features' (auv_envs/DockingMission-v0)")
-    return NavigationFilter.for_suite(nav, base.calibration.control_period).params
+    return Params(NavigationFilter.for_suite(nav, base.calibration.control_period).params,
+                  HeadingParams.of(base.calibration, nav))
+
+
+def start(params: Params, xp=np) -> Carry:
+    """The carry of a new episode."""
+    return Carry(FilterState.start(params.nav, xp), HeadingState.start(params.heading, xp))
+
+
+def advance(params: Params, carry: Carry, obs, xp=np) -> tuple:
+    """One ``nav_features`` observation: the lights' heading filter takes it; the
+    navigation filter's world is turned by the change of the heading's deviation (about
+    the transponder) and takes the observation with the deviation taken off its heading.
+    The next carry, and the learner's observation (:func:`observe`, whose ``attitude`` is
+    the corrected one)."""
+    if params.heading.deviation_var == 0.0:  # a level without a deviation: nothing to learn
+        nav = step(params.nav, carry.nav, obs, xp)
+        return Carry(nav, carry.heading), observe(nav, obs, xp)
+    heading = light_heading.step(params.heading, carry.heading, obs, xp)
+    change = heading.deviation - carry.heading.deviation
+    nav = turned(carry.nav, -change, params.nav.transponder, xp)
+    obs = {**obs, "attitude": light_heading.corrected_attitude(heading, obs["attitude"], xp)}
+    nav = step(params.nav, nav, obs, xp)
+    return Carry(nav, heading), observe(nav, obs, xp)
 
 
 def observation_space(space: spaces.Dict) -> spaces.Dict:
@@ -85,17 +138,17 @@ class NavFilter(FrontEnd):
         self.observation_space = observation_space(env.observation_space)
         self.clear()
 
-    def start(self) -> FilterState:
-        return FilterState.start(self.params)
+    def start(self) -> Carry:
+        return start(self.params)
 
-    def advance(self, carry: FilterState, obs) -> tuple:
-        carry = step(self.params, carry, obs)
-        return carry, observe(carry, obs)
+    def advance(self, carry: Carry, obs) -> tuple:
+        return advance(self.params, carry, obs)
 
     def position_estimate(self) -> np.ndarray | None:
         """The filter's estimate of the CG position (station frame, m), once a USBL fix
         has placed it (None before), as ``nav-homing-ofnmpc-ekf`` reports its own."""
-        return self.state.position.copy() if int(self.state.fixes) else None
+        nav = self.state.nav
+        return nav.position.copy() if int(nav.fixes) else None
 
 
 class NavFilterMJX(BatchedFrontEnd):
@@ -112,9 +165,8 @@ class NavFilterMJX(BatchedFrontEnd):
         self.observation_space = self.around(
             observation_space(env.cpu_env.observation_space))
 
-    def start(self) -> FilterState:
-        return FilterState.start(self.params, self._jnp)
+    def start(self) -> Carry:
+        return start(self.params, self._jnp)
 
-    def advance(self, carry: FilterState, obs) -> tuple:
-        carry = step(self.params, carry, obs, self._jnp)
-        return carry, observe(carry, obs, self._jnp)
+    def advance(self, carry: Carry, obs) -> tuple:
+        return advance(self.params, carry, obs, self._jnp)

@@ -167,6 +167,27 @@ def step(params: FilterParams, state: FilterState, obs, xp=np) -> FilterState:
                        (head + 1) % params.history)
 
 
+def turned(state: FilterState, angle, centre, xp=np) -> FilterState:
+    """``state`` with its world turned by ``angle`` (rad) about the vertical through
+    ``centre`` (station frame): the estimate, its covariance, the kept states and the
+    attitudes. A heading read off the station's frame by ``b`` turns the filter's whole
+    world by ``b`` about the transponder (dead reckoning and fixes alike); learning ``b``
+    later, the filter is turned back by it
+    (:mod:`~baselines.docking.estimation.light_heading`)."""
+    dtype = state.position.dtype
+    c, s = xp.cos(xp.asarray(angle, dtype)), xp.sin(xp.asarray(angle, dtype))
+    zero, one = xp.zeros_like(c), xp.ones_like(c)
+    Rz = xp.stack([xp.stack([c, -s, zero]), xp.stack([s, c, zero]),
+                   xp.stack([zero, zero, one])])
+    centre = xp.asarray(centre, dtype)
+    return state._replace(
+        position=centre + Rz @ (state.position - centre),
+        covariance=Rz @ state.covariance @ Rz.T,
+        past_position=centre + (state.past_position - centre) @ Rz.T,
+        past_covariance=Rz @ state.past_covariance @ Rz.T,
+        past_rotation=Rz @ state.past_rotation)
+
+
 def _row_or_column(xp, k):
     eye = xp.arange(3)
     return (eye[:, None] == k) | (eye[None, :] == k)
