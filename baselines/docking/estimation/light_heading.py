@@ -137,11 +137,6 @@ class HeadingState(NamedTuple):
                    xp.asarray(0))
 
 
-def _camera_rotation(params: HeadingParams, roll, pitch, yaw, xp):
-    R_bc = xp.asarray(params.camera_rotation, dtype=xp.asarray(yaw).dtype)
-    return rotation(xp.stack([roll, pitch, yaw]), xp) @ R_bc
-
-
 def _projection(params: HeadingParams, q, xp):
     """Pixels (n, 2) of the camera-frame points ``q`` (n, 3), and d(pixel)/dq (n, 2, 3)."""
     fx, fy, cx, cy = params.intrinsics
