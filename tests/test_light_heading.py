@@ -161,3 +161,21 @@ def test_the_front_end_learns_the_deviation_in_an_episode_and_jax_agrees(hard):
     assert int(carry32.heading.updates) == int(carry64.heading.updates)
     np.testing.assert_allclose(np.asarray(carry32.heading.position), carry64.heading.position,
                                atol=0.02)
+
+
+def test_the_batched_front_end_runs_the_heading_filter_at_hard():
+    """The compiled PPO's env at hard: the heading filter's carry rides with the
+    navigation filter's, restarts with the episode, and the observation stays finite."""
+    from baselines.rl import compiled
+
+    env = compiled.make_env(MISSION, "nav_features", {"difficulty": "hard",
+                                                      "time_limit": 1.0}, nav_filter=True)
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(1), 2))
+    step = jax.jit(env.step_batch)
+    for _ in range(12):  # 1 s at 0.1 s: one restart
+        states = step(states, jnp.zeros((2, 4)))
+    carry = states.info["nav_filter"]
+    assert isinstance(carry, nf.Carry)
+    assert (np.asarray(carry.nav.length) < 5).all()
+    assert np.isfinite(np.asarray(carry.heading.covariance)).all()
+    assert all(np.isfinite(np.asarray(v)).all() for v in states.obs.values())
