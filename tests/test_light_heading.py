@@ -67,7 +67,7 @@ def _approach(params, cal, deviation: float, steps: int = 120):
     for k in range(steps):
         euler = np.array([0.0, 0.0, 0.05 * math.sin(0.1 * k)])
         velocity = np.array([0.25, 0.0, 0.0])
-        position = position + rotation_from_euler(*euler) @ velocity * params.dt
+        position = position + rotation_from_euler(*euler) @ velocity * params.motion.dt
         pixels, in_front = _pixels(cal, position, euler)
         shown = in_front & (pixels[:, 0] > 0) & (pixels[:, 0] < cal.intrinsics.width) \
             & (pixels[:, 1] > 0) & (pixels[:, 1] < cal.intrinsics.height)

@@ -60,7 +60,11 @@ import numpy as np
 from scipy import stats
 
 from auv_envs.core.frames import wrap_angle
-from baselines.docking.estimation.navigation_filter import rotation
+from baselines.docking.estimation.navigation_filter import (
+    FilterParams,
+    NavigationFilter,
+    rotation,
+)
 
 #: Most lamps a station has (the gates' table is this long).
 MAX_LAMPS = 8
@@ -81,39 +85,37 @@ _POSITION = np.diag([1.0, 1.0, 1.0, 0.0])
 
 class HeadingParams(NamedTuple):
     """What the estimator knows: the station's lamps and the camera (the calibration), the
-    AHRS's heading noise and the deviation's prior (the navigation suite's figures)."""
+    AHRS's noise and the deviation's prior (the navigation suite's figures) and the dead
+    reckoning's noise (the navigation filter's). Arrays are NumPy's, built once."""
 
-    lights: tuple           # (n, 3) lamp centres, station frame, m
-    camera_position: tuple  # (3,) camera centre, body frame, m
-    camera_rotation: tuple  # (3, 3) OpenCV camera frame to body
-    intrinsics: tuple       # (fx, fy, cx, cy), px
-    pixel_var: float        # the sensor's pixel noise, px^2
-    optics: object          # the water (WaterOptics: the centroid's noise with range) or None
-    heading_var: float      # the AHRS heading's white noise, rad^2
-    roll_pitch_var: float   # the AHRS roll's and pitch's, rad^2
-    deviation_var: float    # the prior of the deviation, rad^2
-    dt: float               # the step, s
-    dvl_var: float          # the DVL's velocity noise, (m/s)^2
-    held_dvl_var: float = 0.1**2  # added while the DVL has no bottom lock
-    random_walk: float = 1e-4     # the position's random walk, m^2 a step
+    lights: np.ndarray           # (n, 3) lamp centres, station frame, m
+    camera_position: np.ndarray  # (3,) camera centre, body frame, m
+    camera_rotation: np.ndarray  # (3, 3) OpenCV camera frame to body
+    intrinsics: tuple            # (fx, fy, cx, cy), px
+    pixel_var: float             # the sensor's pixel noise, px^2
+    optics: object               # the water (WaterOptics: the centroid's noise) or None
+    attitude_cov: np.ndarray     # (3, 3) the AHRS roll's, pitch's and heading's white noise
+    deviation_var: float         # the prior of the deviation, rad^2
+    motion: FilterParams         # dt, the DVL's noise, the random walk (the nav filter's)
     min_lamps: int = 3
 
     @classmethod
     def of(cls, calibration, navigation) -> HeadingParams:
         """From a docking env's ``calibration`` and its navigation suite (data-sheet noise;
-        the deviation's spread)."""
+        the deviation's spread); the dead reckoning's noise is
+        :meth:`NavigationFilter.for_suite`'s."""
         k = calibration.intrinsics
         if len(calibration.light_positions) > MAX_LAMPS:
             raise ValueError(f"the lights' heading filter takes at most {MAX_LAMPS} lamps")
-        return cls(tuple(tuple(float(v) for v in p) for p in calibration.light_positions),
-                   tuple(float(v) for v in calibration.extrinsics.position),
-                   tuple(tuple(float(v) for v in r) for r in calibration.extrinsics.rotation),
+        ahrs = navigation.ahrs
+        return cls(np.array(calibration.light_positions, dtype=float),
+                   np.array(calibration.extrinsics.position, dtype=float),
+                   calibration.extrinsics.rotation_matrix.astype(float),
                    (float(k.fx), float(k.fy), float(k.cx), float(k.cy)),
                    float(calibration.pixel_noise_std) ** 2, calibration.optics,
-                   float(navigation.ahrs.heading_std) ** 2,
-                   float(navigation.ahrs.roll_pitch_std) ** 2,
-                   float(navigation.ahrs.heading_bias_std) ** 2,
-                   float(calibration.control_period), float(navigation.dvl.noise_std) ** 2)
+                   np.diag([ahrs.roll_pitch_std, ahrs.roll_pitch_std, ahrs.heading_std]) ** 2,
+                   float(ahrs.heading_bias_std) ** 2,
+                   NavigationFilter.for_suite(navigation, calibration.control_period).params)
 
 
 class HeadingState(NamedTuple):
@@ -200,18 +202,19 @@ def step(params: HeadingParams, state: HeadingState, obs, xp=np) -> HeadingState
     """Take one ``nav_features`` observation (after the step it describes): dead reckoning
     with its DVL velocity, then its detected lamps (the module docstring)."""
     dtype = state.deviation.dtype
+    motion = params.motion
     attitude = xp.asarray(obs["attitude"], dtype)
     roll, pitch, yaw_measured = attitude[0], attitude[1], attitude[2]
     # dead reckoning on the corrected heading: p += R(yaw - b) v dt, d(moved)/db = -e_z x moved
     locked = xp.asarray(obs["dvl_valid"])[0] > 0
     velocity = xp.where(locked, xp.asarray(obs["dvl_velocity"], dtype), state.velocity)
     R = rotation(xp.stack([roll, pitch, yaw_measured - state.deviation]), xp)
-    moved = R @ velocity * params.dt
+    moved = R @ velocity * motion.dt
     e_z = xp.asarray([0.0, 0.0, 1.0], dtype)
     column = xp.concatenate([-xp.cross(e_z, moved), xp.zeros(1, dtype)])
     F = xp.eye(4, dtype=dtype) + column[:, None] * xp.asarray(_E33[3], dtype)[None, :]
-    walk = params.dt**2 * (params.dvl_var + xp.where(locked, 0.0, params.held_dvl_var)) \
-        + params.random_walk
+    walk = motion.dt**2 * (motion.dvl_var + xp.where(locked, 0.0, motion.held_dvl_var)) \
+        + motion.random_walk
     predicted = F @ state.covariance @ F.T + walk * xp.asarray(_POSITION, dtype)
     predicted = xp.where(state.started, predicted, state.covariance)
     reckoned = xp.where(state.started, state.position + moved, state.position)
@@ -232,8 +235,7 @@ def step(params: HeadingParams, state: HeadingState, obs, xp=np) -> HeadingState
                      state.covariance + START_VAR * xp.asarray(_POSITION, dtype))
     # iterated EKF on x = (p, b, e), e the frame's attitude noise (roll, pitch, heading)
     x_bar = xp.concatenate([position, state.deviation[None], xp.zeros(3, dtype)])
-    noise = xp.asarray(np.diag([params.roll_pitch_var, params.roll_pitch_var,
-                                params.heading_var]), dtype)
+    noise = xp.asarray(params.attitude_cov, dtype)
     P_bar = xp.block([[prior, xp.zeros((4, 3), dtype)], [xp.zeros((3, 4), dtype), noise]])
     mask = xp.repeat(seen, 2)
     z = pixels.reshape(-1)

@@ -175,10 +175,8 @@ def turned(state: FilterState, angle, centre, xp=np) -> FilterState:
     later, the filter is turned back by it
     (:mod:`~baselines.docking.estimation.light_heading`)."""
     dtype = state.position.dtype
-    c, s = xp.cos(xp.asarray(angle, dtype)), xp.sin(xp.asarray(angle, dtype))
-    zero, one = xp.zeros_like(c), xp.ones_like(c)
-    Rz = xp.stack([xp.stack([c, -s, zero]), xp.stack([s, c, zero]),
-                   xp.stack([zero, zero, one])])
+    angle = xp.asarray(angle, dtype)
+    Rz = rotation(xp.stack([xp.zeros_like(angle), xp.zeros_like(angle), angle]), xp)
     centre = xp.asarray(centre, dtype)
     return state._replace(
         position=centre + Rz @ (state.position - centre),
