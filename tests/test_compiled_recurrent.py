@@ -253,6 +253,10 @@ def test_teachers_refuse_envs_they_cannot_teach():
     for teacher in ("homing-pd", "homing-pd-corridor", "truth"):
         with pytest.raises(ConfigError, match="teach"):
             compiled.Trainer(env, SETTINGS._replace(teacher=teacher))
+    mission = compiled.make_env("auv_envs/DockingMission-v0", "nav_features", "paper",
+                                privileged=True)
+    with pytest.raises(ConfigError, match="pd teacher teaches"):
+        compiled.Trainer(mission, SETTINGS._replace(teacher="pd"))
     with pytest.raises(ConfigError, match="unknown teacher"):
         compiled.Trainer(env, SETTINGS._replace(teacher="oracle"))
 
@@ -284,3 +288,21 @@ def test_the_corridor_teacher_is_the_homing_law_with_a_state_hand_over():
         want, _ = homing_action(gains, obs, corridor[-1], np)
         np.testing.assert_allclose(np.asarray(got[k]), want, atol=1e-5)
     assert 5 < sum(corridor) < 35 and memory is None  # both laws were checked
+
+
+def test_the_pd_teacher_docks_the_batched_station_as_pd_state_docks_the_cpu_one():
+    """Executing its own labels (its share 1 at the first iteration), the ``pd`` teacher
+    docks the batched stations of a rollout at ``paper``, as ``pd-state`` docks the CPU
+    env (430-570 steps on seeds 0-2): the teacher reads the privileged state in the frame
+    and units the law expects. Every episode that ends within the rollout docks."""
+    settings = SETTINGS._replace(lstm_hidden_size=0, teacher="pd", teacher_fraction=1.0,
+                                 n_steps=700)
+    env = compiled.make_env(ENV_ID, "features", "paper", privileged=True)
+    trainer = compiled.Trainer(env, settings, total_iterations=10)
+    params, _, normalizer, rollout, key = trainer.init(jax.random.PRNGKey(0))
+    _, _, steps = jax.jit(trainer.collect)(params, normalizer, rollout, key)
+    done, success = np.asarray(steps.done) > 0, np.asarray(steps.success)
+    ended = done.any(axis=0)
+    assert ended.sum() >= 3, ended
+    first_end = done.argmax(axis=0)
+    assert success[first_end, np.arange(done.shape[1])][ended].all()

@@ -27,7 +27,8 @@ Three settings serve partially observed tasks (:class:`Trainer`): ``lstm_hidden_
 puts an LSTM core (:mod:`baselines.rl.recurrent`) under the mean's and the value's MLPs
 (sb3-contrib's ``MlpLstmPolicy``), ``privileged_critic`` lets the value read the privileged
 state of an env built with ``privileged=True``, and ``teacher`` replaces PPO's update by
-distillation from a privileged teacher (:mod:`baselines.rl.teachers`, DAgger).
+distillation from a privileged teacher (:mod:`baselines.rl.teachers`, DAgger's rules
+of :mod:`baselines.rl.dagger`).
 
 So a finished run is written *as* an SB3 policy (``model.zip``,
 ``vecnormalize.pkl``, ``policy.json``): it acts in the ordinary MuJoCo CPU
@@ -66,6 +67,7 @@ from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.
 )
 from auv_envs.batched.functional import POLICY_KEY, PRIVILEGED_KEY, FunctionalEnv
 from auv_envs.batched.registry import FAMILIES
+from baselines.rl import dagger
 from baselines.rl.config import (
     COMPILED,
     CompiledSettings,
@@ -556,10 +558,8 @@ class Trainer:
     def teacher_share(self, iteration) -> jax.Array:
         """DAgger's probability of acting with the teacher's action at ``iteration``: 1
         decaying linearly to 0 over ``teacher_fraction`` of the run."""
-        horizon = self.settings.teacher_fraction * self.total_iterations
-        if horizon <= 0:
-            return jnp.float32(0.0)
-        return jnp.clip(1.0 - iteration / horizon, 0.0, 1.0)
+        return dagger.linear_share(iteration,
+                                   self.settings.teacher_fraction * self.total_iterations, jnp)
 
     def collect(self, params, normalizer, rollout: Rollout, key) -> tuple:
         """``n_steps`` of every environment: ``(rollout after, key, steps)``
@@ -582,8 +582,9 @@ class Trainer:
                 action, teacher = self.teacher.act(rollout.teacher, privileged,
                                                    rollout.starts)
                 stepped = stepped._replace(teacher=teacher)
-                taught = jax.random.uniform(sample_key, mean.shape[:1]) < share
-                executed = jnp.where(taught[:, None], action, mean)
+                executed = dagger.mix(action, mean,
+                                      jax.random.uniform(sample_key, mean.shape[:1]), share,
+                                      jnp)
                 log_prob = jnp.zeros(mean.shape[:1])
             nxt = self._step(stepped.env, jnp.clip(executed, -1.0, 1.0))
             out = Steps(obs, privileged, rollout.starts, action, log_prob, value, nxt.reward,
@@ -645,7 +646,7 @@ class Trainer:
         """The squared error of the policy's mean to the teacher's action (summed over the
         action's entries, averaged over the steps)."""
         del params, value
-        return jnp.mean(jnp.sum((mean - label) ** 2, axis=-1))
+        return dagger.imitation_loss(mean, label)
 
     def _update(self, loss_fn):
         """One optimiser step per minibatch of ``loss_fn(params, minibatch)``."""

@@ -15,7 +15,11 @@ Structured Prediction to No-Regret Online Learning", AISTATS): round 0 rolls
 out the teacher; in round ``r`` each step executes the teacher's action with
 probability ``beta ** r`` and the student's otherwise, and every visited
 frame is labelled with the teacher's action; after each round the student is
-fitted to all frames so far (mean squared error of its deterministic action).
+fitted to all frames so far (squared error of its deterministic action). The rules
+(:func:`~baselines.rl.dagger.geometric_share`, :func:`~baselines.rl.dagger.mix`,
+:func:`~baselines.rl.dagger.imitation_loss`) are :mod:`baselines.rl.dagger`'s, the
+compiled trainer's distillation's on the batched envs: this module is their shell for
+rendered images, which only the Gymnasium env draws.
 
 The student is Stable-Baselines3's ``MultiInputPolicy`` (NatureCNN on the
 image, an MLP on the sensors), saved as a PPO model, so the result is an
@@ -51,6 +55,7 @@ import torch
 import auv_envs  # noqa: F401  (registers the environments)
 from auv_envs.core.assets import sha256_file
 from auv_envs.core.difficulty import LEVELS
+from baselines.rl import dagger
 from baselines.rl.agents import load_policy_agent, policy_directory
 from baselines.rl.envs import needs_rescale, wrap_env
 from baselines.rl.manifest import (
@@ -137,14 +142,15 @@ class Student:
             return self.agent.env_action(self._mean(batch)[0].numpy())
 
     def loss(self, frames: dict, labels: np.ndarray) -> float:
-        """Mean squared error of the deterministic action against ``labels``."""
+        """:func:`~baselines.rl.dagger.imitation_loss` of the deterministic action against
+        ``labels`` over all frames (in parts of 512)."""
         with torch.no_grad():
             total = 0.0
             for start in range(0, len(labels), 512):
                 part = {k: v[start:start + 512] for k, v in frames.items()}
-                error = self._mean(part) - torch.as_tensor(labels[start:start + 512])
-                total += float((error ** 2).sum())
-        return total / labels.size
+                target = torch.as_tensor(labels[start:start + 512])
+                total += float(dagger.imitation_loss(self._mean(part), target)) * len(target)
+        return total / len(labels)
 
     def fit(self, frames: dict, labels: np.ndarray, rng: np.random.Generator) -> None:
         size = self.settings.batch_size
@@ -153,24 +159,24 @@ class Student:
             for start in range(0, len(order), size):
                 index = np.sort(order[start:start + size])
                 batch = {k: v[index] for k, v in frames.items()}
-                error = self._mean(batch) - torch.as_tensor(labels[index])
-                loss = (error ** 2).mean()
+                loss = dagger.imitation_loss(self._mean(batch), torch.as_tensor(labels[index]))
                 self.optimizer.zero_grad()
                 loss.backward()
                 self.optimizer.step()
 
 
 def rollout(env: gym.Env, teacher, student: Student, scale: np.ndarray, seed: int,
-            beta: float, rng: np.random.Generator) -> tuple[list, list, bool]:
-    """One episode; the teacher acts with probability ``beta`` at each step. Returns the
-    student's observations, the teacher's actions at them, and the episode's success."""
+            share: float, rng: np.random.Generator) -> tuple[list, list, bool]:
+    """One episode; the teacher acts with probability ``share`` at each step
+    (:func:`~baselines.rl.dagger.mix`). Returns the student's observations, the teacher's
+    actions at them, and the episode's success."""
     frames, labels = [], []
     observation, info = env.reset(seed=seed)
     while True:
         label = teacher.act(teacher_observation(observation, info, scale), info)
         frames.append(observation)
         labels.append(label)
-        action = label if rng.random() < beta else student.act(observation)
+        action = dagger.mix(label, student.act(observation), rng.random(), share)
         observation, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             return frames, labels, bool(info["episode_metrics"]["success"])
@@ -230,7 +236,7 @@ def _distill(teacher_env, env, teacher_dir: Path, image_size, difficulty: str, s
     curve = []
     start = time.perf_counter()
     for round_ in range(settings.rounds):
-        beta = settings.beta ** round_
+        beta = dagger.geometric_share(round_, settings.beta)
         wins = 0
         for _ in range(settings.episodes):
             obs, acts, success = rollout(env, teacher_agent, student, scale, next_seed, beta, rng)

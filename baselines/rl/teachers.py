@@ -32,6 +32,7 @@ from baselines.docking.control.homing import (
     corridor_action,
     homing_action,
 )
+from baselines.docking.control.pd import PDGains, pd_action
 from baselines.rl.config import ConfigError
 
 
@@ -75,6 +76,32 @@ class TruthTeacher(MemorylessTeacher):
         return jnp.clip(2.0 * (position - self._low) / self._span - 1.0, -1.0, 1.0)
 
 
+def _thrust_gains(env, name: str, env_ids: tuple[str, ...], gains_type):
+    """The float32 gains (``gains_type.from_calibration``) of a docking teacher ``name``
+    on ``env``, which must be one of ``env_ids`` and take the normalised thrust in
+    [-1, 1]."""
+    env_id = getattr(env, "env_id", None)
+    if env_id not in env_ids:
+        raise ConfigError(f"the {name} teacher teaches {' and '.join(env_ids)}, not "
+                          f"{env_id or type(env).__name__}")
+    if env._action_box is None or not np.allclose(env._action_box.low, -1.0) \
+            or not np.allclose(env._action_box.high, 1.0):
+        raise ConfigError(f"the {name} teacher answers the normalised thrust in [-1, 1]")
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32),
+                                  gains_type.from_calibration(env.calibration))
+
+
+class PDTeacher(MemorylessTeacher):
+    """``pd-state`` (:func:`baselines.docking.control.pd.pd_action`) on the docking
+    stations: the PD law towards the docking point from the true state."""
+
+    ENV_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
+
+    def __init__(self, env):
+        gains = _thrust_gains(env, "pd", self.ENV_IDS, PDGains)
+        self.answer = jax.vmap(functools.partial(pd_action, gains, xp=jnp))
+
+
 class HomingTeacher:
     """``homing-pd-state`` (:mod:`baselines.docking.control.homing`) on the whole approach:
     line-of-sight homing to the staging point, then the PD terminal controller, from the
@@ -82,14 +109,7 @@ class HomingTeacher:
     episode begins."""
 
     def __init__(self, env):
-        if getattr(env, "env_id", None) != "auv_envs/DockingMission-v0":
-            raise ConfigError(f"the homing-pd teacher teaches auv_envs/DockingMission-v0, not "
-                              f"{getattr(env, 'env_id', type(env).__name__)}")
-        if env._action_box is None or not np.allclose(env._action_box.low, -1.0) \
-                or not np.allclose(env._action_box.high, 1.0):
-            raise ConfigError("the homing-pd teacher answers the normalised thrust in [-1, 1]")
-        gains = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float32),
-                                       HomingGains.from_calibration(env.calibration))
+        gains = _thrust_gains(env, "homing-pd", ("auv_envs/DockingMission-v0",), HomingGains)
         self._gains = gains
         self._act = jax.vmap(functools.partial(homing_action, gains, xp=jnp))
 
@@ -121,6 +141,7 @@ class CorridorHomingTeacher(MemorylessTeacher, HomingTeacher):
 TEACHERS = {
     "homing-pd": HomingTeacher,
     "homing-pd-corridor": CorridorHomingTeacher,
+    "pd": PDTeacher,
     "truth": TruthTeacher,
 }
 
@@ -136,4 +157,5 @@ def make_teacher(name: str, env):
     return TEACHERS[name](env)
 
 
-__all__ = ["TEACHERS", "CorridorHomingTeacher", "HomingTeacher", "TruthTeacher", "make_teacher"]
+__all__ = ["TEACHERS", "CorridorHomingTeacher", "HomingTeacher", "PDTeacher", "TruthTeacher",
+           "make_teacher"]
