@@ -255,7 +255,7 @@ def test_teachers_refuse_envs_they_cannot_teach():
             compiled.Trainer(env, SETTINGS._replace(teacher=teacher))
     mission = compiled.make_env("auv_envs/DockingMission-v0", "nav_features", "paper",
                                 privileged=True)
-    with pytest.raises(ConfigError, match="pd teacher teaches"):
+    with pytest.raises(ConfigError, match="the pd teacher teaches"):
         compiled.Trainer(mission, SETTINGS._replace(teacher="pd"))
     with pytest.raises(ConfigError, match="unknown teacher"):
         compiled.Trainer(env, SETTINGS._replace(teacher="oracle"))
