@@ -16,9 +16,10 @@ Two shells use these rules:
   of the Gymnasium env draws): :func:`geometric_share` per round, ``beta ** round`` as
   in the paper, fitted on every frame so far.
 
-Both execute through :func:`mix` and minimise :func:`imitation_loss`. The functions take
-the array namespace's arrays as they come (NumPy, ``jax.numpy``; the loss also PyTorch's
-tensors), so the one rule runs inside a compiled rollout and in a Python loop alike.
+Both execute the teacher where :func:`taught` (:func:`mix` for a batch) and minimise
+:func:`imitation_loss`. The functions take the array namespace's arrays as they come
+(NumPy, ``jax.numpy``; the loss also PyTorch's tensors), so the one rule runs inside a
+compiled rollout and in a Python loop alike.
 """
 
 from __future__ import annotations
@@ -42,12 +43,16 @@ def geometric_share(round_: int, beta: float) -> float:
     return float(beta ** round_)
 
 
+def taught(draw, share, xp=np):
+    """Where the teacher's action is executed: ``draw`` (uniform on [0, 1), one per
+    environment, or a scalar for one) below ``share``."""
+    return xp.asarray(draw) < share
+
+
 def mix(teacher_action, student_action, draw, share, xp=np):
-    """The executed action: the teacher's where ``draw`` (uniform on [0, 1), one per
-    environment, or a scalar for one) falls below ``share``, the student's elsewhere.
+    """The executed action: the teacher's where :func:`taught`, the student's elsewhere.
     Actions carry their entries on the last axis."""
-    taught = xp.asarray(draw) < share
-    return xp.where(taught[..., None], teacher_action, student_action)
+    return xp.where(taught(draw, share, xp)[..., None], teacher_action, student_action)
 
 
 def imitation_loss(mean, label):
@@ -56,4 +61,4 @@ def imitation_loss(mean, label):
     return ((mean - label) ** 2).sum(-1).mean()
 
 
-__all__ = ["geometric_share", "imitation_loss", "linear_share", "mix"]
+__all__ = ["geometric_share", "imitation_loss", "linear_share", "mix", "taught"]

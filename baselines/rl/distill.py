@@ -16,7 +16,7 @@ out the teacher; in round ``r`` each step executes the teacher's action with
 probability ``beta ** r`` and the student's otherwise, and every visited
 frame is labelled with the teacher's action; after each round the student is
 fitted to all frames so far (squared error of its deterministic action). The rules
-(:func:`~baselines.rl.dagger.geometric_share`, :func:`~baselines.rl.dagger.mix`,
+(:func:`~baselines.rl.dagger.geometric_share`, :func:`~baselines.rl.dagger.taught`,
 :func:`~baselines.rl.dagger.imitation_loss`) are :mod:`baselines.rl.dagger`'s, the
 compiled trainer's distillation's on the batched envs: this module is their shell for
 rendered images, which only the Gymnasium env draws.
@@ -168,7 +168,7 @@ class Student:
 def rollout(env: gym.Env, teacher, student: Student, scale: np.ndarray, seed: int,
             share: float, rng: np.random.Generator) -> tuple[list, list, bool]:
     """One episode; the teacher acts with probability ``share`` at each step
-    (:func:`~baselines.rl.dagger.mix`). Returns the student's observations, the teacher's
+    (:func:`~baselines.rl.dagger.taught`). Returns the student's observations, the teacher's
     actions at them, and the episode's success."""
     frames, labels = [], []
     observation, info = env.reset(seed=seed)
@@ -176,7 +176,8 @@ def rollout(env: gym.Env, teacher, student: Student, scale: np.ndarray, seed: in
         label = teacher.act(teacher_observation(observation, info, scale), info)
         frames.append(observation)
         labels.append(label)
-        action = dagger.mix(label, student.act(observation), rng.random(), share)
+        # the student is asked only where it acts (one CNN pass a step saved elsewhere)
+        action = label if dagger.taught(rng.random(), share) else student.act(observation)
         observation, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             return frames, labels, bool(info["episode_metrics"]["success"])
