@@ -1,14 +1,19 @@
 """A digest of seeded docking trajectories: run it on two commits to show they agree bit for bit.
 
-    python scripts/docking_trajectories.py [--steps 250]
+    python scripts/docking_trajectories.py [--steps 250] [--ids ID ...] [--modes MODE ...]
 
-Plays both docking layouts (and the ``-v0`` plant), ``state`` and ``features``, every
+By default plays both docking layouts (and the ``-v0`` plant), ``state`` and ``features``, every
 ``difficulty`` level and both scenarios, seeds 1-3, with the same random actions
 (uniform in [-1.3, 1.3], so clipping is exercised) for up to ``--steps`` steps: 108
 trajectories. Every observation, reward, end flag and ``info`` entry (the episode
 summary included) is hashed in order; the script prints the SHA-256 per
 (id, mode) and of everything. A refactoring that claims to leave the environments
-unchanged must leave the digest unchanged.
+unchanged must leave the digest unchanged. The navigation modes and the mission:
+
+    python scripts/docking_trajectories.py --ids auv_envs/DockingStation-v2 \
+        auv_envs/LampArrayDocking-v2 auv_envs/DockingMission-v0 --modes nav nav_features
+
+(and ``--ids auv_envs/DockingMission-v0 --modes state features`` for the mission's others).
 """
 
 from __future__ import annotations
@@ -45,11 +50,14 @@ def _feed(digest, value) -> None:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=250)
+    parser.add_argument("--ids", nargs="+", default=IDS, help="environment ids")
+    parser.add_argument("--modes", nargs="+", default=("state", "features"),
+                        help="observation modes")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore", message=".*out of date")
     total = hashlib.sha256()
-    for env_id in IDS:
-        for mode in ("state", "features"):
+    for env_id in args.ids:
+        for mode in args.modes:
             digest = hashlib.sha256()
             for level in ("easy", "paper", "hard"):
                 for scenario in ("mismatch", "current"):

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from auv_envs.core import frames
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.docking.env import EASY_NAVIGATION, HARD_NAVIGATION, PAPER_NAVIGATION
 
 LEVELS = {"easy": EASY_NAVIGATION, "paper": PAPER_NAVIGATION, "hard": HARD_NAVIGATION}
@@ -73,22 +74,24 @@ def main(argv=None) -> None:
         rng = np.random.default_rng(args.seed)
         n = args.fixes
         scale = np.zeros(3)
-        dvl = [sensors.dvl.read(np.array([1.0, 0.0, 0.0]), 10.0, scale, rng) for _ in range(n)]
+        dvl = [sensors.dvl.read((1.0, 0.0, 0.0), 10.0, scale, rng, FLOATS) for _ in range(n)]
         readings = np.array([r for r, ok in dvl if ok])
         lost = 1 - len(readings) / n
-        ahrs = [sensors.ahrs.read((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros(3), 0.1, rng)
+        ahrs = [sensors.ahrs.read((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), np.zeros(3), 0.1, rng,
+                                   FLOATS, 0.0)
                 for _ in range(n)]
         attitude = np.array([a for a, _, _ in ahrs])
         rates = np.array([r for _, r, _ in ahrs])
         biases = []
         for _ in range(200):  # 200 gyros over 100 s of 0.1 s steps
-            bias = sensors.ahrs.draw_bias(rng)
+            bias = sensors.ahrs.draw_bias(rng, FLOATS)
             for _ in range(1000):
-                bias = sensors.ahrs.read((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), bias, 0.1, rng)[2]
+                bias = sensors.ahrs.read((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), bias, 0.1, rng,
+                                         FLOATS, 0.0)[2]
             biases.append(bias)
         bias = np.array(biases)
-        depth = np.array([sensors.depth.read(20.0, rng) for _ in range(n)])
-        deviation = np.array([sensors.ahrs.draw_heading_bias(rng) for _ in range(n)])
+        depth = np.array([sensors.depth.read(20.0, rng, FLOATS) for _ in range(n)])
+        deviation = np.array([sensors.ahrs.draw_heading_bias(rng, FLOATS) for _ in range(n)])
         print(f"| {level} | {np.std(readings - [1.0, 0.0, 0.0]):.4f} | {lost:.3f} "
               f"| {math.degrees(attitude[:, :2].std()):.3f} "
               f"| {math.degrees(attitude[:, 2].std()):.3f} | {math.degrees(rates.std()):.4f} "

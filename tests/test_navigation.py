@@ -22,6 +22,7 @@ from auv_envs.core.navigation import (
     Navigation,
     NavigationSensors,
 )
+from auv_envs.core.ops import FLOATS, jax_ops
 
 C = USBL_ACOUSTICS.sound_speed
 QUIET = dataclasses.replace(USBL_ACOUSTICS, sound_speed_error_std=0.0)
@@ -105,11 +106,11 @@ def test_usbl_noise_free_fix_is_exact():
 def test_dvl_statistics_validity_and_dropouts():
     dvl = DVL(noise_std=0.02, scale_std=0.01, min_altitude=0.5, max_altitude=30.0, dropout=0.1)
     rng = np.random.default_rng(21)
-    scales = np.array([dvl.draw_scale(rng) for _ in range(3000)])
+    scales = np.array([dvl.draw_scale(rng, FLOATS) for _ in range(3000)])
     assert np.std(scales) == pytest.approx(0.01, rel=0.05)
     velocity = np.array([1.0, -0.5, 0.2])
     scale = np.array([0.01, -0.02, 0.0])
-    readings, valid = zip(*(dvl.read(velocity, 10.0, scale, rng) for _ in range(5000)),
+    readings, valid = zip(*(dvl.read(velocity, 10.0, scale, rng, FLOATS) for _ in range(5000)),
                           strict=True)
     readings, valid = np.array(readings), np.array(valid)
     assert stats.binomtest(int((~valid).sum()), len(valid), 0.1).pvalue > 1e-3
@@ -119,8 +120,8 @@ def test_dvl_statistics_validity_and_dropouts():
     assert np.all(readings[~valid] == 0.0)
     for altitude in (0.4, 30.5):  # out of bottom lock
         reading, ok = DVL(min_altitude=0.5, max_altitude=30.0).read(velocity, altitude,
-                                                                    scale, rng)
-        assert not ok and np.all(reading == 0.0)
+                                                                    scale, rng, FLOATS)
+        assert not ok and np.all(np.asarray(reading) == 0.0)
 
 
 def test_ahrs_noise_and_gyro_bias_random_walk():
@@ -130,7 +131,7 @@ def test_ahrs_noise_and_gyro_bias_random_walk():
     dt = 0.1
     euler, rates = (0.1, -0.2, 3.0), (0.05, 0.0, -0.1)
     bias0 = np.zeros(3)
-    out = [ahrs.read(euler, rates, bias0, dt, rng) for _ in range(6000)]
+    out = [ahrs.read(euler, rates, bias0, dt, rng, FLOATS, 0.0) for _ in range(6000)]
     attitude = np.array([a for a, _, _ in out])
     error = attitude - euler
     error[:, 2] = frames.wrap_angle(error[:, 2])
@@ -143,9 +144,9 @@ def test_ahrs_noise_and_gyro_bias_random_walk():
     assert np.var(steps) == pytest.approx(variance, rel=0.05)
     walk = bias0
     for _ in range(2000):
-        walk = ahrs.read(euler, rates, walk, dt, rng)[2]
+        walk = ahrs.read(euler, rates, walk, dt, rng, FLOATS, 0.0)[2]
     assert np.all(np.isfinite(walk))
-    assert ahrs.draw_bias(rng).shape == (3,)
+    assert len(ahrs.draw_bias(rng, FLOATS)) == 3
 
 
 def test_ahrs_heading_deviation_is_drawn_once_per_episode():
@@ -161,10 +162,10 @@ def test_ahrs_heading_deviation_is_drawn_once_per_episode():
     deviations = []
     for seed in range(400):
         rng = np.random.default_rng(seed)
-        state = nav.start(truth, rng)
+        state = nav.start(truth, rng, FLOATS)
         first = float(frames.wrap_angle(state.attitude[2] - 3.1))
         for k in range(1, 4):
-            state = nav.advance(state, truth, 0.1 * k, rng)
+            state = nav.advance(state, truth, 0.1 * k, rng, FLOATS)
             assert float(frames.wrap_angle(state.attitude[2] - 3.1)) == pytest.approx(first)
         assert float(state.heading_bias) == pytest.approx(first)
         deviations.append(first)
@@ -173,15 +174,15 @@ def test_ahrs_heading_deviation_is_drawn_once_per_episode():
     # No deviation: no draw, so the generator is where it was.
     rng = np.random.default_rng(5)
     before = rng.bit_generator.state
-    assert float(AHRS(**quiet).draw_heading_bias(rng)) == 0.0
+    assert float(AHRS(**quiet).draw_heading_bias(rng, FLOATS)) == 0.0
     assert rng.bit_generator.state == before
-    AHRS(heading_bias_std=0.1, **quiet).draw_heading_bias(rng)
+    AHRS(heading_bias_std=0.1, **quiet).draw_heading_bias(rng, FLOATS)
     assert rng.bit_generator.state != before
 
 def test_depth_noise_and_resolution():
     sensor = DepthSensor(noise_std=0.05, resolution=0.01)
     rng = np.random.default_rng(23)
-    readings = np.array([sensor.read(12.3456, rng) for _ in range(5000)])
+    readings = np.array([sensor.read(12.3456, rng, FLOATS) for _ in range(5000)])
     np.testing.assert_allclose(readings / 0.01, np.round(readings / 0.01), atol=1e-6)
     assert readings.std() == pytest.approx(0.05, rel=0.05)
     assert readings.mean() == pytest.approx(12.3456, abs=4 * 0.05 / math.sqrt(5000) + 0.005)
@@ -222,11 +223,11 @@ def test_fix_schedule_and_age():
     truth = {"position": (-20.0, 0.0, 0.0), "euler": (0.0, 0.0, 0.0),
              "velocity": [0.0] * 6, "seabed_clearance": 1.5}
     rng = np.random.default_rng(24)
-    state = nav.start(truth, rng)
+    state = nav.start(truth, rng, FLOATS)
     ages, valid = [], []
     for k in range(1, 31):
-        state = nav.advance(state, truth, k * 0.1, rng)
-        obs = Navigation.observation(state, k * 0.1)
+        state = nav.advance(state, truth, k * 0.1, rng, FLOATS)
+        obs = Navigation.observation(state, k * 0.1, FLOATS)
         ages.append(float(obs["usbl_age"][0]))
         valid.append(int(obs["usbl_valid"][0]))
     travel = 2 * math.dist((-20.0, 0.0, 0.0), (0.5, 0.0, 1.0)) / C  # 0.027 s
@@ -283,16 +284,16 @@ def test_navigation_runs_under_jax_as_on_numpy():
     nav = Navigation(_exact_suite(), seabed_z=-2.0, dt=0.1)
     truth = {"position": (-12.0, 1.0, -0.5), "euler": (0.02, -0.03, 0.3),
              "velocity": [0.3, 0.01, -0.02, 0.001, 0.002, 0.05], "seabed_clearance": 1.0}
-    expected = nav.start(truth, np.random.default_rng(0))
-    expected = nav.advance(expected, truth, 0.1, np.random.default_rng(1))
+    expected = nav.start(truth, np.random.default_rng(0), FLOATS)
+    expected = nav.advance(expected, truth, 0.1, np.random.default_rng(1), FLOATS)
 
     @jax.jit
     def run(key):
         first, second = jax.random.split(key)
         jtruth = {k: (jnp.asarray(v) if k != "velocity" else jnp.asarray(v)) for k, v in
                   truth.items()}
-        state = nav.start(jtruth, KeyDraws(first), jnp)
-        return nav.advance(state, jtruth, 0.1, KeyDraws(second), jnp)
+        state = nav.start(jtruth, KeyDraws(first), jax_ops())
+        return nav.advance(state, jtruth, 0.1, KeyDraws(second), jax_ops())
 
     got = run(jax.random.PRNGKey(0))
     for name in ("dvl", "attitude", "rates", "depth", "pending", "next_ping"):
@@ -319,8 +320,8 @@ def test_heading_deviation_under_jax():
     @jax.jit
     def run(key):
         first, second = jax.random.split(key)
-        state = nav.start(truth, KeyDraws(first), jnp)
-        return state, nav.advance(state, truth, 0.1, KeyDraws(second), jnp)
+        state = nav.start(truth, KeyDraws(first), jax_ops())
+        return state, nav.advance(state, truth, 0.1, KeyDraws(second), jax_ops())
 
     deviations = []
     for seed in range(3):

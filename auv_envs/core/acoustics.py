@@ -487,6 +487,10 @@ class HydrophoneArray:
         horizontal = xp.hypot(d[..., 0], d[..., 1])
         return d, horizontal, xp.hypot(horizontal, d[..., 2])
 
+    def ranges(self, sources, xp=np):
+        """The ranges (..., N) of sources (..., 3) from the nodes (:meth:`geometry`'s first)."""
+        return self._offsets(sources, xp)[2]
+
     def geometry(self, sources, xp=np):
         """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
         d, horizontal, ranges = self._offsets(sources, xp)
@@ -530,14 +534,21 @@ class HydrophoneArray:
         timing, theta = self._timing_and_angle_std(snr_db, self._angle_k, xp)
         return timing, theta / xp.maximum(xp.sin(elevation), 0.05), theta
 
+    def timing_std(self, snr_db, xp=np):
+        """The arrival-time standard deviations (s) alone, for an SNR array (Q, ...)."""
+        return self._timing_std(xp.exp(snr_db * _MINUS_LN10_OVER_20), xp)
+
+    def _timing_std(self, inv_root, xp):
+        """Arrival-time deviations for ``inv_root``, 1 / sqrt(snr) with the SNR linear."""
+        timing = self._timing_k * inv_root
+        return xp.sqrt(self._timing_floor2 + timing * timing)
+
     def _timing_and_angle_std(self, snr_db, angle_k, xp=np):
         """:meth:`noise_std`'s arrival-time and elevation deviations, with the band's
         angle constant ``angle_k`` broadcast against ``snr_db``."""
         inv_root = xp.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
-        timing = self._timing_k * inv_root
-        timing = xp.sqrt(self._timing_floor2 + timing * timing)
         theta = angle_k * inv_root
-        return timing, xp.sqrt(self._angle_floor2 + theta * theta)
+        return self._timing_std(inv_root, xp), xp.sqrt(self._angle_floor2 + theta * theta)
 
     def detection_probability(self, snr_db, working=None, xp=np):
         """Per band and path: logistic in the array SNR (mean over nodes, dB).
@@ -805,7 +816,7 @@ class HydrophoneArray:
         if node_positions is None:
             ranges, azimuth, elevation = self.geometry(sources, xp)  # (B, P, N)
         else:
-            ranges = self._offsets(sources, xp)[2]
+            ranges = self.ranges(sources, xp)
             azimuth, elevation = self._node_angles(node_positions, p, xp)
         snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise, xp)  # (B, Q, P, N)
         if fading is not None:

@@ -5,10 +5,12 @@ inertial navigation system and a pressure sensor, and its position relative to a
 docking station comes from acoustic equipment or from vision. Each model here is a
 frozen dataclass of its parameters (the figures and their sources are in
 ``docs/navigation.md``, and at the presets in :mod:`auv_envs.tasks.docking.env`) whose
-methods draw from the episode's generator and take the array namespace ``xp`` (NumPy
-on the CPU, ``jax.numpy`` under ``jit``/``vmap``). Every step draws the same numbers of
-the same shapes whatever happens, so one code path serves both; only on NumPy does a
-step without a USBL ping skip the fix and its draws.
+methods draw from the episode's generator and take the backend's scalar arithmetic
+``ops`` (:mod:`auv_envs.core.ops`: Python floats on the CPU, ``jax.numpy`` under
+``jit``/``vmap``; the USBL's fix, made once a period, the array module ``xp``). Every
+step draws the same numbers of the same shapes whatever happens, so one code path serves
+both; only on the CPU does a step without a USBL ping skip the fix and its draws
+(``ops.either``).
 
 * **DVL** (bottom lock): the body-frame velocity over the seabed, each axis scaled by
   ``1 + s_i`` with ``s_i`` drawn once per episode (N(0, ``scale_std``^2): the
@@ -84,19 +86,20 @@ class DVL:
         if not self.min_altitude < self.max_altitude or self.dropout > 1:
             raise ValueError("DVL needs min_altitude < max_altitude and dropout <= 1")
 
-    def draw_scale(self, draws, xp=np):
-        """The episode's scale-factor errors (3,)."""
-        return self.scale_std * xp.asarray(draws.standard_normal(3))
+    def draw_scale(self, draws, ops):
+        """The episode's scale-factor errors (3 scalars)."""
+        return ops.vector([self.scale_std * e for e in ops.unpack(draws.standard_normal(3))])
 
-    def read(self, velocity, altitude, scale, draws, xp=np):
-        """``(reading (3,), valid)`` for the body-frame velocity over the seabed (3,) at
-        ``altitude`` m; draws 3 normals and 1 uniform."""
-        noise = xp.asarray(draws.standard_normal(3))
+    def read(self, velocity, altitude, scale, draws, ops):
+        """``(reading (3 scalars), valid)`` for the body-frame velocity over the seabed (3
+        scalars) at ``altitude`` m; draws 3 normals and 1 uniform."""
+        noise = ops.unpack(draws.standard_normal(3))
         lost = draws.random() < self.dropout
         valid = ((altitude >= self.min_altitude) & (altitude <= self.max_altitude)
-                 & xp.logical_not(lost))
-        reading = (1.0 + scale) * xp.asarray(velocity) + self.noise_std * noise
-        return xp.where(valid, reading, 0.0), valid
+                 & ops.logical_not(lost))
+        reading = [(1.0 + s) * v + self.noise_std * e
+                   for s, v, e in zip(scale, velocity, noise, strict=True)]
+        return ops.where(valid, ops.vector(reading), ops.vector((0.0, 0.0, 0.0))), valid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -118,35 +121,33 @@ class AHRS:
         if self.bias_time <= 0:
             raise ValueError("AHRS.bias_time must be positive")
 
-    @functools.cached_property
-    def _angle_std(self) -> np.ndarray:
-        """Roll, pitch and heading error standard deviations (3,), built once."""
-        return np.array((self.roll_pitch_std, self.roll_pitch_std, self.heading_std))
+    def draw_bias(self, draws, ops):
+        """The gyros' bias at the episode's start (3 scalars)."""
+        return ops.vector([self.bias_instability * e
+                           for e in ops.unpack(draws.standard_normal(3))])
 
-    def draw_bias(self, draws, xp=np):
-        """The gyros' bias at the episode's start (3,)."""
-        return self.bias_instability * xp.asarray(draws.standard_normal(3))
-
-    def draw_heading_bias(self, draws, xp=np):
+    def draw_heading_bias(self, draws, ops):
         """The episode's heading deviation (rad); draws 1 normal, or none (and returns 0)
         when ``heading_bias_std`` is 0."""
         if self.heading_bias_std == 0.0:
-            return xp.asarray(0.0)
-        return self.heading_bias_std * xp.asarray(draws.standard_normal())
+            return ops.real(0.0)
+        return ops.real(self.heading_bias_std * draws.standard_normal())
 
-    def read(self, euler, rates, bias, dt: float, draws, xp=np, heading_bias=0.0):
-        """``(attitude (3,), rates (3,), bias (3,))``: the readings of the true ``euler``
+    def read(self, euler, rates, bias, dt: float, draws, ops, heading_bias):
+        """``(attitude, rates, bias)``, 3 scalars each: the readings of the true ``euler``
         (roll, pitch, yaw) and body ``rates`` (p, q, r) over a step of ``dt`` s, the
         heading off by the episode's ``heading_bias``, and the gyro bias after the step's
         random walk; draws 9 normals."""
-        noise = xp.asarray(draws.standard_normal(9))
-        attitude = xp.asarray(euler) + xp.asarray(self._angle_std) * noise[:3]
-        attitude = xp.concatenate([attitude[:2],
-                                   frames.wrap_angle(attitude[2:] + heading_bias)])
-        reading = (xp.asarray(rates) + bias
-                   + (self.rate_noise_density / math.sqrt(dt)) * noise[3:6])
-        bias = bias + self.bias_instability * math.sqrt(dt / self.bias_time) * noise[6:]
-        return attitude, reading, bias
+        noise = ops.unpack(draws.standard_normal(9))
+        roll, pitch, yaw = (angle + std * e for angle, std, e in zip(
+            euler, (self.roll_pitch_std, self.roll_pitch_std, self.heading_std), noise[:3],
+            strict=True))
+        attitude = (roll, pitch, frames.wrap_angle(yaw + heading_bias))
+        rate_std = self.rate_noise_density / math.sqrt(dt)
+        walk = self.bias_instability * math.sqrt(dt / self.bias_time)
+        reading = [r + b + rate_std * e for r, b, e in zip(rates, bias, noise[3:6], strict=True)]
+        bias = [b + walk * e for b, e in zip(bias, noise[6:], strict=True)]
+        return ops.vector(attitude), ops.vector(reading), ops.vector(bias)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,11 +160,11 @@ class DepthSensor:
     def __post_init__(self):
         _check("DepthSensor", noise_std=self.noise_std, resolution=self.resolution)
 
-    def read(self, depth, draws, xp=np):
+    def read(self, depth, draws, ops):
         """The reading of the true ``depth`` (m, positive down); draws 1 normal."""
         reading = depth + self.noise_std * draws.standard_normal()
         if self.resolution > 0:
-            reading = xp.round(reading / self.resolution) * self.resolution
+            reading = ops.round(reading / self.resolution) * self.resolution
         return reading
 
 
@@ -227,9 +228,9 @@ class USBL:
         water's true one. Draws 3 + 1 uniforms, N normals and 1 + 3 uniforms, always."""
         sources = array.image_sources(xp.asarray(transponder), xp)  # (3 paths, 3), world
         body = (sources - xp.asarray(transceiver)) @ xp.asarray(rows)  # rows: R; R^T d
-        ranges = array.geometry(body, xp)[0]  # (P, N)
+        ranges = array.ranges(body, xp)  # (P, N)
         snr = array.snr_db(ranges, array.path_loss, xp=xp)  # (1 band, P, N)
-        timing = array.noise_std(snr, xp.ones_like(snr), xp)[0][0]  # (P, N) s
+        timing = array.timing_std(snr, xp)[0]  # (P, N) s
         pd = array.detection_probability(snr, xp=xp)[0]  # (P,)
         detected = xp.asarray(draws.random(3)) < pd
         shadowed = draws.random() < self.shadowing
@@ -337,67 +338,75 @@ class Navigation:
         self.dt = float(dt)
         self._transponder = np.asarray(sensors.transponder, dtype=float)
 
-    def start(self, truth: dict, draws, xp=np) -> NavState:
+    def start(self, truth: dict, draws, ops) -> NavState:
         """The episode's first sensor state and readings (``truth`` from the task's
         kinematics, with ``seabed_clearance``)."""
         s = self.sensors
-        zero3 = xp.zeros(3)
+        zero3, zero, no = ops.vector((0.0, 0.0, 0.0)), ops.real(0.0), ops.boolean(False)
         state = NavState(
-            dvl_scale=s.dvl.draw_scale(draws, xp), gyro_bias=s.ahrs.draw_bias(draws, xp),
-            heading_bias=s.ahrs.draw_heading_bias(draws, xp),
-            sound_speed=self.array.draw_sound_speed(draws, xp), next_ping=xp.asarray(0.0),
-            pending=zero3, pending_valid=xp.asarray(False), pending_time=xp.asarray(0.0),
-            pending_due=xp.asarray(0.0), fix=zero3, fix_valid=xp.asarray(False),
-            fix_time=xp.asarray(0.0), dvl=zero3, dvl_valid=xp.asarray(False), attitude=zero3,
-            rates=zero3, depth=xp.asarray(0.0))
-        return self.advance(state, truth, 0.0, draws, xp)
+            dvl_scale=s.dvl.draw_scale(draws, ops), gyro_bias=s.ahrs.draw_bias(draws, ops),
+            heading_bias=s.ahrs.draw_heading_bias(draws, ops),
+            sound_speed=ops.real(self.array.draw_sound_speed(draws, ops.xp)), next_ping=zero,
+            pending=zero3, pending_valid=no, pending_time=zero, pending_due=zero, fix=zero3,
+            fix_valid=no, fix_time=zero, dvl=zero3, dvl_valid=no, attitude=zero3,
+            rates=zero3, depth=zero)
+        return self.advance(state, truth, 0.0, draws, ops)
 
-    def advance(self, state: NavState, truth: dict, time, draws, xp=np) -> NavState:
+    def advance(self, state: NavState, truth: dict, time, draws, ops) -> NavState:
         """The sensors at ``time`` s with the vehicle at ``truth``: this step's readings,
-        a fix delivered if due, a ping made if due."""
+        a fix delivered if due, a ping made if due. The fix is made only on a ping's step
+        on the CPU (its draws too); under JAX every step makes one and keeps it on a
+        ping's (``ops.either``), so the batched episodes' draws differ from the CPU's."""
         s = self.sensors
         velocity = truth["velocity"]
         dvl, dvl_valid = s.dvl.read(velocity[:3], truth["seabed_clearance"],
-                                    state.dvl_scale, draws, xp)
+                                    state.dvl_scale, draws, ops)
         attitude, rates, bias = s.ahrs.read(truth["euler"], velocity[3:], state.gyro_bias,
-                                            self.dt, draws, xp, state.heading_bias)
-        depth = s.depth.read(self.surface_z - truth["position"][2], draws, xp)
+                                            self.dt, draws, ops, state.heading_bias)
+        depth = s.depth.read(self.surface_z - truth["position"][2], draws, ops)
         # A fix in flight arrives once due; a new ping goes out on schedule.
         arrived = state.pending_valid & (time >= state.pending_due - 1e-9)
-        fix = xp.where(arrived, state.pending, state.fix)
-        fix_valid = state.fix_valid | arrived
-        fix_time = xp.where(arrived, state.pending_time, state.fix_time)
         ping = time >= state.next_ping - 1e-9
-        if xp is np and not ping:  # NumPy skips the fix between pings (JAX selects it)
-            vector, found = state.pending, False
-        else:
+
+        def fix():
+            xp = ops.xp
+            position = xp.asarray(truth["position"])
             rows = frames.rotation_from_euler(*truth["euler"], ops=xp)
-            vector, found = s.usbl.fix(self.array, xp.asarray(truth["position"]), rows,
-                                       self._transponder, state.sound_speed, draws, xp)
-        travel = 2.0 * xp.linalg.norm(xp.asarray(truth["position"]) - self._transponder)
-        due = time + travel / state.sound_speed + s.usbl.processing_delay
-        pending_valid = xp.where(ping, found, state.pending_valid & xp.logical_not(arrived))
+            vector, found = s.usbl.fix(self.array, position, rows, self._transponder,
+                                       state.sound_speed, draws, xp)
+            travel = 2.0 * xp.linalg.norm(position - self._transponder)
+            due = time + travel / state.sound_speed + s.usbl.processing_delay
+            return ops.vector(ops.unpack(vector)), ops.boolean(found), ops.real(due)
+
+        def no_fix():
+            return (state.pending, state.pending_valid & ops.logical_not(arrived),
+                    state.pending_due)
+
+        pending, pending_valid, pending_due = ops.either(ping, fix, no_fix)
         return state._replace(
             gyro_bias=bias,
-            next_ping=xp.where(ping, state.next_ping + s.usbl.period, state.next_ping),
-            pending=xp.where(ping, vector, state.pending), pending_valid=pending_valid,
-            pending_time=xp.where(ping, time, state.pending_time),
-            pending_due=xp.where(ping, due, state.pending_due),
-            fix=fix, fix_valid=fix_valid, fix_time=fix_time, dvl=dvl, dvl_valid=dvl_valid,
-            attitude=attitude, rates=rates, depth=xp.asarray(depth))
+            next_ping=ops.where(ping, state.next_ping + s.usbl.period, state.next_ping),
+            pending=pending, pending_valid=pending_valid,
+            pending_time=ops.where(ping, time, state.pending_time), pending_due=pending_due,
+            fix=ops.where(arrived, state.pending, state.fix),
+            fix_valid=state.fix_valid | arrived,
+            fix_time=ops.where(arrived, state.pending_time, state.fix_time),
+            dvl=dvl, dvl_valid=dvl_valid, attitude=attitude, rates=rates,
+            depth=ops.real(depth))
 
     @staticmethod
-    def observation(state: NavState, time, xp=np) -> dict:
+    def observation(state: NavState, time, ops) -> dict:
         """The ``nav`` observation (float32 and int8 arrays)."""
-        f32 = xp.float32
-        age = xp.where(state.fix_valid, time - state.fix_time, 0.0)
+        xp = ops.xp
+        f32, i8 = xp.float32, xp.int8
+        age = ops.where(state.fix_valid, time - state.fix_time, 0.0)
         return {
             "dvl_velocity": xp.asarray(state.dvl, dtype=f32),
-            "dvl_valid": xp.asarray(state.dvl_valid, dtype=xp.int8).reshape(1),
+            "dvl_valid": xp.array((state.dvl_valid,), dtype=i8),
             "attitude": xp.asarray(state.attitude, dtype=f32),
             "rates": xp.asarray(state.rates, dtype=f32),
-            "depth": xp.asarray(state.depth, dtype=f32).reshape(1),
+            "depth": xp.array((state.depth,), dtype=f32),
             "usbl": xp.asarray(state.fix, dtype=f32),
-            "usbl_age": xp.asarray(age, dtype=f32).reshape(1),
-            "usbl_valid": xp.asarray(state.fix_valid, dtype=xp.int8).reshape(1),
+            "usbl_age": xp.array((age,), dtype=f32),
+            "usbl_valid": xp.array((state.fix_valid,), dtype=i8),
         }

@@ -21,9 +21,16 @@ module: NumPy, ``jax.numpy``), ``real``, ``integer`` and ``boolean`` (a scalar
 of the backend's type: Python's, or float32/int32/bool arrays), ``vector`` (a
 few scalars as one value: a tuple, or a float32 array), ``unpack`` (a 1-D array
 as a tuple of scalars: Python floats, or array elements) and ``count`` (the
-true entries of a boolean array), and ``scan(body, carry, xs)``, JAX's ``lax.scan``
+true entries of a boolean array), ``round`` (to the nearest integer, halves to even, as
+a float of the backend), ``scan(body, carry, xs)``, JAX's ``lax.scan``
 over a tuple of arrays ``xs`` and tuples of outputs (a Python loop on the CPU; one
-traced body under JAX, however many rows).
+traced body under JAX, however many rows), and ``either(condition, then, otherwise)``,
+the result of ``then()`` where ``condition`` holds, else of ``otherwise()`` (two
+functions of no arguments returning the same structure): on the CPU only the chosen
+function runs, its random draws too; under JAX both run (first ``then``) and the result
+is selected element by element, so a batch of episodes draws alike whatever each one
+chooses. The draws of an episode on the CPU and under JAX differ there: the plants that
+use it say so.
 
 :func:`casadi_ops` evaluates the arithmetic parts (the plant, the
 kinematics, a projection) on CasADi symbols, which
@@ -71,6 +78,15 @@ def _where(condition, a, b):
     return a if condition else b
 
 
+def _either(condition, then, otherwise):
+    return then() if condition else otherwise()
+
+
+def _round(x):
+    # Python's round halves to even, as NumPy's and JAX's; copysign keeps their -0.0.
+    return math.copysign(float(round(x)), x)
+
+
 def _clip(x, low, high):
     # Comparisons, not min/max (which are slower and turn NaN into a bound): NaN stays NaN,
     # as NumPy's and JAX's clip leave it.
@@ -88,7 +104,9 @@ FLOATS = types.SimpleNamespace(
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
     count=lambda array: int(np.count_nonzero(array)),
+    round=_round,
     scan=_scan,
+    either=_either,
 )
 
 
@@ -110,7 +128,10 @@ def jax_ops() -> types.SimpleNamespace:
         vector=lambda values: jnp.asarray(values, jnp.float32),
         unpack=lambda array: tuple(array[k] for k in range(array.shape[0])),
         count=lambda array: jnp.sum(array.astype(jnp.int32)),
+        round=jnp.round,
         scan=jax.lax.scan,
+        either=lambda condition, then, otherwise: jax.tree.map(
+            lambda a, b: jnp.where(condition, a, b), then(), otherwise()),
     )
 
 

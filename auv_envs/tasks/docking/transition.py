@@ -278,7 +278,7 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
         thrust=ops.vector((0.0,) * 4) if params.thruster_gain != 1.0 else None,
         plant=vehicle, failed=failed, occluded=occluded)
     if params.navigation is not None:  # drawn last: the other modes' draws are unchanged
-        state = state._replace(nav=params.navigation.start(truth, draws, ops.xp))
+        state = state._replace(nav=params.navigation.start(truth, draws, ops))
     if params.mission is not None:
         nan = ops.real(math.nan)
         x, y, z = truth["position"]
@@ -322,7 +322,7 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
             state.occluded, params.optics, params.dt, draws, ops.xp))
     if params.navigation is not None:
         state = state._replace(nav=params.navigation.advance(
-            state.nav, truth, state.steps * params.dt, draws, ops.xp))
+            state.nav, truth, state.steps * params.dt, draws, ops))
     if params.mission is not None:
         state = state._replace(mission=track_mission(params, state, truth, ops))
     return state, truth, observe(params, state, truth, backend), judged
@@ -393,7 +393,7 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
             truth, (current[0], current[1], current[2]), ops), dtype=xp.float32)
     pixel_std, velocity_std, yaw_rate_std, attitude_std = params.noise
     if params.navigation is not None:  # read in the step (the sensors keep a state)
-        sensors = params.navigation.observation(state.nav, state.steps * params.dt, xp)
+        sensors = params.navigation.observation(state.nav, state.steps * params.dt, ops)
     else:
         # One draw of 7 standard normals, scaled: the numbers of normal(0, s_v, 3),
         # normal(0, s_r), normal(0, s_a, 3) (Generator.normal is loc + scale *
