@@ -23,66 +23,16 @@ from gymnasium.envs.registration import WrapperSpec, register, registry  # noqa:
 
 __version__ = "0.1.0"
 
-#: Every environment id this package registers, with its entry point.
-ENVIRONMENTS = {
-    "auv_envs/DockingStation-v2": "auv_envs.tasks.docking.env:DockingStationEnv",
-    "auv_envs/LampArrayDocking-v2": "auv_envs.tasks.docking.env:LampArrayDockingEnv",
-    "auv_envs/AcousticTracking-v2": "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
-    "auv_envs/LARSCapture-v0": "auv_envs.tasks.lars.env:LARSCaptureEnv",
-    "auv_envs/DockingMission-v0": "auv_envs.tasks.docking.mission:DockingMissionEnv",
-}
+from auv_envs.families import FAMILIES, family  # noqa: E402
 
-#: The v0 docking plant: semi-implicit Euler, two 0.05 s steps per control period.
-_DOCKING_V0_PLANT = {"integrator": "euler", "physics_substeps": 2, "plant": "mujoco"}
-#: The v1 docking plant: MuJoCo's RK4 staged with the hull wrench at every stage,
-#: throughout (v2 compiles the hull away from the scenery: the same equations).
-_DOCKING_V1_PLANT = {"plant": "mujoco"}
-#: Acoustic tracking v0: the rig integrated by implicitfast in one step a period (v1: Euler
-#: in two), the measurement noise drawn for every path before the detections (v1: for
-#: the kept detections only) and the detections drawn in every mode (v1: when observed or
-#: rendered).
-_ACOUSTIC_V0 = {"integrator": "implicitfast", "physics_substeps": 1, "noise_draws": "all",
-                "draw_detections": True, "planner": "tabulated"}
-#: Acoustic tracking v1: the carrier's route drawn by the sequential planner (v2: drawn
-#: per segment, every draw made, by the same code on NumPy and JAX).
-_ACOUSTIC_V1 = {"planner": "tabulated"}
+#: Every current environment id, with its entry point (a view of :data:`FAMILIES`).
+ENVIRONMENTS = {entry.env_id: entry.entry_point for entry in FAMILIES}
 
 #: Superseded versions, still registered so that published results stay
 #: reproducible: id -> (entry point, the keywords that give the old behaviour).
 #: Agents, the leaderboard and the tests use :data:`ENVIRONMENTS`.
-PREVIOUS_VERSIONS = {
-    "auv_envs/DockingStation-v0": (
-        "auv_envs.tasks.docking.env:DockingStationEnv", _DOCKING_V0_PLANT
-    ),
-    "auv_envs/LampArrayDocking-v0": (
-        "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V0_PLANT
-    ),
-    "auv_envs/DockingStation-v1": (
-        "auv_envs.tasks.docking.env:DockingStationEnv", _DOCKING_V1_PLANT
-    ),
-    "auv_envs/LampArrayDocking-v1": (
-        "auv_envs.tasks.docking.env:LampArrayDockingEnv", _DOCKING_V1_PLANT
-    ),
-    "auv_envs/AcousticTracking-v0": (
-        "auv_envs.tasks.acoustic.env:AcousticTrackingEnv", _ACOUSTIC_V0
-    ),
-    "auv_envs/AcousticTracking-v1": (
-        "auv_envs.tasks.acoustic.env:AcousticTrackingEnv", _ACOUSTIC_V1
-    ),
-}
-
-#: Steps in each family's default episode: its default ``time_limit`` divided
-#: by its step period (docking 100 s at 0.1 s, LARS 30 s at 0.04 s, acoustic
-#: 60 s at 0.01 s, the docking mission 600 s at 0.1 s; a test checks them against the
-#: classes). Registered as
-#: ``max_episode_steps``, so ``TimeLimit``-aware tools see them.
-MAX_EPISODE_STEPS = {
-    "DockingStation": 1000,
-    "LampArrayDocking": 1000,
-    "AcousticTracking": 6000,
-    "LARSCapture": 750,
-    "DockingMission": 6000,
-}
+PREVIOUS_VERSIONS = {old: (entry.entry_point, kwargs) for entry in FAMILIES
+                     for old, kwargs in entry.previous.items()}
 
 #: Applied by ``gym.make`` above its ``TimeLimit``: the episode summary on a
 #: truncation from outside the env (``auv_envs.core.env.EpisodeSummary``).
@@ -90,8 +40,9 @@ _SUMMARY = WrapperSpec("EpisodeSummary", "auv_envs.core.env:EpisodeSummary", {})
 
 
 def max_episode_steps(env_id: str) -> int:
-    """The registered episode length of ``env_id`` (any version), in steps."""
-    return MAX_EPISODE_STEPS[env_id.split("/")[-1].rsplit("-v", 1)[0]]
+    """The registered episode length of ``env_id`` (any version, or its batched twin), in
+    steps."""
+    return family(env_id).max_episode_steps
 
 
 for _env_id, (_entry_point, _kwargs) in {
@@ -105,27 +56,23 @@ for _env_id, (_entry_point, _kwargs) in {
                  max_episode_steps=max_episode_steps(_env_id), additional_wrappers=(_SUMMARY,))
 
 
-#: The batched JAX twins of the CPU environments (``pip install -e ".[jax]"``):
-#: ``gym.make_vec(id, num_envs=N)`` only (:mod:`auv_envs.batched.vector`).
-BATCHED_ENVIRONMENTS = {
-    "auv_envs/DockingStationMJX-v2": "auv_envs.batched.vector:docking_station",
-    "auv_envs/LampArrayDockingMJX-v2": "auv_envs.batched.vector:lamp_array_docking",
-    "auv_envs/DockingMissionMJX-v0": "auv_envs.batched.vector:docking_mission",
-    "auv_envs/LARSCaptureMJX-v0": "auv_envs.batched.vector:lars_capture",
-    "auv_envs/AcousticTrackingMJX-v2": "auv_envs.batched.vector:acoustic_tracking",
-}
+#: The batched JAX twins of the CPU environments (``pip install -e ".[jax]"``): batched id
+#: -> CPU id. ``gym.make_vec(id, num_envs=N)`` only (:mod:`auv_envs.batched.vector`).
+BATCHED_ENVIRONMENTS = {entry.batched_id: entry.env_id for entry in FAMILIES}
 
 
 def cpu_id(batched_id: str) -> str:
     """The CPU id a batched id twins (``auv_envs/DockingStationMJX-v2`` ->
     ``auv_envs/DockingStation-v2``)."""
-    return batched_id.replace("MJX", "")
+    return BATCHED_ENVIRONMENTS[batched_id]
 
 
-for _env_id, _vector_entry_point in BATCHED_ENVIRONMENTS.items():
-    if _env_id not in registry:
-        register(id=_env_id, vector_entry_point=_vector_entry_point,
-                 max_episode_steps=max_episode_steps(cpu_id(_env_id)))
+for _entry in FAMILIES:
+    if _entry.batched_id not in registry:
+        register(id=_entry.batched_id,
+                 vector_entry_point="auv_envs.batched.vector:TransitionVectorEnv",
+                 kwargs={"env_id": _entry.env_id, "obs_mode": _entry.batched_mode},
+                 max_episode_steps=_entry.max_episode_steps)
 
 
 def _prefix_hint(env_id: str, **kwargs):

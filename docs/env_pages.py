@@ -10,9 +10,8 @@ from the code. :func:`pages` returns ``{path: markdown}`` for ``docs/hooks.py``.
 * ``reward_terms``, ``metric_keys``, ``difficulty_presets`` and ``metadata``:
   the class attributes the registry-driven tests read;
 * the arguments: ``inspect.signature`` of the constructor;
-* the versions: :data:`auv_envs.PREVIOUS_VERSIONS`, the registered
-  ``max_episode_steps`` and :data:`auv_envs.BATCHED_ENVIRONMENTS` (whose modes are
-  read from the source, so the docs build without JAX);
+* the versions: the family table (:data:`auv_envs.families.FAMILIES`: the superseded
+  ids, the batched twin and its modes) and the registered ``max_episode_steps``;
 * the picture: the entry of ``GALLERY`` in ``scripts/render_gallery.py`` that
   made an image under ``docs/images/``, if there is one;
 * the description: the class docstring, through :mod:`rest_markdown`.
@@ -32,6 +31,7 @@ from gymnasium import spaces
 from rest_markdown import to_markdown
 
 import auv_envs
+from auv_envs.core.difficulty import LEVELS
 
 REPO = Path(__file__).resolve().parent.parent
 FOLDER = "env"
@@ -214,24 +214,20 @@ def _levels(cls: type) -> list[str]:
 
 
 def _versions(env_id: str, spec) -> list[str]:
-    family = env_id.split("/")[-1].rsplit("-v", 1)[0]
     lines = ["## Versions", "",
              "| id | how to make it | `max_episode_steps` | differs by |",
              "|---|---|---|---|",
              f"| `{env_id}` | `gym.make` | {spec.max_episode_steps} | this page |"]
-    for old_id, (_, kwargs) in auv_envs.PREVIOUS_VERSIONS.items():
-        if old_id.split("/")[-1].rsplit("-v", 1)[0] == family:
-            differs = ", ".join(f"`{k}={v!r}`" for k, v in kwargs.items())
-            lines.append(f"| `{old_id}` | `gym.make` | {gym.spec(old_id).max_episode_steps} | "
-                         f"superseded, still registered: {differs} |")
-    for batched_id in auv_envs.BATCHED_ENVIRONMENTS:
-        if batched_id.replace("MJX", "") == env_id:
-            modes, levels = (_codes(v) for v in _batched_declarations(batched_id))
-            lines.append(f"| `{batched_id}` | `gym.make_vec(id, num_envs=N)` "
-                         f"(`pip install -e \".[jax]\"`) | "
-                         f"{gym.spec(batched_id).max_episode_steps} | "
-                         f"batched on JAX / MuJoCo MJX, obs modes {modes}, levels {levels} "
-                         "([tutorial](../tutorials/batched.md)) |")
+    entry = auv_envs.family(env_id)
+    for old_id, kwargs in entry.previous.items():
+        differs = ", ".join(f"`{k}={v!r}`" for k, v in kwargs.items())
+        lines.append(f"| `{old_id}` | `gym.make` | {gym.spec(old_id).max_episode_steps} | "
+                     f"superseded, still registered: {differs} |")
+    lines.append(f"| `{entry.batched_id}` | `gym.make_vec(id, num_envs=N)` "
+                 f"(`pip install -e \".[jax]\"`) | "
+                 f"{gym.spec(entry.batched_id).max_episode_steps} | "
+                 f"batched on JAX / MuJoCo MJX, obs modes {_codes(entry.batched_modes)}, "
+                 f"levels {_codes(LEVELS)} ([tutorial](../tutorials/batched.md)) |")
     lines += ["", "The version history is in the class docstring above; the measurements "
               "behind each change are in the [changelog](../changelog.md).", ""]
     return lines
@@ -249,16 +245,6 @@ def _gallery() -> dict[str, dict]:
             out.setdefault(env_id, dict(file=file, env_id=env_id, kwargs=kwargs, agent=agent,
                                         seed=seed, fraction=fraction))
     return out
-
-
-def _batched_declarations(batched_id: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``OBS_MODES`` and ``LEVELS`` of the batched id's module
-    (:mod:`auv_envs.batched.docking_env` or :mod:`auv_envs.batched.lars_env`), read
-    without importing JAX."""
-    module = "lars_env.py" if "LARS" in batched_id else "docking_env.py"
-    source = Path(auv_envs.__file__).parent / "batched" / module
-    return (tuple(_module_constant(source, "OBS_MODES")),
-            tuple(_module_constant(source, "LEVELS")))
 
 
 def _module_constant(path: Path, name: str):

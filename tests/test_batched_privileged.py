@@ -1,6 +1,6 @@
 """``privileged=True`` on every batched family: Playground's asymmetric-critic observation.
 
-Every row of the family table (:data:`auv_envs.batched.registry.FAMILIES`) built with
+Every row of the family table (:data:`auv_envs.families.FAMILIES`) built with
 ``privileged=True`` observes ``{"state": ..., "privileged_state": ...}``. Checked here,
 from the same key and actions over an auto-reset:
 
@@ -29,20 +29,20 @@ pytest.importorskip("mujoco.mjx")
 
 import auv_envs.batched  # noqa: E402
 from auv_envs.batched.functional import PRIVILEGED_KEY  # noqa: E402
-from auv_envs.batched.registry import FAMILIES  # noqa: E402
+from auv_envs.families import FAMILIES, family  # noqa: E402
 
 #: Steps of each rollout; the episode is cut at ``LENGTH`` steps, so the last steps cross
 #: an auto-reset.
 STEPS, LENGTH = 4, 3
 #: Each family's observation mode other than ``state`` (the first one its table lists).
-OTHER_MODE = {env_id: next(mode for mode in modes if mode != "state")
-              for env_id, (_, modes) in FAMILIES.items()}
+OTHER_MODE = {entry.env_id: next(mode for mode in entry.batched_modes if mode != "state")
+              for entry in FAMILIES}
 
 
 def build(env_id: str, obs_mode: str, **kwargs):
     """The family's batched env (Gymnasium's conventions, auto-reset), its episodes cut at
     ``LENGTH`` steps."""
-    env = FAMILIES[env_id][0](obs_mode=obs_mode, **kwargs)
+    env = family(env_id).batched_class()(env_id, obs_mode=obs_mode, **kwargs)
     env.max_episode_steps = LENGTH
     return env
 
@@ -82,7 +82,7 @@ def assert_same(a, b) -> None:
         np.testing.assert_array_equal(x, y)
 
 
-@pytest.fixture(scope="module", params=list(FAMILIES), ids=lambda env_id: env_id.split("/")[1])
+@pytest.fixture(scope="module", params=list(OTHER_MODE), ids=lambda env_id: env_id.split("/")[1])
 def rollouts(request):
     """One family's rollouts from one key and the same actions: its other mode plain and
     privileged, and its ``state`` mode privileged."""
@@ -157,7 +157,7 @@ def test_observations_lie_in_the_dict_space(rollouts):
             assert space.contains(obs), obs
 
 
-@pytest.mark.parametrize("env_id", list(FAMILIES), ids=lambda env_id: env_id.split("/")[1])
+@pytest.mark.parametrize("env_id", list(OTHER_MODE), ids=lambda env_id: env_id.split("/")[1])
 def test_load_gives_brax_the_two_flat_entries(env_id):
     mode = OTHER_MODE[env_id]
     env = auv_envs.batched.load(env_id, obs_mode=mode, privileged=True)

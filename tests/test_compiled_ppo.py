@@ -358,17 +358,20 @@ def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, see
 
 
 def test_cppo_knows_every_batched_family_and_its_modes():
-    from auv_envs.batched import acoustic_env, docking_env, lars_env
-    from auv_envs.batched.registry import FAMILIES
+    """cppo trains every family of the table, in the modes its batched class builds (the
+    class refuses the others, and an id of another family)."""
+    from auv_envs.families import FAMILIES
     from baselines.rl.config import COMPILED_ENV_IDS
 
-    assert set(COMPILED_ENV_IDS) == set(FAMILIES)
-    modules = {"Docking": docking_env, "LampArray": docking_env, "LARS": lars_env,
-               "Acoustic": acoustic_env}
-    for env_id, (_, modes) in FAMILIES.items():
-        module = next(m for prefix, m in modules.items()
-                      if env_id.split("/")[1].startswith(prefix))
-        assert modes == module.OBS_MODES
+    assert COMPILED_ENV_IDS == tuple(entry.env_id for entry in FAMILIES)
+    for entry in FAMILIES:
+        cls = entry.batched_class()
+        assert entry.batched_mode in entry.batched_modes
+        with pytest.raises(ValueError, match="obs_mode"):
+            cls(entry.env_id, obs_mode="image")
+        other = next(e for e in FAMILIES if e.batched != entry.batched)
+        with pytest.raises(ValueError, match="served by"):
+            cls(other.env_id, obs_mode=other.batched_mode)
 
 
 def test_the_residual_lars_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):

@@ -40,11 +40,6 @@ from auv_envs.core.ops import Backend, jax_ops
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
 
-#: The observation modes the batched environment builds.
-OBS_MODES = ("state", "measurements")
-#: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
-#: source, without importing JAX).
-LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (:func:`~auv_envs.tasks.acoustic.transition.scores`).
 STEP_METRICS = ("estimate_error", "running_rmse", "tracked", "is_success")
 
@@ -79,6 +74,7 @@ class AcousticMJX(FunctionalEnv):
     """The acoustic tracking environment as pure JAX functions of one episode.
 
     Args:
+        env_id: ``"auv_envs/AcousticTracking-v2"`` (or its batched id).
         obs_mode: ``"state"`` or ``"measurements"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
         privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
@@ -93,11 +89,11 @@ class AcousticMJX(FunctionalEnv):
             than ``"segments"`` (the tabulated route of v0/v1 is drawn in NumPy only).
     """
 
-    def __init__(self, obs_mode: str = "state", auto_reset: bool = True,
-                 privileged: bool = False, **env_kwargs):
-        if obs_mode not in OBS_MODES:
-            raise ValueError(f"the batched acoustic environment builds obs_mode {OBS_MODES}, "
-                             f"got {obs_mode!r}")
+    STEP_METRICS = STEP_METRICS
+
+    def __init__(self, env_id: str = "auv_envs/AcousticTracking-v2", obs_mode: str = "state",
+                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
+        self._served(env_id, obs_mode)
         cpu = AcousticTrackingEnv(obs_mode=obs_mode, **env_kwargs)
         if cpu.params.planner != "segments":
             raise ValueError("the batched acoustic environment draws the v2 route "

@@ -3,7 +3,7 @@
 The transition of ``auv_envs/DockingStation-v2`` and ``auv_envs/LampArrayDocking-v2``
 (:mod:`auv_envs.tasks.docking.transition`, the very functions the CPU environment
 calls) evaluated on JAX arrays for ``jit`` and ``vmap``: one environment's
-functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.DockingVectorEnv`
+functions, batched by :func:`jax.vmap` (:class:`auv_envs.batched.vector.TransitionVectorEnv`
 does it and speaks NumPy to Gymnasium). What this shell adds: the plant is
 :class:`auv_envs.batched.docking.DockingPlantMJX` (the env's MJCF on MuJoCo
 MJX, the same hull wrench), the lines of sight to the lights are the CPU env's
@@ -44,13 +44,8 @@ from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.vehicle import PlantPerturbation
 from auv_envs.tasks.docking import transition
-from auv_envs.tasks.docking.rules import failure_reason  # noqa: F401  (re-exported)
+from auv_envs.tasks.docking.rules import failure_reason
 
-#: The observation modes the batched environment builds.
-OBS_MODES = ("state", "features", "nav", "nav_features")
-#: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
-#: source, without importing JAX).
-LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
 STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
                 "heading_error", "lights_visible", "is_success")
@@ -74,11 +69,12 @@ class DockingMJX(FunctionalEnv):
             rules this one uses.
     """
 
+    STEP_METRICS = STEP_METRICS
+    end_reason = staticmethod(failure_reason)
+
     def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
                  auto_reset: bool = True, privileged: bool = False, **env_kwargs):
-        if obs_mode not in OBS_MODES:
-            raise ValueError(f"the batched environment builds obs_mode {OBS_MODES}, got "
-                             f"{obs_mode!r}")
+        self._served(env_id, obs_mode)
         cpu = gym.make(env_id, obs_mode=obs_mode, **env_kwargs).unwrapped
         self.cpu_env = cpu
         self.env_id = env_id

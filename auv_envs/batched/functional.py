@@ -16,6 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from auv_envs.families import Family, family
+
 #: The keys of an observation with the privileged state beside it (MuJoCo Playground's:
 #: Brax's PPO takes them as ``policy_obs_key`` and ``value_obs_key``).
 POLICY_KEY, PRIVILEGED_KEY = "state", "privileged_state"
@@ -183,6 +185,30 @@ class FunctionalEnv:
         """The space of the observation the policy reads: ``observation_space`` itself, or
         its ``"state"`` entry with ``privileged``."""
         return self.observation_space[POLICY_KEY] if self.privileged else self.observation_space
+
+    #: ``info`` metrics carried every step (the CPU env's that are numbers); the family's.
+    STEP_METRICS: tuple = ()
+
+    @staticmethod
+    def end_reason(code, success) -> str:
+        """The CPU env's name of an episode's end from its summary's ``failure`` code;
+        a family whose episodes only time out has no ``failure`` and never calls it."""
+        raise NotImplementedError
+
+    def _served(self, env_id: str, obs_mode: str) -> Family:
+        """The family (:data:`auv_envs.families.FAMILIES`) of ``env_id``, checked to be
+        served by this class in ``obs_mode``."""
+        try:
+            entry = family(env_id)
+        except KeyError as error:
+            raise ValueError(str(error)) from None
+        if entry.batched.split(":")[1] != type(self).__name__:
+            raise ValueError(f"{env_id!r} is served by {entry.batched}, not "
+                             f"{type(self).__name__}")
+        if obs_mode not in entry.batched_modes:
+            raise ValueError(f"the batched {entry.name} environment builds obs_mode "
+                             f"{entry.batched_modes}, got {obs_mode!r}")
+        return entry
 
     def _offer_privileged(self, privileged: bool) -> None:
         """With ``privileged``, observations become ``{"state": ..., "privileged_state":

@@ -44,11 +44,6 @@ from auv_envs.tasks.lars.scene import AUVMotion
 from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
 from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
 
-#: The observation modes the batched environment builds.
-OBS_MODES = ("state", "features")
-#: The ``difficulty`` levels it builds (a literal: docs/env_pages.py reads it from the
-#: source, without importing JAX).
-LEVELS = ("easy", "paper", "hard")
 #: ``info`` metrics carried every step (the CPU env's that are numbers).
 STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
                 "distractors_in_view", "is_success", "collision", "violation_workspace")
@@ -254,6 +249,7 @@ class LARSMJX(FunctionalEnv):
     """The LARS capture environment as pure JAX functions of one episode.
 
     Args:
+        env_id: ``"auv_envs/LARSCapture-v0"`` (or its batched id).
         obs_mode: ``"state"`` or ``"features"``.
         auto_reset: reset an episode inside :meth:`step` when it ends.
         privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
@@ -268,11 +264,12 @@ class LARSMJX(FunctionalEnv):
         ValueError: for what is not built yet (module docstring).
     """
 
-    def __init__(self, obs_mode: str = "features", auto_reset: bool = True,
-                 privileged: bool = False, **env_kwargs):
-        if obs_mode not in OBS_MODES:
-            raise ValueError(f"the batched LARS environment builds obs_mode {OBS_MODES}, got "
-                             f"{obs_mode!r}")
+    STEP_METRICS = STEP_METRICS
+    end_reason = staticmethod(transition.end_reason)
+
+    def __init__(self, env_id: str = "auv_envs/LARSCapture-v0", obs_mode: str = "features",
+                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
+        self._served(env_id, obs_mode)
         cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
         self.cpu_env = cpu
         self.obs_mode = obs_mode

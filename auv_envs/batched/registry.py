@@ -43,28 +43,13 @@ two keys::
 
 from __future__ import annotations
 
-import auv_envs
-from auv_envs.batched import acoustic_env, docking_env, lars_env
 from auv_envs.batched.functional import FunctionalEnv
+from auv_envs.families import FAMILIES, family
 
-#: Each family's CPU id: the functional env that evaluates it and the modes it builds.
-FAMILIES = {
-    "auv_envs/DockingStation-v2": (
-        lambda **kw: docking_env.DockingMJX("auv_envs/DockingStation-v2", **kw),
-        docking_env.OBS_MODES),
-    "auv_envs/LampArrayDocking-v2": (
-        lambda **kw: docking_env.DockingMJX("auv_envs/LampArrayDocking-v2", **kw),
-        docking_env.OBS_MODES),
-    "auv_envs/DockingMission-v0": (
-        lambda **kw: docking_env.DockingMJX("auv_envs/DockingMission-v0", **kw),
-        docking_env.OBS_MODES),
-    "auv_envs/LARSCapture-v0": (lars_env.LARSMJX, lars_env.OBS_MODES),
-    "auv_envs/AcousticTracking-v2": (acoustic_env.AcousticMJX, acoustic_env.OBS_MODES),
-}
-#: Every id :func:`load` takes, a CPU id or its batched twin (``auv_envs.BATCHED_ENVIRONMENTS``,
-#: the CPU id with ``MJX`` after the family's name), and the CPU id it means.
-IDS = {**{cpu: cpu for cpu in FAMILIES},
-       **{batched: auv_envs.cpu_id(batched) for batched in auv_envs.BATCHED_ENVIRONMENTS}}
+#: Every id :func:`load` takes, a CPU id of :data:`auv_envs.families.FAMILIES` or its
+#: batched twin, and the CPU id it means.
+IDS = {**{entry.env_id: entry.env_id for entry in FAMILIES},
+       **{entry.batched_id: entry.env_id for entry in FAMILIES}}
 
 
 def load(env_id: str, privileged: bool = False, **env_kwargs) -> FunctionalEnv:
@@ -90,5 +75,6 @@ def load(env_id: str, privileged: bool = False, **env_kwargs) -> FunctionalEnv:
     if env_id not in IDS:
         raise ValueError(f"no batched environment for {env_id!r}; load() takes "
                          f"{sorted(IDS)}")
-    env = FAMILIES[IDS[env_id]][0](privileged=privileged, **env_kwargs)
+    entry = family(env_id)
+    env = entry.batched_class()(entry.env_id, privileged=privileged, **env_kwargs)
     return env.use_playground_conventions()

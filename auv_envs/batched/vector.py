@@ -7,10 +7,10 @@
     obs, reward, terminated, truncated, info = envs.step(actions)   # (1024, 4) float32
 
 Each batched id is its CPU id with ``MJX`` after the family's name
-(``auv_envs/DockingStationMJX-v2``, ``auv_envs/LampArrayDockingMJX-v2``,
-``auv_envs/LARSCaptureMJX-v0``, ``auv_envs/AcousticTrackingMJX-v2``) and has only a
-``vector_entry_point``: Gymnasium refuses that mode for an id registered with
-additional wrappers, and the CPU ids carry one (their episode summary). Episodes reset
+(``auv_envs/DockingStationMJX-v2``, ...: :data:`auv_envs.families.FAMILIES`), registered
+with :class:`TransitionVectorEnv` as its ``vector_entry_point`` and nothing else:
+Gymnasium refuses that mode for an id registered with additional wrappers, and the CPU
+ids carry one (their episode summary). Episodes reset
 themselves on the step that ends them
 (``AutoresetMode.SAME_STEP``): that step returns the new episode's first
 observation; ``info["final_obs"]`` holds the observation that ended each
@@ -27,52 +27,47 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from auv_envs.batched.acoustic_env import STEP_METRICS as ACOUSTIC_METRICS
-from auv_envs.batched.acoustic_env import AcousticMJX
 from auv_envs.batched.compile_cache import use_compilation_cache
-from auv_envs.batched.docking_env import STEP_METRICS as DOCKING_METRICS
-from auv_envs.batched.docking_env import DockingMJX
-from auv_envs.batched.lars_env import LARSMJX
-from auv_envs.batched.lars_env import STEP_METRICS as LARS_METRICS
 from auv_envs.core.env import action_array, clip_actions
-from auv_envs.tasks.docking.rules import failure_reason
-from auv_envs.tasks.lars import transition as lars_transition
+from auv_envs.families import family
 
 
 class TransitionVectorEnv(VectorEnv):
     """``num_envs`` environments of one batched family stepped in one compiled JAX call.
 
     Args:
-        make_env: builds the family's functional environment (:class:`DockingMJX`,
-            :class:`LARSMJX`, :class:`AcousticMJX`) with ``auto_reset=True``; called once
-            ``num_envs`` is checked (building it compiles).
         num_envs: the batch size.
-        step_metrics: the metrics every step's ``info`` carries.
-        failure_reason: ``failure_reason(code, success) -> str``, the CPU env's name of
-            an episode's end (None for a family whose episodes only time out).
+        env_id: the CPU environment it twins, or the batched id (a family of
+            :data:`auv_envs.families.FAMILIES`).
+        obs_mode: the observation mode; None: the family's ``batched_mode``.
         max_episode_steps: episode length in steps (Gymnasium passes the
             registered one), cut to the env's ``time_limit`` where that is shorter;
             None: the env's ``time_limit``.
+        **env_kwargs: the environment's arguments (the family's batched class, with
+            ``auto_reset=True``; building it compiles).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, make_env, num_envs: int, step_metrics: tuple, failure_reason,
-                 max_episode_steps: int | None = None):
+    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v2",
+                 obs_mode: str | None = None, max_episode_steps: int | None = None,
+                 **env_kwargs):
         if not (isinstance(num_envs, int) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
         if max_episode_steps is not None and not (isinstance(max_episode_steps, int)
                                                   and max_episode_steps >= 1):
             raise ValueError(f"max_episode_steps must be a positive int, got "
                              f"{max_episode_steps!r}")
-        self.env = make_env()
+        entry = family(env_id)
+        self.env = entry.batched_class()(entry.env_id, obs_mode=obs_mode or entry.batched_mode,
+                                         **env_kwargs)
         if max_episode_steps is not None:
             # As gym.make's TimeLimit over a CPU env: whichever ends the episode first,
             # this or the env's own time_limit (make_vec passes the registered length).
             self.env.max_episode_steps = min(max_episode_steps, self.env.max_episode_steps)
         self.num_envs = num_envs
-        self.step_metrics = step_metrics
-        self.failure_reason = failure_reason
+        self.step_metrics = self.env.STEP_METRICS
+        self.failure_reason = self.env.end_reason
         self.single_observation_space = self.env.observation_space
         self.single_action_space = self.env.action_space
         self.observation_space = batch_space(self.single_observation_space, num_envs)
@@ -134,81 +129,3 @@ class TransitionVectorEnv(VectorEnv):
     @staticmethod
     def _numpy(tree):
         return jax.tree_util.tree_map(np.asarray, tree)
-
-
-class DockingVectorEnv(TransitionVectorEnv):
-    """``num_envs`` docking environments stepped in one compiled JAX call.
-
-    Args:
-        num_envs: the batch size.
-        env_id: the CPU environment it twins (``auv_envs/DockingStation-v2`` or
-            ``auv_envs/LampArrayDocking-v2``).
-        obs_mode: ``"state"`` or ``"features"``.
-        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
-        **env_kwargs: the environment's arguments (:class:`DockingMJX`).
-    """
-
-    def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v2",
-                 obs_mode: str = "features", max_episode_steps: int | None = None,
-                 **env_kwargs):
-        super().__init__(lambda: DockingMJX(env_id, obs_mode=obs_mode, **env_kwargs),
-                         num_envs, DOCKING_METRICS, failure_reason, max_episode_steps)
-
-
-class LARSVectorEnv(TransitionVectorEnv):
-    """``num_envs`` LARS capture environments stepped in one compiled JAX call
-    (:class:`~auv_envs.batched.lars_env.LARSMJX`: what is built and what is not).
-
-    Args:
-        num_envs: the batch size.
-        obs_mode: ``"state"`` or ``"features"``.
-        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
-        **env_kwargs: the environment's arguments (:class:`LARSMJX`).
-    """
-
-    def __init__(self, num_envs: int, obs_mode: str = "features",
-                 max_episode_steps: int | None = None, **env_kwargs):
-        super().__init__(lambda: LARSMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
-                         LARS_METRICS, lars_transition.end_reason, max_episode_steps)
-
-
-class AcousticVectorEnv(TransitionVectorEnv):
-    """``num_envs`` acoustic tracking environments stepped in one compiled JAX call
-    (:class:`~auv_envs.batched.acoustic_env.AcousticMJX`: what is built and what is not).
-
-    Args:
-        num_envs: the batch size.
-        obs_mode: ``"state"`` or ``"measurements"``.
-        max_episode_steps: episode length in steps; None: the env's ``time_limit``.
-        **env_kwargs: the environment's arguments (:class:`AcousticMJX`).
-    """
-
-    def __init__(self, num_envs: int, obs_mode: str = "measurements",
-                 max_episode_steps: int | None = None, **env_kwargs):
-        super().__init__(lambda: AcousticMJX(obs_mode=obs_mode, **env_kwargs), num_envs,
-                         ACOUSTIC_METRICS, None, max_episode_steps)
-
-
-def docking_station(num_envs: int, **kwargs) -> DockingVectorEnv:
-    """``auv_envs/DockingStationMJX-v2``: :class:`DockingVectorEnv` of the six-light station."""
-    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingStation-v2", **kwargs)
-
-
-def lamp_array_docking(num_envs: int, **kwargs) -> DockingVectorEnv:
-    """``auv_envs/LampArrayDockingMJX-v2``: :class:`DockingVectorEnv` of the lamp array."""
-    return DockingVectorEnv(num_envs, env_id="auv_envs/LampArrayDocking-v2", **kwargs)
-
-
-def docking_mission(num_envs: int, **kwargs) -> DockingVectorEnv:
-    """``auv_envs/DockingMissionMJX-v0``: :class:`DockingVectorEnv` of the whole approach."""
-    return DockingVectorEnv(num_envs, env_id="auv_envs/DockingMission-v0", **kwargs)
-
-
-def lars_capture(num_envs: int, **kwargs) -> LARSVectorEnv:
-    """``auv_envs/LARSCaptureMJX-v0``: :class:`LARSVectorEnv`."""
-    return LARSVectorEnv(num_envs, **kwargs)
-
-
-def acoustic_tracking(num_envs: int, **kwargs) -> AcousticVectorEnv:
-    """``auv_envs/AcousticTrackingMJX-v2``: :class:`AcousticVectorEnv`."""
-    return AcousticVectorEnv(num_envs, **kwargs)

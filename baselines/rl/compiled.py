@@ -66,7 +66,7 @@ from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.
     use_compilation_cache,
 )
 from auv_envs.batched.functional import POLICY_KEY, PRIVILEGED_KEY, FunctionalEnv
-from auv_envs.batched.registry import FAMILIES
+from auv_envs.families import family
 from baselines.rl import dagger
 from baselines.rl.config import (
     COMPILED,
@@ -773,7 +773,9 @@ def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
     extra = {"privileged": True} if privileged else {}
     try:
-        env = FAMILIES[env_id][0](obs_mode=obs_mode, **extra, **env_kwargs).use_unit_actions()
+        entry = family(env_id)
+        env = entry.batched_class()(entry.env_id, obs_mode=obs_mode, **extra,
+                                    **env_kwargs).use_unit_actions()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc

@@ -64,9 +64,8 @@ OFF_POLICY = ("sac", "td3", "ddpg")
 COMPILED = "cppo"
 #: Every ``--algo`` train.py accepts.
 TRAINERS = (*ALGORITHMS, COMPILED)
-#: The environments the compiled PPO has a batched JAX version of (the CPU ids of
-#: ``auv_envs.BATCHED_ENVIRONMENTS``).
-COMPILED_ENV_IDS = tuple(auv_envs.cpu_id(env_id) for env_id in auv_envs.BATCHED_ENVIRONMENTS)
+#: The environments the compiled PPO has a batched JAX version of (every family's).
+COMPILED_ENV_IDS = tuple(entry.env_id for entry in auv_envs.FAMILIES)
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 
@@ -684,10 +683,8 @@ def _validate_compiled(config: TrainConfig) -> None:
     if set(config.run) != set(COMPILED_RUN_KEYS):
         raise ConfigError(f"cppo run keys must be {sorted(COMPILED_RUN_KEYS)}, "
                           f"got {sorted(config.run)}")
-    from auv_envs.batched.registry import FAMILIES  # JAX: cppo needs it to run anyway
-
     run = config.run
-    modes = FAMILIES[config.env_id][1]
+    modes = auv_envs.family(config.env_id).batched_modes
     if run["obs_mode"] not in modes:
         raise ConfigError(f"cppo trains {config.env_id} on obs_mode {modes}, got "
                           f"{run['obs_mode']!r}")
