@@ -143,3 +143,11 @@ def test_brax_ppo_trains_an_asymmetric_critic_on_each_family(env_id, obs_mode):
     # and acoustic; LARS's features flatten to as many entries as its state).
     assert policy["params"]["hidden_0"]["kernel"].shape[0] == sizes["state"]
     assert value["params"]["hidden_0"]["kernel"].shape[0] == sizes["privileged_state"]
+
+
+def test_brax_ppo_trains_through_the_shipped_domain_randomiser():
+    """``ppo.train(..., randomization_fn=env.randomize)``: Brax draws one world per training
+    environment and Playground's wrapper maps the env over them
+    (``tests/test_randomization.py`` shows the worlds differ)."""
+    env = auv_envs.batched.load("auv_envs/DockingStation-v2", obs_mode="features")
+    train_briefly(env, run_evals=False, randomization_fn=env.randomize)

@@ -44,6 +44,7 @@ from auv_envs.core.camera import project_point
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.vehicle import PlantPerturbation
 from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.randomization import DockingRandomization
 from auv_envs.tasks.docking.rules import failure_reason
 
 #: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
@@ -63,6 +64,11 @@ class DockingMJX(FunctionalEnv):
         privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
             16-entry state vector>}``, for an asymmetric critic
             (:class:`~auv_envs.batched.functional.FunctionalEnv`).
+        randomization: the domain randomiser :meth:`randomize` draws worlds with (None:
+            the shipped :class:`~auv_envs.tasks.docking.randomization.DockingRandomization`).
+            The env simulates the nominal world unless given others (Playground's
+            ``wrap_for_brax_training(..., randomization_fn=...)``, ``gym.make_vec(...,
+            randomize=True)``).
         **env_kwargs: the CPU environment's arguments (``scenario``,
             ``current_direction``, ``image_size``, ``time_limit``, ...); they are
             checked by building that environment, whose model, calibration and
@@ -73,8 +79,13 @@ class DockingMJX(FunctionalEnv):
     end_reason = staticmethod(failure_reason)
 
     def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
-                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
+                 auto_reset: bool = True, privileged: bool = False,
+                 randomization: DockingRandomization | None = None, **env_kwargs):
         self._served(env_id, obs_mode)
+        if randomization is not None and not isinstance(randomization, DockingRandomization):
+            raise TypeError(f"randomization must be a DockingRandomization, got "
+                            f"{randomization!r}")
+        self.randomization = randomization or DockingRandomization()
         cpu = gym.make(env_id, obs_mode=obs_mode, **env_kwargs).unwrapped
         self.cpu_env = cpu
         self.env_id = env_id
@@ -192,8 +203,14 @@ class DockingMJX(FunctionalEnv):
         it (:func:`auv_envs.core.rays.blocked`, as the CPU env's compiled truth)."""
         return jnp.logical_not(rays.blocked(self._scenery, camera, self._lights, self.ops))
 
-    def _vehicle(self, draws):
-        """The episode's simulated vehicle (None: the env's own)."""
+    def _vehicle(self, draws, physics):
+        """The episode's simulated vehicle (None: the env's own): the level's draws for the
+        episode composed with the world's ``physics`` (factors multiply, offsets add)."""
+        if physics is not None:
+            world = (physics["mass_scale"], physics["damping_scale"], physics["buoyancy_offset"])
+            draws = world if draws is None else (draws[0] * world[0],
+                                                 jnp.asarray(draws[1]) * world[1],
+                                                 draws[2] + world[2])
         if draws is None:
             return None
         return PlantPerturbation.apply(self.plant.hull.params, *draws)
@@ -222,9 +239,13 @@ class _PlantCursor:
                                                         start.surge)
 
     def advance(self, tau, current, vehicle) -> None:
+        tau = jnp.asarray(tau, jnp.float32)
+        physics = self.env.mjx_model.physics
+        if physics is not None:  # the world's thrusters and unmodelled current
+            tau = tau * physics["thrust_scale"]
+            current = jnp.asarray(current) + physics["current"]
         self.qpos, self.qvel = self.env.plant.advance(
-            self.qpos, self.qvel, jnp.asarray(tau, jnp.float32), current,
-            self.env._vehicle(vehicle))
+            self.qpos, self.qvel, tau, current, self.env._vehicle(vehicle, physics))
 
     def truth(self) -> dict:
         return self.env._truth(self.qpos, self.qvel)

@@ -9,7 +9,9 @@ every family's environment shares (its spaces, its conventions, the end of a ste
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from typing import Any
 
 import gymnasium as gym
 import jax
@@ -66,6 +68,24 @@ class State:
     def plant(self):
         """The plant's state."""
         return self.data["plant"]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class World:
+    """What a batched env's ``mjx_model`` is (MuJoCo Playground's name for the model a
+    domain randomiser varies): MuJoCo's model on MJX and the physics MuJoCo does not model.
+
+    Attributes:
+        mjx: the env's model on MuJoCo MJX (``mjx.Model``).
+        physics: the family's randomised physical parameters (a dict of float32 arrays,
+            named and ranged by the family's randomiser: for docking
+            :class:`auv_envs.tasks.docking.randomization.DockingRandomization`); None:
+            the nominal world, the env exactly as without a randomiser.
+    """
+
+    mjx: Any
+    physics: Any = None
 
 
 class KeyDraws:
@@ -173,9 +193,39 @@ class FunctionalEnv:
     def mj_model(self):
         return self.cpu_env.physics.model
 
+    #: The world the env simulates (:class:`World`; Playground's domain-randomisation
+    #: wrapper sets it per batch entry under ``vmap``); set by the family's constructor.
+    _mjx_model: World = None
+    #: The family's shipped domain randomiser (:meth:`randomize`), None where it has none.
+    randomization = None
+
     @property
-    def mjx_model(self):
-        return self.plant.model
+    def mjx_model(self) -> World:
+        """The world the env simulates (:class:`World`): what a domain randomiser varies;
+        the nominal one (the plant's model, no physics changed) unless one was set."""
+        if self._mjx_model is None:
+            self._mjx_model = World(self.plant.model)
+        return self._mjx_model
+
+    def randomize(self, model: World, rng: jax.Array):
+        """Playground's ``randomization_fn``: ``(worlds, in_axes)``, one world per key of
+        ``rng`` (keys (N, 2)) drawn by :attr:`randomization` about ``model``, and the axes
+        to ``vmap`` them over. ``ppo.train(..., randomization_fn=env.randomize)`` and
+        ``wrap_for_brax_training(env, randomization_fn=functools.partial(env.randomize,
+        rng=keys))`` take it."""
+        if self.randomization is None:
+            raise NotImplementedError(f"{type(self).__name__} has no domain randomiser")
+        return self.randomization(model, rng)
+
+    @contextlib.contextmanager
+    def in_world(self, world: World):
+        """This env simulating ``world`` for the duration (as Playground's wrapper does)."""
+        old = self._mjx_model
+        self._mjx_model = world
+        try:
+            yield self
+        finally:
+            self._mjx_model = old
 
     @property
     def unwrapped(self) -> FunctionalEnv:
@@ -319,18 +369,40 @@ class FunctionalEnv:
             return stepped
         return self._restart(stepped, self._keys(state)[2])
 
-    def step_batch(self, states: State, actions: jax.Array) -> State:
+    def step_batch(self, states: State, actions: jax.Array, worlds: World | None = None,
+                   in_axes=None) -> State:
         """``jax.vmap(self.step)(states, actions)``, the same states, with the auto-reset
         made once for the batch and only on a step where an episode ended (under
         ``vmap`` a reset inside :meth:`step` is computed for every environment at every
-        step: at 64 acoustic environments it was 60 % of a step's time)."""
-        stepped = jax.vmap(self._step)(states, actions)
+        step: at 64 acoustic environments it was 60 % of a step's time). With ``worlds``
+        (:meth:`randomize`'s, mapped over ``in_axes``) each environment simulates its own."""
+        step, restart = self._step, self._restart
+        if worlds is not None:
+            step, restart = (self._within(worlds, in_axes, f) for f in (step, restart))
+        else:
+            step, restart = jax.vmap(step), jax.vmap(restart)
+        stepped = step(states, actions)
         if not self.auto_reset:
             return stepped
         reset_keys = jax.vmap(lambda state: self._keys(state)[2])(states)
-        return jax.lax.cond(jnp.any(stepped.done),
-                            lambda s: jax.vmap(self._restart)(s, reset_keys),
+        return jax.lax.cond(jnp.any(stepped.done), lambda s: restart(s, reset_keys),
                             lambda s: s, stepped)
+
+    def reset_batch(self, keys: jax.Array, worlds: World | None = None,
+                    in_axes=None) -> State:
+        """``jax.vmap(self.reset)(keys)``; with ``worlds``, each in its own."""
+        if worlds is None:
+            return jax.vmap(self.reset)(keys)
+        return self._within(worlds, in_axes, self.reset)(keys)
+
+    def _within(self, worlds: World, in_axes, function):
+        """``function`` mapped over a batch, entry ``i`` evaluated in world ``i``."""
+        def in_world(world, *args):
+            with self.in_world(world):
+                return function(*args)
+
+        return lambda *args: jax.vmap(in_world, in_axes=(in_axes, *[0] * len(args)))(
+            worlds, *args)
 
     def _step(self, state: State, action: jax.Array) -> State:
         raise NotImplementedError

@@ -43,6 +43,13 @@ class TransitionVectorEnv(VectorEnv):
         max_episode_steps: episode length in steps (Gymnasium passes the
             registered one), cut to the env's ``time_limit`` where that is shorter;
             None: the env's ``time_limit``.
+        randomize: domain randomisation: False (the default: every environment simulates
+            the nominal world), True (the family's shipped randomiser,
+            ``env.randomization``), or a randomiser ``fn(world, keys) -> (worlds,
+            in_axes)`` (MuJoCo Playground's ``randomization_fn``, e.g. a
+            :class:`~auv_envs.tasks.docking.randomization.DockingRandomization` with other
+            ranges). Each environment of the batch simulates its own world for its
+            whole life, drawn from the seed given to :meth:`reset` (:attr:`worlds`).
         **env_kwargs: the environment's arguments (the family's batched class, with
             ``auto_reset=True``; building it compiles).
     """
@@ -51,7 +58,7 @@ class TransitionVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int, env_id: str = "auv_envs/DockingStation-v2",
                  obs_mode: str | None = None, max_episode_steps: int | None = None,
-                 **env_kwargs):
+                 randomize=False, **env_kwargs):
         if not (isinstance(num_envs, int) and num_envs >= 1):
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
         if max_episode_steps is not None and not (isinstance(max_episode_steps, int)
@@ -75,9 +82,34 @@ class TransitionVectorEnv(VectorEnv):
         #: Where compiled programs are kept (a later process loads them instead); None on
         #: the CPU, where jaxlib's loader can crash (:mod:`auv_envs.batched.compile_cache`).
         self.compilation_cache = use_compilation_cache()
-        self._reset = jax.jit(jax.vmap(self.env.reset))
-        self._step = jax.jit(self.env.step_batch)
+        #: The randomiser (None: no domain randomisation), the axes its worlds map over,
+        #: and the worlds of the batch (drawn at :meth:`reset`).
+        self.randomizer, in_axes, self.worlds = self._randomizer(randomize), None, None
+        if self.randomizer is not None:
+            in_axes = self.randomizer(self.env.mjx_model, self._world_keys(0))[1]
+        self._reset = jax.jit(lambda keys, worlds: self.env.reset_batch(keys, worlds, in_axes))
+        self._step = jax.jit(lambda states, actions, worlds: self.env.step_batch(
+            states, actions, worlds, in_axes))
         self.state = None
+
+    def _randomizer(self, randomize):
+        """:meth:`__init__`'s ``randomize`` as a randomiser, or None."""
+        if randomize is False or randomize is None:
+            return None
+        if randomize is True:
+            if self.env.randomization is None:
+                raise ValueError(f"{type(self.env).__name__} has no domain randomiser: "
+                                 "give randomize=fn(world, keys) -> (worlds, in_axes)")
+            return self.env.randomize
+        if not callable(randomize):
+            raise TypeError(f"randomize must be True, False or a randomiser "
+                            f"fn(world, keys) -> (worlds, in_axes), got {randomize!r}")
+        return randomize
+
+    def _world_keys(self, seed: int) -> jax.Array:
+        """The worlds' keys for ``seed`` (apart from the episodes' own keys)."""
+        return jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 0x5EED),
+                                self.num_envs)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start every environment's episode; ``seed`` seeds JAX's generator for the batch."""
@@ -87,7 +119,9 @@ class TransitionVectorEnv(VectorEnv):
         if seed is None:
             seed = int(self.np_random.integers(2 ** 31))
         keys = jax.random.split(jax.random.PRNGKey(seed), self.num_envs)
-        self.state = self._reset(keys)
+        if self.randomizer is not None:
+            self.worlds = self.randomizer(self.env.mjx_model, self._world_keys(seed))[0]
+        self.state = self._reset(keys, self.worlds)
         return self._numpy(self.state.obs), {}
 
     def step(self, actions):
@@ -96,7 +130,7 @@ class TransitionVectorEnv(VectorEnv):
         # The CPU envs' rule (auv_envs.core.env): real numbers, finite, clipped to the bounds.
         actions = clip_actions(action_array(actions, self.action_space.shape),
                                self.action_space).astype(np.float32)
-        self.state = self._step(self.state, jnp.asarray(actions))
+        self.state = self._step(self.state, jnp.asarray(actions), self.worlds)
         state = self.state
         info = state.info
         terminated = np.asarray(info["terminated"])
