@@ -111,14 +111,14 @@ def main(argv=None) -> None:
     plant = RigPlantMJX(cpu.physics)
     tile = lambda values: jnp.tile(jnp.asarray(values, jnp.float32), (batch, 1))  # noqa: E731
     carrier, arm = tile([150.0, 150.0, -12.0, 0.3]), tile(NOMINAL_POSTURE)
-    data = jax.jit(jax.vmap(plant.place))(carrier, arm)
+    data = jax.jit(jax.vmap(lambda c, a: plant.place(c, a, plant.model)))(carrier, arm)
     rows = []
     if not args.skip_mjx_kinematics:
         kinematics = jax.jit(jax.vmap(lambda d: smooth.kinematics(plant.model, d)))
         rows.append(("MJX smooth.kinematics", best_ms(kinematics, (data,), args.repeats)))
     rows.append(("ChainKinematics", best_ms(jax.jit(jax.vmap(plant.kinematics)), (data,),
                                             args.repeats)))
-    period = jax.jit(jax.vmap(plant.period))
+    period = jax.jit(jax.vmap(lambda *args: plant.period(*args, plant.model)))
     references = (carrier, tile([0.2, 0.0, 0.0, 0.0]), arm, tile([0.2, 0.1, 0.0]))
     rows.append(("rig period (two MJX steps, fluid)",
                  best_ms(lambda d: period(d, *references)[1], (data,), args.repeats)))

@@ -73,9 +73,9 @@ def _placed_and_followed(plant: RigPlantMJX):
     MJX, compiled."""
 
     def run(carrier, arm, *rows):
-        data = plant.place(carrier, arm)
-        start, _ = plant.source(data)
-        _, positions, velocities = plant.periods(data, *rows)
+        data = plant.place(carrier, arm, plant.model)
+        start, _ = plant.source(data, plant.model)
+        _, positions, velocities = plant.periods(data, *rows, plant.model)
         return start, positions, velocities
 
     return run

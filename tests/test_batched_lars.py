@@ -284,7 +284,7 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
     for data, q in zip(arms, rng.uniform(low + 0.1, high - 0.1, (n, 3)), strict=True):
         data.qpos[:] = q
         mujoco.mj_forward(model, data)
-    advance = jax.jit(jax.vmap(plant.advance))
+    advance = jax.jit(jax.vmap(lambda *args: plant.advance(*args, plant.model)))
     template = jax.vmap(lambda q: plant.place(tuple(q)))(jnp.zeros((n, 3), jnp.float32))
     worst, engaged = 0.0, 0
     for k in range(250):

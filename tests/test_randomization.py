@@ -1,12 +1,15 @@
 """Domain randomisation: each world of a batch simulates its own physics, drawn once, through
-MuJoCo Playground's own wrapper and through ``gym.make_vec(..., randomize=...)``.
+MuJoCo Playground's own wrapper (every family) and through ``gym.make_vec(...,
+randomize=...)``.
 
 Brax's PPO training with the randomiser is in ``tests/test_brax_dropin.py``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -19,21 +22,33 @@ from mujoco_playground import wrapper  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
+from auv_envs.families import FAMILIES  # noqa: E402
+from auv_envs.tasks.acoustic.randomization import AcousticRandomization  # noqa: E402
 from auv_envs.tasks.docking.randomization import PHYSICS, DockingRandomization  # noqa: E402
+from auv_envs.tasks.lars.randomization import LARSRandomization  # noqa: E402
 
 WORLDS, STEPS = 3, 12
-#: A randomiser whose every range is zero: it draws the nominal world.
-NOMINAL = DockingRandomization(vehicle=PlantPerturbation(), thrust=0.0, current=0.0)
+#: One id per batched class of the family table (the docking ids share one).
+SHELLS = list({entry.batched: entry.env_id for entry in reversed(FAMILIES)}.values())[::-1]
+
+
+def nominal(randomization):
+    """``randomization`` with every range zero: it draws the nominal world."""
+    return dataclasses.replace(randomization, **{
+        field.name: PlantPerturbation() if isinstance(getattr(randomization, field.name),
+                                                      PlantPerturbation) else 0.0
+        for field in dataclasses.fields(randomization)})
 
 
 def rollout(env, randomization_fn=None):
-    """``STEPS`` full-surge steps of ``WORLDS`` environments that start alike (one key),
-    through Playground's training wrapper; the observations (WORLDS, STEPS, n)."""
+    """``STEPS`` steps of ``WORLDS`` environments that start alike (one key) under one
+    constant action, through Playground's training wrapper; the observations
+    (WORLDS, STEPS, n)."""
     wrapped = wrapper.wrap_for_brax_training(env, episode_length=1000,
                                              randomization_fn=randomization_fn)
     state = jax.jit(wrapped.reset)(jnp.stack([jax.random.PRNGKey(5)] * WORLDS))
     step = jax.jit(wrapped.step)
-    action = jnp.tile(jnp.array([1.0, 0.0, 0.0, 0.3]), (WORLDS, 1))
+    action = jnp.tile(jnp.linspace(1.0, -0.5, env.action_size), (WORLDS, 1))
     out = []
     for _ in range(STEPS):
         state = step(state, action)
@@ -46,21 +61,29 @@ def docking():
     return auv_envs.batched.load("auv_envs/DockingStation-v2", obs_mode="state")
 
 
-def test_playgrounds_wrapper_gives_each_world_its_own_physics(docking):
+@pytest.mark.parametrize("env_id", SHELLS)
+def test_playgrounds_wrapper_gives_each_world_its_own_physics(env_id):
+    """World 0 drawn by the shipped randomiser with its ranges zero (the nominal world),
+    worlds 1 and 2 by the shipped one: the first follows the env without randomisation,
+    the others, from the same start under the same commands, go elsewhere."""
+    env = auv_envs.batched.load(env_id, obs_mode="state")
     keys = jax.random.split(jax.random.PRNGKey(0), WORLDS)
-    plain = rollout(docking)
-    randomized = rollout(docking, functools.partial(docking.randomize, rng=keys))
-    nominal = rollout(docking, functools.partial(NOMINAL, rng=keys))
-    # Without a randomiser the worlds are alike; the nominal randomiser changes nothing.
-    np.testing.assert_array_equal(plain[0], plain[1])
-    np.testing.assert_allclose(nominal, plain, atol=1e-6)
-    # Randomised, the same start and the same commands end in different places.
-    position = randomized[:, -1, :3]
-    assert np.linalg.norm(position[0] - position[1]) > 1e-3
-    assert np.linalg.norm(position[1] - position[2]) > 1e-3
-    assert np.abs(randomized[:, 0] - plain[:, 0]).max() > 0.0
-    # The env is back in the nominal world after the wrapper's calls.
-    assert docking.mjx_model.physics is None
+
+    def randomize(model, rng):
+        still, in_axes = nominal(env.randomization)(model, rng)
+        drawn, _ = env.randomize(model, rng)
+        # The drawn fields (batched) from the nominal draw in world 0; the shared as they are.
+        return jax.tree.map(lambda a, b: a if a is b else jnp.concatenate([a[:1], b[1:]]),
+                            still, drawn), in_axes
+
+    plain = rollout(env)
+    randomized = rollout(env, functools.partial(randomize, rng=keys))
+    np.testing.assert_array_equal(plain[0], plain[1])  # no randomiser: the worlds alike
+    np.testing.assert_allclose(randomized[0], plain[0], rtol=1e-5, atol=1e-5)
+    for k in (1, 2):
+        assert np.abs(randomized[k] - plain[k]).max() > 1e-3
+    assert np.abs(randomized[1] - randomized[2]).max() > 1e-3
+    assert env.mjx_model.physics is None  # back in the nominal world
 
 
 def test_the_shipped_ranges_are_drawn_uniformly_per_world(docking):
@@ -115,3 +138,7 @@ def test_randomisation_refuses_bad_input():
         gym.make_vec("auv_envs/DockingStationMJX-v2", num_envs=2, randomize="yes")
     with pytest.raises(TypeError, match="DockingRandomization"):
         auv_envs.batched.load("auv_envs/DockingStation-v2", randomization={"thrust": 0.1})
+    with pytest.raises(ValueError, match="servo"):
+        AcousticRandomization(servo=0.95)
+    with pytest.raises(ValueError, match="link_mass"):
+        LARSRandomization(link_mass=math.nan)

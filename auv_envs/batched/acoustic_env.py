@@ -39,6 +39,7 @@ from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
 from auv_envs.core.ops import Backend, jax_ops
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.randomization import AcousticRandomization
 
 #: ``info`` metrics carried every step (:func:`~auv_envs.tasks.acoustic.transition.scores`).
 STEP_METRICS = ("estimate_error", "running_rmse", "tracked", "is_success")
@@ -53,20 +54,20 @@ class _RigCursor:
     """The transition's plant in one traced call: the rig's MJX data, moved on by
     :class:`RigPlantMJX` one sample period at a time."""
 
-    def __init__(self, plant: RigPlantMJX, data=None):
-        self.plant, self.data = plant, data
+    def __init__(self, plant: RigPlantMJX, model, data=None):
+        self.plant, self.model, self.data = plant, model, data
 
     def place(self, carrier, arm) -> None:
-        self.data = self.plant.place(carrier, arm)
+        self.data = self.plant.place(carrier, arm, self.model)
 
     def follow(self, carrier_ref, carrier_vel, arm_ref, current, start):
         """One period's source position and velocity (1, 3) each (the transition's
         blocks are one period long here); period 0 is the rig as placed."""
         if isinstance(start, int) and start == 0:
-            position, velocity = self.plant.source(self.data)
+            position, velocity = self.plant.source(self.data, self.model)
         else:
             self.data, position, velocity = self.plant.period(
-                self.data, carrier_ref[0], carrier_vel[0], arm_ref[0], current[0])
+                self.data, carrier_ref[0], carrier_vel[0], arm_ref[0], current[0], self.model)
         return position[None], velocity[None]
 
 
@@ -80,6 +81,9 @@ class AcousticMJX(FunctionalEnv):
         privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
             9-entry state vector>}``, for an asymmetric critic
             (:class:`~auv_envs.batched.functional.FunctionalEnv`).
+        randomization: the domain randomiser :meth:`randomize` draws worlds with (None:
+            the shipped :class:`~auv_envs.tasks.acoustic.randomization.AcousticRandomization`);
+            the env simulates the nominal rig unless given other worlds.
         **env_kwargs: the CPU environment's arguments (``disturbance``, ``trajectory``,
             ``time_limit``, ``difficulty``, ...); they are checked by building that
             environment, whose model, calibration and transition parameters this one uses.
@@ -92,8 +96,10 @@ class AcousticMJX(FunctionalEnv):
     STEP_METRICS = STEP_METRICS
 
     def __init__(self, env_id: str = "auv_envs/AcousticTracking-v2", obs_mode: str = "state",
-                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
+                 auto_reset: bool = True, privileged: bool = False,
+                 randomization: AcousticRandomization | None = None, **env_kwargs):
         self._served(env_id, obs_mode)
+        self._use_randomization(randomization, AcousticRandomization)
         cpu = AcousticTrackingEnv(obs_mode=obs_mode, **env_kwargs)
         if cpu.params.planner != "segments":
             raise ValueError("the batched acoustic environment draws the v2 route "
@@ -119,7 +125,7 @@ class AcousticMJX(FunctionalEnv):
     def reset(self, rng: jax.Array) -> State:
         """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
         rng, key = jax.random.split(rng)
-        plant = _RigCursor(self.plant)
+        plant = _RigCursor(self.plant, self.mjx_model.mjx)
         episode, now, obs = transition.reset(
             self.params, Backend(self.ops, KeyDraws(key), plant))
         return self._first(rng, plant, episode, now, obs)
@@ -131,7 +137,7 @@ class AcousticMJX(FunctionalEnv):
         plan = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf, jnp.float32)
                                       if jnp.issubdtype(jnp.asarray(leaf).dtype, jnp.floating)
                                       else jnp.asarray(leaf), plan)
-        plant = _RigCursor(self.plant)
+        plant = _RigCursor(self.plant, self.mjx_model.mjx)
         episode, now, obs = transition.begin(
             self.params, plan, Backend(self.ops, KeyDraws(rng), plant))
         return self._first(rng, plant, episode, now, obs)
@@ -144,7 +150,7 @@ class AcousticMJX(FunctionalEnv):
         """Score the estimate ``action`` (clipped to the tank) and move on one sample
         period: :func:`auv_envs.tasks.acoustic.transition.step` on JAX."""
         rng, key, _ = self._keys(state)
-        plant = _RigCursor(self.plant, state.plant)
+        plant = _RigCursor(self.plant, self.mjx_model.mjx, state.plant)
         episode, now, obs, terms = transition.step(
             self.params, state.episode, self._action(action),
             Backend(self.ops, KeyDraws(key), plant))

@@ -140,17 +140,17 @@ class RigPlantMJX:
             raise ValueError("the references must drive every actuator once")
         self._actuators = actuators
 
-    def place(self, carrier, arm) -> mjx.Data:
-        """The rig at rest with the carrier's and the arm's joints at ``carrier`` (4,) and
-        ``arm`` (6,), its position stage computed (``AcousticPhysics.place``: at rest the
-        velocity stage is the next step's first)."""
+    def place(self, carrier, arm, model: mjx.Model) -> mjx.Data:
+        """The rig of ``model`` (:attr:`model`, or a randomised world's) at rest with the
+        carrier's and the arm's joints at ``carrier`` (4,) and ``arm`` (6,), its position
+        stage computed (``AcousticPhysics.place``: at rest the velocity stage is the next
+        step's first). Every method below simulates the ``model`` it is given."""
         data = self.rest_data
         qpos = data.qpos.at[self.carrier_qpos].set(carrier).at[self.arm_qpos].set(arm)
-        return self.fwd_position(data.replace(qpos=qpos))
+        return self.fwd_position(data.replace(qpos=qpos), model)
 
-    def fwd_position(self, data: mjx.Data) -> mjx.Data:
+    def fwd_position(self, data: mjx.Data, model: mjx.Model) -> mjx.Data:
         """``mjx.fwd_position``'s stages, the kinematics :class:`ChainKinematics`'."""
-        model = self.model
         data = self.kinematics(data)
         for stage in (smooth.com_pos, smooth.camlight, smooth.tendon, smooth.crb,
                       smooth.tendon_armature, smooth.factor_m, collision_driver.collision,
@@ -158,7 +158,7 @@ class RigPlantMJX:
             data = stage(model, data)
         return data
 
-    def step(self, data: mjx.Data, current) -> mjx.Data:
+    def step(self, data: mjx.Data, current, model: mjx.Model) -> mjx.Data:
         """One physics step in water moving at ``current`` (3,), the controls held.
 
         ``mj_step``'s stages on MJX, the fluid force added where ``mj_fwdVelocity``
@@ -166,7 +166,6 @@ class RigPlantMJX:
         and velocities at the step's start; the step ends with the new positions'
         stage (``mj_fwdPosition``), which the next step and :meth:`source` read.
         """
-        model = self.model
         data = mjx.fwd_velocity(model, data)
         fluid = self.fluid.force(model, data, current)
         data = data.replace(qfrc_passive=data.qfrc_passive + fluid, qfrc_fluid=fluid)
@@ -176,16 +175,17 @@ class RigPlantMJX:
         # mjx.forward would call the solver here too.
         data = mjx.solve(model, data)
         data = mjx.euler(model, data)
-        return self.fwd_position(data)
+        return self.fwd_position(data, model)
 
-    def source(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+    def source(self, data: mjx.Data, model: mjx.Model) -> tuple[jax.Array, jax.Array]:
         """The source site's world position and linear velocity (3,) each (its Jacobian
         times ``qvel``, ``mj_jacSite``'s)."""
         position = data.site_xpos[self.source_site]
-        jacp, _ = mjx.jac(self.model, data, position, self.source_body)
+        jacp, _ = mjx.jac(model, data, position, self.source_body)
         return position, data.qvel @ jacp
 
-    def period(self, data: mjx.Data, carrier_ref, carrier_vel, arm_ref, current):
+    def period(self, data: mjx.Data, carrier_ref, carrier_vel, arm_ref, current,
+               model: mjx.Model):
         """One sample period: ``(data, position, velocity)``, the rig moved on
         ``substeps`` physics steps towards the references ``carrier_ref`` (4,),
         ``carrier_vel`` (4,) and ``arm_ref`` (6,) (the servos' controls) in water moving
@@ -195,17 +195,18 @@ class RigPlantMJX:
                                       jnp.asarray(arm_ref)])
         data = data.replace(ctrl=data.ctrl.at[self._actuators].set(references))
         for _ in range(self.substeps):
-            data = self.step(data, current)
-        position, velocity = self.source(data)
+            data = self.step(data, current, model)
+        position, velocity = self.source(data, model)
         return data, position, velocity
 
-    def periods(self, data: mjx.Data, carrier_ref, carrier_vel, arm_ref, current):
+    def periods(self, data: mjx.Data, carrier_ref, carrier_vel, arm_ref, current,
+                model: mjx.Model):
         """:meth:`period` over the rows of the references ((count, 4), (count, 4),
         (count, 6)) and currents ((count, 3)): ``(data, positions (count, 3),
         velocities (count, 3))`` after each period (a ``lax.scan``)."""
 
         def one(data, row):
-            data, position, velocity = self.period(data, *row)
+            data, position, velocity = self.period(data, *row, model)
             return data, (position, velocity)
 
         data, (positions, velocities) = jax.lax.scan(

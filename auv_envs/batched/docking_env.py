@@ -82,10 +82,7 @@ class DockingMJX(FunctionalEnv):
                  auto_reset: bool = True, privileged: bool = False,
                  randomization: DockingRandomization | None = None, **env_kwargs):
         self._served(env_id, obs_mode)
-        if randomization is not None and not isinstance(randomization, DockingRandomization):
-            raise TypeError(f"randomization must be a DockingRandomization, got "
-                            f"{randomization!r}")
-        self.randomization = randomization or DockingRandomization()
+        self._use_randomization(randomization, DockingRandomization)
         cpu = gym.make(env_id, obs_mode=obs_mode, **env_kwargs).unwrapped
         self.cpu_env = cpu
         self.env_id = env_id

@@ -217,6 +217,13 @@ class FunctionalEnv:
             raise NotImplementedError(f"{type(self).__name__} has no domain randomiser")
         return self.randomization(model, rng)
 
+    def _use_randomization(self, randomization, kind: type) -> None:
+        """Set :attr:`randomization`: ``randomization`` (a ``kind``), or ``kind()``'s shipped
+        ranges for None."""
+        if randomization is not None and not isinstance(randomization, kind):
+            raise TypeError(f"randomization must be a {kind.__name__}, got {randomization!r}")
+        self.randomization = kind() if randomization is None else randomization
+
     @contextlib.contextmanager
     def in_world(self, world: World):
         """This env simulating ``world`` for the duration (as Playground's wrapper does)."""

@@ -40,6 +40,7 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureEnv
+from auv_envs.tasks.lars.randomization import LARSRandomization
 from auv_envs.tasks.lars.scene import AUVMotion
 from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
 from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
@@ -153,9 +154,9 @@ class ArmPlantMJX:
         """The arm at rest at joint angles ``q`` (three scalars)."""
         return self.rest_data.replace(qpos=jnp.stack([jnp.asarray(v, jnp.float32) for v in q]))
 
-    def constrain(self, data: mjx.Data) -> mjx.Data:
-        """``mjx.solve`` for this arm: the accelerations, joint-limit forces and
-        constraint force MuJoCo's solver converges to, computed exactly.
+    def constrain(self, data: mjx.Data, model: mjx.Model) -> mjx.Data:
+        """``mjx.solve`` for this arm (simulating ``model``): the accelerations, joint-limit
+        forces and constraint force MuJoCo's solver converges to, computed exactly.
 
         MuJoCo's constraint problem here is convex and piecewise quadratic (the Gauss
         term ``(a - a0)^T M (a - a0) / 2`` and ``D jar^2 / 2`` for each limit row with
@@ -167,7 +168,7 @@ class ArmPlantMJX:
         """
         impl = data._impl  # MJX keeps the constraint rows in its implementation's fields
         jac, stiffness, aref = impl.efc_J, impl.efc_D, impl.efc_aref
-        mass = mjx.full_m(self.model, data)
+        mass = mjx.full_m(model, data)
         smooth = data.qacc_smooth
         pushed = mass @ smooth
         best = None
@@ -188,25 +189,27 @@ class ArmPlantMJX:
         return data.replace(qacc=qacc, qfrc_constraint=jac.T @ force).tree_replace(
             {"_impl.efc_force": force})
 
-    def _physics_step(self, data: mjx.Data, control=None) -> mjx.Data:
-        """``mjx.step`` (the model has no sensors) with :meth:`constrain` for MJX's
+    def _physics_step(self, data: mjx.Data, model: mjx.Model, control=None) -> mjx.Data:
+        """``mjx.step`` of ``model`` (which has no sensors) with :meth:`constrain` for MJX's
         iterative solver; ``control`` (a function of the position and velocity stages'
         data) sets ``ctrl`` after them."""
-        model = self.model
         data = mjx.fwd_velocity(model, mjx.fwd_position(model, data))
         if control is not None:
             data = data.replace(ctrl=control(data))
         data = mjx.fwd_acceleration(model, mjx.fwd_actuation(model, data))
-        return mjx.euler(model, self.constrain(data))
+        return mjx.euler(model, self.constrain(data, model))
 
-    def advance(self, data: mjx.Data, action, effort):
-        """One control period under ``action`` (3,): ``(data, effort)``, the running
-        control effort with the period's added."""
+    def advance(self, data: mjx.Data, action, effort, model: mjx.Model):
+        """One control period under ``action`` (3,) of the arm simulated by ``model`` (the
+        env's world's: :class:`~auv_envs.batched.functional.World`): ``(data, effort)``, the
+        running control effort with the period's added. The computed-torque loop of
+        ``control="position"`` reads the simulated arm's mass matrix and bias forces, as on
+        the CPU; its commands reach the joints through the world's motors."""
         # The FRAME_SKIP physics steps as a loop, not unrolled: XLA compiles the step
         # once instead of FRAME_SKIP times (docs/speed.md).
-        model = self.model
         if self.torque_mode:
-            data = jax.lax.fori_loop(0, FRAME_SKIP, lambda _, now: self._physics_step(now),
+            data = jax.lax.fori_loop(0, FRAME_SKIP,
+                                     lambda _, now: self._physics_step(now, model),
                                      data.replace(ctrl=action))
             return data, effort + jnp.sum(action * action) * self.dt
         target = self.q_mid + action * self.q_half
@@ -218,7 +221,7 @@ class ArmPlantMJX:
 
         def physics_step(_, carry):
             now, effort = carry
-            now = self._physics_step(now, control)
+            now = self._physics_step(now, model, control)
             return now, effort + jnp.sum(now.ctrl * now.ctrl) * self.timestep
 
         return jax.lax.fori_loop(0, FRAME_SKIP, physics_step, (data, effort))
@@ -228,14 +231,14 @@ class _ArmCursor:
     """The transition's plant in one traced call: the arm's MJX data, advanced by
     :class:`ArmPlantMJX`."""
 
-    def __init__(self, plant: ArmPlantMJX, ops, data=None):
-        self.plant, self.ops, self.data = plant, ops, data
+    def __init__(self, plant: ArmPlantMJX, ops, model: mjx.Model, data=None):
+        self.plant, self.ops, self.model, self.data = plant, ops, model, data
 
     def place(self, q) -> None:
         self.data = self.plant.place(q)
 
     def advance(self, action, effort):
-        self.data, effort = self.plant.advance(self.data, action, effort)
+        self.data, effort = self.plant.advance(self.data, action, effort, self.model)
         return effort
 
     def joints(self) -> tuple:
@@ -255,6 +258,9 @@ class LARSMJX(FunctionalEnv):
         privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
             24-entry state vector>}``, for an asymmetric critic
             (:class:`~auv_envs.batched.functional.FunctionalEnv`).
+        randomization: the domain randomiser :meth:`randomize` draws worlds with (None:
+            the shipped :class:`~auv_envs.tasks.lars.randomization.LARSRandomization`); the
+            env simulates the nominal arm unless given other worlds.
         **env_kwargs: the CPU environment's arguments (``sea_state``, ``control``,
             ``image_size``, ``pixel_noise_std``, ``time_limit``, ...); they are checked
             by building that environment, whose model, calibration and transition
@@ -268,8 +274,10 @@ class LARSMJX(FunctionalEnv):
     end_reason = staticmethod(transition.end_reason)
 
     def __init__(self, env_id: str = "auv_envs/LARSCapture-v0", obs_mode: str = "features",
-                 auto_reset: bool = True, privileged: bool = False, **env_kwargs):
+                 auto_reset: bool = True, privileged: bool = False,
+                 randomization: LARSRandomization | None = None, **env_kwargs):
         self._served(env_id, obs_mode)
+        self._use_randomization(randomization, LARSRandomization)
         cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
         self.cpu_env = cpu
         self.obs_mode = obs_mode
@@ -287,7 +295,7 @@ class LARSMJX(FunctionalEnv):
     def reset(self, rng: jax.Array) -> State:
         """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
         rng, key = jax.random.split(rng)
-        plant = _ArmCursor(self.plant, self.ops)
+        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx)
         episode, truth, obs = transition.reset(
             self.params, transition.Backend(self.ops, KeyDraws(key), plant))
         return self._first(rng, plant, episode, truth, obs)
@@ -306,7 +314,7 @@ class LARSMJX(FunctionalEnv):
                                       for name in ("omega", "amplitude", "phase", "heading")))
         scene = transition.scene_of(self.params, as32(scene.motion), waves, as32(scene.wash),
                                     as32(scene.analogs), as32(scene.glint), ops=ops)
-        plant = _ArmCursor(self.plant, ops)
+        plant = _ArmCursor(self.plant, ops, self.mjx_model.mjx)
         plant.place(tuple(jnp.float32(v) for v in q))
         truth = transition.truth(self.params, scene, ops.integer(0), *plant.joints(), ops)
         episode = transition.first_state(scene, truth, ops)
@@ -323,7 +331,7 @@ class LARSMJX(FunctionalEnv):
         """One control period under the action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.lars.transition.step` on JAX."""
         rng, key, _ = self._keys(state)
-        plant = _ArmCursor(self.plant, self.ops, state.plant)
+        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx, state.plant)
         episode, truth, obs, judged = transition.step(
             self.params, state.episode, self._action(action),
             transition.Backend(self.ops, KeyDraws(key), plant))
@@ -333,7 +341,7 @@ class LARSMJX(FunctionalEnv):
 
     def truth(self, state: State) -> dict:
         """The ground truth of ``state`` (:func:`auv_envs.tasks.lars.transition.truth`)."""
-        plant = _ArmCursor(self.plant, self.ops, state.plant)
+        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx, state.plant)
         return transition.truth_now(self.params, state.episode, plant, self.ops)
 
     # ------------------------------------------------------------------ internals
