@@ -12,9 +12,8 @@ privileged state dies loading it, every time. The same loader rejects every
 entry's machine features with a logged error (jax-ml/jax#38445). So on the CPU
 the default cache (:func:`cache_for`) is none, and a directory given explicitly
 (``train.py --compilation-cache DIR``) is used with a warning. On a GPU or TPU the
-default is :func:`default_compilation_cache`. Where it was safe, a warm cache took
-the compiled PPO's docking start-up from 96 s to 33 s on 2 CPU cores
-(``benchmarks/compiled_startup.py``, ``docs/training.md``).
+default is :func:`default_compilation_cache`. Where it is safe, a warm cache shortens
+the compiled PPO's start-up (``benchmarks/compiled_startup.py``, ``docs/training.md``).
 """
 
 from __future__ import annotations

@@ -381,7 +381,7 @@ class FunctionalEnv:
         """``jax.vmap(self.step)(states, actions)``, the same states, with the auto-reset
         made once for the batch and only on a step where an episode ended (under
         ``vmap`` a reset inside :meth:`step` is computed for every environment at every
-        step: at 64 acoustic environments it was 60 % of a step's time). With ``worlds``
+        step, a large share of a step's time; ``docs/speed.md``). With ``worlds``
         (:meth:`randomize`'s, mapped over ``in_axes``) each environment simulates its own."""
         step, restart = self._step, self._restart
         if worlds is not None:

@@ -2,10 +2,10 @@
 there is none.
 
 A compiled step (:class:`auv_envs.core.plant.CompiledFunction`) evaluates a CasADi
-``Function`` on CasADi's virtual machine, about 4 ns an instruction (the docking hull's
-RK4 step: 9.7 us). CasADi also writes the same function as C (``Function.generate``);
-built by the system's C compiler and loaded with ``casadi.external`` it runs the same
-operations in the same order as machine code (0.8 us).
+``Function`` on CasADi's virtual machine. CasADi also writes the same function as C
+(``Function.generate``); built by the system's C compiler and loaded with
+``casadi.external`` it runs the same operations in the same order as machine code, an
+order of magnitude faster (``docs/speed.md``).
 
 The same numbers, to the bit: the C code is CasADi's own, compiled without
 floating-point licence (no ``-ffast-math``, no contraction into fused multiply-adds),

@@ -200,11 +200,10 @@ class CompiledFunction:
     """A CasADi ``Function`` of a few float64 vectors, evaluated in place.
 
     CasADi's ``Function.__call__`` converts its arguments and results through
-    SWIG (tens of microseconds); its ``buffer()`` evaluates on memory bound
-    once, which costs about half a microsecond besides the arithmetic (about
-    4 ns an instruction on its virtual machine; as machine code, where a C
-    compiler is present, a tenth of that: :mod:`auv_envs.core.native`, the same
-    numbers to the bit). :attr:`inputs` and
+    SWIG; its ``buffer()`` evaluates on memory bound once, which costs little
+    besides the arithmetic (on its virtual machine; as machine code, where a C
+    compiler is present, less: :mod:`auv_envs.core.native`, the same numbers to the
+    bit; ``docs/speed.md`` has the timings). :attr:`inputs` and
     :attr:`outputs` are those memories as NumPy arrays: write the inputs, call,
     read the outputs.
 
@@ -260,9 +259,8 @@ class FreeBodyPlant:
     The same equations as MuJoCo's free body stepped by :class:`StagedIntegrator`
     with the hull wrench at every stage (equal to round-off where no contact
     acts, ``tests/test_compiled_plant.py``), compiled by CasADi from the scalar code that
-    the batched plant evaluates on JAX: one call of 11 us where the staged
-    integrator takes 78-80 us of Python calls into MuJoCo (``python
-    benchmarks/plant_cost.py``, 2-core machine).
+    the batched plant evaluates on JAX: one call where the staged integrator makes
+    many Python calls into MuJoCo (``python benchmarks/plant_cost.py`` times both).
 
     Args:
         params: the nominal vehicle (:class:`~auv_envs.core.vehicle.VehicleParams`).

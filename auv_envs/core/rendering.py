@@ -45,8 +45,8 @@ class CameraRenderer:
 
     With one camera this is a monocular renderer; with two (left, right) it
     draws both views into one offscreen buffer and reads them back with one
-    ``mjr_readPixels`` call (measured 1.2x faster than two renderer passes at
-    320x240; ``benchmarks/lars_speed.py`` times stereo against mono).
+    ``mjr_readPixels`` call, faster than two renderer passes (``benchmarks/lars_speed.py``
+    times stereo against mono).
     :meth:`render_with_range` also reads the depth buffer, as each pixel's range.
     """
 

@@ -53,8 +53,8 @@ TRAJECTORIES = ("dynamic", "static")
 #: JAX), in v0/v1 ``"tabulated"`` (:func:`~auv_envs.tasks.acoustic.transition.plan_route`).
 PLANNERS = ("segments", "tabulated")
 #: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
-#: in v0 implicitfast in one 10 ms step; each within 2 cm of finer integrations of itself
-#: (``tests/test_plant_convergence.py``; ``docs/physics.md``).
+#: in v0 implicitfast in one 10 ms step; each close to finer integrations of itself
+#: (``tests/test_plant_convergence.py``; ``docs/physics.md`` has the figures).
 INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
                "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",

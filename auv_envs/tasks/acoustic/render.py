@@ -59,11 +59,11 @@ def _rgba(colour: str, alpha: float) -> np.ndarray:
 class _GlyphStamp:
     """Text in a monospace font, pasted into frames from glyphs that Agg rendered once.
 
-    Matplotlib lays out and rasterises every glyph of a ``Text`` on each draw
-    (about 0.15 ms a glyph here); the numbers of a frame would cost more than
-    its plot. The printable ASCII glyphs are drawn once on a scratch canvas at
-    the frame's dpi, kept as coverage masks and alpha-blended with NumPy. At
-    integer pixel positions a string looks as matplotlib would draw it.
+    Matplotlib lays out and rasterises every glyph of a ``Text`` on each draw; the
+    numbers of a frame would cost more than its plot. The printable ASCII glyphs are
+    drawn once on a scratch canvas at the frame's dpi, kept as coverage masks and
+    alpha-blended with NumPy. At integer pixel positions a string looks as matplotlib
+    would draw it.
     """
 
     _CHARS = "".join(chr(i) for i in range(32, 127))
@@ -427,7 +427,7 @@ class TankPlot:
         rgba = np.asarray(canvas.buffer_rgba())
         draw_w, draw_h = self._draw_size
         if rgba.shape[:2] == (draw_h, draw_w):
-            out = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # 30x faster than NumPy's copy
+            out = cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB)  # OpenCV's copy: faster than NumPy's
         else:  # Agg rounded the canvas size: pad or crop to the size asked for
             out = np.full((draw_h, draw_w, 3), 255, dtype=np.uint8)
             h, w = min(draw_h, rgba.shape[0]), min(draw_w, rgba.shape[1])

@@ -173,9 +173,9 @@ PAPER_OPTICS = WaterOptics.jerlov("1C")
 #: scale (``lamp_radiance``, the exposure set for the dim water; our choice) and a narrow glow
 #: (``glow_angle`` 0.02 rad per unit scattering depth: a mean forward-scattering angle of
 #: 0.04 rad, Wells 1973): the saturated halos that make [LAMP]'s lamp blobs large.
-#: Calibrated on [LAMP] Table 4 (PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px) and Fig. 11:
-#: on fresh sequences the lamp tracker measures PRCN 97.0 %, MOTA 77.8 %, MOTP 3.95 px
-#: (band MOTA 75-95 %, PRCN >= 95 %, MOTP >= 3 px; ``docs/difficulty.md``).
+#: Calibrated on [LAMP] Table 4 (PRCN 99.76 %, MOTA 84.65 %, MOTP 13.24 px) and Fig. 11,
+#: to the band MOTA 75-95 %, PRCN >= 95 %, MOTP >= 3 px (what the lamp tracker measures:
+#: ``docs/difficulty.md``).
 PAPER_LAMP_ARRAY_OPTICS = WaterOptics.jerlov("5C", lamp_radiance=200.0, glow_angle=0.02)
 
 #: ``hard`` level, plant (both layouts): beyond [OFNMPC] Scenario 2. ``current``: 0.1 m/s
@@ -192,9 +192,7 @@ HARD_DISTURBANCES = DockingDisturbances(
 #: ``hard`` level, water (both layouts): Jerlov 7C (turbid coastal; Jerlov 1976), a lamp dark
 #: for the episode with probability 0.1 (five times the default 0.02), occluders passing a
 #: lamp at 0.05 /s for 3 s on average (hidden about 13 % of the time). Our choices, checked
-#: against the headroom rule (``docs/difficulty.md``): in the next clearer type, 5C,
-#: ``ofnmpc-ekf`` still docked in 85 % of Scenario 2 episodes (six lights, seeds
-#: 620000-620019) and in 90 % of the leaderboard's (lamp array, seeds 100000-100029).
+#: against the headroom rule (``docs/difficulty.md``, which has the measurements).
 HARD_OPTICS = WaterOptics.jerlov("7C", lamp_failure_probability=0.1, occlusion_rate=0.05,
                                  occlusion_duration=3.0)
 

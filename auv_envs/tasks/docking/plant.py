@@ -107,8 +107,7 @@ class CompiledTruth:
         self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
         if scenery is not None and not self._call.native:
             # On CasADi's virtual machine the lines of sight cost more than MuJoCo's ray
-            # casts (six lights: the call 37 us against 9 us for six mj_ray; as machine
-            # code 3 us; docs/speed.md).
+            # casts; as machine code, less (docs/speed.md).
             function, self._layout, self._pixels = _truth_function(rules, None)
             self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
         self.physics, self.lights = physics, rules.lights

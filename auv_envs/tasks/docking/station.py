@@ -203,7 +203,7 @@ def _tessellate_station(arena, body, primitives: dict, image_height: int | None)
     meshes = {}
     for material, elements in primitives.items():
         geoms = [model.geom(f"station/{element.name}").id for element in elements]
-        # As a binary asset: written inline, the arrays cost mjcf 0.13 s of text.
+        # As a binary asset: written inline, mjcf would format the arrays as text.
         meshes[material] = tessellation.msh_bytes(
             *tessellation.static_mesh(model, data, geoms, slices, frame))
         for n in coarser:
