@@ -236,16 +236,19 @@ class USBL:
         shadowed = draws.random() < self.shadowing
         detected = detected & xp.asarray([xp.logical_not(shadowed), True, True])
         # The first detected arrival: the nearest detected path (range of the centroid).
-        centre = xp.mean(ranges, axis=1)
+        # Means as sums over counts and norms as roots of sums of squares: NumPy's own
+        # arithmetic in ``mean`` and ``linalg.norm``, without their per-call overhead.
+        n = len(self.elements)
+        centre = ranges.sum(axis=1) / n
         path = xp.argmin(xp.where(detected, centre, xp.inf))
         found = xp.any(detected)
         arrival = ranges[path] / sound_speed + timing[path] * xp.asarray(
-            draws.standard_normal(len(self.elements)))
+            draws.standard_normal(n))
         nominal = self.acoustics.sound_speed
-        mean = xp.mean(arrival)
+        mean = arrival.sum() / n
         # Plane wave: t_i - mean = -(e_i - e_mean) . u / c, solved by least squares.
         direction = -nominal * (xp.asarray(self._plane_wave) @ (arrival - mean))
-        direction = direction / xp.linalg.norm(direction)
+        direction = direction / xp.sqrt(direction @ direction)
         vector = nominal * mean * direction
         # Two Gauss-Newton steps on the spherical wave |v - e_i| = c t_i give the
         # least-squares fix (the far-field plane wave alone is millimetres off at 20-160 m),
@@ -254,7 +257,7 @@ class USBL:
         elements = xp.asarray(self._elements)
         for _ in range(2):
             offsets = vector - elements
-            ranges_now = xp.linalg.norm(offsets, axis=1)
+            ranges_now = xp.sqrt((offsets * offsets).sum(axis=1))
             jacobian = offsets / ranges_now[:, None]
             vector = vector + xp.linalg.lstsq(jacobian, nominal * arrival - ranges_now)[0]
         # A spurious detection: uniform in range and over the sphere.
