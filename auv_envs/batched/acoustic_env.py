@@ -94,6 +94,7 @@ class AcousticMJX(FunctionalEnv):
     """
 
     STEP_METRICS = STEP_METRICS
+    render_camera = ("rig/carrier", 6.0)
 
     def __init__(self, env_id: str = "auv_envs/AcousticTracking-v2", obs_mode: str = "state",
                  auto_reset: bool = True, privileged: bool = False,

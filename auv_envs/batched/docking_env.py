@@ -77,6 +77,7 @@ class DockingMJX(FunctionalEnv):
 
     STEP_METRICS = STEP_METRICS
     end_reason = staticmethod(failure_reason)
+    render_camera = "hovering_auv/chase"
 
     def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
                  auto_reset: bool = True, privileged: bool = False,

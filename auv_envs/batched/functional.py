@@ -18,7 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from auv_envs.core import native
 from auv_envs.families import Family, family
+
+#: MuJoCo's integrators by their MJCF names (``mjtIntegrator``'s order).
+_INTEGRATOR_NAMES = ("Euler", "RK4", "implicit", "implicitfast")
 
 #: The keys of an observation with the privileged state beside it (MuJoCo Playground's:
 #: Brax's PPO takes them as ``policy_obs_key`` and ``value_obs_key``).
@@ -86,6 +90,26 @@ class World:
 
     mjx: Any
     physics: Any = None
+
+
+def _camera(model, camera):
+    """:meth:`FunctionalEnv.render`'s ``camera`` as ``mujoco.Renderer.update_scene`` takes
+    it: -1 (the free camera) for None, a name as it is, ``(body, distance)`` as a
+    ``MjvCamera`` tracking the body."""
+    import mujoco
+
+    if camera is None:
+        return -1
+    if isinstance(camera, str):
+        return camera
+    body, distance = camera
+    view = mujoco.MjvCamera()
+    view.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    view.trackbodyid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body)
+    if view.trackbodyid < 0:
+        raise ValueError(f"no body {body!r} to track in the model")
+    view.distance, view.elevation, view.azimuth = distance, -20.0, 135.0
+    return view
 
 
 class KeyDraws:
@@ -191,7 +215,69 @@ class FunctionalEnv:
 
     @property
     def mj_model(self):
+        """The env's MuJoCo model (the CPU env's: what its plant simulates; the batched
+        plant's copy on MJX switches its contacts off)."""
         return self.cpu_env.physics.model
+
+    @property
+    def xml_path(self) -> str:
+        """A file of :attr:`mj_model`'s MJCF, its assets beside it: the model the env
+        composed from ``assets/``, with the solver options it sets (timestep, integrator),
+        written once under the user's cache (``$AUV_ENVS_CACHE/models``, else
+        ``~/.cache/auv_envs/models``). ``mujoco.MjModel.from_xml_path`` of it is
+        :attr:`mj_model`."""
+        model = self.mj_model
+        source = self.cpu_env.model_source.with_option(
+            timestep=float(model.opt.timestep),
+            integrator=_INTEGRATOR_NAMES[int(model.opt.integrator)])
+        return str(source.write(native.cache_dir() / "models"))
+
+    @property
+    def model_assets(self) -> dict:
+        """The assets :attr:`xml_path`'s MJCF names (file name -> bytes)."""
+        return dict(self.cpu_env.model_source.assets)
+
+    @property
+    def sim_dt(self) -> float:
+        """The physics timestep, s."""
+        return float(self.mj_model.opt.timestep)
+
+    @property
+    def n_substeps(self) -> int:
+        """Physics steps a control period."""
+        return int(round(self.dt / self.sim_dt))
+
+    #: What :meth:`render` draws from by default: a camera's name, or ``(body, distance)``,
+    #: a camera tracking the body from ``distance`` m (None: MuJoCo's free camera).
+    render_camera: str | tuple | None = None
+
+    def render(self, trajectory, height: int = 240, width: int = 320,
+               camera: str | None = None, scene_option=None):
+        """Frames of ``trajectory`` (a list of unbatched :class:`State` s, or one), as MuJoCo
+        Playground's ``MjxEnv.render``: :attr:`mj_model` posed at each state's plant
+        configuration, seen by ``camera`` (default :attr:`render_camera`); (height, width,
+        3) uint8 arrays, a list for a list."""
+        import mujoco
+
+        states = trajectory if isinstance(trajectory, list) else [trajectory]
+        model = self.mj_model
+        data = mujoco.MjData(model)
+        camera = self.render_camera if camera is None else camera
+        frames = []
+        with mujoco.Renderer(model, height=height, width=width) as renderer:
+            for state in states:
+                plant = state.data["plant"]
+                qpos = np.asarray(plant["qpos"] if isinstance(plant, dict) else plant.qpos,
+                                  dtype=np.float64)
+                if qpos.shape != (model.nq,):
+                    raise ValueError(f"render takes unbatched states: qpos {qpos.shape}, "
+                                     f"the model's ({model.nq},)")
+                data.qpos[:] = qpos
+                mujoco.mj_forward(model, data)
+                renderer.update_scene(data, camera=_camera(model, camera),
+                                      scene_option=scene_option)
+                frames.append(renderer.render())
+        return frames if isinstance(trajectory, list) else frames[0]
 
     #: The world the env simulates (:class:`World`; Playground's domain-randomisation
     #: wrapper sets it per batch entry under ``vmap``); set by the family's constructor.

@@ -76,5 +76,17 @@ def load(env_id: str, privileged: bool = False, **env_kwargs) -> FunctionalEnv:
         raise ValueError(f"no batched environment for {env_id!r}; load() takes "
                          f"{sorted(IDS)}")
     entry = family(env_id)
+    _register_with_playground()
     env = entry.batched_class()(entry.env_id, privileged=privileged, **env_kwargs)
     return env.use_playground_conventions()
+
+
+def _register_with_playground() -> None:
+    """Make every batched env a (virtual) subclass of MuJoCo Playground's ``MjxEnv``,
+    whose interface :class:`FunctionalEnv` implements, where Playground is installed
+    (importing it only here: it takes seconds, and ``gym.make_vec`` does not need it)."""
+    try:
+        from mujoco_playground._src.mjx_env import MjxEnv
+    except ImportError:
+        return
+    MjxEnv.register(FunctionalEnv)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import os
+import tempfile
 from pathlib import Path
 
 #: Root of the asset tree. In a source checkout (editable install) this is the
@@ -56,3 +59,64 @@ def verify_sha256(
             raise error(
                 f"file {path} is corrupt or was changed (SHA-256 differs from the one recorded)"
             )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class MJCF:
+    """A composed MuJoCo model as text: its MJCF ``xml`` and the ``assets`` it names
+    (file name -> bytes: meshes, textures), as dm_control's ``mjcf`` writes them.
+
+    The environments compose their models from ``assets/`` in memory; this keeps what
+    was compiled, so the model can be written out whole (MuJoCo Playground's
+    ``xml_path`` and ``model_assets``)."""
+
+    xml: str
+    assets: dict
+
+    @classmethod
+    def of(cls, root) -> MJCF:
+        """The text of a dm_control ``mjcf`` root element as it is now."""
+        return cls(root.to_xml_string(), dict(root.get_assets()))
+
+    def compile(self):
+        """The ``mujoco.MjModel``."""
+        import mujoco
+
+        return mujoco.MjModel.from_xml_string(self.xml, assets=self.assets)
+
+    @property
+    def digest(self) -> str:
+        """SHA-256 of the XML and the assets (by name)."""
+        digest = hashlib.sha256(self.xml.encode())
+        for name in sorted(self.assets):
+            digest.update(name.encode() + b"\0" + self.assets[name])
+        return digest.hexdigest()
+
+    def with_option(self, **values) -> MJCF:
+        """The model with ``<option>``'s attributes set (MJCF's names and spellings:
+        ``timestep=0.05``, ``integrator="RK4"``); the rest of the text as it was."""
+        import xml.etree.ElementTree as ElementTree
+
+        root = ElementTree.fromstring(self.xml)
+        option = root.find("option")
+        if option is None:
+            option = ElementTree.Element("option")
+            root.insert(0, option)
+        for name, value in values.items():
+            option.set(name, repr(value) if isinstance(value, float) else str(value))
+        return MJCF(ElementTree.tostring(root, encoding="unicode"), self.assets)
+
+    def write(self, directory: str | Path) -> Path:
+        """The model's XML under ``directory/<digest>/model.xml``, its assets beside it
+        (written once, each file under a temporary name and renamed: another process
+        writing the same model leaves whole files); returns the XML's path."""
+        folder = Path(directory) / self.digest[:32]
+        path = folder / "model.xml"
+        if path.is_file():
+            return path
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, content in [*self.assets.items(), ("model.xml", self.xml.encode())]:
+            with tempfile.NamedTemporaryFile(dir=folder, delete=False) as handle:
+                handle.write(content)
+            os.replace(handle.name, folder / name)
+        return path

@@ -28,7 +28,7 @@ from auv_envs.core.acoustics import (
     AcousticConfig,
     HydrophoneArray,
 )
-from auv_envs.core.assets import asset_path
+from auv_envs.core.assets import MJCF, asset_path
 from auv_envs.core.env import (
     ActionValidator,
     ShellEpisode,
@@ -113,12 +113,17 @@ HARD_ACOUSTICS = dataclasses.replace(
 
 
 def build_tank_model() -> mujoco.MjModel:
+    """:func:`compose_tank_model`, compiled."""
+    return compose_tank_model().compile()
+
+
+def compose_tank_model() -> MJCF:
     """Compose the tank and the carrier + arm from ``assets/acoustic`` with mjcf."""
     tank = mjcf.from_path(str(asset_path("acoustic/tank.xml")))
     rig = mjcf.from_path(str(asset_path("acoustic/carrier_arm.xml")))
     rig.model = "rig"
     tank.worldbody.attach(rig)
-    return mujoco.MjModel.from_xml_string(tank.to_xml_string(), assets=tank.get_assets())
+    return MJCF.of(tank)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -461,7 +466,9 @@ class AcousticTrackingEnv(TaskEnv):
         self.disturbance = disturbance
         self.trajectory = trajectory
         self._static_point = static_point
-        self.physics = AcousticPhysics(build_tank_model())
+        #: The composed model's text (:class:`~auv_envs.core.assets.MJCF`).
+        self.model_source = compose_tank_model()
+        self.physics = AcousticPhysics(self.model_source.compile())
         self._dt = 1.0 / config.sample_rate
         self.physics.model.opt.timestep = self._dt / physics_substeps
         self.physics.model.opt.integrator = INTEGRATORS[integrator]

@@ -70,7 +70,7 @@ from auv_envs.tasks.docking.station import (
     SIX_LIGHTS,
     DockingPhysics,
     StationLayout,
-    build_docking_model,
+    compose_docking_model,
 )
 from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home before the transition)
     SCENARIO_CURRENT_SPEED,
@@ -518,8 +518,10 @@ class DockingEnv(TaskEnv):
             raise ValueError(f"min_visible_lights must be in [1, {n_lights}]")
 
         # The station's drawn meshes are tessellated for the image observation's size.
-        model = build_docking_model(self.layout, self._params,
-                                    image_height=height if obs_mode == "image" else None)
+        #: The composed model's text (:class:`~auv_envs.core.assets.MJCF`).
+        self.model_source = compose_docking_model(
+            self.layout, self._params, image_height=height if obs_mode == "image" else None)
+        model = self.model_source.compile()
         model.opt.timestep = CONTROL_PERIOD / physics_substeps
         model.opt.integrator = INTEGRATORS[integrator]
         self._physics_substeps = physics_substeps

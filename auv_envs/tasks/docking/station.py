@@ -18,7 +18,7 @@ import numpy as np
 from dm_control import mjcf
 
 from auv_envs.core import frames, rays, tessellation
-from auv_envs.core.assets import asset_path
+from auv_envs.core.assets import MJCF, asset_path
 from auv_envs.core.rendering import (
     DETAIL_SLICES,
     DetailLevels,
@@ -93,6 +93,12 @@ LAMP_ARRAY = StationLayout(
 
 def build_docking_model(layout: StationLayout, params: VehicleParams,
                         image_height: int | None = None) -> mujoco.MjModel:
+    """:func:`compose_docking_model`, compiled."""
+    return compose_docking_model(layout, params, image_height).compile()
+
+
+def compose_docking_model(layout: StationLayout, params: VehicleParams,
+                          image_height: int | None = None) -> MJCF:
     """Compose arena + station + vehicle from ``assets/`` with dm_control's mjcf.
 
     The station's primitives (its geom group 0) are drawn as one mesh per
@@ -135,8 +141,7 @@ def build_docking_model(layout: StationLayout, params: VehicleParams,
     arena.worldbody.attach(station)
     arena.worldbody.attach(vehicle).add("freejoint")
     _draw_station_as_meshes(arena, station, layout.asset, image_height)
-    xml = arena.to_xml_string()
-    return mujoco.MjModel.from_xml_string(xml, assets=arena.get_assets())
+    return MJCF.of(arena)
 
 
 def _draw_station_as_meshes(arena, station, asset: str, image_height: int | None) -> None:

@@ -49,7 +49,7 @@ from auv_envs.tasks.lars.scene import (
     MARKER_SIDES,
     AUVMotion,
     MarkerGeometry,
-    build_lars_model,
+    compose_lars_model,
 )
 from auv_envs.tasks.lars.sea import (
     GlintField,
@@ -343,7 +343,12 @@ class LARSCaptureEnv(TaskEnv):
         analog_marker = MarkerGeometry.on_cylinder(
             tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
         )
-        scene_model, model = build_lars_model(float(baseline), fovy, marker, analog_marker)
+        scene_source, arm_source = compose_lars_model(float(baseline), fovy, marker,
+                                                      analog_marker)
+        #: The arm model's text (:class:`~auv_envs.core.assets.MJCF`: what the physics
+        #: simulates; the scene around it is drawn only).
+        self.model_source = arm_source
+        scene_model, model = scene_source.compile(), arm_source.compile()
         self.physics = LARSPhysics(scene_model, model)
         arm = ArmModel(model)
         self._arm = arm

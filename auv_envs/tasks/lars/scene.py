@@ -19,7 +19,7 @@ import numpy as np
 from dm_control import mjcf
 
 from auv_envs.core import frames
-from auv_envs.core.assets import asset_path
+from auv_envs.core.assets import MJCF, asset_path
 from auv_envs.core.ops import FLOATS
 
 #: Explore-100-like AUV ([LTAT], Table 1).
@@ -213,6 +213,14 @@ SCENERY = {"body": POSED_BODIES, "geom": ("ship",), "camera": ("side",), "light"
 def build_lars_model(
     baseline: float, fovy_deg: float, marker: MarkerGeometry, analog_marker: MarkerGeometry
 ) -> tuple[mujoco.MjModel, mujoco.MjModel]:
+    """:func:`compose_lars_model`, compiled: ``(scene, arm)``."""
+    scene, arm = compose_lars_model(baseline, fovy_deg, marker, analog_marker)
+    return scene.compile(), arm.compile()
+
+
+def compose_lars_model(
+    baseline: float, fovy_deg: float, marker: MarkerGeometry, analog_marker: MarkerGeometry
+) -> tuple[MJCF, MJCF]:
     """Compose the scene from ``assets/lars/scene.xml`` with dm_control's mjcf:
     ``(scene, arm)``, the whole scene (rendering) and the arm alone without the
     :data:`SCENERY` (the dynamics: the same bodies, joints, masses and actuators, so the
@@ -232,9 +240,8 @@ def build_lars_model(
     half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
     hull.fromto = [-half, 0, 0, half, 0, 0]
     hull.size = [AUV_DIAMETER / 2.0]
-    whole = mujoco.MjModel.from_xml_string(scene.to_xml_string(), assets=scene.get_assets())
+    whole = MJCF.of(scene)
     for kind, names in SCENERY.items():
         for name in names:
             scene.find(kind, name).remove()
-    arm = mujoco.MjModel.from_xml_string(scene.to_xml_string(), assets=scene.get_assets())
-    return whole, arm
+    return whole, MJCF.of(scene)
