@@ -280,7 +280,7 @@ class FunctionalEnv:
         return frames if isinstance(trajectory, list) else frames[0]
 
     #: The world the env simulates (:class:`World`; Playground's domain-randomisation
-    #: wrapper sets it per batch entry under ``vmap``); set by the family's constructor.
+    #: wrapper sets it per batch entry under ``vmap``); the nominal one on first use.
     _mjx_model: World = None
     #: The family's shipped domain randomiser (:meth:`randomize`), None where it has none.
     randomization = None
