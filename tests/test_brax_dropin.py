@@ -38,14 +38,11 @@ from brax.training.agents.ppo import train as ppo  # noqa: E402
 from mujoco_playground import wrapper  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
-from auv_envs.families import FAMILIES  # noqa: E402
+from tests.conftest import BATCHED_SHELLS  # noqa: E402
 
-#: One id per batched class of the family table (the docking ids share one), in its
-#: default mode (dict modes, which Brax's networks need flat).
-SHELLS = []
-for _entry in FAMILIES:
-    if all(_entry.batched != auv_envs.family(env_id).batched for env_id, _ in SHELLS):
-        SHELLS.append((_entry.env_id, _entry.batched_mode))
+#: One id per batched class of the family table, in its default mode (dict modes, which
+#: Brax's networks need flat).
+SHELLS = [(env_id, auv_envs.family(env_id).batched_mode) for env_id in BATCHED_SHELLS]
 
 
 def test_load_takes_every_family_and_refuses_the_rest():

@@ -14,10 +14,7 @@ import mujoco  # noqa: E402
 from mujoco_playground._src.mjx_env import MjxEnv  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
-from auv_envs.families import FAMILIES  # noqa: E402
-
-#: One id per batched class of the family table (the docking ids share one).
-SHELLS = list({entry.batched: entry.env_id for entry in reversed(FAMILIES)}.values())[::-1]
+from tests.conftest import BATCHED_SHELLS as SHELLS  # noqa: E402
 
 
 def same_model(a: mujoco.MjModel, b: mujoco.MjModel) -> list[str]:

@@ -22,14 +22,12 @@ from mujoco_playground import wrapper  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
-from auv_envs.families import FAMILIES  # noqa: E402
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization  # noqa: E402
 from auv_envs.tasks.docking.randomization import PHYSICS, DockingRandomization  # noqa: E402
 from auv_envs.tasks.lars.randomization import LARSRandomization  # noqa: E402
+from tests.conftest import BATCHED_SHELLS as SHELLS  # noqa: E402
 
 WORLDS, STEPS = 3, 12
-#: One id per batched class of the family table (the docking ids share one).
-SHELLS = list({entry.batched: entry.env_id for entry in reversed(FAMILIES)}.values())[::-1]
 
 
 def nominal(randomization):

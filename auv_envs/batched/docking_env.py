@@ -46,6 +46,7 @@ from auv_envs.core.vehicle import PlantPerturbation
 from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.randomization import DockingRandomization
 from auv_envs.tasks.docking.rules import failure_reason
+from auv_envs.tasks.docking.station import CHASE_CAMERA
 
 #: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
 STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
@@ -77,7 +78,7 @@ class DockingMJX(FunctionalEnv):
 
     STEP_METRICS = STEP_METRICS
     end_reason = staticmethod(failure_reason)
-    render_camera = "hovering_auv/chase"
+    render_camera = CHASE_CAMERA
 
     def __init__(self, env_id: str = "auv_envs/DockingStation-v2", obs_mode: str = "features",
                  auto_reset: bool = True, privileged: bool = False,

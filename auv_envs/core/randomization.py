@@ -8,6 +8,7 @@ The families' own: :mod:`auv_envs.tasks.docking.randomization`,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 
@@ -49,3 +50,37 @@ def model_worlds(world, rng, draw):
     in_axes = jax.tree.map(lambda _: None, world.mjx).tree_replace(
         {name: 0 for name in fields})
     return World(world.mjx.tree_replace(fields)), World(in_axes)
+
+
+@dataclasses.dataclass(frozen=True)
+class BodyRandomization:
+    """A randomiser of a MuJoCo model's moving bodies and actuators (LARS's arm, the
+    acoustic rig): one factor per moving body in ``[1 - link_mass, 1 + link_mass]`` on its
+    mass and rotational inertia (:func:`scaled_links`), and whatever
+    :meth:`actuator_fields` draws for the actuators. Its fields are relative
+    half-ranges in [0, 0.9]."""
+
+    link_mass: float = 0.2
+
+    def __post_init__(self):
+        check_fractions(type(self).__name__, **dataclasses.asdict(self))
+
+    def actuator_fields(self, model, key) -> dict:
+        """The actuators' fields of the MJX ``model`` drawn from ``key``."""
+        raise NotImplementedError
+
+    def __call__(self, model, rng):
+        """MuJoCo Playground's ``randomization_fn``: ``(worlds, in_axes)``, one world per
+        key of ``rng`` ((N, 2) keys) about ``model`` (the env's
+        :class:`~auv_envs.batched.functional.World`): its MJX model's ``body_mass``,
+        ``body_inertia`` and actuator fields drawn per world."""
+        import jax
+
+        mjx_model = model.mjx
+
+        def draw(key):
+            links, actuators = jax.random.split(key)
+            return {**scaled_links(mjx_model, links, self.link_mass),
+                    **self.actuator_fields(mjx_model, actuators)}
+
+        return model_worlds(model, rng, draw)

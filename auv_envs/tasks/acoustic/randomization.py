@@ -13,16 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from auv_envs.core.randomization import (
-    check_fractions,
-    model_worlds,
-    scaled_links,
-    uniform_factors,
-)
+from auv_envs.core.randomization import BodyRandomization, uniform_factors
 
 
 @dataclasses.dataclass(frozen=True)
-class AcousticRandomization:
+class AcousticRandomization(BodyRandomization):
     """The ranges each acoustic world's rig is drawn from, uniformly.
 
     * **The bodies** (``link_mass``): one factor per moving body (the carrier and the arm's
@@ -43,23 +38,9 @@ class AcousticRandomization:
     link_mass: float = 0.2
     servo: float = 0.2
 
-    def __post_init__(self):
-        check_fractions("AcousticRandomization", link_mass=self.link_mass, servo=self.servo)
-
-    def __call__(self, model, rng):
-        """MuJoCo Playground's ``randomization_fn``: ``(worlds, in_axes)``, one world per
-        key of ``rng`` ((N, 2) keys) about ``model`` (the env's
-        :class:`~auv_envs.batched.functional.World`): its MJX model's ``body_mass``,
-        ``body_inertia``, ``actuator_gainprm`` and ``actuator_biasprm`` drawn per world."""
-        import jax
-
-        rig = model.mjx
-
-        def draw(key):
-            links, servos = jax.random.split(key)
-            gain = uniform_factors(servos, (rig.nu,), self.servo)
-            return {**scaled_links(rig, links, self.link_mass),
-                    "actuator_gainprm": rig.actuator_gainprm.at[:, 0].multiply(gain),
-                    "actuator_biasprm": rig.actuator_biasprm.at[:, 1:3].multiply(gain[:, None])}
-
-        return model_worlds(model, rng, draw)
+    def actuator_fields(self, model, key) -> dict:
+        """``actuator_gainprm`` and ``actuator_biasprm`` with each servo's ``kp`` and ``kv``
+        scaled alike."""
+        gain = uniform_factors(key, (model.nu,), self.servo)
+        return {"actuator_gainprm": model.actuator_gainprm.at[:, 0].multiply(gain),
+                "actuator_biasprm": model.actuator_biasprm.at[:, 1:3].multiply(gain[:, None])}

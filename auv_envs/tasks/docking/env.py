@@ -63,6 +63,7 @@ from auv_envs.tasks.docking.rules import (
     failure_reason,
 )
 from auv_envs.tasks.docking.station import (
+    CHASE_CAMERA,
     CHASE_HEADLIGHT,
     LAMP_ARRAY,
     OWN_HULL_GROUP,
@@ -634,7 +635,7 @@ class DockingEnv(TaskEnv):
         if render_mode == "rgb_array":
             chase = render_camera == "chase"
             self._view = CameraRenderer(
-                model, ("hovering_auv/chase" if chase else self.physics.camera_name,),
+                model, (CHASE_CAMERA if chase else self.physics.camera_name,),
                 render_width, render_height, headlight=CHASE_HEADLIGHT if chase else None,
                 fog=chase, skybox=chase, fit_outlines=not chase,  # onboard: as the observation
                 detail=() if chase else self.physics.detail_levels(),

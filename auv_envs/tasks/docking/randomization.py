@@ -26,7 +26,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from auv_envs.core.randomization import check_fractions, uniform_factors
 from auv_envs.core.vehicle import PlantPerturbation
+from auv_envs.tasks.docking.env import PAPER_DISTURBANCES
 
 #: The names of a docking world's drawn physics (:class:`DockingRandomization`).
 PHYSICS = ("mass_scale", "damping_scale", "buoyancy_offset", "thrust_scale", "current")
@@ -57,37 +59,35 @@ class DockingRandomization:
         current: the unmodelled current's largest speed, m/s.
     """
 
-    vehicle: PlantPerturbation = PlantPerturbation(mass=0.1, damping=0.3, net_buoyancy=5.0)
+    vehicle: PlantPerturbation = PAPER_DISTURBANCES.plant
     thrust: float = 0.15
     current: float = 0.1
 
     def __post_init__(self):
         if not isinstance(self.vehicle, PlantPerturbation):
             raise TypeError(f"vehicle must be a PlantPerturbation, got {self.vehicle!r}")
-        for name, high in (("thrust", 0.9), ("current", math.inf)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float) \
-                    or not 0.0 <= value <= high:
-                raise ValueError(f"{name} must be a number in [0, {high}], got {value!r}")
+        check_fractions("DockingRandomization", thrust=self.thrust)
+        if isinstance(self.current, bool) or not isinstance(self.current, int | float) \
+                or not 0.0 <= self.current < math.inf:
+            raise ValueError(f"current must be a finite number >= 0, got {self.current!r}")
 
     def draw(self, key) -> dict:
         """One world's physics (:data:`PHYSICS`, float32 arrays) from a JAX ``key``."""
         import jax
         import jax.numpy as jnp
 
-        v = self.vehicle
-        mass, damping, buoyancy, thrust, current = jax.random.split(key, 5)
+        from auv_envs.batched.functional import KeyDraws
+
+        vehicle, thrust, current = jax.random.split(key, 3)
+        # The vehicle as the level's per-episode perturbation draws it (nothing when off).
+        factors = self.vehicle.draw_factors(KeyDraws(vehicle)) or (1.0, jnp.ones(12), 0.0)
         speed, angle = jax.random.uniform(current, (2,)) * jnp.array(
             [self.current, 2.0 * math.pi])
         return {
-            "mass_scale": jax.random.uniform(mass, (), minval=1.0 - v.mass,
-                                             maxval=1.0 + v.mass),
-            "damping_scale": jax.random.uniform(damping, (12,), minval=1.0 - v.damping,
-                                                maxval=1.0 + v.damping),
-            "buoyancy_offset": jax.random.uniform(buoyancy, (), minval=-v.net_buoyancy,
-                                                  maxval=v.net_buoyancy),
-            "thrust_scale": jax.random.uniform(thrust, (), minval=1.0 - self.thrust,
-                                               maxval=1.0 + self.thrust),
+            "mass_scale": jnp.asarray(factors[0], jnp.float32),
+            "damping_scale": jnp.asarray(factors[1], jnp.float32),
+            "buoyancy_offset": jnp.asarray(factors[2], jnp.float32),
+            "thrust_scale": uniform_factors(thrust, (), self.thrust),
             "current": jnp.stack([speed * jnp.cos(angle), speed * jnp.sin(angle),
                                   jnp.zeros(())]),
         }

@@ -31,6 +31,8 @@ from auv_envs.core.vehicle import VehicleParams
 #: above (a view for people), ``"onboard"`` is the forward camera the
 #: ``image`` observation uses.
 RENDER_CAMERAS = ("chase", "onboard")
+#: The chase camera's name in the composed model (the vehicle's, attached with its prefix).
+CHASE_CAMERA = "hovering_auv/chase"
 #: The chase camera: offset from the CG in the world frame (m; it follows the
 #: vehicle's position, not its attitude), downward pitch (deg), vertical field
 #: of view (deg).

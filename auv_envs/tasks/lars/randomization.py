@@ -13,16 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from auv_envs.core.randomization import (
-    check_fractions,
-    model_worlds,
-    scaled_links,
-    uniform_factors,
-)
+from auv_envs.core.randomization import BodyRandomization, uniform_factors
 
 
 @dataclasses.dataclass(frozen=True)
-class LARSRandomization:
+class LARSRandomization(BodyRandomization):
     """The ranges each LARS world's arm is drawn from, uniformly.
 
     * **The links** (``link_mass``): one factor per moving body (turret, boom, jib) in
@@ -42,22 +37,7 @@ class LARSRandomization:
     link_mass: float = 0.2
     motor: float = 0.1
 
-    def __post_init__(self):
-        check_fractions("LARSRandomization", link_mass=self.link_mass, motor=self.motor)
-
-    def __call__(self, model, rng):
-        """MuJoCo Playground's ``randomization_fn``: ``(worlds, in_axes)``, one world per
-        key of ``rng`` ((N, 2) keys) about ``model`` (the env's
-        :class:`~auv_envs.batched.functional.World`): its MJX model's ``body_mass``,
-        ``body_inertia`` and ``actuator_gear`` drawn per world."""
-        import jax
-
-        arm = model.mjx
-
-        def draw(key):
-            links, motors = jax.random.split(key)
-            gear = uniform_factors(motors, (arm.nu,), self.motor)
-            return {**scaled_links(arm, links, self.link_mass),
-                    "actuator_gear": arm.actuator_gear.at[:, 0].multiply(gear)}
-
-        return model_worlds(model, rng, draw)
+    def actuator_fields(self, model, key) -> dict:
+        """``actuator_gear`` with each motor's gear ratio scaled."""
+        gear = uniform_factors(key, (model.nu,), self.motor)
+        return {"actuator_gear": model.actuator_gear.at[:, 0].multiply(gear)}
