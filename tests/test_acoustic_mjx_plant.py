@@ -49,12 +49,12 @@ def _recorded_episode(seed: int, seconds: float):
 
     def recording_place(carrier, arm):
         placed.append((np.copy(carrier), np.copy(arm)))
-        place(carrier, arm)
+        return place(carrier, arm)
 
-    def recording_follow(*args):
-        out = follow(*args)
+    def recording_follow(rig, *args):
+        rig, *out = follow(rig, *args)
         calls.append(([np.copy(a) for a in args[:4]], [np.copy(a) for a in out]))
-        return out
+        return rig, *out
 
     physics.place, physics.follow = recording_place, recording_follow
     env.reset(seed=seed)

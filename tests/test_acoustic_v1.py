@@ -33,7 +33,8 @@ def test_follow_is_mj_step(integrator, substeps):
         plant.model.opt.timestep = 0.01 / substeps
         plant.substeps = substeps
         plant.place(refs[0][0], refs[2][0])
-    ours = [plants[0].follow(*(r[rows] for r in refs), current[np.maximum(rows - 1, 0)], start)
+    ours = [plants[0].follow(plants[0].data, *(r[rows] for r in refs),
+                             current[np.maximum(rows - 1, 0)], start)[1:]
             for start, rows in ((0, np.arange(count)), (count, np.arange(count, 2 * count)))]
     reference = plants[1]
     model, data = reference.model, reference.data

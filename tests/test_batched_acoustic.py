@@ -14,7 +14,8 @@ import pytest
 jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
-from auv_envs.batched.acoustic_env import STEP_METRICS, AcousticMJX  # noqa: E402
+from auv_envs.batched.acoustic_env import AcousticMJX  # noqa: E402
+from auv_envs.tasks.acoustic.transition import STEP_METRICS  # noqa: E402
 
 TIME_LIMIT = 20.0
 KWARGS = {"difficulty": "paper", "disturbance": "high", "time_limit": TIME_LIMIT}

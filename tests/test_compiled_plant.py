@@ -107,7 +107,7 @@ def test_compiled_truth_equals_the_float_truth(env_id):
     for _ in range(400):
         env.physics.set_state(rng.uniform([-12, -3, -3], [0.5, 3, 2]),
                               rng.uniform(-0.5, 0.5, 3), rng.uniform(-0.5, 0.5, 6))
-        compiled, floats = env._plant.truth(), env._float_truth()
+        compiled, floats = env._plant.truth(env.physics.data), env._float_truth()
         assert compiled.keys() == floats.keys()
         for key, value in floats.items():
             np.testing.assert_allclose(np.asarray(compiled[key], float),
@@ -141,7 +141,7 @@ def test_scenery_that_cannot_be_compiled_is_ray_cast_by_mujoco(monkeypatch):
     for _ in range(200):
         env.physics.set_state(rng.uniform([-6, -2, -1.5], [0.5, 2, 2]),
                               rng.uniform(-0.3, 0.3, 3), np.zeros(6))
-        got, compiled = fallback(), env._plant.truth()
+        got, compiled = fallback(), env._plant.truth(env.physics.data)
         np.testing.assert_array_equal(got["visible"], compiled["visible"])
         np.testing.assert_array_equal(got["pixels"], compiled["pixels"])
         hidden += int(np.sum(~got["visible"] & np.isfinite(got["pixels"][:, 0])))

@@ -29,6 +29,7 @@ running sum of squared errors, not every estimate, so the episode's metrics are
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,34 +42,31 @@ from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization
 
-#: ``info`` metrics carried every step (:func:`~auv_envs.tasks.acoustic.transition.scores`).
-STEP_METRICS = ("estimate_error", "running_rmse", "tracked", "is_success")
-
-
 # The detection sets are a JAX pytree of their arrays (registered when this module loads).
 jax.tree_util.register_dataclass(Measurements, data_fields=["values", "mask", "origin",
                                                             "dropped"], meta_fields=[])
 
 
-class _RigCursor:
-    """The transition's plant in one traced call: the rig's MJX data, moved on by
-    :class:`RigPlantMJX` one sample period at a time."""
+class _Rig(NamedTuple):
+    """The transition's plant in the batched env, a function of the rig's MJX data
+    (:mod:`auv_envs.core.task`): :class:`RigPlantMJX` simulating ``model``, the env's
+    world's, one sample period a call."""
 
-    def __init__(self, plant: RigPlantMJX, model, data=None):
-        self.plant, self.model, self.data = plant, model, data
+    plant: RigPlantMJX
+    model: Any
 
-    def place(self, carrier, arm) -> None:
-        self.data = self.plant.place(carrier, arm, self.model)
+    def place(self, carrier, arm):
+        return self.plant.place(carrier, arm, self.model)
 
-    def follow(self, carrier_ref, carrier_vel, arm_ref, current, start):
-        """One period's source position and velocity (1, 3) each (the transition's
-        blocks are one period long here); period 0 is the rig as placed."""
+    def follow(self, rig, carrier_ref, carrier_vel, arm_ref, current, start):
+        """One period's ``(rig, position, velocity)``, (1, 3) each (the transition's blocks
+        are one period long here); period 0 is the rig as placed."""
         if isinstance(start, int) and start == 0:
-            position, velocity = self.plant.source(self.data, self.model)
+            position, velocity = self.plant.source(rig, self.model)
         else:
-            self.data, position, velocity = self.plant.period(
-                self.data, carrier_ref[0], carrier_vel[0], arm_ref[0], current[0], self.model)
-        return position[None], velocity[None]
+            rig, position, velocity = self.plant.period(
+                rig, carrier_ref[0], carrier_vel[0], arm_ref[0], current[0], self.model)
+        return rig, position[None], velocity[None]
 
 
 class AcousticMJX(FunctionalEnv):
@@ -93,7 +91,7 @@ class AcousticMJX(FunctionalEnv):
             than ``"segments"`` (the tabulated route of v0/v1 is drawn in NumPy only).
     """
 
-    STEP_METRICS = STEP_METRICS
+    STEP_METRICS = transition.STEP_METRICS
     render_camera = ("rig/carrier", 6.0)
 
     def __init__(self, env_id: str = "auv_envs/AcousticTracking-v2", obs_mode: str = "state",
@@ -126,10 +124,9 @@ class AcousticMJX(FunctionalEnv):
     def reset(self, rng: jax.Array) -> State:
         """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
         rng, key = jax.random.split(rng)
-        plant = _RigCursor(self.plant, self.mjx_model.mjx)
-        episode, now, obs = transition.reset(
-            self.params, Backend(self.ops, KeyDraws(key), plant))
-        return self._first(rng, plant, episode, now, obs)
+        rig, episode, now, obs, _ = transition.reset(
+            self.params, Backend(self.ops, KeyDraws(key), self._rig()))
+        return self._first(rng, rig, episode, now, obs)
 
     def reset_to(self, plan: transition.Plan, rng: jax.Array) -> State:
         """The episode of ``plan`` (a CPU environment's
@@ -138,25 +135,27 @@ class AcousticMJX(FunctionalEnv):
         plan = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf, jnp.float32)
                                       if jnp.issubdtype(jnp.asarray(leaf).dtype, jnp.floating)
                                       else jnp.asarray(leaf), plan)
-        plant = _RigCursor(self.plant, self.mjx_model.mjx)
-        episode, now, obs = transition.begin(
-            self.params, plan, Backend(self.ops, KeyDraws(rng), plant))
-        return self._first(rng, plant, episode, now, obs)
+        rig, episode, now, obs, _ = transition.begin(
+            self.params, plan, Backend(self.ops, KeyDraws(rng), self._rig()))
+        return self._first(rng, rig, episode, now, obs)
 
-    def _first(self, rng, plant, episode, now, obs) -> State:
-        return self._started(rng, plant.data, episode, now, obs,
-                             self._metrics(episode, now, {"estimate": jnp.float32(0.0)}))
+    def _rig(self) -> _Rig:
+        """The transition's plant: the rig in the env's world."""
+        return _Rig(self.plant, self.mjx_model.mjx)
+
+    def _first(self, rng, rig, episode, now, obs) -> State:
+        terms = {term: jnp.float32(0.0) for term in transition.REWARD_TERMS}
+        return self._started(rng, rig, episode, now, obs, self._metrics(episode, now, terms))
 
     def _step(self, state: State, action: jax.Array) -> State:
         """Score the estimate ``action`` (clipped to the tank) and move on one sample
         period: :func:`auv_envs.tasks.acoustic.transition.step` on JAX."""
         rng, key, _ = self._keys(state)
-        plant = _RigCursor(self.plant, self.mjx_model.mjx, state.plant)
-        episode, now, obs, terms = transition.step(
-            self.params, state.episode, self._action(action),
-            Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, plant.data, episode, now, obs, terms,
-                              jnp.bool_(False), self._metrics(episode, now, terms))
+        rig, episode, now, obs, judged = transition.step(
+            self.params, state.plant, state.episode, self._action(action),
+            Backend(self.ops, KeyDraws(key), self._rig()))
+        return self._conclude(state, rng, rig, episode, now, obs, judged.terms,
+                              judged.terminated, self._metrics(episode, now, judged.terms))
 
     # ------------------------------------------------------------------ internals
     def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
@@ -168,9 +167,9 @@ class AcousticMJX(FunctionalEnv):
                                   self.ops.xp)
 
     def _metrics(self, episode, now: dict, terms: dict) -> dict:
-        """The step's scores (:data:`STEP_METRICS`), its reward terms (``reward_<term>``)
-        and the episode's running summary (``episode_rmse``, ``episode_steps``,
-        ``episode_success``)."""
+        """The step's scores (:func:`~auv_envs.tasks.acoustic.transition.scores`), its
+        reward terms (``reward_<term>``) and the episode's running summary
+        (``episode_rmse``, ``episode_steps``, ``episode_success``)."""
         scores = transition.scores(self.params, episode, now, self.ops)
         return {
             **scores,

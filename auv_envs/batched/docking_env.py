@@ -31,6 +31,7 @@ structure the batched one passes through it. ``image`` is not built.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import gymnasium as gym
 import jax
@@ -47,10 +48,6 @@ from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.randomization import DockingRandomization
 from auv_envs.tasks.docking.rules import failure_reason
 from auv_envs.tasks.docking.station import CHASE_CAMERA
-
-#: ``info`` metrics carried every step (the CPU env's ``metric_keys`` that are numbers).
-STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
-                "heading_error", "lights_visible", "is_success")
 
 
 class DockingMJX(FunctionalEnv):
@@ -76,7 +73,7 @@ class DockingMJX(FunctionalEnv):
             rules this one uses.
     """
 
-    STEP_METRICS = STEP_METRICS
+    STEP_METRICS = transition.STEP_METRICS
     end_reason = staticmethod(failure_reason)
     render_camera = CHASE_CAMERA
 
@@ -158,25 +155,22 @@ class DockingMJX(FunctionalEnv):
     def _begin(self, rng, start=None, vehicle=None, qpos=None, qvel=None) -> State:
         """:func:`auv_envs.tasks.docking.transition.reset` on JAX, as a :class:`State`."""
         rng, key = jax.random.split(rng)
-        plant = _PlantCursor(self, qpos, qvel)
-        episode, truth, obs = transition.reset(
+        plant = _HullPlant(self, None if qpos is None else (qpos, qvel))
+        body, episode, truth, obs, _ = transition.reset(
             self.params, transition.Backend(self.ops, KeyDraws(key), plant), start, vehicle)
         zero = jnp.float32(0.0)
-        metrics = self._metrics(truth, episode, {term: zero for term in self.cpu_env.reward_terms})
-        return self._started(rng, {"qpos": plant.qpos, "qvel": plant.qvel}, episode, truth,
-                             obs, metrics)
+        metrics = self._metrics(truth, episode, {term: zero for term in transition.REWARD_TERMS})
+        return self._started(rng, body, episode, truth, obs, metrics)
 
     def _step(self, state: State, action: jax.Array) -> State:
         """One control period under the normalised action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.docking.transition.step` on JAX."""
         rng, key, _ = self._keys(state)
-        plant = _PlantCursor(self, state.plant["qpos"], state.plant["qvel"])
-        episode, truth, obs, judged = transition.step(
-            self.params, state.episode, self.ops.unpack(self._action(action)),
-            transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, {"qpos": plant.qpos, "qvel": plant.qvel},
-                              episode, truth, obs, judged.terms, judged.terminated,
-                              self._metrics(truth, episode, judged.terms))
+        body, episode, truth, obs, judged = transition.step(
+            self.params, state.plant, state.episode, self.ops.unpack(self._action(action)),
+            transition.Backend(self.ops, KeyDraws(key), _HullPlant(self)))
+        return self._conclude(state, rng, body, episode, truth, obs, judged.terms,
+                              judged.terminated, self._metrics(truth, episode, judged.terms))
 
     # ------------------------------------------------------------------ internals
     def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
@@ -225,26 +219,33 @@ class DockingMJX(FunctionalEnv):
         }
 
 
-class _PlantCursor:
-    """The transition's plant in one traced call: the free joint's ``(qpos, qvel)``,
-    advanced by :class:`~auv_envs.batched.docking.DockingPlantMJX`."""
+class _HullPlant(NamedTuple):
+    """The transition's plant in the batched env, a function of the free joint's state
+    ``{"qpos": (7,), "qvel": (6,)}`` (:mod:`auv_envs.core.task`): advanced by
+    :class:`~auv_envs.batched.docking.DockingPlantMJX` in the env's world; ``given``, the
+    ``(qpos, qvel)`` an episode starts from instead of its drawn start
+    (:meth:`DockingMJX.reset_to`)."""
 
-    def __init__(self, env: DockingMJX, qpos=None, qvel=None):
-        self.env, self.qpos, self.qvel = env, qpos, qvel
+    env: DockingMJX
+    given: tuple | None = None
 
-    def place(self, start: transition.Start, vehicle, failed) -> None:
-        if self.qpos is None:  # a drawn start (reset_to gives the plant state)
-            self.qpos, self.qvel = self.env.start_state(start.x, start.y, start.z, start.yaw,
-                                                        start.surge)
+    def place(self, start: transition.Start, vehicle, failed) -> dict:
+        if self.given is None:
+            qpos, qvel = self.env.start_state(start.x, start.y, start.z, start.yaw, start.surge)
+        else:
+            qpos, qvel = self.given
+        return {"qpos": qpos, "qvel": qvel}
 
-    def advance(self, tau, current, vehicle) -> None:
+    def advance(self, body: dict, tau, current, vehicle) -> dict:
+        env = self.env
         tau = jnp.asarray(tau, jnp.float32)
-        physics = self.env.mjx_model.physics
+        physics = env.mjx_model.physics
         if physics is not None:  # the world's thrusters and unmodelled current
             tau = tau * physics["thrust_scale"]
             current = jnp.asarray(current) + physics["current"]
-        self.qpos, self.qvel = self.env.plant.advance(
-            self.qpos, self.qvel, tau, current, self.env._vehicle(vehicle, physics))
+        qpos, qvel = env.plant.advance(body["qpos"], body["qvel"], tau, current,
+                                       env._vehicle(vehicle, physics))
+        return {"qpos": qpos, "qvel": qvel}
 
-    def truth(self) -> dict:
-        return self.env._truth(self.qpos, self.qvel)
+    def truth(self, body: dict) -> dict:
+        return self.env._truth(body["qpos"], body["qvel"])

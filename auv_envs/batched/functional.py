@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from auv_envs.core import native
+from auv_envs.core import native, task
 from auv_envs.families import Family, family
 
 #: MuJoCo's integrators by their MJCF names (``mjtIntegrator``'s order).
@@ -30,9 +30,10 @@ POLICY_KEY, PRIVILEGED_KEY = "state", "privileged_state"
 
 
 @jax.tree_util.register_dataclass
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class State:
-    """One environment's state (a batch of them under ``vmap``), as Playground's.
+    """One environment's state (a batch of them under ``vmap``), as Playground's: frozen,
+    changed by :meth:`replace` only.
 
     Attributes:
         data: everything the episode is: ``{"plant": ..., "episode": ...}``, the plant's
@@ -525,12 +526,13 @@ class FunctionalEnv:
         (``info["truncation"]``; under Playground's conventions at termination only),
         and the keys of ``state.info`` and ``state.metrics`` that this env does not
         write kept."""
-        reward = sum(terms.values())
+        reward = task.reward(terms)
         terminated = jnp.asarray(terminated, jnp.bool_)
         if self.playground:  # the time limit is the trainer's (Brax's EpisodeWrapper)
             truncated = jnp.bool_(False)
         else:
-            truncated = jnp.logical_not(terminated) & (episode.steps >= self.max_episode_steps)
+            truncated = task.truncated(terminated, episode.steps, self.max_episode_steps,
+                                       self.ops)
         done = terminated | truncated
         obs = self._present(obs, episode, truth)
         info = {**state.info, "rng": rng, "terminated": self._flag(terminated),

@@ -28,6 +28,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import itertools
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -44,10 +45,6 @@ from auv_envs.tasks.lars.randomization import LARSRandomization
 from auv_envs.tasks.lars.scene import AUVMotion
 from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
 from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
-
-#: ``info`` metrics carried every step (the CPU env's that are numbers).
-STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
-                "distractors_in_view", "is_success", "collision", "violation_workspace")
 
 
 def _register(cls, meta=()) -> None:
@@ -227,25 +224,28 @@ class ArmPlantMJX:
         return jax.lax.fori_loop(0, FRAME_SKIP, physics_step, (data, effort))
 
 
-class _ArmCursor:
-    """The transition's plant in one traced call: the arm's MJX data, advanced by
-    :class:`ArmPlantMJX`."""
+class _Arm(NamedTuple):
+    """The transition's plant in the batched env, a function of the arm's MJX data
+    (:mod:`auv_envs.core.task`): :class:`ArmPlantMJX` simulating ``model``, the env's
+    world's."""
 
-    def __init__(self, plant: ArmPlantMJX, ops, model: mjx.Model, data=None):
-        self.plant, self.ops, self.model, self.data = plant, ops, model, data
+    plant: ArmPlantMJX
+    ops: Any
+    model: mjx.Model
 
-    def place(self, q) -> None:
-        self.data = self.plant.place(q)
+    def place(self, q) -> mjx.Data:
+        return self.plant.place(q)
 
-    def advance(self, action, effort):
-        self.data, effort = self.plant.advance(self.data, action, effort, self.model)
-        return effort
+    def advance(self, data: mjx.Data, action, effort) -> tuple:
+        return self.plant.advance(data, action, effort, self.model)
 
-    def joints(self) -> tuple:
-        return self.ops.unpack(self.data.qpos), self.ops.unpack(self.data.qvel)
+    def truth(self, data: mjx.Data, params, scene, steps, ops) -> dict:
+        return transition.truth(params, scene, steps, *joints(data, self.ops), ops)
 
-    def truth(self, params, scene, steps, ops) -> dict:
-        return transition.truth(params, scene, steps, *self.joints(), ops)
+
+def joints(data: mjx.Data, ops) -> tuple:
+    """The arm's joint angles and rates at ``data``, three scalars each."""
+    return ops.unpack(data.qpos), ops.unpack(data.qvel)
 
 
 class LARSMJX(FunctionalEnv):
@@ -270,7 +270,7 @@ class LARSMJX(FunctionalEnv):
         ValueError: for what is not built yet (module docstring).
     """
 
-    STEP_METRICS = STEP_METRICS
+    STEP_METRICS = transition.STEP_METRICS
     end_reason = staticmethod(transition.end_reason)
 
     def __init__(self, env_id: str = "auv_envs/LARSCapture-v0", obs_mode: str = "features",
@@ -295,10 +295,9 @@ class LARSMJX(FunctionalEnv):
     def reset(self, rng: jax.Array) -> State:
         """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
         rng, key = jax.random.split(rng)
-        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx)
-        episode, truth, obs = transition.reset(
-            self.params, transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._first(rng, plant, episode, truth, obs)
+        arm, episode, truth, obs, _ = transition.reset(
+            self.params, transition.Backend(self.ops, KeyDraws(key), self._arm()))
+        return self._first(rng, arm, episode, truth, obs)
 
     def reset_to(self, scene: transition.Scene, q, rng: jax.Array) -> State:
         """An episode in ``scene`` (a CPU environment's
@@ -314,35 +313,38 @@ class LARSMJX(FunctionalEnv):
                                       for name in ("omega", "amplitude", "phase", "heading")))
         scene = transition.scene_of(self.params, as32(scene.motion), waves, as32(scene.wash),
                                     as32(scene.analogs), as32(scene.glint), ops=ops)
-        plant = _ArmCursor(self.plant, ops, self.mjx_model.mjx)
-        plant.place(tuple(jnp.float32(v) for v in q))
-        truth = transition.truth(self.params, scene, ops.integer(0), *plant.joints(), ops)
+        plant = self._arm()
+        arm = plant.place(tuple(jnp.float32(v) for v in q))
+        truth = plant.truth(arm, self.params, scene, ops.integer(0), ops)
         episode = transition.first_state(scene, truth, ops)
         episode, obs = transition.observe(
             self.params, episode, truth, transition.Backend(ops, KeyDraws(rng), plant))
-        return self._first(rng, plant, episode, truth, obs)
+        return self._first(rng, arm, episode, truth, obs)
 
-    def _first(self, rng, plant, episode, truth, obs) -> State:
-        terms = {term: jnp.float32(0.0) for term in self.cpu_env.reward_terms}
-        return self._started(rng, plant.data, episode, truth, obs,
+    def _arm(self) -> _Arm:
+        """The transition's plant: the arm in the env's world."""
+        return _Arm(self.plant, self.ops, self.mjx_model.mjx)
+
+    def _first(self, rng, arm, episode, truth, obs) -> State:
+        terms = {term: jnp.float32(0.0) for term in transition.REWARD_TERMS}
+        return self._started(rng, arm, episode, truth, obs,
                              self._metrics(truth, episode, None, terms))
 
     def _step(self, state: State, action: jax.Array) -> State:
         """One control period under the action (clipped to [-1, 1]):
         :func:`auv_envs.tasks.lars.transition.step` on JAX."""
         rng, key, _ = self._keys(state)
-        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx, state.plant)
-        episode, truth, obs, judged = transition.step(
-            self.params, state.episode, self._action(action),
-            transition.Backend(self.ops, KeyDraws(key), plant))
-        return self._conclude(state, rng, plant.data, episode, truth, obs, judged.terms,
+        arm, episode, truth, obs, judged = transition.step(
+            self.params, state.plant, state.episode, self._action(action),
+            transition.Backend(self.ops, KeyDraws(key), self._arm()))
+        return self._conclude(state, rng, arm, episode, truth, obs, judged.terms,
                               judged.terminated, self._metrics(truth, episode, judged,
                                                                judged.terms))
 
     def truth(self, state: State) -> dict:
         """The ground truth of ``state`` (:func:`auv_envs.tasks.lars.transition.truth`)."""
-        plant = _ArmCursor(self.plant, self.ops, self.mjx_model.mjx, state.plant)
-        return transition.truth_now(self.params, state.episode, plant, self.ops)
+        return transition.truth_now(self.params, state.plant, state.episode, self._arm(),
+                                    self.ops)
 
     # ------------------------------------------------------------------ internals
     def _state_observation(self, episode: transition.EpisodeState, truth: dict) -> jax.Array:
@@ -353,22 +355,11 @@ class LARSMJX(FunctionalEnv):
         return obs
 
     def _metrics(self, truth: dict, episode, judged, terms: dict) -> dict:
-        """The step's metrics (:data:`STEP_METRICS`), its reward terms (``reward_<term>``)
-        and the episode's summary so far (``episode_<key>``,
+        """The step's metrics (:func:`~auv_envs.tasks.lars.transition.step_metrics`), its
+        reward terms (``reward_<term>``) and the episode's summary so far (``episode_<key>``,
         :func:`~auv_envs.tasks.lars.transition.summary`)."""
-        false = jnp.bool_(False)
-        step = {
-            "capture_error": truth["capture_error"],
-            "relative_speed": truth["relative_speed"],
-            "marker_visible": truth["n_visible"],
-            "marker_occluded": jnp.asarray(truth["occluded"], jnp.bool_),
-            "distractors_in_view": jnp.asarray(truth["distractors"], jnp.int32),
-            "is_success": episode.success,
-            "collision": false if judged is None else judged.collision,
-            "violation_workspace": false if judged is None else judged.workspace,
-        }
         return {
-            **step,
+            **transition.step_metrics(episode, truth, judged, self.ops),
             **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},
             **{f"episode_{key}": value for key, value in
                transition.summary(self.params, episode, truth, self.ops).items()},

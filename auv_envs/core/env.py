@@ -23,6 +23,7 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
+from auv_envs.core import task
 from auv_envs.core.ops import FLOATS, Backend
 
 #: Everything mj_step reads that is not derived: time, qpos, qvel, act,
@@ -333,12 +334,8 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
             raise RuntimeError("step() called after the episode ended; call reset()")
         truth = self._simulate(a)
         terms, terminated = self._assess(truth, a)
-        values = iter(terms.values())
-        reward = next(values)
-        for value in values:
-            reward += value
-        reward = float(reward)
-        truncated = (not terminated) and ep.steps >= self.max_episode_steps
+        reward = float(task.reward(terms))
+        truncated = bool(task.truncated(terminated, ep.steps, self.max_episode_steps, FLOATS))
         ep.done = terminated or truncated
         obs = self._observation(truth)
         info = self._info(truth)

@@ -184,17 +184,20 @@ class AcousticPhysics:
         #: Physics steps per sample period.
         self.substeps = 1
 
-    def place(self, carrier, arm) -> None:
+    def place(self, carrier, arm):
         """The rig at rest with the carrier's and the arm's joints at ``carrier`` (4) and
-        ``arm`` (6) (the transition's plant, :mod:`auv_envs.tasks.acoustic.transition`)."""
+        ``arm`` (6) (the transition's plant, :mod:`auv_envs.tasks.acoustic.transition`,
+        whose state is this ``MjData``, integrated in place: :mod:`auv_envs.core.task`)."""
         model, data = self.model, self.data
         mujoco.mj_resetData(model, data)
         data.qpos[self.carrier_qpos] = carrier
         data.qpos[self.arm_qpos] = arm
         mujoco.mj_forward(model, data)
+        return data
 
-    def follow(self, carrier_ref, carrier_vel, arm_ref, current, start: int):
-        """The source's positions and velocities (count, 3) at sample periods ``start``,
+    def follow(self, rig, carrier_ref, carrier_vel, arm_ref, current, start: int):
+        """``(rig, positions, velocities)``: the source's positions and velocities (count,
+        3) at sample periods ``start``,
         ``start + 1``, ...: the rig moved on one period (``substeps`` physics steps)
         towards each row of the servos' references ((count, 4), (count, 4) and (count,
         6)) in the current of the period before it (MuJoCo's ``wind``, (count, 3) rows:
@@ -240,7 +243,7 @@ class AcousticPhysics:
         positions[-1] = xpos
         jac_site(model, data, jac, None, site)
         np.dot(jac, qvel, out=velocities[-1])
-        return positions, velocities
+        return rig, positions, velocities
 
     def source_offset(self, posture) -> np.ndarray:
         """Source position relative to the carrier at yaw 0 in a given arm posture."""
@@ -406,8 +409,8 @@ class AcousticTrackingEnv(TaskEnv):
         "paper": {"acoustic": PAPER_ACOUSTICS},
         "hard": {"acoustic": HARD_ACOUSTICS},
     }
-    reward_terms = ("estimate",)
-    metric_keys = ("estimate_error", "running_rmse", "tracked", "is_success")
+    reward_terms = transition.REWARD_TERMS
+    metric_keys = transition.STEP_METRICS
 
     def __init__(
         self,
@@ -533,7 +536,7 @@ class AcousticTrackingEnv(TaskEnv):
 
     # ------------------------------------------------------------------ episode hooks
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        state, truth, obs = transition.reset(self.params, self._backend(rng))
+        _, state, truth, obs, _ = transition.reset(self.params, self._backend(rng))
         self._episode = ShellEpisode(state, obs)
         extras = {}
         if self.calibration.config.sound_speed_error_std > 0:
@@ -544,13 +547,14 @@ class AcousticTrackingEnv(TaskEnv):
         """Score the estimate ``action`` against the truth at the last observation, then
         move on one sample period (:func:`~auv_envs.tasks.acoustic.transition.step`)."""
         ep = self._episode
-        ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, ep.state, action, self._backend(self.np_random))
+        _, ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, self.physics.data, ep.state, action, self._backend(self.np_random))
         return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
         """The (clipped, normalised) estimate error; an episode ends only at its time limit."""
-        return self._episode.judged, False
+        judged = self._episode.judged
+        return judged.terms, judged.terminated
 
     def _truth(self) -> dict:
         if self._episode.steps < 1:
@@ -642,8 +646,9 @@ class AcousticTrackingEnv(TaskEnv):
         t = self.params.horizon
         blocks = [state.block]
         for start in range(BLOCK, t, BLOCK):
-            blocks.append(transition.simulate_block(self.params, state.plan, blocks[-1], start,
-                                                    backend))
+            _, block = transition.simulate_block(self.params, state.plan, blocks[-1], start,
+                                                 replay.physics.data, backend)
+            blocks.append(block)
         replay.close()
 
         def joined(name):

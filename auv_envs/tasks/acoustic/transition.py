@@ -4,17 +4,18 @@ An episode is an immutable :class:`EpisodeState`: its :class:`Plan` (the
 carrier's route, the arm's sweep, the current, the clocks and the water,
 drawn at reset), the current :class:`Block` of simulated and measured sample
 periods, and the record of the agent's estimates. The static
-:class:`AcousticParams` say which task it is. Both functions take a
-:class:`~auv_envs.core.ops.Backend`: the arithmetic, the episode's random
-draws (NumPy ``Generator``'s interface) and the plant (the carrier and arm in
-MuJoCo on the CPU), whose methods are ``place(carrier, arm)`` (the rig at rest
-at those joint positions) and ``follow(carrier_ref, carrier_vel, arm_ref,
-current, start)`` (the source's positions and velocities, (count, 3) each, at
-sample periods ``start``, ``start + 1``, ...: the rig moved on one period
-towards each row of references, in each row's current). The start
-draw, the step's order (score the estimate, move on one period, measure the
-next block when this one is served), the reward, the
-observations, ``info`` and the episode summary exist here only;
+:class:`AcousticParams` say which task it is. Both functions keep the protocol of
+:mod:`auv_envs.core.task` and take a :class:`~auv_envs.core.ops.Backend`: the
+arithmetic, the episode's random draws (NumPy ``Generator``'s interface) and the plant
+(the carrier and arm in MuJoCo on the CPU, on MJX batched), a function of its state
+``rig``: ``place(carrier, arm) -> rig`` (the rig at rest at those joint positions) and
+``follow(rig, carrier_ref, carrier_vel, arm_ref, current, start) -> (rig, positions,
+velocities)`` (the source's positions and velocities, (count, 3) each, at sample periods
+``start``, ``start + 1``, ...: the rig moved on one period towards each row of
+references, in each row's current). The start draw, the step's order (score the
+estimate, move on one period, measure the next block when this one is served), the
+reward, the end (an episode never terminates: it is truncated at its horizon), the
+observations, the step's metrics, ``info`` and the episode summary exist here only;
 :class:`auv_envs.tasks.acoustic.env.AcousticTrackingEnv` is the Gymnasium
 shell around them (it renders and computes the bound).
 
@@ -47,7 +48,12 @@ import numpy as np
 from auv_envs import metrics
 from auv_envs.core.acoustics import HydrophoneArray, Measurements
 from auv_envs.core.ops import FLOATS, Backend
+from auv_envs.core.task import Transition
 
+#: The reward's terms, in the order they sum (each reported as ``info["reward_<term>"]``).
+REWARD_TERMS = ("estimate",)
+#: The metrics of every step that are numbers (:func:`scores`'s keys).
+STEP_METRICS = ("estimate_error", "running_rmse", "tracked", "is_success")
 #: Current speed ranges in m/s ([GMPHD] §3.4's disturbance levels).
 DISTURBANCES = {"low": (0.05, 0.15), "medium": (0.16, 0.30), "high": (0.31, 0.50)}
 #: [GMPHD] Table 1: the five static end-effector positions (tank frame, m).
@@ -163,6 +169,14 @@ class Block(NamedTuple):
     history: np.ndarray | None
     wander: np.ndarray | None
     fading: np.ndarray | None
+
+
+class Assessment(NamedTuple):
+    """A step's judgement: the reward terms and whether the episode ended (never: it is
+    truncated at its horizon)."""
+
+    terms: dict
+    terminated: Any
 
 
 class EpisodeState(NamedTuple):
@@ -463,23 +477,24 @@ def references(params: AcousticParams, plan: Plan, rows, xp=np):
 
 
 # ------------------------------------------------------------------ blocks
-def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, start,
-                   backend: Backend) -> Block:
-    """Advance the plant over sample periods ``[start, start + params.block)`` (to the
-    horizon) and measure them, continuing ``previous`` (None at reset)."""
+def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, start, rig,
+                   backend: Backend) -> tuple[Any, Block]:
+    """Advance the plant from ``rig`` over sample periods ``[start, start + params.block)``
+    (to the horizon) and measure them, continuing ``previous`` (None at reset):
+    ``(rig, block)``."""
     ops, draws, plant = backend
     xp = ops.xp
     count = 1 if params.block == 1 else min(params.block, params.horizon + 1 - start)
     # The block's periods and the one before it (whose current moves the rig into the first).
     rows = xp.maximum(xp.arange(count + 1) + (start - 1), 0)
     carrier_ref, carrier_vel, arm_ref, current = references(params, plan, rows, xp)
-    positions, velocities = plant.follow(carrier_ref[1:], carrier_vel[1:], arm_ref[1:],
-                                         current[:-1], start)
+    rig, positions, velocities = plant.follow(rig, carrier_ref[1:], carrier_vel[1:],
+                                              arm_ref[1:], current[:-1], start)
     current = current[1:]
     start = ops.integer(start)  # the Block's, a typed scalar (the plant reads the literal 0)
     if not params.draw_detections:
-        return Block(start, positions, velocities, current, None, None, None, None, None,
-                     None, None)
+        return rig, Block(start, positions, velocities, current, None, None, None, None, None,
+                          None, None)
     array = params.array
     history = wander = fading = nodes = None
     if previous is not None:
@@ -506,24 +521,24 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
         draws, heard, plan.clock_offsets, xp.linalg.norm(current, axis=1), plan.sound_speed,
         wanders, fades, nodes, noise_draws=params.noise_draws, xp=xp,
     )
-    return Block(start, positions, velocities, current, heard, fades, nodes, measurements,
-                 history, wander, fading)
+    return rig, Block(start, positions, velocities, current, heard, fades, nodes,
+                      measurements, history, wander, fading)
 
 
 # ------------------------------------------------------------------ reset and step
-def reset(params: AcousticParams, backend: Backend):
-    """A new episode: ``(state, truth, observation)``; ``truth`` is ``{"k": 0, "error":
-    NaN}`` (nothing estimated yet)."""
+def reset(params: AcousticParams, backend: Backend) -> Transition:
+    """A new episode (:class:`~auv_envs.core.task.Transition`, no judgement); its truth is
+    ``{"k": 0, "error": NaN}`` (nothing estimated yet)."""
     return begin(params, draw_plan(params, backend.draws, backend.ops), backend)
 
 
-def begin(params: AcousticParams, plan: Plan, backend: Backend):
+def begin(params: AcousticParams, plan: Plan, backend: Backend) -> Transition:
     """The episode of ``plan`` at its start: :func:`reset` after the plan's draws."""
     ops = backend.ops
     xp = ops.xp
     carrier, _, arm, _ = references(params, plan, xp.asarray(0), xp)
-    backend.plant.place(carrier, arm)
-    block = simulate_block(params, plan, None, 0, backend)
+    rig, block = simulate_block(params, plan, None, 0, backend.plant.place(carrier, arm),
+                                backend)
     record = None
     if params.record:
         record = np.full((params.horizon, 3), np.nan)
@@ -531,7 +546,7 @@ def begin(params: AcousticParams, plan: Plan, backend: Backend):
                          squared_error_sum=ops.real(0.0), estimates=record,
                          truths=None if record is None else record.copy())
     now = {"k": state.steps, "error": ops.real(float("nan"))}
-    return state, now, observe(params, state, xp)
+    return Transition(rig, state, now, observe(params, state, xp))
 
 
 def record_row(array: np.ndarray, k: int, row) -> np.ndarray:
@@ -540,11 +555,12 @@ def record_row(array: np.ndarray, k: int, row) -> np.ndarray:
     return array
 
 
-def step(params: AcousticParams, state: EpisodeState, action, backend: Backend):
+def step(params: AcousticParams, rig, state: EpisodeState, action,
+         backend: Backend) -> Transition:
     """Score the estimate ``action`` (the (3,) array already checked) against the truth
-    at the last observation, then move on one sample period: ``(state, truth,
-    observation, terms)``, ``terms`` the reward terms (an episode never terminates;
-    it is truncated at its horizon)."""
+    at the last observation, then move the rig at ``rig`` on one sample period; the
+    judgement is an :class:`Assessment` (an episode never terminates; it is truncated at
+    its horizon)."""
     ops = backend.ops
     k = state.steps  # the estimate is scored against the truth at observation k
     block = state.block
@@ -557,11 +573,12 @@ def step(params: AcousticParams, state: EpisodeState, action, backend: Backend):
         state = state._replace(estimates=record_row(state.estimates, k, action),
                                truths=record_row(state.truths, k, position))
     if params.block == 1 or state.steps - block.start >= params.block:
-        state = state._replace(
-            block=simulate_block(params, state.plan, block, state.steps, backend))
+        rig, block = simulate_block(params, state.plan, block, state.steps, rig, backend)
+        state = state._replace(block=block)
     now = {"k": state.steps, "error": error}
     terms = {"estimate": -ops.minimum(error, params.error_clip) / params.error_clip}
-    return state, now, observe(params, state, ops.xp), terms
+    return Transition(rig, state, now, observe(params, state, ops.xp),
+                      Assessment(terms, ops.boolean(False)))
 
 
 # ------------------------------------------------------------------ what is seen

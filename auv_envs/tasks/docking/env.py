@@ -429,7 +429,7 @@ class DockingEnv(TaskEnv):
         "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
                  "navigation": HARD_NAVIGATION},
     }
-    reward_terms = ("progress", "control", "visibility", "success", "failure")
+    reward_terms = transition.REWARD_TERMS
     metric_keys = (
         "distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
         "heading_error", "docked", "lights_visible", "violation_fov",
@@ -668,7 +668,7 @@ class DockingEnv(TaskEnv):
 
     # ------------------------------------------------------------------ episode hooks
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        state, truth, obs = transition.reset(self.params, self._backend(rng))
+        _, state, truth, obs, _ = transition.reset(self.params, self._backend(rng))
         self._episode = ShellEpisode(state, obs)
         extras = {}
         if state.plant is not None:
@@ -718,8 +718,9 @@ class DockingEnv(TaskEnv):
 
     def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, ep.state, action.tolist(), self._backend(self.np_random))
+        _, ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, self.physics.data, ep.state, action.tolist(),
+            self._backend(self.np_random))
         return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
@@ -732,7 +733,7 @@ class DockingEnv(TaskEnv):
     # ------------------------------------------------------------------ internals
     def _truth(self) -> dict:
         """Ground truth now (the plant's: compiled or in Python floats)."""
-        return self._plant.truth()
+        return self._plant.truth(self.physics.data)
 
     def _float_truth(self) -> dict:
         """Ground truth now, computed once a step and shared by obs, reward and info

@@ -1,5 +1,6 @@
 """The docking environment's plants: what :mod:`auv_envs.tasks.docking.transition` calls
-``place``, ``advance`` and ``truth`` on the CPU.
+``place``, ``advance`` and ``truth`` on the CPU. Their state is the env's MuJoCo
+``MjData``, which they integrate in place and return (:mod:`auv_envs.core.task`).
 
 * :class:`MujocoPlant` (``plant="mujoco"``, the ``-v1`` ids): MuJoCo's staged RK4 with
   the hull wrench at every stage (:class:`auv_envs.core.plant.StagedIntegrator`), the
@@ -32,17 +33,19 @@ class MujocoPlant:
     def __init__(self, env):
         self.env = env
 
-    def place(self, start: transition.Start, vehicle, failed) -> None:
+    def place(self, start: transition.Start, vehicle, failed):
         env = self.env
         env._use_vehicle(env.vehicle_of(vehicle))
         env.physics.set_state([start.x, start.y, start.z], [0.0, 0.0, start.yaw],
                               [start.surge, 0, 0, 0, 0, 0])
         if failed is not None:  # the episode's failed lamps are drawn unlit
             env.physics.show_lamps(failed)
+        return env.physics.data
 
-    def advance(self, tau, current, vehicle) -> None:
+    def advance(self, body, tau, current, vehicle):
         self.env.physics.skip_contacts_if_clear(self.env.dt)
         self._staged(tau, current)
+        return body
 
     def _staged(self, tau, current) -> None:
         """One control period of MuJoCo's staged RK4 (the contact gate already set)."""
@@ -50,7 +53,7 @@ class MujocoPlant:
         env.hull.command(tau, [float(c) for c in current])
         env.integrator.step(env._physics_substeps)
 
-    def truth(self) -> dict:
+    def truth(self, body) -> dict:
         return self.env._float_truth()
 
 
@@ -68,7 +71,7 @@ class CompiledPlant(MujocoPlant):
         self.kinematics = CompiledTruth(env.rules, env.physics)
         self._vehicle = None
 
-    def advance(self, tau, current, vehicle) -> None:
+    def advance(self, body, tau, current, vehicle):
         env = self.env
         if vehicle is not self._vehicle:
             self.free_body.vehicle(vehicle)
@@ -76,11 +79,12 @@ class CompiledPlant(MujocoPlant):
         physics = env.physics
         if not physics.skip_contacts_if_clear(env.dt):
             self._staged(tau, current)
-            return
+            return body
         self.free_body.advance(physics.qpos, physics.qvel, tau, current)
         physics.data.time += env.dt
+        return body
 
-    def truth(self) -> dict:
+    def truth(self, body) -> dict:
         return self.kinematics()
 
 

@@ -1,27 +1,26 @@
 """The docking task's transition, written once for the CPU environment and the batched one.
 
-An episode is :func:`reset` then :func:`step` over a typed, immutable
-:class:`EpisodeState`; the static :class:`DockingParams` say which task it is.
-Both take a :class:`~auv_envs.core.ops.Backend`: the arithmetic (:mod:`auv_envs.core.ops`:
-Python floats and NumPy on the CPU, ``jax.numpy`` in the batched env), the
-episode's random draws (anything with NumPy ``Generator``'s ``uniform``,
-``standard_normal`` and ``random``: the env's own generator on the CPU,
-:class:`auv_envs.batched.functional.KeyDraws` over a JAX key), and the
-plant (MuJoCo on the CPU, MJX batched), whose methods are ``place(start,
-vehicle_draws, failed)``, ``advance(tau, current, vehicle_draws)`` and
-``truth()`` (the kinematics of :meth:`DockingRules.kinematics` with
-``pixels`` (n, 2), ``visible`` (n,), ``visible_pixels`` and ``n_visible``,
-:func:`truth_with_lights`). The start draw, the order of the
-step (thrusters, current, plant, judgement, water, observation), the reward,
-the termination, the observation and the episode summary exist here only;
-:class:`auv_envs.tasks.docking.env.DockingEnv` (Gymnasium) and
-:class:`auv_envs.batched.docking_env.DockingMJX` (``jit``/``vmap``) are shells
-around them.
+An episode is :func:`reset` then :func:`step` (the protocol of :mod:`auv_envs.core.task`)
+over a typed, immutable :class:`EpisodeState`; the static :class:`DockingParams` say which
+task it is. Both take a :class:`~auv_envs.core.ops.Backend`: the arithmetic
+(:mod:`auv_envs.core.ops`: Python floats and NumPy on the CPU, ``jax.numpy`` in the
+batched env), the episode's random draws (anything with NumPy ``Generator``'s
+``uniform``, ``standard_normal`` and ``random``: the env's own generator on the CPU,
+:class:`auv_envs.batched.functional.KeyDraws` over a JAX key), and the plant (MuJoCo on
+the CPU, MJX batched), a function of its state ``body``: ``place(start, vehicle_draws,
+failed) -> body``, ``advance(body, tau, current, vehicle_draws) -> body`` and
+``truth(body)`` (the kinematics of :meth:`DockingRules.kinematics` with ``pixels`` (n,
+2), ``visible`` (n,), ``visible_pixels`` and ``n_visible``, :func:`truth_with_lights`).
+The start draw, the order of the step (thrusters, current, plant, judgement, water,
+observation), the reward terms, the termination, the observation, the step's metrics and
+the episode summary exist here only; :class:`auv_envs.tasks.docking.env.DockingEnv`
+(Gymnasium) and :class:`auv_envs.batched.docking_env.DockingMJX` (``jit``/``vmap``) are
+shells around them.
 
 On the CPU the draws come in the order the environment has always made them,
-so its episodes are the released ones, bit for bit. The plant's own state (the
-free joint, MuJoCo's warm start) lives in the backend's plant: MuJoCo's
-``MjData`` on the CPU, ``(qpos, qvel)`` arrays in the batched env.
+so its episodes are the released ones, bit for bit. The plant's state is MuJoCo's
+``MjData`` on the CPU (integrated in place by MuJoCo), ``{"qpos", "qvel"}`` arrays in the
+batched env.
 """
 
 from __future__ import annotations
@@ -33,6 +32,7 @@ from typing import Any, NamedTuple
 from auv_envs.core.camera import add_pixel_noise
 from auv_envs.core.ops import Backend
 from auv_envs.core.sea import current_components
+from auv_envs.core.task import Transition
 from auv_envs.core.vehicle import lagged_thrust
 from auv_envs.tasks.docking.optics import LampOutages, WaterOptics, detect_lamps
 from auv_envs.tasks.docking.rules import DockingRules
@@ -47,6 +47,11 @@ MISSION_METRICS = ("path_length", "homing_time", "homing_path_length", "handover
 #: sensors (:mod:`auv_envs.core.navigation`) in place of the DVL/INS readings.
 LIGHT_MODES = ("features", "nav_features")
 NAV_MODES = ("nav", "nav_features")
+#: The reward's terms, in the order they sum (each reported as ``info["reward_<term>"]``).
+REWARD_TERMS = ("progress", "control", "visibility", "success", "failure")
+#: The metrics of every step that are numbers (:func:`step_metrics`'s keys).
+STEP_METRICS = ("distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
+                "heading_error", "lights_visible", "is_success")
 #: Start state: heading spread about the line of sight to the entrance (deg) and the
 #: surge speed range (m/s), drawn uniformly.
 START_HEADING_SPREAD_DEG = 10.0
@@ -251,8 +256,8 @@ def draw_vehicle(params: DockingParams, draws) -> tuple | None:
 
 
 def reset(params: DockingParams, backend: Backend, start: Start | None = None,
-          vehicle: tuple | None = None):
-    """A new episode: ``(state, truth, observation)``.
+          vehicle: tuple | None = None) -> Transition:
+    """A new episode (:class:`~auv_envs.core.task.Transition`, no judgement).
 
     ``start`` and ``vehicle`` (:func:`draw_vehicle`'s draws) given are used
     instead of drawn (the equivalence tests start both envs alike this way).
@@ -265,8 +270,8 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
     failed = occluded = None
     if params.optics is not None:
         failed, occluded = LampOutages.draw_start(params.optics, params.n_lights, draws)
-    plant.place(start, vehicle, failed)
-    truth = plant.truth()
+    body = plant.place(start, vehicle, failed)
+    truth = plant.truth(body)
     real, integer = ops.real, ops.integer
     state = EpisodeState(
         steps=integer(0), lost_time=real(0.0), prev_potential=params.rules.potential(truth),
@@ -286,14 +291,15 @@ def reset(params: DockingParams, backend: Backend, start: Start | None = None,
             x=x, y=y, z=z, path_length=ops.real(0.0), handed_over=ops.boolean(False),
             handover_time=nan, homing_path_length=nan, handover_range=nan,
             handover_cross_track=nan))
-    return state, truth, observe(params, state, truth, backend)
+    return Transition(body, state, truth, observe(params, state, truth, backend))
 
 
 # ------------------------------------------------------------------ step
-def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
-    """One control period under ``action``, the normalised ``(X, Y, Z, N)`` command as 4
-    scalars already checked (:func:`auv_envs.core.env.clip_actions`):
-    ``(state, truth, observation, assessment)``."""
+def step(params: DockingParams, body, state: EpisodeState, action,
+         backend: Backend) -> Transition:
+    """One control period of the plant at ``body`` under ``action``, the normalised
+    ``(X, Y, Z, N)`` command as 4 scalars already checked
+    (:func:`auv_envs.core.env.clip_actions`); the judgement is an :class:`Assessment`."""
     ops, draws, plant = backend
     ax, ay, az, an = action
     tx, ty, tz, tn = params.thrust_limits
@@ -311,8 +317,8 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
         current = ops.vector(current_components(*polar, ops))
         polar = ops.vector(polar)
     x, y, z, n = force
-    plant.advance((x, y, z, 0.0, 0.0, n), current, state.plant)
-    truth = plant.truth()
+    body = plant.advance(body, (x, y, z, 0.0, 0.0, n), current, state.plant)
+    truth = plant.truth(body)
     state, judged = assess(params, state, truth, action, ops, steps=state.steps + 1,
                            control_effort=state.control_effort
                            + (x * x + y * y + z * z + n * n) * params.dt,
@@ -325,7 +331,7 @@ def step(params: DockingParams, state: EpisodeState, action, backend: Backend):
             state.nav, truth, state.steps * params.dt, draws, ops))
     if params.mission is not None:
         state = state._replace(mission=track_mission(params, state, truth, ops))
-    return state, truth, observe(params, state, truth, backend), judged
+    return Transition(body, state, truth, observe(params, state, truth, backend), judged)
 
 
 def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops, steps,
@@ -421,7 +427,7 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
 
 # ------------------------------------------------------------------ the record
 def step_metrics(truth: dict, state: EpisodeState) -> dict:
-    """What ``info`` reports every step besides the reward terms."""
+    """The step's metrics that are numbers (:data:`STEP_METRICS`)."""
     return {
         "distance_to_entrance": truth["distance"],
         "longitudinal_error": truth["longitudinal"],

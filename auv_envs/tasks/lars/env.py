@@ -26,6 +26,7 @@ from auv_envs.core.env import (
     check_choice,
     check_image_size,
 )
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.arm import ArmModel
@@ -269,7 +270,7 @@ class LARSCaptureEnv(TaskEnv):
         "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD,
                  "glint": HARD_GLINT},
     }
-    reward_terms = ("progress", "control", "success", "failure")
+    reward_terms = transition.REWARD_TERMS
     metric_keys = (
         "capture_error", "relative_position", "relative_speed", "is_success", "collision",
         "violation_workspace", "marker_visible", "marker_occluded", "distractors_in_view",
@@ -458,14 +459,14 @@ class LARSCaptureEnv(TaskEnv):
 
     # ------------------------------------------------------------------ episode hooks
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
-        state, truth, obs = transition.reset(self.params, self._backend(rng), options)
+        _, state, truth, obs, _ = transition.reset(self.params, self._backend(rng), options)
         self._episode = ShellEpisode(state, obs)
         return truth, transition.reset_info(self.params, state)
 
     def _simulate(self, action: np.ndarray) -> dict:
         ep = self._episode
-        ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, ep.state, action, self._backend(self.np_random))
+        _, ep.state, truth, ep.obs, ep.judged = transition.step(
+            self.params, self.physics.data, ep.state, action, self._backend(self.np_random))
         return truth
 
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
@@ -473,7 +474,8 @@ class LARSCaptureEnv(TaskEnv):
         return judged.terms, judged.terminated
 
     def _truth(self) -> dict:
-        return transition.truth_now(self.params, self._episode.state, self._plant)
+        return transition.truth_now(self.params, self.physics.data, self._episode.state,
+                                    self._plant, FLOATS)
 
     def _observation(self, truth: dict):
         ep = self._episode
@@ -574,7 +576,8 @@ class LARSCaptureEnv(TaskEnv):
 class _MujocoArm:
     """The LARS transition's plant on the CPU: the env's MuJoCo arm, driven by joint
     torques (``control="torque"``) or by the computed-torque loop of [LTAT] eqs. 29-30
-    at the physics rate (``control="position"``)."""
+    at the physics rate (``control="position"``). Its state is the env's ``MjData``,
+    which MuJoCo integrates in place (:mod:`auv_envs.core.task`)."""
 
     def __init__(self, env: LARSCaptureEnv):
         self.model, self.data = env.physics.model, env.physics.data
@@ -587,13 +590,14 @@ class _MujocoArm:
         self.tau = np.zeros(3)
         self._compiled = None
 
-    def place(self, q) -> None:
+    def place(self, q):
         self.physics.reset(q)
+        return self.data
 
     def joints(self) -> tuple[list, list]:
         return self.data.qpos.tolist(), self.data.qvel.tolist()
 
-    def truth(self, params, scene, steps, ops) -> dict:
+    def truth(self, arm, params, scene, steps, ops) -> dict:
         """The truth after a move: compiled without a sea model, in floats with one."""
         if scene.sea is None:
             if self._compiled is None:  # built on first use: the sea ids never need it
@@ -601,15 +605,16 @@ class _MujocoArm:
             return self._compiled(scene, steps)
         return transition.truth(params, scene, steps, *self.joints(), ops)
 
-    def advance(self, action: np.ndarray, effort: float) -> float:
-        """One control period under ``action``; the control effort with it added."""
+    def advance(self, arm, action: np.ndarray, effort: float) -> tuple:
+        """One control period under ``action``: ``(arm, effort)``, the control effort with
+        the period's added."""
         model, data = self.model, self.data
         if self.torque_mode:
             a0, a1, a2 = action.tolist()
             data.ctrl[:] = action
             mujoco.mj_step(model, data, FRAME_SKIP)
             # |a|^2 in floats: a @ a costs more than the sum
-            return effort + (a0 * a0 + a1 * a1 + a2 * a2) * self.dt
+            return arm, effort + (a0 * a0 + a1 * a1 + a2 * a2) * self.dt
         q_target = self.q_mid + action * self.q_half
         tau = self.tau
         for _ in range(FRAME_SKIP):
@@ -620,4 +625,4 @@ class _MujocoArm:
             np.clip(tau / self.limits, -1.0, 1.0, out=data.ctrl)
             effort += float(data.ctrl @ data.ctrl) * PHYSICS_TIMESTEP
             mujoco.mj_step2(model, data)
-        return effort
+        return arm, effort

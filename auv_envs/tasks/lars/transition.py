@@ -2,19 +2,18 @@
 
 An episode is an immutable :class:`EpisodeState` (what the episode's record
 holds, and its :class:`Scene`: the AUV's motion, the sea and the sun drawn at
-reset); the static :class:`LARSParams` say which task it is. Both functions
-take a :class:`~auv_envs.core.ops.Backend`: the arithmetic (Python floats on
-the CPU, ``jax.numpy`` in :mod:`auv_envs.batched.lars_env`), the episode's
-random draws (NumPy ``Generator``'s interface) and the arm's plant (MuJoCo on
-the CPU, MJX batched), whose methods are ``place(q)`` (the arm at rest at
-joint angles ``q``), ``advance(action, effort) -> effort`` (one control
-period under the checked action, the running control effort updated),
-``joints() -> (q, qd)`` (three scalars each) and ``truth(params, scene, steps, ops)``
-(:func:`truth` of its joints; the CPU arm's is compiled where it can be,
-:mod:`auv_envs.tasks.lars.compiled`). The start draw, the order of the step
-(arm, truth, judgement, observation), the reward terms, the episode's end,
-the ``state``/``features`` observations, ``info`` and the episode summary
-exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
+reset); the static :class:`LARSParams` say which task it is. Both functions keep the
+protocol of :mod:`auv_envs.core.task` and take a :class:`~auv_envs.core.ops.Backend`:
+the arithmetic (Python floats on the CPU, ``jax.numpy`` in :mod:`auv_envs.batched.lars_env`),
+the episode's random draws (NumPy ``Generator``'s interface) and the arm's plant (MuJoCo
+on the CPU, MJX batched), a function of its state ``arm``: ``place(q) -> arm`` (the arm at
+rest at joint angles ``q``), ``advance(arm, action, effort) -> (arm, effort)`` (one
+control period under the checked action, the running control effort updated) and
+``truth(arm, params, scene, steps, ops)`` (:func:`truth` of its joints; the CPU arm's is
+compiled where it can be, :mod:`auv_envs.tasks.lars.compiled`). The start draw, the order
+of the step (arm, truth, judgement, observation), the reward terms, the episode's end,
+the ``state``/``features`` observations, the step's metrics, ``info`` and the episode
+summary exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
 Gymnasium shell around them (it renders the ``stereo`` images).
 
 The draws come in the order the environment has always made them
@@ -39,6 +38,7 @@ from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics, project_few, seen_pixels
 from auv_envs.core.ops import FLOATS, Backend
 from auv_envs.core.sea import FloatingAnalog, WashOver, heave, segments_cross_box
+from auv_envs.core.task import Transition
 from auv_envs.tasks.lars.scene import (
     AUV_DIAMETER,
     AUV_FREEBOARD,
@@ -50,6 +50,11 @@ from auv_envs.tasks.lars.scene import (
 from auv_envs.tasks.lars.sea import EpisodeSea, GlintField, SeaSample, ShipPose, sample_waves
 from auv_envs.tasks.lars.waves import WaveRealisation, sea_state_code
 
+#: The reward's terms, in the order they sum (each reported as ``info["reward_<term>"]``).
+REWARD_TERMS = ("progress", "control", "success", "failure")
+#: The metrics of every step that are numbers (:func:`step_metrics`'s keys).
+STEP_METRICS = ("capture_error", "relative_speed", "marker_visible", "marker_occluded",
+                "distractors_in_view", "is_success", "collision", "violation_workspace")
 #: Why an episode failed: ``EpisodeState.failure`` is the index + 1 (0: none).
 FAILURE_REASONS = ("collision", "workspace")
 #: The AUV's CG below the local water level, m (the hull floats ``AUV_FREEBOARD`` proud).
@@ -389,9 +394,9 @@ def sighting(params: LARSParams, scene: Scene, t, sample: SeaSample | None, now:
     return now
 
 
-def truth_now(params: LARSParams, state: EpisodeState, plant, ops=FLOATS) -> dict:
-    """:func:`truth` at the state's step with the plant's joints now."""
-    return plant.truth(params, state.scene, state.steps, ops)
+def truth_now(params: LARSParams, arm, state: EpisodeState, plant, ops) -> dict:
+    """:func:`truth` at the state's step with the ``plant``'s joints at ``arm``."""
+    return plant.truth(arm, params, state.scene, state.steps, ops)
 
 
 # ------------------------------------------------------------------ reset
@@ -439,14 +444,14 @@ def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOAT
     return scene, end
 
 
-def reset(params: LARSParams, backend: Backend, options: dict | None = None):
-    """A new episode: ``(state, truth, observation)``."""
+def reset(params: LARSParams, backend: Backend, options: dict | None = None) -> Transition:
+    """A new episode (:class:`~auv_envs.core.task.Transition`, no judgement)."""
     ops, draws, plant = backend
     scene, end = draw_scene(params, draws, options, ops)
-    plant.place(params.arm.joint_angles(end, ops))
-    now = plant.truth(params, scene, ops.integer(0), ops)
+    arm = plant.place(params.arm.joint_angles(end, ops))
+    now = plant.truth(arm, params, scene, ops.integer(0), ops)
     state, obs = observe(params, first_state(scene, now, ops), now, backend)
-    return state, now, obs
+    return Transition(arm, state, now, obs)
 
 
 def first_state(scene: Scene, now: dict, ops=FLOATS) -> EpisodeState:
@@ -486,18 +491,19 @@ def reset_info(params: LARSParams, state: EpisodeState) -> dict:
 
 
 # ------------------------------------------------------------------ step
-def step(params: LARSParams, state: EpisodeState, action, backend: Backend):
-    """One control period under ``action`` (the (3,) command already checked,
-    :func:`auv_envs.core.env.clip_actions`): ``(state, truth, observation,
-    assessment)``."""
+def step(params: LARSParams, arm, state: EpisodeState, action,
+         backend: Backend) -> Transition:
+    """One control period of the arm at ``arm`` under ``action`` (the (3,) command already
+    checked, :func:`auv_envs.core.env.clip_actions`); the judgement is an
+    :class:`Assessment`."""
     ops, _, plant = backend
-    effort = plant.advance(action, state.control_effort)
+    arm, effort = plant.advance(arm, action, state.control_effort)
     steps = state.steps + 1
-    now = plant.truth(params, state.scene, steps, ops)
+    now = plant.truth(arm, params, state.scene, steps, ops)
     state, judged = assess(params, state, now, action, ops, steps=steps,
                            control_effort=effort)
     state, obs = observe(params, state, now, backend)
-    return state, now, obs, judged
+    return Transition(arm, state, now, obs, judged)
 
 
 def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, steps,
@@ -635,6 +641,22 @@ def info(params: LARSParams, state: EpisodeState, now: dict,
         out["true_roll"] = now["roll"]
         out["ship_motion"] = np.array((sample.ship_heave, sample.ship_roll, sample.ship_pitch))
     return out
+
+
+def step_metrics(state: EpisodeState, now: dict, judged: Assessment | None, ops) -> dict:
+    """The step's metrics that are numbers (:data:`STEP_METRICS`; no violation at reset,
+    ``judged`` None)."""
+    false = ops.boolean(False)
+    return {
+        "capture_error": now["capture_error"],
+        "relative_speed": now["relative_speed"],
+        "marker_visible": now["n_visible"],
+        "marker_occluded": ops.boolean(now["occluded"]),
+        "distractors_in_view": ops.integer(now["distractors"]),
+        "is_success": state.success,
+        "collision": false if judged is None else judged.collision,
+        "violation_workspace": false if judged is None else judged.workspace,
+    }
 
 
 def summary(params: LARSParams, state: EpisodeState, now: dict, ops=FLOATS) -> dict:

@@ -1,0 +1,63 @@
+"""The task protocol every family's transition keeps, and the end of a step both shells share.
+
+A family's transition (``auv_envs/tasks/<family>/transition.py``) is two functions of
+one shape::
+
+    reset(params, backend, ...) -> Transition
+    step(params, plant, episode, action, backend) -> Transition
+
+``params`` the family's static task, ``backend`` a :class:`~auv_envs.core.ops.Backend`
+(the arithmetic, the episode's draws, the plant), ``plant`` and ``episode`` the last
+:class:`Transition`'s. The plant is a function of its state: ``place(...)`` returns the
+state of an episode's start, ``advance(plant, ...)`` (docking, LARS) or ``follow(plant,
+...)`` (acoustic) the state a control period later; nothing the transition holds changes.
+In the batched environments the plant's state is arrays (the free joint's ``qpos`` and
+``qvel``, an MJX ``Data``); on the CPU it is the environment's MuJoCo ``MjData``, which
+MuJoCo integrates in place: that is the one difference between the two, and it lives in
+the CPU plants.
+
+:func:`reward` and :func:`truncated` end a step the same way in the Gymnasium shell
+(:class:`auv_envs.core.env.TaskEnv`) and the batched one
+(:class:`auv_envs.batched.functional.FunctionalEnv`).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+
+class Transition(NamedTuple):
+    """What a transition's ``reset`` and ``step`` return.
+
+    Attributes:
+        plant: the plant's state after the call (module docstring).
+        episode: the family's ``EpisodeState`` (immutable: a JAX pytree as is).
+        truth: the ground truth the step computed once (a dict), shared by the observation,
+            the reward, the metrics and ``info``.
+        obs: the observation of the task's ``obs_mode``.
+        judged: the step's judgement (the family's ``Assessment``: ``terms``, the reward
+            terms in the family's ``REWARD_TERMS`` order, and ``terminated``, success or
+            failure); None at reset.
+    """
+
+    plant: Any
+    episode: Any
+    truth: dict
+    obs: Any
+    judged: Any = None
+
+
+def reward(terms: dict):
+    """The reward of a step: its ``terms`` summed in their order (the first term, then each
+    next one added: Python floats and JAX arrays alike)."""
+    values = iter(terms.values())
+    total = next(values)
+    for value in values:
+        total = total + value
+    return total
+
+
+def truncated(terminated, steps, max_episode_steps: int, ops):
+    """Whether a step ends its episode at the time limit: ``steps`` reached
+    ``max_episode_steps`` without terminating (``ops``: :mod:`auv_envs.core.ops`'s)."""
+    return ops.logical_not(terminated) & (steps >= max_episode_steps)
