@@ -588,7 +588,8 @@ class AcousticTrackingEnv(TaskEnv):
         j = k - block.start
         trail_steps = int(round(RENDER_TRAIL / self._dt))
         first = max(0, k - trail_steps)
-        trail = np.concatenate([state.truths[first:k], block.positions[j : j + 1]])
+        truths, estimates = state.truths.rows, state.estimates.rows
+        trail = np.concatenate([truths[first:k], block.positions[j : j + 1]])
         m = block.measurements  # drawn whenever rendering
         mask = m.mask[j].ravel()
         n = self.calibration.array.n_nodes
@@ -599,15 +600,15 @@ class AcousticTrackingEnv(TaskEnv):
             elevation[:, ~block.nodes[j]] = np.nan
         estimate, error, rmse = None, float("nan"), float("nan")
         if k:
-            estimate = state.estimates[k - 1]
-            error = float(np.linalg.norm(estimate - state.truths[k - 1]))
+            estimate = estimates[k - 1]
+            error = float(np.linalg.norm(estimate - truths[k - 1]))
             rmse = math.sqrt(state.squared_error_sum / k)
         closeup_steps = int(round(RENDER_CLOSEUP / self._dt))
         return self._plot.frame(
             time=k * self._dt,
             trail=trail,
             estimate=estimate,
-            estimate_trail=state.estimates[max(0, k - closeup_steps) : k],
+            estimate_trail=estimates[max(0, k - closeup_steps) : k],
             azimuth=azimuth,
             elevation=elevation,
             origin=m.origin[j].ravel()[mask],

@@ -31,10 +31,9 @@ with ``ops`` :func:`~auv_envs.core.ops.jax_ops`, a JAX key's draws and the rig o
 blocks of one period (``params.block``: every step simulates its own period, so the
 state keeps fixed shapes) and no record of the estimates (``params.record``).
 
-On the CPU the record's arrays (``estimates``, ``truths``) are written in
-place, row by row (:func:`record_row`): a copy per step would cost more than
-the step, so a state is current until the next step (the shell keeps only the
-latest).
+On the CPU the record of the estimates and truths is a :class:`Trail`, append-only and
+persistent: a step's state has one more row than the last's, and the last's stays as it
+was, without a copy of the record per step.
 """
 
 from __future__ import annotations
@@ -179,17 +178,51 @@ class Assessment(NamedTuple):
     terminated: Any
 
 
+class Trail(NamedTuple):
+    """Rows recorded one per step (an episode's estimates, its truths), persistent:
+    :meth:`append` returns a trail one row longer and leaves this one as it was. Trails
+    of one episode share a buffer, each reading its first ``length`` rows; an append
+    writes the row after them, which no trail reads, and copies the buffer first when
+    another trail has already grown it past this one (a state stepped twice), so no
+    trail's rows ever change."""
+
+    buffer: np.ndarray
+    length: int
+    #: ``[rows written to the buffer]``, shared by the trails on it.
+    filled: list
+
+    @classmethod
+    def empty(cls, capacity: int, width: int) -> Trail:
+        """A trail of no rows, room for ``capacity`` rows of ``width`` (NaN ahead)."""
+        return cls(np.full((capacity, width), np.nan), 0, [0])
+
+    def append(self, row) -> Trail:
+        buffer, filled = self.buffer, self.filled
+        if filled[0] != self.length:  # another trail grew the buffer past this one
+            buffer, filled = buffer.copy(), [self.length]
+        buffer[self.length] = row
+        filled[0] = self.length + 1
+        return Trail(buffer, self.length + 1, filled)
+
+    @property
+    def rows(self) -> np.ndarray:
+        """The recorded rows, (length, width), a read-only view."""
+        view = self.buffer[: self.length]
+        view.flags.writeable = False
+        return view
+
+
 class EpisodeState(NamedTuple):
     """Everything an episode changes besides the plant: the plan, the block being
-    served, the steps taken, the estimates and truths so far (T, 3; NaN ahead) and
-    the sum of squared errors."""
+    served, the steps taken, the estimates and truths so far (:class:`Trail` s; None
+    without ``params.record``) and the sum of squared errors."""
 
     plan: Plan
     block: Block
     steps: int
     squared_error_sum: float
-    estimates: np.ndarray
-    truths: np.ndarray
+    estimates: Trail | None
+    truths: Trail | None
 
 
 # ------------------------------------------------------------------ the plan
@@ -539,20 +572,12 @@ def begin(params: AcousticParams, plan: Plan, backend: Backend) -> Transition:
     carrier, _, arm, _ = references(params, plan, xp.asarray(0), xp)
     rig, block = simulate_block(params, plan, None, 0, backend.plant.place(carrier, arm),
                                 backend)
-    record = None
-    if params.record:
-        record = np.full((params.horizon, 3), np.nan)
+    record = Trail.empty(params.horizon, 3) if params.record else None
     state = EpisodeState(plan=plan, block=block, steps=ops.integer(0),
                          squared_error_sum=ops.real(0.0), estimates=record,
-                         truths=None if record is None else record.copy())
+                         truths=None if record is None else Trail.empty(params.horizon, 3))
     now = {"k": state.steps, "error": ops.real(float("nan"))}
     return Transition(rig, state, now, observe(params, state, xp))
-
-
-def record_row(array: np.ndarray, k: int, row) -> np.ndarray:
-    """``array`` with row ``k`` set to ``row`` (in place on the CPU: module docstring)."""
-    array[k] = row
-    return array
 
 
 def step(params: AcousticParams, rig, state: EpisodeState, action,
@@ -570,8 +595,8 @@ def step(params: AcousticParams, rig, state: EpisodeState, action,
     state = state._replace(steps=k + 1,
                            squared_error_sum=state.squared_error_sum + error * error)
     if params.record:
-        state = state._replace(estimates=record_row(state.estimates, k, action),
-                               truths=record_row(state.truths, k, position))
+        state = state._replace(estimates=state.estimates.append(action),
+                               truths=state.truths.append(position))
     if params.block == 1 or state.steps - block.start >= params.block:
         rig, block = simulate_block(params, state.plan, block, state.steps, rig, backend)
         state = state._replace(block=block)
@@ -641,7 +666,7 @@ def scores(params: AcousticParams, state: EpisodeState, now: dict, ops) -> dict:
 def summary(params: AcousticParams, state: EpisodeState) -> dict:
     """The episode's summary (``info["episode_metrics"]`` at its end), from the record
     of estimates and truths (``params.record``)."""
-    est, truth = state.estimates[: state.steps], state.truths[: state.steps]
+    est, truth = state.estimates.rows, state.truths.rows
     errors = metrics.position_errors(est, truth)
     rmse = metrics.rmse(est, truth)
     # One estimate per step: the track is "on" the source while within the
