@@ -1,7 +1,8 @@
 """The family table: every task family of the package, listed once.
 
-Each :class:`Family` names its current Gymnasium id, the classes that serve it on the CPU
-and batched on JAX, its registered episode length and its superseded versions.
+Each :class:`Family` names its current Gymnasium id, its Gymnasium class, its task on JAX
+(which the one batched shell, :class:`auv_envs.batched.functional.FunctionalEnv`, serves),
+its registered episode length and its superseded versions.
 ``import auv_envs`` registers the ids from this table (``gym.make``, and ``gym.make_vec``
 of the batched twins), :func:`auv_envs.batched.load`, the compiled trainer, the docs'
 environment pages and the tests read it; :data:`auv_envs.ENVIRONMENTS` and its siblings
@@ -21,10 +22,11 @@ class Family:
     Attributes:
         env_id: the current CPU id, ``auv_envs/<Name>-v<N>``.
         entry_point: its Gymnasium env class, ``"module:Class"``.
-        batched: its batched env class (``"module:Class"``, built as
-            ``Class(env_id, obs_mode=..., **kwargs)``; ``pip install -e ".[jax]"``).
-        batched_modes: the observation modes the batched class builds (the rendered
-            ones are the CPU env's alone).
+        jax_task: its task on JAX (``"module:Class"``, built as ``Class(env_id, obs_mode,
+            **kwargs)`` by :class:`~auv_envs.batched.functional.FunctionalEnv`; ``pip install
+            -e ".[jax]"``).
+        batched_modes: the observation modes the JAX task builds (the rendered ones are
+            the CPU env's alone).
         batched_mode: the batched twin's default observation mode (what
             ``gym.make_vec`` builds unless told; Brax's networks read it flattened).
         max_episode_steps: steps in the default episode, its default ``time_limit``
@@ -36,7 +38,7 @@ class Family:
 
     env_id: str
     entry_point: str
-    batched: str
+    jax_task: str
     batched_modes: tuple
     batched_mode: str
     max_episode_steps: int
@@ -54,9 +56,9 @@ class Family:
         name, version = name_version.rsplit("-v", 1)
         return f"{namespace}/{name}MJX-v{version}"
 
-    def batched_class(self):
-        """The batched env class (imports JAX)."""
-        module, name = self.batched.split(":")
+    def jax_task_class(self):
+        """The task class on JAX (imports JAX)."""
+        module, name = self.jax_task.split(":")
         return getattr(importlib.import_module(module), name)
 
 
@@ -75,7 +77,7 @@ _ACOUSTIC_V0 = {"integrator": "implicitfast", "physics_substeps": 1, "noise_draw
 #: per segment, every draw made, by the same code on NumPy and JAX).
 _ACOUSTIC_V1 = {"planner": "tabulated"}
 
-_DOCKING_BATCHED = ("auv_envs.batched.docking_env:DockingMJX",
+_DOCKING_BATCHED = ("auv_envs.tasks.docking.jax_task:DockingJax",
                     ("state", "features", "nav", "nav_features"), "features")
 
 #: Every family, in the order the docs and the tests list them. Episode lengths: docking
@@ -90,12 +92,12 @@ FAMILIES = (
            {"auv_envs/LampArrayDocking-v0": _DOCKING_V0_PLANT,
             "auv_envs/LampArrayDocking-v1": _DOCKING_V1_PLANT}),
     Family("auv_envs/AcousticTracking-v2", "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
-           "auv_envs.batched.acoustic_env:AcousticMJX", ("state", "measurements"), "measurements",
-           6000,
+           "auv_envs.tasks.acoustic.jax_task:AcousticJax", ("state", "measurements"),
+           "measurements", 6000,
            {"auv_envs/AcousticTracking-v0": _ACOUSTIC_V0,
             "auv_envs/AcousticTracking-v1": _ACOUSTIC_V1}),
     Family("auv_envs/LARSCapture-v0", "auv_envs.tasks.lars.env:LARSCaptureEnv",
-           "auv_envs.batched.lars_env:LARSMJX", ("state", "features"), "features", 750),
+           "auv_envs.tasks.lars.jax_task:LARSJax", ("state", "features"), "features", 750),
     Family("auv_envs/DockingMission-v0", "auv_envs.tasks.docking.mission:DockingMissionEnv",
            *_DOCKING_BATCHED, 6000),
 )

@@ -4,10 +4,11 @@ Times, at one batch size, each piece as one compiled ``vmap`` call (best of
 ``--repeats`` after compiling):
 
 * MJX's ``smooth.kinematics`` of the rig against
-  :class:`~auv_envs.batched.acoustic_plant.ChainKinematics` (the same fields);
+  :class:`~auv_envs.tasks.acoustic.mjx_plant.ChainKinematics` (the same fields);
 * one sample period of the rig (:meth:`RigPlantMJX.period`: two MJX steps with the
   ellipsoid fluid force);
-* one step of :class:`~auv_envs.batched.acoustic_env.AcousticMJX` in ``state`` and in
+* one step of the batched acoustic env
+  (:class:`~auv_envs.batched.functional.FunctionalEnv`) in ``state`` and in
   ``measurements`` mode (the estimate held at the tank's centre);
 * the random draws of one ``measurements`` step alone: every draw the step makes (read
   off a trace of it), made from JAX keys at the same shapes, and the count of numbers
@@ -33,11 +34,10 @@ import jax.numpy as jnp
 from mujoco.mjx._src import smooth
 
 import auv_envs  # noqa: F401
-from auv_envs.batched import acoustic_env
-from auv_envs.batched.acoustic_env import AcousticMJX
-from auv_envs.batched.acoustic_plant import RigPlantMJX
-from auv_envs.batched.functional import KeyDraws
+from auv_envs.batched import functional
+from auv_envs.batched.functional import FunctionalEnv, KeyDraws
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX
 from auv_envs.tasks.acoustic.transition import NOMINAL_POSTURE
 from baselines.rl.detection_fixes import DetectionFixesMJX, observe
 
@@ -73,16 +73,16 @@ class _RecordedDraws(KeyDraws):
         return super().uniform(low, high, size)
 
 
-def step_draws(env: AcousticMJX, states) -> list[tuple[str, tuple]]:
+def step_draws(env: FunctionalEnv, states) -> list[tuple[str, tuple]]:
     """The (kind, shape) of every draw one environment's step makes (a trace of
     ``env._step``, no episode ending)."""
     one = jax.tree_util.tree_map(lambda leaf: leaf[0], states)
     _RecordedDraws.noted = []
-    acoustic_env.KeyDraws = _RecordedDraws
+    functional.KeyDraws = _RecordedDraws
     try:
         jax.eval_shape(env._step, one, jnp.zeros(3, jnp.float32))
     finally:
-        acoustic_env.KeyDraws = KeyDraws
+        functional.KeyDraws = KeyDraws
     return list(_RecordedDraws.noted)
 
 
@@ -124,7 +124,8 @@ def main(argv=None) -> None:
                  best_ms(lambda d: period(d, *references)[1], (data,), args.repeats)))
     estimate = tile([150.0, 150.0, -15.0])
     for mode in ("state", "measurements"):
-        env = AcousticMJX(obs_mode=mode, difficulty=args.difficulty)
+        env = FunctionalEnv("auv_envs/AcousticTracking-v2", obs_mode=mode,
+                            difficulty=args.difficulty)
         states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
         step = jax.jit(env.step_batch)
         states = step(states, estimate)  # a stepped state: the types every later step has

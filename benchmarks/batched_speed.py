@@ -4,10 +4,8 @@ Two tables, each with its reference timed in the same run, so the ratios
 compare them on this machine:
 
 * **environment**: ``features`` (acoustic: ``measurements``) env-steps per second of a
-  family's batched JAX environment (``--family docking``:
-  :class:`auv_envs.batched.docking_env.DockingMJX`; ``lars``:
-  :class:`auv_envs.batched.lars_env.LARSMJX`; ``acoustic``:
-  :class:`auv_envs.batched.acoustic_env.AcousticMJX`) against its CPU
+  family's batched JAX environment (:class:`auv_envs.batched.functional.FunctionalEnv`
+  with the family's JAX task: ``--family docking``, ``lars`` or ``acoustic``) against its CPU
   environment through Gymnasium's ``SyncVectorEnv`` of 8 (target:
   >= 10x at the best batch size). Two ways to drive the batch: through
   ``gym.make_vec`` of the batched id (NumPy in and out every step, as a Python
@@ -15,11 +13,12 @@ compare them on this machine:
   (as a compiled learner uses it). The action is held (docking: surge 0.3;
   LARS: shoulder 0.3, elbow -0.2 of the torque limits; acoustic: the estimate at the
   tank's centre); episodes that end reset themselves.
-* **plant**: the batched docking plant (:class:`auv_envs.batched.docking.DockingPlantMJX`,
-  :func:`auv_envs.core.plant.hull_advance` on JAX since ``-v2``) one control
-  period (0.1 s, RK4 with the hull wrench at every stage) per compiled call
-  against MuJoCo's staged RK4 with the hull wrench at every stage
-  (``env.integrator``, the ``-v1`` plant), one vehicle at a time.
+* **plant**: the batched docking plant
+  (:class:`auv_envs.tasks.docking.mjx_plant.DockingPlantMJX`,
+  :func:`auv_envs.core.plant.hull_advance` on JAX since ``-v2``) one control period
+  (0.1 s, RK4 with the hull wrench at every stage) per compiled call against MuJoCo's
+  staged RK4 with the hull wrench at every stage (``env.integrator``, the ``-v1`` plant),
+  one vehicle at a time.
 
     python benchmarks/batched_speed.py [--family docking|lars|acoustic]
         [--batches 1 64 256 1024 4096]
@@ -40,29 +39,25 @@ import jax.numpy as jnp
 import numpy as np
 
 import auv_envs  # noqa: F401
-from auv_envs.batched.acoustic_env import AcousticMJX
-from auv_envs.batched.docking import DockingPlantMJX
-from auv_envs.batched.docking_env import DockingMJX
-from auv_envs.batched.lars_env import LARSMJX
+from auv_envs.batched.functional import FunctionalEnv
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.tasks.docking.mjx_plant import DockingPlantMJX
 
 ENV_ID = "auv_envs/DockingStation-v2"
-#: Per family: the CPU id, the batched id, the functional env's maker, the held action,
-#: the observation mode timed.
+#: Per family: the CPU id, the batched id, the held action, the observation mode timed.
 FAMILIES = {
-    "docking": (ENV_ID, "auv_envs/DockingStationMJX-v2",
-                lambda **kw: DockingMJX(ENV_ID, **kw), (0.3, 0.0, 0.0, 0.0), "features"),
-    "lars": ("auv_envs/LARSCapture-v0", "auv_envs/LARSCaptureMJX-v0", LARSMJX,
-             (0.0, 0.3, -0.2), "features"),
+    "docking": (ENV_ID, "auv_envs/DockingStationMJX-v2", (0.3, 0.0, 0.0, 0.0), "features"),
+    "lars": ("auv_envs/LARSCapture-v0", "auv_envs/LARSCaptureMJX-v0", (0.0, 0.3, -0.2),
+             "features"),
     "acoustic": ("auv_envs/AcousticTracking-v2", "auv_envs/AcousticTrackingMJX-v2",
-                 AcousticMJX, (150.0, 150.0, -15.0), "measurements"),
+                 (150.0, 150.0, -15.0), "measurements"),
 }
 FAMILY = "docking"
 
 
 def vector_rate(envs, steps: int, repeats: int) -> float:
     """Env-steps per second of a ``VectorEnv`` under the held action (best of ``repeats``)."""
-    actions = np.tile(np.array(FAMILIES[FAMILY][3], np.float32), (envs.num_envs, 1))
+    actions = np.tile(np.array(FAMILIES[FAMILY][2], np.float32), (envs.num_envs, 1))
     envs.reset(seed=0)
     envs.step(actions)  # compiles a JAX env
     best = 0.0
@@ -78,14 +73,14 @@ def vector_rate(envs, steps: int, repeats: int) -> float:
 def sync_vector_rate(num_envs: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """Env-steps per second of the CPU env through ``SyncVectorEnv``."""
     return vector_rate(gym.make_vec(FAMILIES[FAMILY][0], num_envs=num_envs,
-                                    vectorization_mode="sync", obs_mode=FAMILIES[FAMILY][4],
+                                    vectorization_mode="sync", obs_mode=FAMILIES[FAMILY][3],
                                     difficulty=difficulty), steps, repeats)
 
 
 def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy") -> float:
     """Env-steps per second through ``gym.make_vec`` (NumPy every step)."""
     return vector_rate(gym.make_vec(FAMILIES[FAMILY][1], num_envs=batch,
-                                    obs_mode=FAMILIES[FAMILY][4], difficulty=difficulty),
+                                    obs_mode=FAMILIES[FAMILY][3], difficulty=difficulty),
                        steps, repeats)
 
 
@@ -155,7 +150,8 @@ def main(argv=None) -> None:
     FAMILY = args.family
     print(f"JAX backend: {jax.default_backend()} ({jax.devices()[0]})")
     print(f"family: {FAMILY}, level: {args.difficulty}")
-    batched = FAMILIES[FAMILY][2](obs_mode=FAMILIES[FAMILY][4], difficulty=args.difficulty)
+    batched = FunctionalEnv(FAMILIES[FAMILY][0], obs_mode=FAMILIES[FAMILY][3],
+                            difficulty=args.difficulty)
     print("\n| batch | make_vec env-steps/s | fused scan env-steps/s | SyncVectorEnv env-steps/s "
           "(same run) | ratio make_vec | ratio fused |")
     print("|---|---|---|---|---|---|")

@@ -25,7 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import auv_envs  # noqa: F401
-from auv_envs.batched.docking_env import DockingMJX, failure_reason
+from auv_envs.batched.functional import FunctionalEnv
+from auv_envs.tasks.docking.rules import failure_reason
 
 LAYOUTS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 
@@ -63,7 +64,7 @@ def trajectory_errors(env_id: str, seeds, steps: int = 200, **env_kwargs) -> dic
     """Same start, same actions for ``steps`` steps: the largest differences."""
     state_env = gym.make(env_id, obs_mode="state", **env_kwargs).unwrapped
     features_env = gym.make(env_id, obs_mode="features", **env_kwargs).unwrapped
-    batched = DockingMJX(env_id, obs_mode="features", auto_reset=False, **env_kwargs)
+    batched = FunctionalEnv(env_id, obs_mode="features", auto_reset=False, **env_kwargs)
     starts = [start(state_env, seed) for seed in seeds]
     states = jax.jit(jax.vmap(batched.reset_to))(
         np.stack([s[1] for s in starts]), np.stack([s[2] for s in starts]),
@@ -122,7 +123,7 @@ def outcome_agreement(env_id: str, seeds, **env_kwargs) -> dict:
                 break
         metrics = info["episode_metrics"]
         cpu_reasons.append("success" if metrics["success"] else metrics["failure_reason"])
-    batched = DockingMJX(env_id, obs_mode="state", auto_reset=False, **env_kwargs)
+    batched = FunctionalEnv(env_id, obs_mode="state", auto_reset=False, **env_kwargs)
     states = jax.jit(jax.vmap(batched.reset_to))(
         np.stack([s[0] for s in starts]), np.stack([s[1] for s in starts]),
         jax.random.split(jax.random.PRNGKey(1), len(starts)), np.stack([s[2] for s in starts]))

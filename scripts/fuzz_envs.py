@@ -110,14 +110,9 @@ def fuzz_env(env_id: str, obs_mode: str, level: str, steps: int, seed: int) -> d
 
 
 def batched_levels(env_id: str) -> tuple[str, ...]:
-    """The ``difficulty`` levels a batched id builds (its module's ``LEVELS``)."""
-    if "LARS" in env_id:
-        from auv_envs.batched.lars_env import LEVELS
-    elif "Acoustic" in env_id:
-        from auv_envs.batched.acoustic_env import LEVELS
-    else:
-        from auv_envs.batched.docking_env import LEVELS
-    return LEVELS
+    """The ``difficulty`` levels a batched id builds (its CPU env's: the batched env takes
+    the CPU env's arguments)."""
+    return tuple(auv_envs.env_class(auv_envs.family(env_id).env_id).difficulty_presets)
 
 
 def fuzz_batched(env_id: str, obs_mode: str, level: str, steps: int, seed: int,

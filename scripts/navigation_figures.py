@@ -36,7 +36,7 @@ def usbl_row(sensors, slant: float, n: int, rng) -> dict:
     rows = np.array(frames.rotation_rows(0.02, -0.03, bearing))
     truth = (transponder - transceiver) @ rows
     c_true = array.draw_sound_speed(rng)
-    out = [usbl.fix(array, transceiver, rows, transponder, c_true, rng) for _ in range(n)]
+    out = [usbl.fix(array, transceiver, rows, transponder, c_true, rng, np) for _ in range(n)]
     vectors = np.array([v for v, _ in out])
     found = np.array([f for _, f in out])
     errors = np.linalg.norm(vectors[found] - truth, axis=1)

@@ -55,6 +55,7 @@ import numpy as np
 
 import auv_envs  # noqa: F401
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.env import CONTROL_PERIOD
 from auv_envs.tasks.lars.sea import SeaSample, ShipPose
 from baselines.evaluation import run_episode, write_figures
@@ -94,7 +95,7 @@ def true_in_arm_frame(info: dict, sea_model) -> np.ndarray:
         return info["true_position"]
     heave, roll, pitch = info["ship_motion"]
     sample = SeaSample(0.0, 0.0, 0.0, 0.0, heave, roll, pitch, (), 0.0, 0.0, 0.0, 0.0)
-    return ShipPose(sea_model.ship_origin, sample).to_ship(info["true_position"])
+    return ShipPose(sea_model.ship_origin, sample, FLOATS).to_ship(info["true_position"], np)
 
 
 def track_episode(sea: str, seed: int, track_time: float, difficulty: str) -> dict:

@@ -13,10 +13,10 @@ import pytest
 import auv_envs
 
 ENV_IDS = tuple(auv_envs.ENVIRONMENTS)
-#: One CPU id per batched class of the family table (the docking ids share one), in the
+#: One CPU id per JAX task of the family table (the docking ids share one), in the
 #: table's order.
-BATCHED_SHELLS = tuple(entry.env_id for k, entry in enumerate(auv_envs.FAMILIES)
-                       if all(entry.batched != e.batched for e in auv_envs.FAMILIES[:k]))
+JAX_TASKS = tuple(entry.env_id for k, entry in enumerate(auv_envs.FAMILIES)
+                       if all(entry.jax_task != e.jax_task for e in auv_envs.FAMILIES[:k]))
 DOCKING_IDS = ("auv_envs/DockingStation-v2", "auv_envs/LampArrayDocking-v2")
 #: Observation modes that render images; the tests shrink them.
 IMAGE_MODES = ("image", "stereo")

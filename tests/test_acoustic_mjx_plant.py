@@ -1,4 +1,4 @@
-"""The acoustic rig on MJX (:class:`auv_envs.batched.acoustic_plant.RigPlantMJX`) is the CPU
+"""The acoustic rig on MJX (:class:`auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`) is the CPU
 plant (:class:`auv_envs.tasks.acoustic.env.AcousticPhysics`).
 
 The JAX ellipsoid fluid model equals MuJoCo's own ``qfrc_fluid`` to round-off in
@@ -18,8 +18,8 @@ pytest.importorskip("mujoco.mjx")
 from mujoco import mjx  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
-from auv_envs.batched.acoustic_plant import RigPlantMJX  # noqa: E402
 from auv_envs.tasks.acoustic.fluid import EllipsoidFluid  # noqa: E402
+from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX  # noqa: E402
 
 #: The id whose plant the MJX rig reproduces (Euler, two 5 ms steps a period).
 ENV_ID = "auv_envs/AcousticTracking-v1"

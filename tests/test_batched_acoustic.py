@@ -14,16 +14,17 @@ import pytest
 jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
-from auv_envs.batched.acoustic_env import AcousticMJX  # noqa: E402
+from auv_envs.batched.functional import FunctionalEnv  # noqa: E402
 from auv_envs.tasks.acoustic.transition import STEP_METRICS  # noqa: E402
 
+ENV_ID = "auv_envs/AcousticTracking-v2"
 TIME_LIMIT = 20.0
 KWARGS = {"difficulty": "paper", "disturbance": "high", "time_limit": TIME_LIMIT}
 
 
 @pytest.fixture(scope="module")
 def batched():
-    env = AcousticMJX(**KWARGS)
+    env = FunctionalEnv(ENV_ID, obs_mode="state", **KWARGS)
 
     def run(state, actions):
         def one(state, action):
@@ -123,6 +124,6 @@ def test_measurements_as_the_cpu_env_draws_them():
 
 def test_refusals():
     with pytest.raises(ValueError, match="obs_mode"):
-        AcousticMJX(obs_mode="pixels")
+        FunctionalEnv(ENV_ID, obs_mode="pixels")
     with pytest.raises(ValueError, match="planner"):
-        AcousticMJX(planner="tabulated")
+        FunctionalEnv(ENV_ID, obs_mode="state", planner="tabulated")

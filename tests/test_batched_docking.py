@@ -1,4 +1,4 @@
-"""The docking plant on MJX (auv_envs.batched.docking) against the CPU environment's plant.
+"""The docking plant on MJX (auv_envs.tasks.docking.mjx_plant) against the CPU environment's plant.
 
 Skipped without JAX and MuJoCo MJX (the ``jax`` extra; ``.[test]`` includes it).
 """
@@ -15,7 +15,7 @@ pytest.importorskip("mujoco.mjx")
 import jax.numpy as jnp  # noqa: E402
 
 import auv_envs  # noqa: E402, F401
-from auv_envs.batched.docking import DockingPlantMJX  # noqa: E402
+from auv_envs.tasks.docking.mjx_plant import DockingPlantMJX  # noqa: E402
 from baselines.registry import make_agent  # noqa: E402
 
 SECONDS = 20.0

@@ -23,9 +23,10 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import auv_envs  # noqa: E402,F401
-from auv_envs.batched.docking_env import DockingMJX, failure_reason  # noqa: E402
+from auv_envs.batched.functional import FunctionalEnv  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
 from auv_envs.tasks.docking.env import DockingDisturbances  # noqa: E402
+from auv_envs.tasks.docking.rules import failure_reason  # noqa: E402
 from scripts.batched_equivalence import (  # noqa: E402
     LAYOUTS,
     line_of_sight_policy,
@@ -58,7 +59,7 @@ def test_perturbed_vehicle_and_thruster_lag_follow_the_cpu_plant():
         thruster_time_constant=0.5)
     env_id = "auv_envs/DockingStation-v2"
     cpu = gym.make(env_id, obs_mode="state", disturbances=disturbances).unwrapped
-    batched = DockingMJX(env_id, obs_mode="state", disturbances=disturbances,
+    batched = FunctionalEnv(env_id, obs_mode="state", disturbances=disturbances,
                          auto_reset=False)
     reset_to = jax.jit(batched.reset_to)
     step = jax.jit(batched.step)
@@ -113,7 +114,7 @@ def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level
             in_view += info["lights_visible"]
             if terminated or truncated:
                 break
-    batched = DockingMJX(env_id, obs_mode="features", difficulty=level, auto_reset=False)
+    batched = FunctionalEnv(env_id, obs_mode="features", difficulty=level, auto_reset=False)
     state = jax.jit(jax.vmap(batched.reset))(jax.random.split(jax.random.PRNGKey(9), batch))
     step = jax.jit(jax.vmap(batched.step))
     alive = np.ones(batch, dtype=bool)
@@ -195,13 +196,13 @@ def test_make_vec_speaks_numpy_and_resets_finished_episodes():
 
 def test_refuses_what_it_does_not_build():
     with pytest.raises(ValueError, match="difficulty"):
-        DockingMJX("auv_envs/DockingStation-v2", difficulty="extreme")
+        FunctionalEnv("auv_envs/DockingStation-v2", difficulty="extreme")
     with pytest.raises(ValueError, match="obs_mode"):
-        DockingMJX("auv_envs/DockingStation-v2", obs_mode="image")
-    with pytest.raises(ValueError, match="rk4"):
-        DockingMJX("auv_envs/DockingStation-v0")
+        FunctionalEnv("auv_envs/DockingStation-v2", obs_mode="image")
+    with pytest.raises(ValueError, match="superseded"):
+        FunctionalEnv("auv_envs/DockingStation-v0")
     with pytest.raises(TypeError):
-        DockingMJX("auv_envs/DockingStation-v2", no_such_argument=1)
+        FunctionalEnv("auv_envs/DockingStation-v2", no_such_argument=1)
     assert failure_reason(0, True) == "" and failure_reason(0, False) == "time_limit"
     assert failure_reason(2, False) == "seabed"
 
@@ -217,7 +218,7 @@ def test_importing_the_batched_package_prints_nothing():
 def test_step_batch_is_vmap_of_step_with_fewer_resets():
     """FunctionalEnv.step_batch (the auto-reset once for the batch, only on a step where an
     episode ended) gives the states jax.vmap(step) gives, resets included."""
-    env = DockingMJX("auv_envs/DockingStation-v2", obs_mode="features", time_limit=0.5)
+    env = FunctionalEnv("auv_envs/DockingStation-v2", obs_mode="features", time_limit=0.5)
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(8), 3))
     by_env, by_batch = jax.jit(jax.vmap(env.step)), jax.jit(env.step_batch)
     actions = jnp.asarray(np.random.default_rng(1).uniform(-1, 1, (12, 3, 4)), jnp.float32)

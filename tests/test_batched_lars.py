@@ -1,6 +1,6 @@
 """The batched LARS environment is the CPU environment's transition on JAX.
 
-Started alike (:meth:`LARSMJX.reset_to` the CPU episode's scene and joint
+Started alike (:meth:`FunctionalEnv.reset_to` the CPU episode's scene and joint
 angles) and driven by the same actions, the batched episodes (float32, the arm
 on MJX, two under ``vmap``) follow the CPU ones: the arm's end within 1 cm and
 the marker's pixels within 1 px over 20 s (the equivalence bound), the same corners
@@ -17,9 +17,10 @@ import pytest
 jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
-from auv_envs.batched.lars_env import LARSMJX  # noqa: E402
+from auv_envs.batched.functional import FunctionalEnv  # noqa: E402
 from auv_envs.tasks.lars.env import LARSCaptureEnv  # noqa: E402
 
+ENV_ID = "auv_envs/LARSCapture-v0"
 SECONDS = 20.0
 
 
@@ -36,7 +37,7 @@ def _run_alike(kwargs: dict, seeds, actions_of, steps: int):
     ``actions_of(k, env, q0)`` while no CPU episode has ended: per step the CPU truths and
     rewards and the batched ones."""
     cpus = [LARSCaptureEnv(**kwargs) for _ in seeds]
-    batched = LARSMJX(auto_reset=False, **kwargs)
+    batched = FunctionalEnv(ENV_ID, auto_reset=False, **kwargs)
     starts, q0s = [], []
     for env, seed in zip(cpus, seeds, strict=True):
         env.reset(seed=seed)
@@ -92,7 +93,7 @@ def test_position_control_in_severe_sea_follows_the_cpu_env_for_20_s(level):
     and analogs, in [LTAT]'s sinusoid (``easy``) and in the irregular sea of ``paper``
     (its realisation, the ship's motion): 500 steps of two episodes under ``vmap``."""
     def sweep(k, env, q0):
-        return env.position_action(q0) + 0.05 * math.sin(0.05 * k) * np.array([1.0, 0.5, -0.5])
+        return env.position_action(q0, np) + 0.05 * math.sin(0.05 * k) * np.array([1.0, 0.5, -0.5])
 
     rows = _run_alike(dict(obs_mode="features", sea_state="severe", control="position",
                            difficulty=level), (11, 12), sweep, steps=round(SECONDS / 0.04))
@@ -111,7 +112,7 @@ def test_torque_control_follows_the_cpu_env_until_it_fails():
 
 def test_what_is_not_built_is_refused():
     with pytest.raises(ValueError, match="obs_mode"):
-        LARSMJX(obs_mode="stereo")
+        FunctionalEnv(ENV_ID, obs_mode="stereo")
 
 
 
@@ -174,7 +175,7 @@ def test_glint_on_the_corners_is_the_cpu_envs_given_the_same_uniforms():
         field = env._episode.state.scene.glint
         for _ in range(25):
             _, _, terminated, truncated, info = env.step(
-                env.position_action(env.physics.data.qpos))
+                env.position_action(env.physics.data.qpos, np))
             truth = env._truth()
             seen = truth["visible"][0] + truth["visible"][1]
             uniforms = np.random.default_rng(seed).random((6, 4))
@@ -223,7 +224,7 @@ def test_a_fixed_policys_outcomes_agree_on_100_seeds():
     kwargs = dict(obs_mode="state", control="position", difficulty="paper")
     seeds = range(500, 600)
     cpu = LARSCaptureEnv(**kwargs)
-    batched = LARSMJX(auto_reset=False, **kwargs)
+    batched = FunctionalEnv(ENV_ID, auto_reset=False, **kwargs)
     cpu_success, starts = [], []
     for seed in seeds:
         obs, _ = cpu.reset(seed=seed)
@@ -268,8 +269,8 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
     gave 7e-6 rad with 3 to 100 iterations, 1.3e-4 with two; docs/speed.md)."""
     import mujoco
 
-    from auv_envs.batched.lars_env import ArmPlantMJX
     from auv_envs.tasks.lars.env import FRAME_SKIP
+    from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 
     env = LARSCaptureEnv(obs_mode="state", control="torque")
     plant = ArmPlantMJX(env)

@@ -28,8 +28,8 @@ jax = pytest.importorskip("jax")
 pytest.importorskip("mujoco.mjx")
 
 import auv_envs.batched  # noqa: E402
-from auv_envs.batched.functional import PRIVILEGED_KEY  # noqa: E402
-from auv_envs.families import FAMILIES, family  # noqa: E402
+from auv_envs.batched.functional import PRIVILEGED_KEY, FunctionalEnv  # noqa: E402
+from auv_envs.families import FAMILIES  # noqa: E402
 
 #: Steps of each rollout; the episode is cut at ``LENGTH`` steps, so the last steps cross
 #: an auto-reset.
@@ -42,7 +42,7 @@ OTHER_MODE = {entry.env_id: next(mode for mode in entry.batched_modes if mode !=
 def build(env_id: str, obs_mode: str, **kwargs):
     """The family's batched env (Gymnasium's conventions, auto-reset), its episodes cut at
     ``LENGTH`` steps."""
-    env = family(env_id).batched_class()(env_id, obs_mode=obs_mode, **kwargs)
+    env = FunctionalEnv(env_id, obs_mode=obs_mode, **kwargs)
     env.max_episode_steps = LENGTH
     return env
 

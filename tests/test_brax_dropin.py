@@ -38,11 +38,11 @@ from brax.training.agents.ppo import train as ppo  # noqa: E402
 from mujoco_playground import wrapper  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
-from tests.conftest import BATCHED_SHELLS  # noqa: E402
+from tests.conftest import JAX_TASKS  # noqa: E402
 
 #: One id per batched class of the family table, in its default mode (dict modes, which
 #: Brax's networks need flat).
-SHELLS = [(env_id, auv_envs.family(env_id).batched_mode) for env_id in BATCHED_SHELLS]
+SHELLS = [(env_id, auv_envs.family(env_id).batched_mode) for env_id in JAX_TASKS]
 
 
 def test_load_takes_every_family_and_refuses_the_rest():

@@ -73,7 +73,7 @@ def test_auv_position_from_all_or_some_corners(noise_free):
     loc = MarkerLocaliser(cal)
     q = cal.arm.inverse_kinematics(info["end_position"])
     fix = loc.locate(info["true_pixels"], info["true_visible"], q)
-    rot = auv_rotation(info["true_pitch"], info["true_yaw"])
+    rot = auv_rotation(info["true_pitch"], info["true_yaw"], np)
     cg, cov = loc.auv_position(fix, rot)
     np.testing.assert_allclose(cg, info["true_position"], atol=1e-9)
     assert np.all(np.linalg.eigvalsh(cov) > 0)

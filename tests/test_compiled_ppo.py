@@ -72,8 +72,8 @@ def _policy_and_normalizer(env):
 
 
 def test_export_is_an_sb3_policy_acting_as_the_jax_one(tmp_path):
-    batched = pytest.importorskip("auv_envs.batched.docking_env")
-    env = batched.DockingMJX(ENV_ID, obs_mode="features")
+    functional = pytest.importorskip("auv_envs.batched.functional")
+    env = functional.FunctionalEnv(ENV_ID, obs_mode="features")
     params, normalizer, observations, flat = _policy_and_normalizer(env)
     run = {"env_id": ENV_ID, "obs_mode": "features", "seed": 0, "n_timesteps": 0,
            "wall_time_s": 0.0, "difficulty": "paper",
@@ -358,20 +358,22 @@ def test_the_hard_level_policies_are_cppo_yml_at_hard(family, env_id, steps, see
 
 
 def test_cppo_knows_every_batched_family_and_its_modes():
-    """cppo trains every family of the table, in the modes its batched class builds (the
-    class refuses the others, and an id of another family)."""
+    """cppo trains every family of the table, in the modes its JAX task builds (the one
+    batched shell refuses the others, and superseded ids)."""
     from auv_envs.families import FAMILIES
     from baselines.rl.config import COMPILED_ENV_IDS
 
     assert COMPILED_ENV_IDS == tuple(entry.env_id for entry in FAMILIES)
+    from auv_envs.batched.functional import FunctionalEnv
+
     for entry in FAMILIES:
-        cls = entry.batched_class()
+        entry.jax_task_class()  # importable
         assert entry.batched_mode in entry.batched_modes
         with pytest.raises(ValueError, match="obs_mode"):
-            cls(entry.env_id, obs_mode="image")
-        other = next(e for e in FAMILIES if e.batched != entry.batched)
-        with pytest.raises(ValueError, match="served by"):
-            cls(other.env_id, obs_mode=other.batched_mode)
+            FunctionalEnv(entry.env_id, obs_mode="image")
+        for old in entry.previous:
+            with pytest.raises(ValueError, match="superseded"):
+                FunctionalEnv(old, obs_mode=entry.batched_mode)
 
 
 def test_the_residual_lars_policy_exports_as_sb3s_and_acts_as_on_jax(tmp_path):

@@ -124,11 +124,12 @@ def test_the_batched_front_end_forgets_with_each_new_episode():
     import jax
     import jax.numpy as jnp
 
-    from auv_envs.batched.acoustic_env import AcousticMJX
+    from auv_envs.batched.functional import FunctionalEnv
     from baselines.rl.detection_fixes import DetectionFixesMJX
 
-    env = DetectionFixesMJX(AcousticMJX(obs_mode="measurements", difficulty="paper",
-                                        time_limit=0.05).use_unit_actions())
+    base = FunctionalEnv("auv_envs/AcousticTracking-v2", obs_mode="measurements",
+                         difficulty="paper", time_limit=0.05)
+    env = DetectionFixesMJX(base.use_unit_actions())
     assert env.max_episode_steps == 5
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(2), 4))
     assert states.obs["fix"].shape == (4, 10, 8, 3)

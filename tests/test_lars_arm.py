@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.env import LARSCaptureEnv
 
 
@@ -59,7 +60,7 @@ def test_jacobian_matches_finite_differences(env):
     )
     np.testing.assert_allclose(arm.jacobian(q), numeric, atol=1e-7)
     qd = np.array([0.1, -0.3, 0.4])
-    np.testing.assert_allclose(arm.end_state(q, qd)[3:], arm.jacobian(q) @ qd, atol=1e-12)
+    np.testing.assert_allclose(arm.end_state(q, qd, FLOATS)[3:], arm.jacobian(q) @ qd, atol=1e-12)
 
 
 def test_dynamics_terms_are_nontrivial_and_consistent(env):

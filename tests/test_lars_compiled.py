@@ -35,7 +35,7 @@ def test_compiled_truth_is_the_float_truth(sea_state):
             _, _, terminated, truncated, _ = env.step(rng.uniform(-0.5, 0.5, 3))
             state = env._episode.state
             compiled = plant.truth(env.physics.data, params, state.scene, state.steps, FLOATS)
-            floats = transition.truth(params, state.scene, state.steps, *plant.joints())
+            floats = transition.truth(params, state.scene, state.steps, *plant.joints(), FLOATS)
             assert compiled.keys() == floats.keys()
             for key, value in floats.items():
                 assert _same(compiled[key], value), (key, compiled[key], value)

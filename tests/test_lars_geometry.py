@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.env import LARSCaptureEnv
 from auv_envs.tasks.lars.scene import (
     MARKER_SIDES,
@@ -155,7 +156,7 @@ def test_uniform_draws_are_the_scalar_uniform_stream(seed):
     bounds = (*MOTION_RANGES.values(), (-0.2, 0.2), (-0.1, 0.1))
     scalar, batched = np.random.default_rng(seed), np.random.default_rng(seed)
     expected = [scalar.uniform(lo, hi) for lo, hi in bounds]
-    drawn = uniform_draws(batched, bounds)
+    drawn = uniform_draws(batched, bounds, FLOATS)
     assert drawn == expected  # bit-identical, Python floats
     assert all(type(v) is float for v in drawn)
     assert batched.random() == scalar.random()
@@ -165,7 +166,7 @@ def test_uniform_draws_are_the_scalar_uniform_stream(seed):
 def test_auv_quaternion_is_its_rotation(seed):
     """``AUVMotion.quaternion`` (the rendered hull's pose) is ``rotation()`` (the marker and
     capture point's), nose-up pitch included."""
-    motion = sample_motion(np.random.default_rng(seed))
+    motion = sample_motion(np.random.default_rng(seed), None, FLOATS)
     mat = np.empty(9)
     mujoco.mju_quat2Mat(mat, motion.quaternion())
     np.testing.assert_allclose(mat.reshape(3, 3), motion.rotation(), atol=1e-12)

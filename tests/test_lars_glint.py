@@ -11,6 +11,7 @@ import pytest
 
 from auv_envs.core.camera import CameraIntrinsics, project_few
 from auv_envs.core.frames import GRAVITY
+from auv_envs.core.ops import FLOATS
 from auv_envs.datasets.lars import tracking_action
 from auv_envs.tasks.lars.env import HARD_SEA, LARSCaptureEnv
 from auv_envs.tasks.lars.sea import (
@@ -81,18 +82,18 @@ def test_specular_point_density_on_a_random_surface():
     view = np.array([0.0, 0.0, 1.0])
     sun = 2.0 * (view @ normal) * normal - view  # law of reflection
     field = GlintField.towards(math.asin(sun[2]), math.atan2(sun[1], sun[0]), sigma2,
-                               math.sqrt(msc / sigma2))
+                               math.sqrt(msc / sigma2), FLOATS)
     assert np.allclose(field.sun, sun)
-    assert field.density(*view) == pytest.approx(counted, rel=0.08)
+    assert field.density(*view, np) == pytest.approx(counted, rel=0.08)
     # and the Gaussian slope pdf of Cox & Munk at s0, times E|det H|
     gauss = math.exp(-(s0 @ s0) / sigma2) / (math.pi * sigma2)
-    assert field.density(*view) == pytest.approx(gauss * msc / (2.0 * math.sqrt(3.0)), rel=1e-9)
+    assert field.density(*view, np) == pytest.approx(gauss * msc / (2.0 * math.sqrt(3.0)), rel=1e-9)
 
 
 def test_glints_in_an_image_are_the_density_integrated_over_its_footprint():
     """Sum of pixel_means over a tilted camera's pixels = the integral of n over the water
     the image sees, found by projecting a fine grid of the water plane (core.camera)."""
-    field = GlintField.towards(math.radians(60.0), math.radians(30.0), 0.025, 100.0)
+    field = GlintField.towards(math.radians(60.0), math.radians(30.0), 0.025, 100.0, FLOATS)
     width, height, focal = 64, 48, 60.0
     camera = (0.3, -0.2, 1.5)  # 1.5 m above water at z = 0
     tilt = math.radians(15.0)  # optical axis down and tilted towards -y
@@ -103,7 +104,7 @@ def test_glints_in_an_image_are_the_density_integrated_over_its_footprint():
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     cam_rays = np.stack(((u - width / 2) / focal, (v - height / 2) / focal, np.ones_like(u)), -1)
     rays = cam_rays @ rows.T
-    total = field.pixel_means(rays, camera[2], focal).sum()
+    total = field.pixel_means(rays, camera[2], focal, np).sum()
     intr = CameraIntrinsics(width, height, focal, focal, width / 2, height / 2)
     step = 0.005
     xs = np.arange(-2.5, 3.0, step)
@@ -114,7 +115,7 @@ def test_glints_in_an_image_are_the_density_integrated_over_its_footprint():
     assert not seen[[0, -1]].any()  # the grid covers the footprint
     view = np.asarray(camera) - points[seen]
     view /= np.linalg.norm(view, axis=1, keepdims=True)
-    integral = field.density(view[:, 0], view[:, 1], view[:, 2]).sum() * step**2
+    integral = field.density(view[:, 0], view[:, 1], view[:, 2], np).sum() * step**2
     assert total == pytest.approx(integral, rel=0.01)
 
 
@@ -122,11 +123,11 @@ def test_hand_worked_nadir_case():
     """Sun at the zenith, camera looking straight down: at the image centre no slope is
     needed, n = k_s^2 / (2 sqrt(3) pi) per m^2 and a pixel covers (h / f)^2."""
     glint = _sun_at(90.0, wind_speed=4.0)
-    field = glint.sample(np.random.default_rng(0), glint.slope_variance(None))
-    means = field.pixel_means(np.array([0.0, 0.0, -1.0]), 0.8, 415.0)
+    field = glint.sample(np.random.default_rng(0), glint.slope_variance(None), FLOATS)
+    means = field.pixel_means(np.array([0.0, 0.0, -1.0]), 0.8, 415.0, np)
     assert means == pytest.approx(100.0**2 / (2.0 * math.sqrt(3.0) * math.pi) * (0.8 / 415) ** 2)
     # 20 deg off the specular direction in the sun's plane: the facet tilts by 10 deg.
-    off = field.density(math.sin(math.radians(20.0)), 0.0, math.cos(math.radians(20.0)))
+    off = field.density(math.sin(math.radians(20.0)), 0.0, math.cos(math.radians(20.0)), np)
     sigma2 = cox_munk_slope_variance(4.0)
     assert off / field.peak_density == pytest.approx(
         math.exp(-math.tan(math.radians(10.0)) ** 2 / sigma2))
@@ -138,9 +139,9 @@ def test_glint_grows_with_hs():
     off, at = [], []
     for hs in (0.1, 0.3, 0.4, 0.8, 1.5):
         sigma2 = SunGlint().slope_variance(hs)
-        field = GlintField.towards(math.radians(70.0), math.pi, sigma2, 100.0)
-        off.append(float(field.density(*view)))
-        at.append(float(field.density(-field.sun[0], 0.0, field.sun[2])))
+        field = GlintField.towards(math.radians(70.0), math.pi, sigma2, 100.0, FLOATS)
+        off.append(float(field.density(*view, np)))
+        at.append(float(field.density(-field.sun[0], 0.0, field.sun[2], np)))
     assert np.all(np.diff(off) > 0)
     assert np.allclose(at, at[0])
     # In the env: the same sun over a rougher sea sends more glints into the images.
@@ -263,7 +264,7 @@ def test_stereo_glints_are_saturated_where_the_model_says():
         rays = cam_rays @ pose[:3, :3].T
         h = pose[2, 3] - info["water_level"]
         water = np.abs(ranges[:, :width] - h * np.linalg.norm(rays, axis=-1)) < 0.005
-        means = field.pixel_means(rays, h, f) * water
+        means = field.pixel_means(rays, h, f, np) * water
         near_water = np.zeros_like(water)  # water pixels grown by the bloom (1 px)
         for di, dj in ((0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)):
             near_water |= np.roll(water, (di, dj), axis=(0, 1))

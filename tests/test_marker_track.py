@@ -104,10 +104,11 @@ def test_the_batched_tracker_starts_afresh_with_each_episode():
     import jax
     import jax.numpy as jnp
 
-    from auv_envs.batched.lars_env import LARSMJX
+    from auv_envs.batched.functional import FunctionalEnv
     from baselines.rl.marker_track import MarkerTrackMJX
 
-    env = MarkerTrackMJX(LARSMJX(difficulty="paper", **KWARGS).use_unit_actions())
+    base = FunctionalEnv("auv_envs/LARSCapture-v0", difficulty="paper", **KWARGS)
+    env = MarkerTrackMJX(base.use_unit_actions())
     assert env.observation_space.shape == (SIZE,) and env.max_episode_steps == 500
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 8))
     assert states.obs.shape == (8, SIZE)

@@ -13,7 +13,8 @@ from scipy import stats
 
 import auv_envs  # noqa: F401  (registers the ids)
 from auv_envs.core import frames
-from auv_envs.core.navigation import (
+from auv_envs.core.ops import FLOATS, jax_ops
+from auv_envs.tasks.docking.navigation import (
     AHRS,
     DVL,
     USBL,
@@ -22,7 +23,6 @@ from auv_envs.core.navigation import (
     Navigation,
     NavigationSensors,
 )
-from auv_envs.core.ops import FLOATS, jax_ops
 
 C = USBL_ACOUSTICS.sound_speed
 QUIET = dataclasses.replace(USBL_ACOUSTICS, sound_speed_error_std=0.0)
@@ -38,7 +38,7 @@ TRUE_FIX = (TRANSPONDER - TRANSCEIVER) @ ROWS  # body axes
 def fixes(usbl: USBL, n: int, seed: int, sound_speed: float = C) -> tuple[np.ndarray, np.ndarray]:
     array = usbl.array(50.0, -2.0)
     rng = np.random.default_rng(seed)
-    out = [usbl.fix(array, TRANSCEIVER, ROWS, TRANSPONDER, sound_speed, rng) for _ in range(n)]
+    out = [usbl.fix(array, TRANSCEIVER, ROWS, TRANSPONDER, sound_speed, rng, np) for _ in range(n)]
     return np.array([v for v, _ in out]), np.array([f for _, f in out])
 
 

@@ -224,7 +224,7 @@ def test_range_is_read_from_the_depth_buffer(patch_scene):
 def test_detection_probability_falls_with_range_and_matches_the_draws():
     optics = WaterOptics.jerlov("5C")
     ranges = np.array([2.0, 6.0, 9.0, 11.0, 14.0])
-    p = optics.detection_probability(ranges)
+    p = optics.detection_probability(ranges, np)
     assert (np.diff(p) < 0).all() and p[0] > 0.99 and p[-1] < 0.05
     n_lamps, trials = len(ranges), 4000
     rng = np.random.default_rng(4)
@@ -234,14 +234,14 @@ def test_detection_probability_falls_with_range_and_matches_the_draws():
     errors = []
     for _ in range(trials):
         seen, detected = detect_lamps(pixels, np.ones(n_lamps, bool), ranges, outages,
-                                      optics, FOCAL, rng)
+                                      optics, FOCAL, rng, np)
         hits += detected
         errors.append(np.where(detected[:, None], seen - pixels, np.nan))
     tolerance = 4 * np.sqrt(p * (1 - p) / trials) + 1e-3
     np.testing.assert_array_less(np.abs(hits / trials - p), tolerance)
     # Centroid noise grows with the glow: its model's standard deviation per axis.
     spread = np.nanstd(np.array(errors)[:, :3], axis=0).mean(axis=1)
-    np.testing.assert_allclose(spread, optics.centroid_std(ranges[:3], FOCAL), rtol=0.1)
+    np.testing.assert_allclose(spread, optics.centroid_std(ranges[:3], FOCAL, np), rtol=0.1)
 
 
 def test_occluders_follow_their_two_state_process():

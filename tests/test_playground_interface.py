@@ -14,7 +14,7 @@ import mujoco  # noqa: E402
 from mujoco_playground._src.mjx_env import MjxEnv  # noqa: E402
 
 import auv_envs.batched  # noqa: E402
-from tests.conftest import BATCHED_SHELLS as SHELLS  # noqa: E402
+from tests.conftest import JAX_TASKS as SHELLS  # noqa: E402
 
 
 def same_model(a: mujoco.MjModel, b: mujoco.MjModel) -> list[str]:

@@ -25,7 +25,7 @@ from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization  # noqa: E402
 from auv_envs.tasks.docking.randomization import PHYSICS, DockingRandomization  # noqa: E402
 from auv_envs.tasks.lars.randomization import LARSRandomization  # noqa: E402
-from tests.conftest import BATCHED_SHELLS as SHELLS  # noqa: E402
+from tests.conftest import JAX_TASKS as SHELLS  # noqa: E402
 
 WORLDS, STEPS = 3, 12
 

@@ -12,6 +12,7 @@ from scipy.integrate import trapezoid
 from scipy.signal import welch
 
 from auv_envs.core.camera import points_in_camera, project
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.sea import heave
 from auv_envs.datasets.lars import tracking_action
 from auv_envs.tasks.lars.env import LARSCaptureEnv
@@ -98,7 +99,8 @@ def test_elevation_periodogram_and_height_match_the_spectrum():
 
 def test_auv_heave_periodogram_matches_the_spectrum():
     waves = WaveRealisation.sample(MODERATE, np.random.default_rng(4), heading=2.0)
-    sea = EpisodeSea(LARSSeaModel.from_spectrum(MODERATE), waves, 0.0, 2.0, 0.08, 0.3)
+    sea = EpisodeSea(LARSSeaModel.from_spectrum(MODERATE), waves, 0.0, 2.0, 0.08, 0.3, (),
+                     FLOATS)
     dt = 0.25
     heaves = [sea(t).auv_heave for t in np.arange(0.0, 4096.0, dt).tolist()]
     _periodogram_checks(np.array(heaves), dt, MODERATE)
@@ -116,7 +118,7 @@ def test_rates_and_slopes_match_finite_differences():
     assert waves.at(t, x, y) == pytest.approx((eta(t, x, y), waves.elevation_rate(t, x, y)))
     # Every channel's rate of an episode's series (moving AUV, ship, analogs).
     sea = EpisodeSea(LARSSeaModel.from_spectrum(MODERATE), waves, 0.1, 2.0, 0.1, -0.2,
-                     [(0.5, 2.4, 0.13)])
+                     [(0.5, 2.4, 0.13)], FLOATS)
     a, b, mid = sea(t - h), sea(t + h), sea(t)
     for value, rate in (("auv_heave", "auv_heave_rate"), ("ship_heave", "ship_heave_rate"),
                         ("ship_roll", "ship_roll_rate"), ("ship_pitch", "ship_pitch_rate")):
@@ -128,15 +130,16 @@ def test_rates_and_slopes_match_finite_differences():
 
 def test_ship_pose_velocity_matches_finite_differences():
     waves = WaveRealisation.sample(SeaSpectrum(1.5, 7.0), np.random.default_rng(6), heading=1.2)
-    sea = EpisodeSea(LARSSeaModel.from_spectrum(SeaSpectrum(1.5, 7.0)), waves, 0, 2, 0, 0)
+    sea = EpisodeSea(LARSSeaModel.from_spectrum(SeaSpectrum(1.5, 7.0)), waves, 0, 2, 0, 0, (),
+                     FLOATS)
     t, h = 7.0, 1e-5
     point = lambda s: (0.3 + 0.2 * s, 1.9 - 0.1 * s, 1.2 + 0.05 * s)  # noqa: E731
-    carried = [ShipPose(SHIP_ORIGIN, sea(s)).carry(*point(s), 0.2, -0.1, 0.05)
+    carried = [ShipPose(SHIP_ORIGIN, sea(s), FLOATS).carry(*point(s), 0.2, -0.1, 0.05)
                for s in (t - h, t, t + h)]
     fd = (np.array(carried[2][:3]) - carried[0][:3]) / (2 * h)
     np.testing.assert_allclose(carried[1][3:], fd, rtol=1e-5, atol=1e-9)
-    pose = ShipPose(SHIP_ORIGIN, sea(t))
-    np.testing.assert_allclose(pose.to_ship(carried[1][:3]), point(t), atol=1e-12)
+    pose = ShipPose(SHIP_ORIGIN, sea(t), FLOATS)
+    np.testing.assert_allclose(pose.to_ship(carried[1][:3], np), point(t), atol=1e-12)
     rot, shift = pose.transform()
     np.testing.assert_allclose(rot @ point(t) + shift, carried[1][:3], atol=1e-12)
 

@@ -1,15 +1,10 @@
 """Batched, compiled simulation on JAX and MuJoCo MJX (``pip install -e ".[jax]"``).
 
-* :mod:`auv_envs.batched.docking`: the docking plant (the same MJCF and the
-  same hydrodynamics code as ``auv_envs/DockingStation-v2``) for a batch of
-  vehicles in one compiled call;
-* :mod:`auv_envs.batched.docking_env`: the docking environments as pure JAX
-  functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
-  interface), ``state`` and ``features`` at every level;
-* :mod:`auv_envs.batched.lars_env`: the LARS capture environment likewise;
-* :mod:`auv_envs.batched.acoustic_env`: the acoustic tracking environment, its rig on
-  MJX (:mod:`auv_envs.batched.acoustic_plant`, with MuJoCo's ellipsoid fluid model
-  in JAX: :mod:`auv_envs.tasks.acoustic.fluid`);
+* :class:`~auv_envs.batched.functional.FunctionalEnv`: every family's environment as pure
+  JAX functions (``reset(rng)``, ``step(state, action)``, Playground's ``MjxEnv``
+  interface), one shell around the family's task on JAX
+  (``auv_envs/tasks/<family>/jax_task.py``: the transition with the family's plant on MJX,
+  ``auv_envs/tasks/<family>/mjx_plant.py``), every batched mode at every level;
 * :func:`load` (:mod:`auv_envs.batched.registry`): any family's functional env
   under MuJoCo Playground's and Brax's conventions, for ``wrap_for_brax_training``;
 * :mod:`auv_envs.batched.vector`: those as a Gymnasium ``VectorEnv``,

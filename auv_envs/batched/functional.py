@@ -1,10 +1,13 @@
-"""What the batched environments share: Playground's ``State`` and NumPy's draws over a key.
+"""The batched environment: one shell, :class:`FunctionalEnv`, for every family's task.
 
 A batched environment is a task's transition (``auv_envs/tasks/<family>/transition.py``)
-evaluated on JAX arrays: :class:`State` is what its ``reset``/``step`` return (as
-MuJoCo Playground's ``mjx_env.State``), :class:`KeyDraws` the episode's random draws
-with NumPy ``Generator``'s interface over a JAX key, and :class:`FunctionalEnv` the shell
-every family's environment shares (its spaces, its conventions, the end of a step).
+evaluated on JAX arrays by the family's JAX task (``auv_envs/tasks/<family>/jax_task.py``,
+named in :data:`auv_envs.families.FAMILIES`): :class:`FunctionalEnv` serves every one of
+them (its spaces, its conventions, the end of a step, Playground's ``MjxEnv``
+interface), :class:`State` is what its ``reset``/``step`` return (as MuJoCo Playground's
+``mjx_env.State``), :class:`KeyDraws` the episode's random draws with NumPy
+``Generator``'s interface over a JAX key, and :class:`World` the model a domain
+randomiser varies.
 """
 
 from __future__ import annotations
@@ -152,16 +155,34 @@ class KeyDraws:
 
 
 class FunctionalEnv:
-    """What every batched environment's shell shares: MuJoCo Playground's interface,
-    read off the CPU environment (``cpu_env``: its spaces, calibration and model) and the
-    plant (``plant.model``, the MJX model), and the end of a step (the time limit and the
-    auto-reset).
+    """Any family's environment as pure JAX functions of one episode: ``reset(rng) ->
+    state``, ``step(state, action) -> state``, batched by :func:`jax.vmap`
+    (:class:`auv_envs.batched.vector.TransitionVectorEnv` does it and speaks NumPy to
+    Gymnasium), with MuJoCo Playground's ``MjxEnv`` interface.
 
-    A subclass sets ``cpu_env``, ``plant``, ``calibration``, ``observation_space``,
-    ``action_space``, ``max_episode_steps`` and ``auto_reset``, defines ``reset``,
-    ``_step`` (one step of its transition, without the auto-reset) and
-    ``_state_observation`` (its ``obs_mode="state"`` observation), and ends its
-    constructor with :meth:`_offer_privileged`.
+    Args:
+        env_id: a family's id or its batched twin's (``auv_envs/DockingStation-v2``,
+            ``auv_envs/LampArrayDocking-v2``, ``auv_envs/DockingMission-v0``,
+            ``auv_envs/LARSCapture-v0``, ``auv_envs/AcousticTracking-v2``; the family
+            table :data:`auv_envs.families.FAMILIES` lists them and the JAX task of each).
+        obs_mode: one of the family's batched modes (None: its default).
+        auto_reset: reset an episode inside :meth:`step` when it ends.
+        privileged: observations ``{"state": <obs_mode's>, "privileged_state": <the
+            family's state vector>}``, for an asymmetric critic (below).
+        randomization: the domain randomiser :meth:`randomize` draws worlds with (None: the
+            family's shipped one, its task's ``randomization_class``). The env simulates
+            the nominal world unless given others (Playground's
+            ``wrap_for_brax_training(..., randomization_fn=...)``, ``gym.make_vec(...,
+            randomize=True)``).
+        **env_kwargs: the CPU environment's arguments (``difficulty``, ``time_limit``,
+            ...); they are checked by building that environment, whose model, calibration
+            and transition parameters the task uses.
+
+    The family's task (:attr:`task`) holds what is the family's: its parameters, its
+    plant on MJX, its metrics and its state vector; it returns the transition's
+    :class:`~auv_envs.core.task.Transition` and this shell makes the :class:`State` of it.
+    The family's own ways to start an episode are :meth:`reset_to` (the equivalence tests
+    start the CPU and the batched env alike with them).
 
     Two conventions. Gymnasium's (the default, what :mod:`auv_envs.batched.vector` and
     the compiled PPO use): the observation and action as the CPU env's spaces, ``done``
@@ -181,6 +202,22 @@ class FunctionalEnv:
     The privileged state draws nothing: an episode is the same with or without it.
     """
 
+    def __init__(self, env_id: str, obs_mode: str | None = None, auto_reset: bool = True,
+                 privileged: bool = False, randomization=None, **env_kwargs):
+        entry = self._served(env_id, obs_mode)
+        obs_mode = entry.batched_mode if obs_mode is None else obs_mode
+        task_class = entry.jax_task_class()
+        self._use_randomization(randomization, task_class.randomization_class)
+        #: The family's task on JAX (``auv_envs/tasks/<family>/jax_task.py``).
+        self.task = task = task_class(entry.env_id, obs_mode, **env_kwargs)
+        self.env_id, self.obs_mode, self.auto_reset = env_id, obs_mode, auto_reset
+        cpu = self.cpu_env = task.cpu_env
+        self.params, self.plant, self.ops = task.params, task.plant, task.ops
+        self.calibration = task.calibration
+        self.max_episode_steps = cpu.max_episode_steps
+        self.observation_space, self.action_space = cpu.observation_space, cpu.action_space
+        self._offer_privileged(privileged)
+
     cpu_env = plant = calibration = observation_space = action_space = None
     max_episode_steps: int
     auto_reset: bool = True
@@ -195,7 +232,25 @@ class FunctionalEnv:
 
     @property
     def dt(self) -> float:
-        return self.calibration.control_period
+        """The control period, s (one step)."""
+        return self.task.dt
+
+    @property
+    def STEP_METRICS(self) -> tuple:  # noqa: N802  (the families' constant's name)
+        """``metrics`` carried every step (the family transition's ``STEP_METRICS``)."""
+        return self.task.transition.STEP_METRICS
+
+    @property
+    def render_camera(self):
+        """What :meth:`render` draws from by default (the family's): a camera's name, or
+        ``(body, distance)``, a camera tracking the body from ``distance`` m (None:
+        MuJoCo's free camera)."""
+        return self.task.render_camera
+
+    def end_reason(self, code, success) -> str:
+        """The CPU env's name of an episode's end from its summary's ``failure`` code
+        (the family's; a family whose episodes only time out has none)."""
+        return self.task.end_reason(code, success)
 
     @property
     def action_size(self) -> int:
@@ -247,10 +302,6 @@ class FunctionalEnv:
     def n_substeps(self) -> int:
         """Physics steps a control period."""
         return int(round(self.dt / self.sim_dt))
-
-    #: What :meth:`render` draws from by default: a camera's name, or ``(body, distance)``,
-    #: a camera tracking the body from ``distance`` m (None: MuJoCo's free camera).
-    render_camera: str | tuple | None = None
 
     def render(self, trajectory, height: int = 240, width: int = 320,
                camera: str | None = None, scene_option=None):
@@ -330,26 +381,18 @@ class FunctionalEnv:
         its ``"state"`` entry with ``privileged``."""
         return self.observation_space[POLICY_KEY] if self.privileged else self.observation_space
 
-    #: ``info`` metrics carried every step (the CPU env's that are numbers); the family's.
-    STEP_METRICS: tuple = ()
-
     @staticmethod
-    def end_reason(code, success) -> str:
-        """The CPU env's name of an episode's end from its summary's ``failure`` code;
-        a family whose episodes only time out has no ``failure`` and never calls it."""
-        raise NotImplementedError
-
-    def _served(self, env_id: str, obs_mode: str) -> Family:
+    def _served(env_id: str, obs_mode: str | None) -> Family:
         """The family (:data:`auv_envs.families.FAMILIES`) of ``env_id``, checked to be
-        served by this class in ``obs_mode``."""
+        built in ``obs_mode`` (None: its default)."""
         try:
             entry = family(env_id)
         except KeyError as error:
             raise ValueError(str(error)) from None
-        if entry.batched.split(":")[1] != type(self).__name__:
-            raise ValueError(f"{env_id!r} is served by {entry.batched}, not "
-                             f"{type(self).__name__}")
-        if obs_mode not in entry.batched_modes:
+        if env_id in entry.previous:
+            raise ValueError(f"{env_id!r} is a superseded version; the batched "
+                             f"{entry.name} environment builds {entry.env_id!r}")
+        if obs_mode is not None and obs_mode not in entry.batched_modes:
             raise ValueError(f"the batched {entry.name} environment builds obs_mode "
                              f"{entry.batched_modes}, got {obs_mode!r}")
         return entry
@@ -403,8 +446,51 @@ class FunctionalEnv:
             self.action_space = gym.spaces.Box(-1.0, 1.0, self._action_box.shape, np.float32)
         return self
 
+    # ------------------------------------------------------------------ episodes
     def reset(self, rng: jax.Array) -> State:
-        raise NotImplementedError
+        """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
+        rng, key = jax.random.split(rng)
+        return self._first(rng, self.task.reset(KeyDraws(key), self.mjx_model))
+
+    def reset_to(self, *args, **kwargs) -> State:
+        """An episode started as the family's task's ``reset_to`` says (docking: from a
+        plant state; LARS: in a CPU episode's scene; acoustic: from a CPU episode's
+        plan), in this env's world."""
+        rng, start = self.task.reset_to(*args, world=self.mjx_model, **kwargs)
+        return self._first(rng, start)
+
+    def truth(self, state: State) -> dict:
+        """The ground truth of ``state`` (the family's task's; docking and LARS)."""
+        return self.task.truth(state.plant, state.episode, self.mjx_model)
+
+    def _first(self, rng, start) -> State:
+        """The :class:`State` of an episode's start (a :class:`~auv_envs.core.task.Transition`
+        without judgement)."""
+        return self._started(rng, start.plant, start.episode, start.truth, start.obs,
+                             self._metrics(start.truth, start.episode, None))
+
+    def _step(self, state: State, action: jax.Array) -> State:
+        """One step of the family's transition (without the auto-reset)."""
+        rng, key, _ = self._keys(state)
+        stepped = self.task.step(state.plant, state.episode, self._action(action),
+                                 KeyDraws(key), self.mjx_model)
+        judged = stepped.judged
+        return self._conclude(state, rng, stepped.plant, stepped.episode, stepped.truth,
+                              stepped.obs, judged.terms, judged.terminated,
+                              self._metrics(stepped.truth, stepped.episode, judged))
+
+    def _metrics(self, truth: dict, episode, judged) -> dict:
+        """A step's metrics: the family's step metrics, its reward terms
+        (``reward_<term>``, zero at reset) and the episode's summary so far
+        (``episode_<key>``)."""
+        terms = ({term: 0.0 for term in self.task.transition.REWARD_TERMS} if judged is None
+                 else judged.terms)
+        return {
+            **self.task.step_metrics(truth, episode, judged),
+            **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},
+            **{f"episode_{key}": value
+               for key, value in self.task.episode_metrics(truth, episode).items()},
+        }
 
     def _action(self, action) -> jax.Array:
         """The action the transition is given: clipped to the CPU env's action box; with
@@ -418,7 +504,7 @@ class FunctionalEnv:
     def _state_observation(self, episode, truth) -> jax.Array:
         """The family's ``obs_mode="state"`` observation of ``episode`` at ``truth`` (what
         its transition's ``observe`` gives in that mode), drawing nothing."""
-        raise NotImplementedError
+        return self.task.state_observation(episode, truth)
 
     def _present(self, obs, episode, truth):
         """The observation as this env gives it: the transition's ``obs`` (flattened under
@@ -497,9 +583,6 @@ class FunctionalEnv:
 
         return lambda *args: jax.vmap(in_world, in_axes=(in_axes, *[0] * len(args)))(
             worlds, *args)
-
-    def _step(self, state: State, action: jax.Array) -> State:
-        raise NotImplementedError
 
     @staticmethod
     def _keys(state: State) -> jax.Array:

@@ -75,9 +75,8 @@ def load(env_id: str, privileged: bool = False, **env_kwargs) -> FunctionalEnv:
     if env_id not in IDS:
         raise ValueError(f"no batched environment for {env_id!r}; load() takes "
                          f"{sorted(IDS)}")
-    entry = family(env_id)
     _register_with_playground()
-    env = entry.batched_class()(entry.env_id, privileged=privileged, **env_kwargs)
+    env = FunctionalEnv(family(env_id).env_id, privileged=privileged, **env_kwargs)
     return env.use_playground_conventions()
 
 

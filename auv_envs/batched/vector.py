@@ -28,6 +28,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from auv_envs.batched.compile_cache import use_compilation_cache
+from auv_envs.batched.functional import FunctionalEnv
 from auv_envs.core.env import action_array, clip_actions
 from auv_envs.families import family
 
@@ -66,8 +67,7 @@ class TransitionVectorEnv(VectorEnv):
             raise ValueError(f"max_episode_steps must be a positive int, got "
                              f"{max_episode_steps!r}")
         entry = family(env_id)
-        self.env = entry.batched_class()(entry.env_id, obs_mode=obs_mode or entry.batched_mode,
-                                         **env_kwargs)
+        self.env = FunctionalEnv(entry.env_id, obs_mode=obs_mode, **env_kwargs)
         if max_episode_steps is not None:
             # As gym.make's TimeLimit over a CPU env: whichever ends the episode first,
             # this or the env's own time_limit (make_vec passes the registered length).

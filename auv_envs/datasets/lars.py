@@ -74,7 +74,7 @@ def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
     half_l, r = cal.auv_length / 2.0, cal.auv_diameter / 2.0
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
     body = signs * (half_l, r, r)
-    rot = auv_rotation(info["true_pitch"], info["true_yaw"])
+    rot = auv_rotation(info["true_pitch"], info["true_yaw"], np)
     world = body @ rot.T + info["true_position"]
     k = cal.stereo.left
     out = np.full((2, 4), np.nan)

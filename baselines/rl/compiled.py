@@ -3,9 +3,8 @@
 A compact PPO (Schulman et al. 2017, "Proximal Policy Optimization
 Algorithms", arXiv:1707.06347: clipped surrogate, GAE(λ), a value baseline)
 whose whole iteration (a rollout of ``num_envs`` batched environments of one family,
-:class:`~auv_envs.batched.docking_env.DockingMJX`,
-:class:`~auv_envs.batched.lars_env.LARSMJX` or
-:class:`~auv_envs.batched.acoustic_env.AcousticMJX`, then the
+:class:`~auv_envs.batched.functional.FunctionalEnv` with the family's task on JAX, then
+the
 minibatch epochs) is one compiled ``jax.jit`` call (``pip install -e
 ".[jax]"``; optax's Adam). It writes its policy as Stable-Baselines3's, which Brax's
 PPO (``scripts/brax_ppo.py``) does not; actions are taken in [-1, 1], mapped onto the
@@ -773,9 +772,8 @@ def make_env(env_id: str, obs_mode: str, env_kwargs: dict | str,
     env_kwargs = {"difficulty": env_kwargs} if isinstance(env_kwargs, str) else env_kwargs
     extra = {"privileged": True} if privileged else {}
     try:
-        entry = family(env_id)
-        env = entry.batched_class()(entry.env_id, obs_mode=obs_mode, **extra,
-                                    **env_kwargs).use_unit_actions()
+        env = FunctionalEnv(family(env_id).env_id, obs_mode=obs_mode, **extra,
+                            **env_kwargs).use_unit_actions()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"cannot build the batched {env_id} with obs_mode={obs_mode!r} and "
                           f"env_kwargs {env_kwargs}: {exc}") from exc

@@ -239,7 +239,7 @@ class DetectionFixes(FrontEnd):
 
 
 class DetectionFixesMJX(BatchedFrontEnd):
-    """A batched acoustic env (:class:`~auv_envs.batched.acoustic_env.AcousticMJX`,
+    """A batched acoustic env (:class:`~auv_envs.batched.functional.FunctionalEnv`,
     ``measurements``) whose observation is :class:`DetectionFixes`'s, computed in JAX by
     the same functions. The held tokens ride in ``state.info["detection_fixes"]`` and start
     afresh where an episode restarted (:class:`~baselines.rl.batched_front_end.BatchedFrontEnd`)."""

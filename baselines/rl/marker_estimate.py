@@ -97,7 +97,7 @@ class MarkerEstimate(gym.ObservationWrapper):
         self._since_fix = 0 if est.last_measurement is not None else self._since_fix + 1
         arm = self.calibration.arm
         out = np.zeros(SIZE, dtype=np.float32)
-        hold = self._position_action(q)
+        hold = self._position_action(q, np)
         out[SLICES["hold_target"]] = hold
         out[SLICES["joint_velocity"]] = qd
         if est.initialised and est.rotation is not None:
@@ -111,7 +111,7 @@ class MarkerEstimate(gym.ObservationWrapper):
             out[SLICES["offset_ahead"]] = geometry.capture_point(ahead, rotation) - tip
             cartesian = out[SLICES["offset"].start:SLICES["estimate"].start].reshape(3, 3)
             # the position-action change that moves the joints by J^-1 v (the map is linear)
-            joint = self._position_action(q + _solve(jacobian, cartesian.T.astype(float)).T)
+            joint = self._position_action(q + _solve(jacobian, cartesian.T.astype(float)).T, np)
             out[SLICES["joint_offset"].start:] = (joint - hold).ravel()
         out[SLICES["estimate"]] = (float(est.settled), float(est.fit is not None),
                                    math.log1p(self._since_fix))

@@ -267,7 +267,7 @@ class MarkerTrack(FrontEnd):
 
 
 class MarkerTrackMJX(BatchedFrontEnd):
-    """A batched LARS env (:class:`~auv_envs.batched.lars_env.LARSMJX`, ``features``)
+    """A batched LARS env (:class:`~auv_envs.batched.functional.FunctionalEnv`, ``features``)
     whose observation is the marker tracker's (:data:`LAYOUT`), computed in JAX by the
     functions :class:`MarkerTrack` runs on the CPU. The tracker's state rides in
     ``state.info["marker_track"]`` and starts afresh where an episode restarted

@@ -59,9 +59,10 @@ class TruthTeacher(MemorylessTeacher):
     mapped into the unit box as the batched env maps unit actions onto the tank."""
 
     def __init__(self, env):
-        from auv_envs.batched.acoustic_env import AcousticMJX
+        from auv_envs.tasks.acoustic.jax_task import AcousticJax
 
-        if not isinstance(getattr(env, "env", env), AcousticMJX):  # a front end's or itself
+        base = getattr(env, "env", env)  # a front end's or itself
+        if not isinstance(getattr(base, "task", None), AcousticJax):
             raise ConfigError(f"the truth teacher teaches acoustic tracking, not "
                               f"{type(env).__name__}")
         box = env._action_box

@@ -270,25 +270,58 @@ class AcousticTrackingEnv(TaskEnv):
     ``AcousticConfig.flow_noise_level`` the current generators' flow noise
     lowers every band's SNR with the current's speed.
 
-    **Action space.** ``Box([0, 0, -30], [300, 300, 0], (3,), float32)``: the
-    agent's estimate of the end effector's position (tank frame, m) at the
-    time of the latest observation. Finite values outside the tank are
-    clipped; NaN, inf and non-numbers raise ``ValueError``.
+    **Action space.** ``Box([0, 0, -30], [300, 300, 0], (3,), float32)`` (the tank): the
+    agent's estimate of the end effector's position (tank frame) at the time of the latest
+    observation. Finite values outside the tank are clipped; NaN, inf and non-numbers raise
+    ``ValueError``.
 
-    **Observation space** (``obs_mode``; padded to K = ``max_detections`` per band):
+    =====  ========================================================  ====  ====  ===================
+    index  action                                                    min   max   unit
+    =====  ========================================================  ====  ====  ===================
+    0      estimated x of the end effector, tank frame               0     300   m
+    1      estimated y of the end effector                           0     300   m
+    2      estimated z of the end effector (surface z = 0)           -30   0     m
+    =====  ========================================================  ====  ====  ===================
 
-    ================  =======================================================
-    mode              space
-    ================  =======================================================
-    ``state``         ``Box((9,), float32)``, privileged: end-effector
-                      position (3) and velocity (3), current velocity (3)
-    ``measurements``  ``Dict`` of float64 arrays: ``tdoa`` (Q, K, 7) s,
-                      ``azimuth`` (Q, K, 8) rad in [-pi, pi], ``elevation``
-                      (Q, K, 8) rad in [0, pi] (from the upward vertical),
-                      ``mask`` ``MultiBinary((Q, K))`` (1: a real detection);
-                      with node dropouts also ``node_mask``
-                      ``MultiBinary((8,))`` (1: the node works)
-    ================  =======================================================
+    **Observation space** (``obs_mode``). Tank frame.
+
+    ``state``: ``Box(-inf, inf, (9,), float32)``, privileged (the ground truth, as in
+    ``info``):
+
+    =====  ============================================================================  ===========
+    index  observation                                                                   unit
+    =====  ============================================================================  ===========
+    0      end effector (the source) x, tank frame (``info["true_position"]``)           m
+    1      end effector y                                                                m
+    2      end effector z                                                                m
+    3      end-effector velocity x (``info["true_velocity"]``)                           m/s
+    4      end-effector velocity y                                                       m/s
+    5      end-effector velocity z                                                       m/s
+    6      current (water velocity) x (``info["current"]``)                              m/s
+    7      current y                                                                     m/s
+    8      current z (always 0)                                                          m/s
+    =====  ============================================================================  ===========
+
+    ``measurements``: ``Dict``, one sample period's detection sets: Q bands (10 by default,
+    band q centred at 20 + 10 q kHz: ``acoustic.band_centres``), each padded to K
+    detections (``acoustic.max_detections``, 8 by default); nodes 1-8 (index 0-7), node 1
+    the TDOA reference:
+
+    =============  =========  =======  ===================================================  ========
+    key            shape      dtype    observation                                          unit
+    =============  =========  =======  ===================================================  ========
+    ``tdoa``       (Q, K, 7)  float64  per band and detection, the time differences of      s
+                                       arrival ``t_i - t_1`` of nodes 2-8 against node 1
+    ``azimuth``    (Q, K, 8)  float64  per node, the horizontal direction to the source,    rad
+                                       ``atan2(y - y_i, x - x_i)`` in [-pi, pi]
+    ``elevation``  (Q, K, 8)  float64  per node, the angle between the upward vertical and  rad
+                                       the line to the source, in [0, pi]
+    ``mask``       (Q, K)     int8     ``MultiBinary((Q, K))``: 1 for a real detection, 0   -
+                                       for padding (zeros)
+    ``node_mask``  (8,)       int8     with node dropouts only                              -
+                                       (``acoustic.node_dropout_rate`` > 0):
+                                       ``MultiBinary((8,))``, 1 where the node works
+    =============  =========  =======  ===================================================  ========
 
     Within a band the detections' order is random: which one is the source is
     not observable. An out node's azimuth and elevation columns, and the TDOA
@@ -337,42 +370,50 @@ class AcousticTrackingEnv(TaskEnv):
 
     **Arguments.**
 
-    ====================  ===================================================
-    argument              meaning (default)
-    ====================  ===================================================
-    ``obs_mode``          ``"state"``, ``"measurements"`` (``"measurements"``)
-    ``disturbance``       current speeds: ``"low"``, ``"medium"``, ``"high"``
-                          ([GMPHD] §3.4; ``"medium"``)
-    ``trajectory``        ``"dynamic"`` or ``"static"`` (``"dynamic"``)
-    ``static_point``      1-5 or None (drawn)
-    ``time_limit``        s (60)
-    ``acoustic``          :class:`~auv_envs.core.acoustics.AcousticConfig`
-                          (the documented model)
-    ``error_clip``        m (5)
-    ``track_gate``        m (1)
-    ``success_radius``    m (0.5)
-    ``physics_substeps``  physics steps per 0.01 s period (2; v0: 1)
-    ``integrator``        MuJoCo's integrator of the rig: ``"euler"`` or
-                          ``"implicitfast"`` (v0's) (``"euler"``)
-    ``noise_draws``       the measurement noise drawn for the kept
-                          detections only (``"kept"``) or first, for every
-                          path (``"all"``, v0's random stream)
-    ``draw_detections``   draw the detections in ``state`` mode too, so
-                          that its ``info`` has ``detection_origin`` (v0
-                          did); ``measurements`` mode and rendering always
-                          draw them (False)
-    ``planner``           the carrier's route: ``"segments"`` (drawn per
-                          segment, the same code on NumPy and JAX) or
-                          ``"tabulated"`` (v0/v1's sequential planner)
-                          (``"segments"``)
-    ``render_mode``       ``"rgb_array"`` or None
-    ``render_size``       (W, H) of ``render()``, at least 8x8 (640x480)
-    ``difficulty``        ``"easy"`` (the release), ``"paper"``
-                          (:data:`PAPER_ACOUSTICS`, calibrated to [GMPHD]'s
-                          tank), ``"hard"`` (:data:`HARD_ACOUSTICS`); sets
-                          ``acoustic`` when it is not given
-                          (``docs/difficulty.md``)
-    ====================  ===================================================
+    ====================  ================  ==================  ====================================
+    argument              Type              Default             meaning
+    ====================  ================  ==================  ====================================
+    ``obs_mode``          str               ``"measurements"``  ``"state"``, ``"measurements"``
+    ``disturbance``       str               ``"medium"``        current speeds ([GMPHD] §3.4):
+                                                                ``"low"`` 0.05-0.15 m/s,
+                                                                ``"medium"`` 0.16-0.30 m/s,
+                                                                ``"high"`` 0.31-0.50 m/s
+    ``trajectory``        str               ``"dynamic"``       ``"dynamic"`` or ``"static"``
+    ``static_point``      int | None        ``None``            1-5 or None (drawn)
+    ``time_limit``        float             ``60.0``            s
+    ``acoustic``          AcousticConfig |  ``None``            :class:`AcousticConfig` (None: the
+                          None                                  level's; at ``easy`` the documented
+                                                                model, ``AcousticConfig()``)
+    ``error_clip``        float             ``5.0``             m
+    ``track_gate``        float             ``1.0``             m
+    ``success_radius``    float             ``0.5``             m
+    ``physics_substeps``  int               ``2``               physics steps per 0.01 s (v0: 1)
+    ``integrator``        str               ``"euler"``         MuJoCo's integrator of the rig:
+                                                                ``"euler"`` or ``"implicitfast"``
+                                                                (v0's)
+    ``noise_draws``       str               ``"kept"``          the measurement noise drawn for the
+                                                                kept detections only (``"kept"``) or
+                                                                first, for every path (``"all"``,
+                                                                v0's random stream)
+    ``draw_detections``   bool              ``False``           draw the detections in ``state``
+                                                                mode too, so that its ``info`` has
+                                                                ``detection_origin`` (v0 did);
+                                                                ``measurements`` mode and rendering
+                                                                always draw them
+    ``planner``           str               ``"segments"``      the carrier's route: ``"segments"``
+                                                                (drawn per segment, the same code on
+                                                                NumPy and JAX) or ``"tabulated"``
+                                                                (v0/v1's sequential planner)
+    ``render_mode``       str | None        ``None``            ``"rgb_array"`` or None
+    ``render_size``       tuple[int, int]   ``(640, 480)``      (W, H) of ``render()``, at least 8x8
+    ``difficulty``        str               ``"easy"``          ``DEFAULT_LEVEL``: ``"easy"`` (the
+                                                                release), ``"paper"``
+                                                                (:data:`PAPER_ACOUSTICS`, calibrated
+                                                                to [GMPHD]'s tank), ``"hard"``
+                                                                (:data:`HARD_ACOUSTICS`); sets
+                                                                ``acoustic`` when it is not given
+                                                                (``docs/difficulty.md``)
+    ====================  ================  ==================  ====================================
 
     **Bound.** ``trajectory_bound()``, right after ``reset()``: the posterior
     Cramér–Rao bound (m) on the episode's ``rmse`` from this environment's

@@ -26,7 +26,7 @@ period at a time (the blocks are a computational device, not a change of
 model) and many times faster. The draws come in the order the environment
 has always made them, so its episodes are the released ones, bit for bit.
 
-The same functions run on JAX arrays (:class:`auv_envs.batched.acoustic_env.AcousticMJX`):
+The same functions run on JAX arrays (:mod:`auv_envs.tasks.acoustic.jax_task`):
 with ``ops`` :func:`~auv_envs.core.ops.jax_ops`, a JAX key's draws and the rig on MJX,
 blocks of one period (``params.block``: every step simulates its own period, so the
 state keeps fixed shapes) and no record of the estimates (``params.record``).
@@ -474,7 +474,7 @@ def draw_flow(draws, speed_range) -> Flow:
                 direction, veer_period, draws.uniform(0, 2 * np.pi))
 
 
-def draw_plan(params: AcousticParams, draws, ops=FLOATS) -> Plan:
+def draw_plan(params: AcousticParams, draws, ops) -> Plan:
     """The episode's plan. Draws, in order: the route (:func:`draw_route`, or
     :func:`plan_route` with ``params.planner == "tabulated"``) and the arm's sweep, or
     the static point when drawn; the current (:func:`draw_flow`); the clock offsets;
@@ -501,7 +501,7 @@ def draw_plan(params: AcousticParams, draws, ops=FLOATS) -> Plan:
     return Plan(route, sweep, flow, clock_offsets, sound_speed, static_point)
 
 
-def references(params: AcousticParams, plan: Plan, rows, xp=np):
+def references(params: AcousticParams, plan: Plan, rows, xp):
     """The carrier's reference and rate (..., 4), the arm's joint references (..., 6) and
     the current (..., 3) at periods ``rows`` (an integer array)."""
     t = params.dt * rows
@@ -607,7 +607,7 @@ def step(params: AcousticParams, rig, state: EpisodeState, action,
 
 
 # ------------------------------------------------------------------ what is seen
-def observe(params: AcousticParams, state: EpisodeState, xp=np):
+def observe(params: AcousticParams, state: EpisodeState, xp):
     """The ``state`` or ``measurements`` observation at the state's step."""
     k = state.steps
     block = state.block

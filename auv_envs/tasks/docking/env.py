@@ -33,15 +33,6 @@ from auv_envs.core.env import (
     check_positive_int,
 )
 from auv_envs.core.hydrodynamics import HullForceModel, NominalModel
-from auv_envs.core.navigation import (
-    AHRS,
-    DVL,
-    USBL,
-    USBL_ACOUSTICS,
-    DepthSensor,
-    Navigation,
-    NavigationSensors,
-)
 from auv_envs.core.ops import FLOATS
 from auv_envs.core.plant import StagedIntegrator
 from auv_envs.core.rendering import CameraRenderer
@@ -54,6 +45,15 @@ from auv_envs.core.vehicle import (
     with_damping_mismatch,
 )
 from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.navigation import (
+    AHRS,
+    DVL,
+    USBL,
+    USBL_ACOUSTICS,
+    DepthSensor,
+    Navigation,
+    NavigationSensors,
+)
 from auv_envs.tasks.docking.optics import WaterOptics, degrade_image
 from auv_envs.tasks.docking.plant import CompiledPlant, MujocoPlant
 from auv_envs.tasks.docking.rules import (
@@ -198,7 +198,7 @@ HARD_OPTICS = WaterOptics.jerlov("7C", lamp_failure_probability=0.1, occlusion_r
                                  occlusion_duration=3.0)
 
 #: ``paper`` level, navigation sensors (the ``nav`` modes; ``docs/navigation.md`` gives each
-#: figure's source): the defaults of :mod:`auv_envs.core.navigation`, from data sheets
+#: figure's source): the defaults of :mod:`auv_envs.tasks.docking.navigation`, from data sheets
 #: (a DVL's 1 % long-term accuracy and 0.05-50 m bottom lock, [OFNMPC]'s 0.02 m/s velocity
 #: noise; an MTi-30-class AHRS, 0.5 deg roll/pitch and 1 deg heading, an MTi-1-class gyro,
 #: 0.007 deg/s/sqrt(Hz) and 10 deg/h bias instability; a quartz depth sensor, 0.01 % of a
@@ -290,33 +290,95 @@ class DockingEnv(TaskEnv):
     :mod:`auv_envs.tasks.docking.transition`, which the batched environment
     runs too.
 
-    **Action space.** ``Box(-1, 1, (4,))``: normalised body-frame force and
-    moment (X surge, Y sway, Z heave, N yaw) times ``calibration.thrust_limits``
-    (80 N, 80 N, 80 N, 40 N m). Finite values outside [-1, 1] are clipped;
-    NaN, inf and non-numbers raise ``ValueError``.
+    **Action space.** ``Box(-1, 1, (4,), float32)``: a normalised force and moment in the
+    body frame (x forward, y to port, z up), each entry times its entry of
+    ``calibration.thrust_limits`` (80 N, 80 N, 80 N, 40 N m). With
+    ``disturbances.thruster_time_constant`` the thrusters reach the command with a
+    first-order lag (``info["thrust"]``). Finite values outside [-1, 1] are clipped; NaN,
+    inf and non-numbers raise ``ValueError``.
 
-    **Observation space** (``obs_mode``; n lights):
+    =====  ====================================  ====  ====  =======================================
+    index  action                                min   max   unit
+    =====  ====================================  ====  ====  =======================================
+    0      X, surge force (+ forward)            -1    1     fraction of 80 N
+    1      Y, sway force (+ to port)             -1    1     fraction of 80 N
+    2      Z, heave force (+ up)                 -1    1     fraction of 80 N
+    3      N, yaw moment (+ turning to port)     -1    1     fraction of 40 N m
+    =====  ====================================  ====  ====  =======================================
 
-    ================  =======================================================
-    mode              space
-    ================  =======================================================
-    ``state``         ``Box((16,), float32)``, privileged: CG position (3);
-                      roll, pitch, cos yaw, sin yaw (4); body u, v, w, p, q,
-                      r (6); current (3)
-    ``features``      ``Dict``: ``pixels`` (n, 2) (zero where not seen),
-                      ``visible`` ``MultiBinary(n)``, ``velocity`` (u, v, w,
-                      r; DVL/INS), ``attitude`` (roll, pitch, yaw; INS)
-    ``image``         ``Dict``: ``image`` (H, W, 3) uint8 forward camera,
-                      ``velocity``, ``attitude``
-    ``nav``           ``Dict``, the navigation sensors
-                      (:mod:`auv_envs.core.navigation`): ``dvl_velocity``
-                      (3), ``dvl_valid`` (1), ``attitude`` (3), ``rates``
-                      (3), ``depth`` (1), ``usbl`` (3: the last fix of the
-                      station's transponder, body axes), ``usbl_age`` (1,
-                      s), ``usbl_valid`` (1)
-    ``nav_features``  ``Dict``: ``pixels`` and ``visible`` of ``features``
-                      with the ``nav`` sensors
-    ================  =======================================================
+    **Observation space** (``obs_mode``; n lights, in the order of
+    ``calibration.light_labels``). The world frame is the DS frame (x into the station,
+    z up), the body frame x forward, y to port, z up; angles in rad.
+
+    ``state``: ``Box(-inf, inf, (16,), float32)``, privileged (the ground truth, as in
+    ``info``; no sensor noise):
+
+    =====  ========================================================================  ===============
+    index  observation                                                               unit
+    =====  ========================================================================  ===============
+    0      CG x, DS frame (``info["true_position"]``)                                m
+    1      CG y, DS frame                                                            m
+    2      CG z, DS frame                                                            m
+    3      roll (``info["true_euler"]``; + port side up)                             rad
+    4      pitch (+ nose down)                                                       rad
+    5      cos(yaw), yaw the heading from the DS x axis (0: facing into the          -
+           station; + towards DS +y)
+    6      sin(yaw)                                                                  -
+    7      u, velocity over ground along body x (``info["true_velocity"]``)          m/s
+    8      v, velocity over ground along body y                                      m/s
+    9      w, velocity over ground along body z                                      m/s
+    10     p, angular velocity about body x                                          rad/s
+    11     q, angular velocity about body y                                          rad/s
+    12     r, angular velocity about body z                                          rad/s
+    13     current (water velocity), DS x (``info["current"]``)                      m/s
+    14     current, DS y                                                             m/s
+    15     current, DS z (always 0)                                                  m/s
+    =====  ========================================================================  ===============
+
+    ``features`` and ``image``: ``Dict``. In the ``current`` scenario the sensors are noisy
+    (``calibration.*_noise_std``):
+
+    ============  =========  =======  ================================================  ============
+    key           shape      dtype    observation                                       unit
+    ============  =========  =======  ================================================  ============
+    ``pixels``    (n, 2)     float32  each light's (u, v) in the image at               px
+                                      ``image_size`` (u right, v down from the
+                                      top-left corner); zero where not seen; 5 px
+                                      noise in the ``current`` scenario, clipped to
+                                      [-W, 2W] x [-H, 2H]. Not in ``image``
+    ``visible``   (n,)       int8     ``MultiBinary(n)``: 1 where the light is seen     -
+                                      (inside the image with a clear line of sight;
+                                      with ``optics``, detected). Not in ``image``
+    ``image``     (H, W, 3)  uint8    ``image`` only: the forward camera's RGB image,   -
+                                      (W, H) = ``image_size``
+    ``velocity``  (4,)       float32  DVL/INS: u, v, w (m/s) and r (rad/s), body        m/s, rad/s
+                                      frame; noise 0.02 m/s and 0.005 rad/s in the
+                                      ``current`` scenario
+    ``attitude``  (3,)       float32  INS: roll, pitch, yaw (yaw wrapped to [-pi,       rad
+                                      pi)); noise 0.2 deg in the ``current`` scenario
+    ============  =========  =======  ================================================  ============
+
+    ``nav``: ``Dict``, the navigation sensors of ``navigation``
+    (:mod:`auv_envs.tasks.docking.navigation`); ``nav_features``: these and ``pixels`` and
+    ``visible`` of ``features``:
+
+    ================  =====  =======  ====================================================  ========
+    key               shape  dtype    observation                                           unit
+    ================  =====  =======  ====================================================  ========
+    ``dvl_velocity``  (3,)   float32  DVL: u, v, w over the seabed, body frame, with the    m/s
+                                      episode's scale errors and noise; zero without
+                                      bottom lock
+    ``dvl_valid``     (1,)   int8     ``MultiBinary(1)``: 1 with bottom lock                -
+    ``attitude``      (3,)   float32  AHRS: roll, pitch, heading (wrapped to [-pi, pi),     rad
+                                      with the episode's heading deviation)
+    ``rates``         (3,)   float32  gyros: p, q, r with noise and a wandering bias        rad/s
+    ``depth``         (1,)   float32  pressure depth of the CG below the surface            m
+                                      (``navigation.station_depth`` - z), positive down
+    ``usbl``          (3,)   float32  the last USBL fix delivered: the transponder as seen  m
+                                      from the CG, body axes (zero before the first)
+    ``usbl_age``      (1,)   float32  time since the ping of that fix (0 before the first)  s
+    ``usbl_valid``    (1,)   int8     ``MultiBinary(1)``: 1 once a fix has been delivered   -
+    ================  =====  =======  ====================================================  ========
 
     With ``optics`` the camera looks through that water: ``image`` through the
     image formation model, ``features`` detecting each lamp with a
@@ -359,41 +421,56 @@ class DockingEnv(TaskEnv):
 
     **Arguments.**
 
-    ===========================  ==============================================
-    argument                     meaning (default)
-    ===========================  ==============================================
-    ``obs_mode``                 ``"state"``, ``"features"``, ``"image"``,
-                                 ``"nav"``, ``"nav_features"``
-    ``scenario``                 ``"mismatch"`` ([OFNMPC] Scenario 1) or
-                                 ``"current"`` (Scenario 2: current and noise)
-    ``current_direction``        deg (None: drawn)
-    ``image_size``               (W, H) of the camera, also the pixel frame
-                                 of ``features`` (640x480)
-    ``model_mismatch``           False: nominal model = plant (True)
-    ``damping_mismatch``         scale of the nominal D diagonals
-    ``tolerances``               ``DockingTolerances``
-    ``time_limit``               s (100)
-    ``lights_lost_timeout``      s (5)
-    ``min_visible_lights``       (3)
-    ``integrator``               ``"rk4"``; ``"euler"``: the v0 plant
-    ``physics_substeps``         plant steps per 0.1 s (1)
-    ``plant``                    ``"compiled"`` (the hull compiled away from
-                                 the scenery) or ``"mujoco"`` (the v1 plant)
-    ``render_mode``              ``"rgb_array"`` or None
-    ``render_camera``            ``"chase"`` or ``"onboard"``
-    ``render_size``              (W, H) of ``render()`` (640x480)
-    ``disturbances``             :class:`DockingDisturbances` (none)
-    ``optics``                   :class:`~auv_envs.tasks.docking.optics.WaterOptics`
-                                 (None: clear water)
-    ``navigation``               :class:`~auv_envs.core.navigation.NavigationSensors`
-                                 of the ``nav`` modes (None: the level's;
-                                 ``docs/navigation.md``)
-    ``difficulty``               ``"easy"`` (the release), ``"paper"``,
-                                 ``"hard"``: ``disturbances``, ``optics`` and
-                                 ``navigation``
-                                 (:data:`PAPER_DISTURBANCES`, ...,
-                                 ``docs/difficulty.md``)
-    ===========================  ==============================================
+    =======================  =====================  ==============  ================================
+    argument                 Type                   Default         meaning
+    =======================  =====================  ==============  ================================
+    ``obs_mode``             str                    ``"state"``     ``"state"``, ``"features"``,
+                                                                    ``"image"``, ``"nav"``,
+                                                                    ``"nav_features"``
+    ``scenario``             str                    ``"mismatch"``  ``"mismatch"`` ([OFNMPC]
+                                                                    Scenario 1) or ``"current"``
+                                                                    (Scenario 2: current and noise)
+    ``current_direction``    float | None           ``None``        the scenario current's
+                                                                    direction, deg (None: drawn)
+    ``image_size``           tuple[int, int]        ``(640, 480)``  (W, H) of the camera, also the
+                                                                    pixel frame of ``features``
+    ``model_mismatch``       bool                   ``True``        False: nominal model = plant
+    ``damping_mismatch``     tuple[float, ...]      (0.7, 1.4,      scale of the nominal D diagonals
+                                                    1.3, 1.0,       (surge, sway, heave, roll,
+                                                    1.0, 0.6)       pitch, yaw):
+                                                                    ``DEFAULT_DAMPING_MISMATCH``
+    ``tolerances``           DockingTolerances |    ``None``        success tolerances (None:
+                             None                                   ``DockingTolerances()``)
+    ``time_limit``           float                  ``100.0``       s
+    ``lights_lost_timeout``  float                  ``5.0``         s
+    ``min_visible_lights``   int                    ``3``           lights in view below which the
+                                                                    ``visibility`` penalty and the
+                                                                    lights-lost clock run (1 to n)
+    ``integrator``           str                    ``"rk4"``       ``"rk4"``; ``"euler"``: the v0
+                                                                    plant
+    ``physics_substeps``     int                    ``1``           plant steps per 0.1 s
+    ``plant``                str                    ``"compiled"``  ``"compiled"`` (the hull
+                                                                    compiled away from the scenery)
+                                                                    or ``"mujoco"`` (the v1 plant)
+    ``render_mode``          str | None             ``None``        ``"rgb_array"`` or None
+    ``render_camera``        str                    ``"chase"``     ``"chase"`` or ``"onboard"``
+    ``render_size``          tuple[int, int]        ``(640, 480)``  (W, H) of ``render()``
+    ``disturbances``         DockingDisturbances |  ``None``        :class:`DockingDisturbances`
+                             None                                   (None: the level's; none at
+                                                                    ``easy``)
+    ``optics``               WaterOptics | None     ``None``        :class:`WaterOptics` (None: the
+                                                                    level's; clear water at
+                                                                    ``easy``)
+    ``navigation``           NavigationSensors |    ``None``        :class:`NavigationSensors` of
+                             None                                   the ``nav`` modes (None: the
+                                                                    level's; ``docs/navigation.md``)
+    ``difficulty``           str                    ``"easy"``      ``DEFAULT_LEVEL``: ``"easy"``
+                                                                    (the release), ``"paper"``,
+                                                                    ``"hard"``: ``disturbances``,
+                                                                    ``optics`` and ``navigation``
+                                                                    (:data:`PAPER_DISTURBANCES`,
+                                                                    ..., ``docs/difficulty.md``)
+    =======================  =====================  ==============  ================================
 
     **Version history.** v2: the same plant, compiled (CasADi) wherever no
     contact can act, MuJoCo's near the scenery: equal to v1 to round-off. v1:
@@ -620,7 +697,7 @@ class DockingEnv(TaskEnv):
             navigation=(Navigation(navigation, self.physics.seabed_z, self._dt)
                         if obs_mode in transition.NAV_MODES else None),
             mission=mission)
-        #: The navigation sensors (:mod:`auv_envs.core.navigation`) of the ``nav`` modes.
+        #: The navigation sensors (:mod:`auv_envs.tasks.docking.navigation`) of the ``nav`` modes.
         self.navigation = navigation
         self._plant = CompiledPlant(self) if plant == "compiled" else MujocoPlant(self)
         # One renderer for the image observation, one for render(): they differ
@@ -743,7 +820,7 @@ class DockingEnv(TaskEnv):
         overhead would cost several times the arithmetic.
         """
         phys = self.physics
-        truth = self.rules.kinematics(*phys.kinematics())
+        truth = self.rules.kinematics(*phys.kinematics(), FLOATS)
         cam_pos = truth["camera_position"]
         pixels, in_image = project_few(
             self.calibration.intrinsics, self.rules.lights, cam_pos, truth.pop("camera_rows")

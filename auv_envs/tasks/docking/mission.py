@@ -10,9 +10,9 @@ from __future__ import annotations
 import inspect
 
 from auv_envs.core.env import check_choice
-from auv_envs.core.navigation import NavigationSensors
 from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.env import DockingEnv
+from auv_envs.tasks.docking.navigation import NavigationSensors
 from auv_envs.tasks.docking.optics import WaterOptics
 from auv_envs.tasks.docking.station import LAMP_ARRAY, SIX_LIGHTS
 
@@ -31,7 +31,7 @@ class DockingMissionEnv(DockingEnv):
     and the success tolerances are those of ``DockingStation-v2`` /
     ``LampArrayDocking-v2``, but the episode starts far away, where only the navigation
     sensors help: the ``nav`` modes' DVL, AHRS, depth and USBL fixes of the station's
-    transponder (:mod:`auv_envs.core.navigation`). The lights are detectable only from
+    transponder (:mod:`auv_envs.tasks.docking.navigation`). The lights are detectable only from
     the range the water allows (``optics``; Jerlov IA at ``easy``, 1C at ``paper``, 7C at
     ``hard``: about 30, 16 and 8 m). The docking ids' rules change where a long
     approach needs it: the vehicle may start behind the station and go round (passing

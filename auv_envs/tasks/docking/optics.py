@@ -236,25 +236,25 @@ class WaterOptics:
                    water_type=water_type, **parameters)
 
     # ------------------------------------------------------------------ shared terms
-    def scattering_depth(self, distance, xp=np) -> np.ndarray:
+    def scattering_depth(self, distance, xp) -> np.ndarray:
         """``τ_s = min(β) d``: the optical depth that scatters into the glow.
 
         ``xp`` (here and in the detection model below): the array module,
         ``numpy`` (the default) or ``jax.numpy``."""
         return min(self.attenuation) * _as_float(distance, xp)
 
-    def glow_width(self, distance, focal_px: float, xp=np) -> np.ndarray:
+    def glow_width(self, distance, focal_px: float, xp) -> np.ndarray:
         """Standard deviation of a lamp's glow at range ``distance`` (m), pixels."""
         return focal_px * self.glow_angle * self.scattering_depth(distance, xp)
 
-    def lamp_contrast(self, distance, xp=np) -> np.ndarray:
+    def lamp_contrast(self, distance, xp) -> np.ndarray:
         """Received contrast ``C`` of a lamp at range ``distance`` (m), its best channel."""
         d = xp.maximum(_as_float(distance, xp), 1e-3)
         received = self.lamp_intensity * xp.exp(-(d[..., None] * xp.asarray(self.attenuation)))
         veil = xp.maximum(xp.asarray(self.veiling_light), _GREY_LEVEL)
         return (received / veil).max(axis=-1) / (d * d)
 
-    def detection_probability(self, distance, xp=np) -> np.ndarray:
+    def detection_probability(self, distance, xp) -> np.ndarray:
         """Probability that a lamp in view at range ``distance`` (m) is detected."""
         ratio = self.detection_contrast / self.lamp_contrast(distance, xp)
         return 1.0 / (1.0 + ratio ** self.detection_slope)
@@ -267,10 +267,10 @@ class WaterOptics:
             raise ValueError(f"probability must be in (0, 1), got {probability!r}")
         with np.errstate(over="ignore", divide="ignore"):  # far out the contrast underflows
             return float(optimize.brentq(
-                lambda d: float(self.detection_probability(d)) - probability, 1e-3, 1e4,
+                lambda d: float(self.detection_probability(d, np)) - probability, 1e-3, 1e4,
                 xtol=1e-3))
 
-    def centroid_std(self, distance, focal_px: float, xp=np) -> np.ndarray:
+    def centroid_std(self, distance, focal_px: float, xp) -> np.ndarray:
         """Standard deviation of a detected lamp's centroid (each axis), pixels."""
         return self.centroid_noise + self.centroid_blur_ratio * self.glow_width(
             distance, focal_px, xp)
@@ -342,7 +342,7 @@ def _add_lamps(out: np.ndarray, lamps: np.ndarray, d: np.ndarray, transmission: 
     rows, cols = np.nonzero(lamps)
     lamp_d = d[rows, cols]
     lamp_t = transmission[rows, cols]  # (N, 3)
-    glow_share = 1.0 - np.exp(-optics.glow_rate * optics.scattering_depth(lamp_d))
+    glow_share = 1.0 - np.exp(-optics.glow_rate * optics.scattering_depth(lamp_d, np))
     received = (255.0 * optics.lamp_radiance) * lamp_t
     out[rows, cols] = np.asarray(veil) * (1.0 - lamp_t) + received * (1.0 - glow_share)[:, None]
     glow = received * glow_share[:, None]
@@ -358,7 +358,7 @@ def _add_lamps(out: np.ndarray, lamps: np.ndarray, d: np.ndarray, transmission: 
     blob_d = np.bincount(label, lamp_d, n_blobs)[1:] / count
     flux = np.stack([np.bincount(label, glow[:, c], n_blobs)[1:] for c in range(3)], axis=1)
     # A pixel is a unit square (variance 1/12); the glow widens the blob.
-    sigma2 = optics.glow_width(blob_d, focal_px) ** 2 + 1.0 / 12.0
+    sigma2 = optics.glow_width(blob_d, focal_px, np) ** 2 + 1.0 / 12.0
     height, width = lamps.shape
     gx = _gaussian_rows(np.arange(width), mean_x, sigma2 + var_x)  # (K, W)
     # (H, K), C-ordered: BLAS is an order of magnitude slower on the transposed view.
@@ -410,15 +410,15 @@ class LampOutages:
 
     def advance(self, optics: WaterOptics, dt: float, rng: np.random.Generator) -> LampOutages:
         """The outages ``dt`` seconds later (exact transition probabilities of the process)."""
-        return LampOutages(self.failed, self.occlusions_drawn(self.occluded, optics, dt, rng))
+        return LampOutages(self.failed, self.occlusions_drawn(self.occluded, optics, dt, rng, np))
 
     @classmethod
-    def occlusions_drawn(cls, occluded, optics: WaterOptics, dt: float, rng, xp=np):
+    def occlusions_drawn(cls, occluded, optics: WaterOptics, dt: float, rng, xp):
         """:meth:`occlusions_after` with its uniform draws from ``rng`` (one per lamp)."""
         return cls.occlusions_after(occluded, optics, dt, rng.random(occluded.shape[0]), xp)
 
     @staticmethod
-    def occlusions_after(occluded, optics: WaterOptics, dt: float, u, xp=np):
+    def occlusions_after(occluded, optics: WaterOptics, dt: float, u, xp):
         """The occlusions ``dt`` seconds after ``occluded`` given one uniform draw per lamp."""
         appear = -math.expm1(-optics.occlusion_rate * dt)
         clear = -math.expm1(-dt / optics.occlusion_duration)
@@ -432,7 +432,7 @@ class LampOutages:
 
 def detect_lamps(pixels: np.ndarray, visible: np.ndarray, distance: np.ndarray,
                  outages, optics: WaterOptics, focal_px: float,
-                 rng: np.random.Generator, xp=np) -> tuple[np.ndarray, np.ndarray]:
+                 rng: np.random.Generator, xp) -> tuple[np.ndarray, np.ndarray]:
     """Which lamps in view the camera detects through the water, and where.
 
     A lamp in view (``visible``), not failed and not occluded, is detected with
@@ -464,7 +464,7 @@ def detect_lamps(pixels: np.ndarray, visible: np.ndarray, distance: np.ndarray,
 
 
 def lamp_detections(pixels, visible, distance, out, optics: WaterOptics, focal_px: float,
-                    u, noise, xp=np):
+                    u, noise, xp):
     """:func:`detect_lamps` given its draws: ``u`` (n,) uniform and ``noise`` (n, 2)
     standard normal, with ``out`` the lamps failed or hidden; ``xp`` the array module."""
     detected = visible & ~out & (u < optics.detection_probability(distance, xp))

@@ -5,7 +5,7 @@ nose is against the entrance, the attitude and body velocities the sensors
 report, when the vehicle has docked or failed, and the reward. The CPU
 environment (:mod:`auv_envs.tasks.docking.env`) evaluates these functions on
 Python floats every step; the batched environment
-(:mod:`auv_envs.batched.docking`) evaluates the same functions on JAX arrays.
+(:mod:`auv_envs.tasks.docking.mjx_plant`) evaluates the same functions on JAX arrays.
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import math
 
 from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics
-from auv_envs.core.ops import FLOATS
 
 #: Failure reasons, in the order they are checked: the first that holds ends the episode.
 FAILURE_REASONS = ("behind_entrance", "seabed", "lights_lost", "out_of_bounds", "surfaced")
@@ -93,7 +92,7 @@ class DockingRules:
         """The heading tolerance, rad (computed once: :meth:`docked` runs every step)."""
         return math.radians(self.tolerances.heading_deg)
 
-    def kinematics(self, position, rotation, qvel, ops=FLOATS) -> dict:
+    def kinematics(self, position, rotation, qvel, ops) -> dict:
         """The vehicle's pose as the task sees it.
 
         Args:
@@ -158,11 +157,11 @@ class DockingRules:
                 & (abs(truth["vertical"]) <= tol.vertical)
                 & (abs(truth["heading"]) <= self.heading_tolerance))
 
-    def lights_lost_time(self, lost_time, fov_violation, ops=FLOATS):
+    def lights_lost_time(self, lost_time, fov_violation, ops):
         """Seconds the lights have been lost after this step (0 once enough are in view)."""
         return ops.where(fov_violation, lost_time + self.control_period, 0.0)
 
-    def failures(self, truth: dict, docked, lost_time, ops=FLOATS) -> tuple:
+    def failures(self, truth: dict, docked, lost_time, ops) -> tuple:
         """One flag per :data:`FAILURE_REASONS` entry (``"surfaced"`` with a surface only),
         for the state after a step."""
         behind = (truth["longitudinal"] > self.tolerances.longitudinal) & ops.logical_not(docked)
@@ -179,7 +178,7 @@ class DockingRules:
         return (*flags, truth["position"][2] >= self.surface_z)
 
     @staticmethod
-    def failure_index(flags, ops=FLOATS):
+    def failure_index(flags, ops):
         """Index + 1 of the first failure flag that holds in :data:`FAILURE_REASONS`, 0 if none."""
         code = 0
         for index in range(len(flags) - 1, -1, -1):
@@ -188,7 +187,7 @@ class DockingRules:
 
     @staticmethod
     def reward_terms(prev_potential, potential, action, fov_violation, docked, failed,
-                     ops=FLOATS) -> dict:
+                     ops) -> dict:
         """The reward's terms (they sum to the reward); ``action`` is the normalised 4-vector."""
         ax, ay, az, an = action
         return {
@@ -200,7 +199,7 @@ class DockingRules:
         }
 
     @staticmethod
-    def state_observation(truth: dict, current, ops=FLOATS) -> list:
+    def state_observation(truth: dict, current, ops) -> list:
         """The privileged ``state`` observation's 16 entries (see the env's docstring)."""
         roll, pitch, yaw = truth["euler"]
         return [*truth["position"], roll, pitch, ops.cos(yaw), ops.sin(yaw),

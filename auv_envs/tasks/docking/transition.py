@@ -14,7 +14,7 @@ failed) -> body``, ``advance(body, tau, current, vehicle_draws) -> body`` and
 The start draw, the order of the step (thrusters, current, plant, judgement, water,
 observation), the reward terms, the termination, the observation, the step's metrics and
 the episode summary exist here only; :class:`auv_envs.tasks.docking.env.DockingEnv`
-(Gymnasium) and :class:`auv_envs.batched.docking_env.DockingMJX` (``jit``/``vmap``) are
+(Gymnasium) and :class:`auv_envs.tasks.docking.jax_task.DockingJax` (``jit``/``vmap``) are
 shells around them.
 
 On the CPU the draws come in the order the environment has always made them,
@@ -44,7 +44,7 @@ SCENARIO_CURRENT_SPEED = 0.3
 MISSION_METRICS = ("path_length", "homing_time", "homing_path_length", "handover_range",
                    "handover_cross_track")
 #: The observation modes that see the lights' pixels, and those with the navigation
-#: sensors (:mod:`auv_envs.core.navigation`) in place of the DVL/INS readings.
+#: sensors (:mod:`auv_envs.tasks.docking.navigation`) in place of the DVL/INS readings.
 LIGHT_MODES = ("features", "nav_features")
 NAV_MODES = ("nav", "nav_features")
 #: The reward's terms, in the order they sum (each reported as ``info["reward_<term>"]``).
@@ -122,7 +122,8 @@ class DockingParams:
         focal_px: the camera's vertical focal length, pixels.
         max_episode_steps: steps to the time limit.
         navigation: the navigation sensors in the scene
-            (:class:`~auv_envs.core.navigation.Navigation`) in the ``nav`` modes, else None.
+            (:class:`~auv_envs.tasks.docking.navigation.Navigation`) in the ``nav`` modes,
+            else None.
         mission: the whole approach's :class:`MissionSpec` (``DockingMission``), else None.
     """
 
@@ -162,7 +163,7 @@ class EpisodeState(NamedTuple):
     lag, ``plant`` (the simulated vehicle's draws: mass factor, 12 damping
     factors, net-buoyancy offset) without a plant perturbation, ``failed`` and
     ``occluded`` (per lamp) without ``optics``, ``nav`` (the navigation sensors'
-    :class:`~auv_envs.core.navigation.NavState`) outside the ``nav`` modes.
+    :class:`~auv_envs.tasks.docking.navigation.NavState`) outside the ``nav`` modes.
     """
 
     steps: Any

@@ -2,5 +2,7 @@
 
 ``transition`` the episode (reset and step over a typed state), ``env`` its
 Gymnasium shell; ``arm``, ``physics``, ``scene``, ``calibration``; the sea
-(``sea``, ``waves``), sun glint (``glint``) and the stereo rig (``stereo``).
+(``sea``, ``waves``), sun glint (``glint``) and the stereo rig (``stereo``); ``compiled``
+the CPU truth compiled, ``mjx_plant`` the arm on MJX (JAX), ``randomization`` the
+batched worlds' domain randomiser.
 """

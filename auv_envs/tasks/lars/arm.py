@@ -62,7 +62,7 @@ class ArmModel:
         self.torque_limits = _read_only([gear[i] for i in ids])
 
     # ----------------------------------------------------------- kinematics
-    def end_state(self, q, qd=(0.0, 0.0, 0.0), ops=FLOATS) -> tuple[float, ...]:
+    def end_state(self, q, qd, ops) -> tuple[float, ...]:
         """Arm-end position and velocity as six scalars ``(x, y, z, vx, vy, vz)``.
 
         Scalar arithmetic (the env calls this every step): Python floats, or
@@ -85,9 +85,9 @@ class ArmModel:
 
     def forward_kinematics(self, q) -> np.ndarray:
         """World position (3,) of the arm end (jib tip) for joint angles ``q``."""
-        return np.array(self.end_state([float(v) for v in q])[:3])
+        return np.array(self.end_state([float(v) for v in q], (0.0, 0.0, 0.0), FLOATS)[:3])
 
-    def end_rotation(self, q, ops=FLOATS) -> np.ndarray:
+    def end_rotation(self, q, ops) -> np.ndarray:
         """Rotation (3, 3) of the levelled arm-end frame: ``Rz(q1)``; ``ops``: Python floats
         (the default), or :func:`~auv_envs.core.ops.jax_ops` for traced angles."""
         c, s = ops.cos(q[0]), ops.sin(q[0])
@@ -122,9 +122,9 @@ class ArmModel:
         p = np.asarray(position, dtype=float)
         if p.shape != (3,) or not all(map(math.isfinite, p.tolist())):
             raise ValueError(f"position must be a finite (3,) vector, got {position!r}")
-        return np.array(self.joint_angles(p.tolist()))
+        return np.array(self.joint_angles(p.tolist(), FLOATS))
 
-    def joint_angles(self, position, ops=FLOATS) -> tuple:
+    def joint_angles(self, position, ops) -> tuple:
         """:meth:`inverse_kinematics` in scalar arithmetic: the three angles for an end
         ``position`` (three scalars), in any backend of :mod:`auv_envs.core.ops`
         (Python floats by default). Python floats out of reach raise ``ValueError``;

@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 
+from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars.arm import ArmModel
 from auv_envs.tasks.lars.scene import MarkerGeometry
 from auv_envs.tasks.lars.sea import LARSSeaModel
@@ -85,7 +86,7 @@ class LARSCalibration:
     def end_pose(self, q) -> np.ndarray:
         """World pose (4, 4) of the levelled arm-end frame at joint angles ``q``."""
         out = np.eye(4)
-        out[:3, :3] = self.arm.end_rotation(q)
+        out[:3, :3] = self.arm.end_rotation(q, FLOATS)
         out[:3, 3] = self.arm.forward_kinematics(q)
         return out
 

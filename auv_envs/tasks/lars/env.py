@@ -148,34 +148,83 @@ class LARSCaptureEnv(TaskEnv):
     Cox–Munk sea: saturated spots in ``stereo`` images; in ``features`` a
     glint near a corner takes the corner detector.
 
-    **Action space.** ``Box(-1, 1, (3,))``. ``control="torque"``: joint
-    torques (slew, shoulder, elbow) as fractions of
-    ``calibration.torque_limits`` (1000, 4000, 1500 N m), gravity not
-    compensated. ``control="position"``: joint-angle targets, -1..1 mapped
-    onto the joint limits, tracked by a computed-torque loop at the physics
-    rate (eq. 30 gains Kp = 160, Kd = 20 through eq. 29's model). Finite
-    values outside [-1, 1] are clipped; NaN, inf and non-numbers raise
-    ``ValueError``.
+    **Action space.** ``Box(-1, 1, (3,), float32)``, one entry per joint.
+    ``control="torque"``: joint torques as fractions of ``calibration.torque_limits``,
+    gravity not compensated. ``control="position"``: joint-angle targets, -1..1 mapped
+    linearly onto the joint limits (``calibration.joint_limits``;
+    ``env.position_action(q, np)`` inverts the map), tracked by a computed-torque loop at the
+    physics rate (eq. 30 gains Kp = 160, Kd = 20 through eq. 29's model). Finite values
+    outside [-1, 1] are clipped; NaN, inf and non-numbers raise ``ValueError``.
 
-    **Observation space** (``obs_mode``):
+    =====  ========  ===  ===  ========================  ===========================================
+    index  joint     min  max  torque (``"torque"``)     angle target (``"position"``)
+    =====  ========  ===  ===  ========================  ===========================================
+    0      slew      -1   1    fraction of 1000 N m      -1..1 onto [-1.3, 1.3] rad
+    1      shoulder  -1   1    fraction of 4000 N m      -1..1 onto [-1.0, 1.2] rad
+    2      elbow     -1   1    fraction of 1500 N m      -1..1 onto [-2.6, 0.0] rad
+    =====  ========  ===  ===  ========================  ===========================================
 
-    ============  ===========================================================
-    mode          space
-    ============  ===========================================================
-    ``state``     ``Box((24,), float32)``, privileged: joint angles (3) and
-                  rates (3), arm-end position (3) and velocity (3), AUV CG
-                  minus arm end (3), AUV velocity (3), capture point minus
-                  capture tip (3), AUV pitch and yaw (2), water level (1)
-    ``features``  ``Dict``: ``pixels`` (2, 3, 2) float32, the marker corners
-                  A1 (port base), A2 (starboard base), A3 (apex) in the left
-                  (0) and right (1) images at ``image_size``, with Gaussian
-                  noise (``pixel_noise_std``), zero where not seen;
-                  ``visible`` ``MultiBinary((2, 3))``; ``joint_position``
-                  (3), ``joint_velocity`` (3)
-    ``stereo``    ``Dict``: ``left`` and ``right`` (H, W, 3) uint8 images
-                  rendered in one pass, ``joint_position``,
-                  ``joint_velocity``
-    ============  ===========================================================
+    **Observation space** (``obs_mode``). World frame as above; with a ``sea`` the arm's
+    end moves with the ship. Angles in rad.
+
+    ``state``: ``Box(-inf, inf, (24,), float32)``, privileged (the ground truth, as in
+    ``info``):
+
+    =====  ============================================================================  ===========
+    index  observation                                                                   unit
+    =====  ============================================================================  ===========
+    0      slew angle                                                                    rad
+    1      shoulder angle                                                                rad
+    2      elbow angle                                                                   rad
+    3      slew rate                                                                     rad/s
+    4      shoulder rate                                                                 rad/s
+    5      elbow rate                                                                    rad/s
+    6      arm end (the capture head's centre) x (``info["end_position"]``)              m
+    7      arm end y                                                                     m
+    8      arm end z                                                                     m
+    9      arm-end velocity x                                                            m/s
+    10     arm-end velocity y                                                            m/s
+    11     arm-end velocity z                                                            m/s
+    12     AUV CG minus arm end, x (``info["relative_position"]``)                       m
+    13     AUV CG minus arm end, y                                                       m
+    14     AUV CG minus arm end, z                                                       m
+    15     AUV velocity x: the surge (``info["true_velocity"]``)                         m/s
+    16     AUV velocity y (always 0)                                                     m/s
+    17     AUV velocity z: the heave rate                                                m/s
+    18     capture point minus capture tip, x (``info["capture_offset"]``)               m
+    19     capture point minus capture tip, y                                            m
+    20     capture point minus capture tip, z                                            m
+    21     AUV pitch, + nose up (``info["true_pitch"]``): the episode's offset, plus     rad
+           the waves' with a ``sea``
+    22     AUV yaw, the episode's constant offset (``info["true_yaw"]``)                 rad
+    23     water level at the AUV, z of the surface (``info["water_level"]``)            m
+    =====  ============================================================================  ===========
+
+    ``features`` and ``stereo``: ``Dict``:
+
+    ==================  =========  =======  ============================================  ==========
+    key                 shape      dtype    observation                                   unit
+    ==================  =========  =======  ============================================  ==========
+    ``pixels``          (2, 3, 2)  float32  ``features``: the marker corners' (u, v) at   px
+                                            ``image_size``, indexed (camera, corner,
+                                            u/v): camera 0 left, 1 right; corner 0 A1
+                                            (port base), 1 A2 (starboard base), 2 A3
+                                            (apex). Gaussian noise
+                                            (``pixel_noise_std``), zero where not seen,
+                                            clipped to [-W, 2W] x [-H, 2H]; with a
+                                            ``glint``, a corner a glint takes is
+                                            reported at the glint
+    ``visible``         (2, 3)     int8     ``features``: ``MultiBinary((2, 3))``, 1      -
+                                            where that camera sees the corner (inside
+                                            its image, not under a crest, not lost under
+                                            a glint's bloom)
+    ``left``            (H, W, 3)  uint8    ``stereo``: the left camera's image           -
+    ``right``           (H, W, 3)  uint8    ``stereo``: the right camera's image,         -
+                                            rendered in the same pass
+    ``joint_position``  (3,)       float32  both modes: slew, shoulder, elbow angles      rad
+                                            (exact; bounds: the joint limits +-0.5 rad)
+    ``joint_velocity``  (3,)       float32  both modes: the joint rates (exact)           rad/s
+    ==================  =========  =======  ============================================  ==========
 
     **Rewards** (each in ``info["reward_<term>"]``, summing to the reward):
 
@@ -225,34 +274,48 @@ class LARSCaptureEnv(TaskEnv):
 
     **Arguments.**
 
-    ====================  ===================================================
-    argument              meaning (default)
-    ====================  ===================================================
-    ``obs_mode``          ``"state"``, ``"features"``, ``"stereo"``
-    ``sea_state``         ``"calm"`` (no interference) or ``"severe"``
-    ``control``           ``"torque"`` or ``"position"`` (``"torque"``)
-    ``image_size``        (W, H) of the cameras, also the pixel frame of
-                          ``features`` (640x480; the paper used 1280x960)
-    ``baseline``          m (0.12)
-    ``focal_length``      px at ``image_size`` (60 deg vertical field of view)
-    ``pixel_noise_std``   px (None: the level's, 1.0 at ``easy``/``paper``)
-    ``tolerances``        ``CaptureTolerances``
-    ``time_limit``        s (30)
-    ``render_mode``       ``"rgb_array"`` or None
-    ``render_camera``     ``"side"`` (from outboard and astern) or
-                          ``"stereo"`` (the pair side by side)
-    ``render_size``       (W, H) of ``render()`` (640x480)
-    ``sea``               :class:`~auv_envs.tasks.lars.sea.SeaSpectrum` or
-                          None (the [LTAT] sinusoid)
-    ``glint``             :class:`~auv_envs.tasks.lars.sea.SunGlint`,
-                          ``False`` (off) or None (the level's)
-    ``difficulty``        ``"easy"`` (the release), ``"paper"``
-                          (``sea=PAPER_SEA``, JONSWAP Hs 0.3 m, Tp 9 s),
-                          ``"hard"`` (``HARD_SEA`` Hs 0.4 m, Tp 7 s, 3 px
-                          noise, ``HARD_GLINT``); explicit ``sea``,
-                          ``pixel_noise_std`` and ``glint`` override the
-                          level's (``docs/difficulty.md``)
-    ====================  ===================================================
+    ===================  ===================  ==============  ======================================
+    argument             Type                 Default         meaning
+    ===================  ===================  ==============  ======================================
+    ``obs_mode``         str                  ``"state"``     ``"state"``, ``"features"``,
+                                                              ``"stereo"``
+    ``sea_state``        str                  ``"calm"``      ``"calm"`` (no interference) or
+                                                              ``"severe"``
+    ``control``          str                  ``"torque"``    ``"torque"`` or ``"position"``
+    ``image_size``       tuple[int, int]      ``(640, 480)``  (W, H) of the cameras, also the pixel
+                                                              frame of ``features`` (the paper used
+                                                              1280x960)
+    ``baseline``         float                ``0.12``        stereo baseline, m (in (0, 1])
+    ``focal_length``     float | None         ``None``        px at ``image_size`` (None: 60 deg
+                                                              vertical field of view,
+                                                              ``DEFAULT_FOVY_DEG``)
+    ``pixel_noise_std``  float | None         ``None``        px (None: the level's; 1.0,
+                                                              ``DEFAULT_PIXEL_NOISE_STD``, at
+                                                              ``easy``/``paper``)
+    ``tolerances``       CaptureTolerances |  ``None``        capture tolerances (None:
+                         None                                 ``CaptureTolerances()``, 0.05 m and
+                                                              0.25 m/s)
+    ``time_limit``       float                ``30.0``        s
+    ``render_mode``      str | None           ``None``        ``"rgb_array"`` or None
+    ``render_camera``    str                  ``"side"``      ``"side"`` (from outboard and astern)
+                                                              or ``"stereo"`` (the pair side by
+                                                              side)
+    ``render_size``      tuple[int, int]      ``(640, 480)``  (W, H) of ``render()``
+    ``sea``              SeaSpectrum | None   ``None``        :class:`SeaSpectrum` or None (the
+                                                              level's; the [LTAT] sinusoid at
+                                                              ``easy``)
+    ``glint``            SunGlint | bool |    ``None``        :class:`SunGlint`, ``False`` (off) or
+                         None                                 None (the level's)
+    ``difficulty``       str                  ``"easy"``      ``DEFAULT_LEVEL``: ``"easy"`` (the
+                                                              release), ``"paper"``
+                                                              (``sea=PAPER_SEA``, JONSWAP Hs 0.3 m,
+                                                              Tp 9 s), ``"hard"`` (``HARD_SEA`` Hs
+                                                              0.4 m, Tp 7 s, 3 px noise,
+                                                              ``HARD_GLINT``); explicit ``sea``,
+                                                              ``pixel_noise_std`` and ``glint``
+                                                              override the level's
+                                                              (``docs/difficulty.md``)
+    ===================  ===================  ==============  ======================================
 
     **Version history.** v0: initial release. Changes within v0 (rendering,
     opt-in seas, levels and glint, each leaving the default episodes
@@ -488,7 +551,7 @@ class LARSCaptureEnv(TaskEnv):
             self._pose_scene()
             pair, ranges = self.camera_renderer.render_with_range(self.physics.scene_data)
             pair, frame = self._glint_camera.on_pair(field, truth, pair, ranges, self.np_random)
-            ep.state = transition.with_glint_frame(ep.state, frame)
+            ep.state = transition.with_glint_frame(ep.state, frame, FLOATS)
         w = self._width
         return {"left": np.ascontiguousarray(pair[:, :w]),
                 "right": np.ascontiguousarray(pair[:, w:]), **ep.obs}
@@ -519,7 +582,7 @@ class LARSCaptureEnv(TaskEnv):
         state = self._episode.state
         return None if state is None else state.scene.glint
 
-    def position_action(self, q, xp=np) -> np.ndarray:
+    def position_action(self, q, xp) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
         the inverse of the action's linear map onto the joint limits (not clipped);
         ``xp``: NumPy, or ``jax.numpy`` for traced angles."""
@@ -535,7 +598,7 @@ class LARSCaptureEnv(TaskEnv):
         scene = state.scene
         t = state.steps * self._dt
         sample = transition.sea_sample(scene, t)
-        pos = transition.auv_position(scene, t, sample)
+        pos = transition.auv_position(scene, t, sample, FLOATS)
         q = phys.data.qpos
         end = self._arm.forward_kinematics(q)
         ship = None
@@ -546,7 +609,7 @@ class LARSCaptureEnv(TaskEnv):
             level = sample.level
             roll, pitch = transition.auv_attitude(scene, sample)
             quat = frames.quat_from_euler(roll, -pitch, scene.motion.yaw)
-            pose = transition.ship_pose(self.params, sample)
+            pose = transition.ship_pose(self.params, sample, FLOATS)
             end = pose.carry(*end.tolist(), 0.0, 0.0, 0.0)[:3]
             ship = pose.transform()
         phys.pose("water", (0.0, 0.0, level), (1.0, 0.0, 0.0, 0.0))
@@ -560,7 +623,7 @@ class LARSCaptureEnv(TaskEnv):
         phys.pose("crest", crest, (1.0, 0.0, 0.0, 0.0))
         for k in range(2):
             if k < len(scene.analogs):
-                centre, yaw = transition.analog_pose(scene, k, t, pos, sample)
+                centre, yaw = transition.analog_pose(scene, k, t, pos, sample, FLOATS)
                 quat = (math.cos(yaw / 2.0), 0.0, 0.0, math.sin(yaw / 2.0))
             else:
                 centre, quat = PARKED, (1.0, 0.0, 0.0, 0.0)

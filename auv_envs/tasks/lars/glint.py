@@ -57,7 +57,7 @@ class GlintCamera:
             self._view = tuple((v / length).astype(np.float32) for v in (x, y, 1.0))
 
     @staticmethod
-    def rays(slew: float, x, y, z=1.0, ops=FLOATS) -> np.ndarray:
+    def rays(slew: float, x, y, z, ops) -> np.ndarray:
         """World directions of camera-frame rays ``(x, y, z)`` of the level head slewed by
         ``slew`` (rad)."""
         xp = ops.xp
@@ -66,7 +66,7 @@ class GlintCamera:
         return xp.stack((c * x + s * y, s * x - c * y, -z), axis=-1)
 
     def on_corners(self, field: GlintField, truth: dict, seen: list,
-                   rng: np.random.Generator, ops=FLOATS) -> tuple[list, list, dict]:
+                   rng: np.random.Generator, ops) -> tuple[list, list, dict]:
         """``features``: which corners a glint takes this frame (4 uniforms a corner, always).
 
         A corner's mean glint count is that of the water within
@@ -95,7 +95,7 @@ class GlintCamera:
         true_pixels = xp.asarray(truth["pixels"]).reshape(6, 2)
         points = true_pixels[:, None, :] + self._disc  # (6, M, 2)
         rays = self.rays(truth["q"][0], (points[..., 0] - intr.cx) / intr.fx,
-                         (points[..., 1] - intr.cy) / intr.fy, ops=ops)
+                         (points[..., 1] - intr.cy) / intr.fy, 1.0, ops)
         level = truth["level"]
         (px, py, _), (ax, ay, _) = truth["position"], truth["hull_axis"]
         norm = ops.hypot(ax, ay)
@@ -160,8 +160,8 @@ class GlintCamera:
         # a pixel's footprint on the water is (height / f)^2 (GlintField.pixel_means,
         # d_z = -1), and the density wants the unit direction back towards the camera.
         height = truth["cameras"][0][2] - level
-        rays = self.rays(truth["q"][0], *self._view)
-        means_both = field.density(-rays[..., 0], -rays[..., 1], -rays[..., 2])
+        rays = self.rays(truth["q"][0], *self._view, FLOATS)
+        means_both = field.density(-rays[..., 0], -rays[..., 1], -rays[..., 2], np)
         means_both *= (height / self._intrinsics.fx) ** 2
         water_range = height * self._ray_length
         for k in range(2):

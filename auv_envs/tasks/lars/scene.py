@@ -20,7 +20,6 @@ from dm_control import mjcf
 
 from auv_envs.core import frames
 from auv_envs.core.assets import MJCF, asset_path
-from auv_envs.core.ops import FLOATS
 
 #: Explore-100-like AUV ([LTAT], Table 1).
 AUV_LENGTH = 1.8
@@ -42,7 +41,7 @@ ANALOG_SCALE = 0.8
 ANALOG_MARKER_BASE_X = -0.12
 
 
-def auv_rotation(pitch, yaw, xp=np):
+def auv_rotation(pitch, yaw, xp):
     """Body-to-world rotation (3, 3) of the level-rolled AUV with nose-up ``pitch`` and
     ``yaw`` (``xp``: NumPy, or ``jax.numpy``).
 
@@ -141,7 +140,7 @@ class AUVMotion:
 
     def rotation(self) -> np.ndarray:
         """Body-to-world rotation (see :func:`auv_rotation`)."""
-        return auv_rotation(self.pitch, self.yaw)
+        return auv_rotation(self.pitch, self.yaw, np)
 
     def quaternion(self) -> np.ndarray:
         """The same rotation as a MuJoCo ``(w, x, y, z)`` quaternion (same pitch sign)."""
@@ -162,7 +161,7 @@ MOTION_RANGES = {
 }
 
 
-def uniform_draws(rng: np.random.Generator, bounds, ops=FLOATS) -> list[float]:
+def uniform_draws(rng: np.random.Generator, bounds, ops) -> list[float]:
     """One uniform draw in each ``(low, high)`` of ``bounds``, as Python floats (or the
     scalars of another backend of :mod:`auv_envs.core.ops`).
 
@@ -178,8 +177,8 @@ def uniform_draws(rng: np.random.Generator, bounds, ops=FLOATS) -> list[float]:
 _MOTION_BOUNDS = tuple(MOTION_RANGES.values())
 
 
-def sample_motion(rng: np.random.Generator, overrides: dict | None = None,
-                  ops=FLOATS) -> AUVMotion:
+def sample_motion(rng: np.random.Generator, overrides: dict | None,
+                  ops) -> AUVMotion:
     """Draw an :class:`AUVMotion` in :data:`MOTION_RANGES`; ``overrides`` pins fields
     (Python floats; the draws are the scalars of ``ops``)."""
     overrides = dict(overrides or {})

@@ -158,7 +158,7 @@ class EpisodeSea:
     """
 
     def __init__(self, model: LARSSeaModel, waves: WaveRealisation, x0: float, y0: float,
-                 surge: float, yaw: float, analog_tracks=(), ops=FLOATS):
+                 surge: float, yaw: float, analog_tracks, ops):
         k = waves.wavenumber
         encounter, c = waves.along_track(x0, y0, surge, ops=ops)
         heave, roll, pitch = model.auv.transfer(encounter, k, waves.heading - yaw, ops)
@@ -187,7 +187,7 @@ class ShipPose:
 
     __slots__ = ("_origin", "_rows", "_heave", "_omega", "_heave_rate")
 
-    def __init__(self, origin, sample: SeaSample, ops=FLOATS):
+    def __init__(self, origin, sample: SeaSample, ops):
         cr, sr = ops.cos(sample.ship_roll), ops.sin(sample.ship_roll)
         cp, sp = ops.cos(sample.ship_pitch), ops.sin(sample.ship_pitch)
         self._origin = origin
@@ -214,7 +214,7 @@ class ShipPose:
             self._heave_rate + wx * ry - wy * rx + r20 * vx + r21 * vy + r22 * vz,
         )
 
-    def to_ship(self, point, xp=np) -> np.ndarray:
+    def to_ship(self, point, xp) -> np.ndarray:
         """The ship-frame point (3,) that is at world ``point`` now (``xp``: NumPy, or
         ``jax.numpy``)."""
         origin = xp.asarray(self._origin)
@@ -360,7 +360,7 @@ class SunGlint:
         return cox_munk_slope_variance(wind)
 
     def sample(self, rng: np.random.Generator, slope_variance: float,
-               ops=FLOATS) -> GlintField:
+               ops) -> GlintField:
         """The episode's field: the sun's elevation and azimuth drawn from ``rng`` (2 uniforms;
         ``ops`` the backend of :mod:`auv_envs.core.ops`)."""
         elevation, azimuth = uniform_draws(rng, (self.sun_elevation, self.sun_azimuth), ops)
@@ -388,7 +388,7 @@ class GlintField:
 
     @classmethod
     def towards(cls, elevation, azimuth, slope_variance: float, curvature_wavenumber: float,
-                ops=FLOATS) -> GlintField:
+                ops) -> GlintField:
         """The field of a sun at ``elevation`` and ``azimuth`` (rad; scalars of ``ops``)."""
         ce = ops.cos(elevation)
         sun = (ce * ops.cos(azimuth), ce * ops.sin(azimuth), ops.sin(elevation))
@@ -397,7 +397,7 @@ class GlintField:
             elevation, azimuth = float(elevation), float(azimuth)
         return cls(sun, float(slope_variance), peak, elevation, azimuth)
 
-    def density(self, vx, vy, vz, xp=np) -> np.ndarray:
+    def density(self, vx, vy, vz, xp) -> np.ndarray:
         """Glints per m^2 of level surface seen along the unit view direction ``(vx, vy, vz)``
         (arrays broadcast together), from the surface towards the camera (world, z up)."""
         sx, sy, sz = self.sun
@@ -405,7 +405,7 @@ class GlintField:
         tan2 = (hx * hx + hy * hy) / (hz * hz)
         return self.peak_density * xp.exp(-tan2 / self.slope_variance)
 
-    def pixel_means(self, rays, height: float, focal: float, xp=np) -> np.ndarray:
+    def pixel_means(self, rays, height: float, focal: float, xp) -> np.ndarray:
         """Mean glints in pixels that look along ``rays`` onto water ``height`` below.
 
         Args:
@@ -429,7 +429,7 @@ class GlintField:
 
 
 def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading,
-                 xp=np) -> WaveRealisation:
+                 xp) -> WaveRealisation:
     """The episode's wave direction (drawn even when ``heading`` pins it) and realisation
     (``xp``: NumPy, or ``jax.numpy`` with a JAX key's draws)."""
     drawn = rng.uniform(*sea.heading_range)

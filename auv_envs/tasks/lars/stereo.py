@@ -38,7 +38,7 @@ class StereoRig:
         right = pts - (self.baseline, 0.0, 0.0)  # the right camera sits at +baseline along x
         return np.stack([project(self.left, pts)[0], project(self.right, right)[0]])
 
-    def disparity(self, u_left, u_right, xp=np) -> np.ndarray:
+    def disparity(self, u_left, u_right, xp) -> np.ndarray:
         """``x_L - x_R`` with image x measured from each camera's principal point (px);
         ``xp``: NumPy, or ``jax.numpy`` for traced pixels."""
         return (xp.asarray(u_left, dtype=float) - self.left.cx) - (
@@ -60,13 +60,13 @@ def triangulate(rig: StereoRig, left_pixels, right_pixels) -> np.ndarray:
     right = np.atleast_2d(np.asarray(right_pixels, dtype=float))
     if left.shape != right.shape or left.shape[-1] != 2:
         raise ValueError(f"pixel arrays must both be (N, 2), got {left.shape} and {right.shape}")
-    disparity = rig.disparity(left[:, 0], right[:, 0])
+    disparity = rig.disparity(left[:, 0], right[:, 0], np)
     if np.any(~(disparity > 0.0)):
         raise ValueError("disparity must be positive (point in front of both cameras)")
-    return points_from_disparity(rig, left, disparity)
+    return points_from_disparity(rig, left, disparity, np)
 
 
-def points_from_disparity(rig: StereoRig, left_pixels, disparity, xp=np):
+def points_from_disparity(rig: StereoRig, left_pixels, disparity, xp):
     """Eq. 2's arithmetic (:func:`triangulate` without its checks): left-camera-frame
     points (N, 3) from the left pixels (N, 2) and the disparities (N,), which the caller
     keeps positive; ``xp``: NumPy, or ``jax.numpy`` for traced pixels."""

@@ -4,7 +4,7 @@ An episode is an immutable :class:`EpisodeState` (what the episode's record
 holds, and its :class:`Scene`: the AUV's motion, the sea and the sun drawn at
 reset); the static :class:`LARSParams` say which task it is. Both functions keep the
 protocol of :mod:`auv_envs.core.task` and take a :class:`~auv_envs.core.ops.Backend`:
-the arithmetic (Python floats on the CPU, ``jax.numpy`` in :mod:`auv_envs.batched.lars_env`),
+the arithmetic (Python floats on the CPU, ``jax.numpy`` in :mod:`auv_envs.tasks.lars.jax_task`),
 the episode's random draws (NumPy ``Generator``'s interface) and the arm's plant (MuJoCo
 on the CPU, MJX batched), a function of its state ``arm``: ``place(q) -> arm`` (the arm at
 rest at joint angles ``q``), ``advance(arm, action, effort) -> (arm, effort)`` (one
@@ -174,7 +174,7 @@ class Assessment(NamedTuple):
 
 # ------------------------------------------------------------------ the scene
 def scene_of(params: LARSParams, motion: AUVMotion, waves=None, wash=None, analogs=(),
-             glint=None, ops=FLOATS) -> Scene:
+             glint=None, *, ops) -> Scene:
     """The :class:`Scene` of an episode's draws (the per-episode geometry precomputed)."""
     rot = auv_rotation(motion.pitch, motion.yaw, ops.xp)
     sea = None
@@ -195,12 +195,12 @@ def sea_sample(scene: Scene, t: float) -> SeaSample | None:
     return None if scene.sea is None else scene.sea(t)
 
 
-def ship_pose(params: LARSParams, sample: SeaSample, ops=FLOATS) -> ShipPose:
+def ship_pose(params: LARSParams, sample: SeaSample, ops) -> ShipPose:
     """The ship's displacement in the sea state ``sample``."""
     return ShipPose(params.sea.ship_origin, sample, ops)
 
 
-def auv_position(scene: Scene, t: float, sample: SeaSample | None, ops=FLOATS) -> tuple:
+def auv_position(scene: Scene, t: float, sample: SeaSample | None, ops) -> tuple:
     """AUV CG position at time ``t`` ([LTAT] motion model, or the sea's heave)."""
     m = scene.motion
     if sample is None:
@@ -228,7 +228,7 @@ def crest_centre(scene: Scene, t: float, position, level: float) -> tuple:
 
 
 def analog_pose(scene: Scene, k: int, t: float, position, sample: SeaSample | None,
-                ops=FLOATS):
+                ops):
     """Centre and yaw of analog ``k``: heaving with its own phase lag, or, with a sea,
     with the elevation at its own place."""
     m = scene.motion
@@ -272,7 +272,7 @@ def _count_distractors(params: LARSParams, scene: Scene, t, position, sample, ca
 
 
 # ------------------------------------------------------------------ the truth
-def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
+def truth(params: LARSParams, scene: Scene, steps, q, qd, ops) -> dict:
     """Ground truth at step ``steps`` with the arm at joint angles ``q`` and rates ``qd``
     (three scalars each), computed once a step and shared by observation, reward and
     info, in the scalars of ``ops``: :func:`geometry`, then :func:`sighting`.
@@ -288,7 +288,7 @@ def truth(params: LARSParams, scene: Scene, steps, q, qd, ops=FLOATS) -> dict:
 
 
 def geometry(params: LARSParams, scene: Scene, t, sample: SeaSample | None, q, qd,
-             ops=FLOATS, inside: bool = True) -> dict:
+             ops, inside: bool = True) -> dict:
     """The truth's arithmetic at time ``t`` (the sea's ``sample`` at it): the arm's end,
     the AUV, the cameras, the marker's pixels (NaN behind a camera; ``visible`` per
     camera, inside its image, when ``inside``: CasADi's symbols, whose comparisons do not
@@ -357,7 +357,7 @@ def geometry(params: LARSParams, scene: Scene, t, sample: SeaSample | None, q, q
 
 
 def sighting(params: LARSParams, scene: Scene, t, sample: SeaSample | None, now: dict,
-             ops=FLOATS) -> dict:
+             ops) -> dict:
     """:func:`geometry`'s ``now`` at time ``t`` made the truth, in place: the wash-over
     crest hiding corners (``occluded``), the analogs in view (``distractors``), the
     corners both cameras see (``n_visible``) and whether the tip is in the hull
@@ -400,7 +400,7 @@ def truth_now(params: LARSParams, arm, state: EpisodeState, plant, ops) -> dict:
 
 
 # ------------------------------------------------------------------ reset
-def draw_scene(params: LARSParams, draws, options: dict | None = None, ops=FLOATS):
+def draw_scene(params: LARSParams, draws, options: dict | None, ops):
     """The episode's world and where the arm's end starts: ``(scene, end)``, ``end``
     the arm end's position (three scalars) in the ship's frame.
 
@@ -454,7 +454,7 @@ def reset(params: LARSParams, backend: Backend, options: dict | None = None) -> 
     return Transition(arm, state, now, obs)
 
 
-def first_state(scene: Scene, now: dict, ops=FLOATS) -> EpisodeState:
+def first_state(scene: Scene, now: dict, ops) -> EpisodeState:
     """The record of an episode in ``scene`` before its first step (``now`` its truth)."""
     error = now["capture_error"]
     zero = ops.integer(0)
@@ -538,13 +538,13 @@ def assess(params: LARSParams, state: EpisodeState, now: dict, action, ops, step
 
 
 # ------------------------------------------------------------------ what is seen
-def joint_readings(now: dict, xp=np) -> dict:
+def joint_readings(now: dict, xp) -> dict:
     """The joint angles and rates every image-based mode carries."""
     joints = xp.asarray((*now["q"], *now["qd"]), dtype=xp.float32)
     return {"joint_position": joints[:3], "joint_velocity": joints[3:]}
 
 
-def with_glint_frame(state: EpisodeState, frame: dict, ops=FLOATS) -> EpisodeState:
+def with_glint_frame(state: EpisodeState, frame: dict, ops) -> EpisodeState:
     """``state`` with the observation's glint ``frame``, counted when a glint took a corner
     after a step."""
     took = (state.steps > 0) & frame["glint_corners"].any()
@@ -659,7 +659,7 @@ def step_metrics(state: EpisodeState, now: dict, judged: Assessment | None, ops)
     }
 
 
-def summary(params: LARSParams, state: EpisodeState, now: dict, ops=FLOATS) -> dict:
+def summary(params: LARSParams, state: EpisodeState, now: dict, ops) -> dict:
     """The episode's summary as numbers: ``failure`` the code of :class:`EpisodeState`,
     ``capture_time`` NaN when it did not capture, ``glint_fraction`` with glint only
     (:func:`episode_metrics` names and formats them)."""
@@ -686,7 +686,7 @@ def episode_metrics(params: LARSParams, state: EpisodeState, now: dict) -> dict:
     (``failure_reason``: ``"time_limit"`` when it neither captured nor failed) and
     ``capture_time`` None when it did not capture."""
     out = {}
-    for key, value in summary(params, state, now).items():
+    for key, value in summary(params, state, now, FLOATS).items():
         if key == "failure":
             key, value = "failure_reason", end_reason(state.failure, state.success)
         elif key == "capture_time" and math.isnan(value):

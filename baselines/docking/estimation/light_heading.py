@@ -2,7 +2,7 @@
 
 A compass near a station's steel, or a station surveyed with an error, reads a heading off
 the station's frame by an angle ``b`` that stays through the episode (``hard``:
-``AHRS.heading_bias_std`` = 8 deg RMS, :mod:`auv_envs.core.navigation`). Dead reckoning
+``AHRS.heading_bias_std`` = 8 deg RMS, :mod:`auv_envs.tasks.docking.navigation`). Dead reckoning
 and USBL fixes cannot see it: both are rotated by the same ``R_z(b)`` (the DVL's track
 turned by the AHRS, the fix's body-frame vector turned by it too), so the navigation
 filter's whole world is the true one turned by ``b`` about the transponder, and a vehicle

@@ -1,6 +1,6 @@
 """Where the vehicle is, from its navigation sensors: an error-state Kalman filter.
 
-The ``nav`` observation (:mod:`auv_envs.core.navigation`) gives an AHRS attitude and
+The ``nav`` observation (:mod:`auv_envs.tasks.docking.navigation`) gives an AHRS attitude and
 gyro rates, a DVL velocity over the seabed, a pressure depth and, every second or so,
 a USBL fix of the station's transponder, late by its two-way travel time and
 processing. The filter follows the error-state formulation (Solà 2017, *Quaternion
@@ -234,9 +234,10 @@ class NavigationFilter:
 
     @classmethod
     def for_suite(cls, navigation, dt: float) -> NavigationFilter:
-        """The filter for a navigation suite (``auv_envs.core.navigation.NavigationSensors``)
-        at step ``dt``: its transponder and station depth, its DVL's and depth sensor's
-        data-sheet noise (the depth's at least 1 mm)."""
+        """The filter for a navigation suite
+        (``auv_envs.tasks.docking.navigation.NavigationSensors``) at step ``dt``: its
+        transponder and station depth, its DVL's and depth sensor's data-sheet noise (the
+        depth's at least 1 mm)."""
         return cls(navigation.transponder, navigation.station_depth, dt,
                    dvl_std=navigation.dvl.noise_std,
                    depth_std=max(navigation.depth.noise_std, 1e-3))

@@ -121,7 +121,7 @@ def triangulation_jacobian(rig: StereoRig, left_pixels, right_pixels) -> np.ndar
     k = rig.left
     x = left[:, 0] - k.cx
     y = left[:, 1] - k.cy
-    d = rig.disparity(left[:, 0], right[:, 0])
+    d = rig.disparity(left[:, 0], right[:, 0], np)
     s = rig.baseline / d
     ratio = k.fx / k.fy
     jac = np.zeros((left.shape[0], 3, 3))
@@ -240,7 +240,7 @@ class MarkerLocaliser:
         if not np.all(np.isfinite(px[:, both])):
             raise ValueError("pixels of visible corners must be finite")
         rig = self.calibration.stereo
-        disparity = rig.disparity(px[0, :, 0], px[1, :, 0])
+        disparity = rig.disparity(px[0, :, 0], px[1, :, 0], np)
         valid = both & (disparity > MIN_DISPARITY)
         corners = np.full((3, 3), np.nan)
         covs = np.full((3, 3, 3), np.nan)

@@ -56,7 +56,7 @@ def rectified_check(left: np.ndarray, right: np.ndarray, rig: StereoRig,
     """
     if np.abs(left[:, 1] - right[:, 1]).max() > row_tolerance:
         return "rows"
-    if rig.disparity(left[:, 0], right[:, 0]).min() <= 0.0:
+    if rig.disparity(left[:, 0], right[:, 0], np).min() <= 0.0:
         return "disparity"
     return "ok"
 

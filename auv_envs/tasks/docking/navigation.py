@@ -221,7 +221,7 @@ class USBL:
         return HydrophoneArray(self.elements, surface_z, bottom_z, self.acoustics)
 
     def fix(self, array: HydrophoneArray, transceiver, rows, transponder, sound_speed,
-            draws, xp=np):
+            draws, xp):
         """One fix: ``(vector (3,), valid)``, the transponder as measured from the
         transceiver in body axes (m). ``transceiver`` and ``transponder`` are world
         positions (3,), ``rows`` the body-to-world rotation (3, 3), ``sound_speed`` the

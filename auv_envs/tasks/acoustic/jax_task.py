@@ -1,0 +1,155 @@
+"""The acoustic tracking task on JAX: the transition and the rig on MJX, for the one
+batched shell (:class:`auv_envs.batched.functional.FunctionalEnv`).
+
+The transition of ``auv_envs/AcousticTracking-v2``
+(:mod:`auv_envs.tasks.acoustic.transition`, the very functions the CPU environment
+calls) evaluated on JAX arrays for ``jit`` and
+``vmap``. What this task adds: the rig is the CPU environment's own MuJoCo model on
+MJX with MuJoCo's ellipsoid fluid model written in JAX
+(:class:`~auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`), the episode's draws come from
+a JAX key (:class:`~auv_envs.batched.functional.KeyDraws`), and every step simulates its
+own sample period (``block=1``; the CPU env simulates 50 at a time, the same model).
+The detection sets become a JAX pytree when this module loads (JAX is an optional extra:
+the CPU environment never imports it).
+
+Built: ``state`` and ``measurements`` (the padded detection sets with their mask and,
+with dropouts, the node mask), both trajectories, every ``disturbance`` and
+``difficulty`` (multipath, clutter, dropouts, propagation delay, wander, fading). The
+detections are drawn in the measurement model's fixed-shape order (``noise_draws=
+"fixed"``: every candidate's noise drawn, the first K of the shuffled candidates kept),
+the same model as the CPU's draws of the kept detections only.
+
+What differs from the CPU environment: a seed gives other episodes (JAX's generator;
+the distributions are the same); everything runs in float32 (the detections too,
+float64 on the CPU); the state keeps the
+running sum of squared errors, not every estimate, so the episode's metrics are
+``rmse``, ``steps`` and ``success`` (the CPU summary's ``max_error``, ``tfc``,
+``tcfe`` and the rest need the whole record).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
+from auv_envs.core.ops import Backend, jax_ops
+from auv_envs.core.task import Transition
+from auv_envs.tasks.acoustic import transition
+from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX
+from auv_envs.tasks.acoustic.randomization import AcousticRandomization
+
+# The detection sets are a JAX pytree of their arrays (registered when this module loads).
+jax.tree_util.register_dataclass(Measurements, data_fields=["values", "mask", "origin",
+                                                            "dropped"], meta_fields=[])
+
+
+class AcousticJax:
+    """The acoustic tracking task on JAX (what
+    :class:`~auv_envs.batched.functional.FunctionalEnv` serves for
+    ``auv_envs/AcousticTracking-v2``).
+
+    Args:
+        env_id: ``"auv_envs/AcousticTracking-v2"``.
+        obs_mode: ``"state"`` or ``"measurements"``.
+        **env_kwargs: the CPU environment's arguments (``disturbance``, ``trajectory``,
+            ``time_limit``, ``difficulty``, ...); they are checked by building that
+            environment, whose model, calibration and transition parameters this one uses.
+
+    Raises:
+        ValueError: for what is not built (module docstring), or a ``planner`` other
+            than ``"segments"`` (the tabulated route of v0/v1 is drawn in NumPy only).
+    """
+
+    transition = transition
+    randomization_class = AcousticRandomization
+    render_camera = ("rig/carrier", 6.0)
+
+    def __init__(self, env_id: str, obs_mode: str, **env_kwargs):
+        cpu = AcousticTrackingEnv(obs_mode=obs_mode, **env_kwargs)
+        if cpu.params.planner != "segments":
+            raise ValueError("the batched acoustic environment draws the v2 route "
+                             f"(planner='segments'), got planner={cpu.params.planner!r}")
+        self.cpu_env = cpu
+        self.params = dataclasses.replace(cpu.params, block=1, record=False,
+                                          noise_draws=FIXED_DRAWS)
+        self.calibration = cpu.calibration
+        self.dt = self.params.dt
+        self.ops = jax_ops()
+        self.plant = RigPlantMJX(cpu.physics)
+
+    @staticmethod
+    def end_reason(code, success) -> str:
+        """Never called: an acoustic episode only times out (it has no ``failure``)."""
+        raise NotImplementedError("acoustic tracking episodes only time out")
+
+    # ------------------------------------------------------------------ the protocol
+    def reset(self, draws, world) -> Transition:
+        """:func:`auv_envs.tasks.acoustic.transition.reset` on JAX in ``world``."""
+        return transition.reset(self.params, self._backend(draws, world))
+
+    def step(self, plant, episode, action, draws, world) -> Transition:
+        """Score the estimate ``action`` (clipped to the tank) and move on one sample
+        period: :func:`auv_envs.tasks.acoustic.transition.step` on JAX in ``world``."""
+        return transition.step(self.params, plant, episode, action,
+                               self._backend(draws, world))
+
+    def step_metrics(self, truth: dict, episode, judged) -> dict:
+        """The step's scores (:func:`~auv_envs.tasks.acoustic.transition.scores`)."""
+        return transition.scores(self.params, episode, truth, self.ops)
+
+    def episode_metrics(self, truth: dict, episode) -> dict:
+        """The episode's running summary: ``rmse``, ``steps`` and ``success`` (the state
+        keeps the running sum of squared errors, not the record the CPU summary reads)."""
+        scores = transition.scores(self.params, episode, truth, self.ops)
+        return {"rmse": scores["running_rmse"], "steps": episode.steps,
+                "success": scores["is_success"]}
+
+    def state_observation(self, episode, truth: dict) -> jax.Array:
+        """:func:`auv_envs.tasks.acoustic.transition.observe` in ``state`` mode (the source's
+        position and velocity and the current; it takes no draws) for the privileged
+        state."""
+        del truth  # the episode's block holds the truth
+        return transition.observe(dataclasses.replace(self.params, obs_mode="state"), episode,
+                                  self.ops.xp)
+
+    def reset_to(self, plan: transition.Plan, rng: jax.Array, *, world):
+        """The episode of ``plan`` (a CPU environment's
+        :class:`~auv_envs.tasks.acoustic.transition.Plan`, its numbers in float32): ``(rng,
+        transition)``. The equivalence tests start the CPU and the batched environment
+        alike this way."""
+        from auv_envs.batched.functional import KeyDraws
+
+        plan = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf, jnp.float32)
+                                      if jnp.issubdtype(jnp.asarray(leaf).dtype, jnp.floating)
+                                      else jnp.asarray(leaf), plan)
+        return rng, transition.begin(self.params, plan, self._backend(KeyDraws(rng), world))
+
+    def _backend(self, draws, world) -> Backend:
+        return Backend(self.ops, draws, _Rig(self.plant, world.mjx))
+
+
+class _Rig(NamedTuple):
+    """The transition's plant on JAX, a function of the rig's MJX data
+    (:mod:`auv_envs.core.task`): :class:`~auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`
+    simulating ``model``, the shell's world's, one sample period a call."""
+
+    plant: RigPlantMJX
+    model: Any
+
+    def place(self, carrier, arm):
+        return self.plant.place(carrier, arm, self.model)
+
+    def follow(self, rig, carrier_ref, carrier_vel, arm_ref, current, start):
+        """One period's ``(rig, position, velocity)``, (1, 3) each (the transition's blocks
+        are one period long here); period 0 is the rig as placed."""
+        if isinstance(start, int) and start == 0:
+            position, velocity = self.plant.source(rig, self.model)
+        else:
+            rig, position, velocity = self.plant.period(
+                rig, carrier_ref[0], carrier_vel[0], arm_ref[0], current[0], self.model)
+        return rig, position[None], velocity[None]
