@@ -59,18 +59,19 @@ def test_the_end_of_a_step_on_both_backends():
 def test_a_trail_is_persistent():
     """Appending never changes a trail already made, even when one is appended to twice
     (a state stepped on two branches)."""
-    empty = Trail.empty(5, 2)
-    one = empty.append([1.0, 1.0])
-    two = one.append([2.0, 2.0])
-    branch = one.append([9.0, 9.0])  # one grown again: must not touch two's rows
-    assert empty.rows.shape == (0, 2)
-    np.testing.assert_array_equal(one.rows, [[1.0, 1.0]])
-    np.testing.assert_array_equal(two.rows, [[1.0, 1.0], [2.0, 2.0]])
-    np.testing.assert_array_equal(branch.rows, [[1.0, 1.0], [9.0, 9.0]])
-    np.testing.assert_array_equal(two.append([3.0, 3.0]).rows[-1], [3.0, 3.0])
-    np.testing.assert_array_equal(two.rows, [[1.0, 1.0], [2.0, 2.0]])
+    empty = Trail.empty(5, 2, 2)
+    one = empty.append([1.0, 1.0], [-1.0, -1.0])
+    two = one.append([2.0, 2.0], [-2.0, -2.0])
+    branch = one.append([9.0, 9.0], [-9.0, -9.0])  # one grown again: must not touch two's
+    assert empty.series(0).shape == (0, 2)
+    np.testing.assert_array_equal(one.series(0), [[1.0, 1.0]])
+    np.testing.assert_array_equal(two.series(0), [[1.0, 1.0], [2.0, 2.0]])
+    np.testing.assert_array_equal(two.series(1), [[-1.0, -1.0], [-2.0, -2.0]])
+    np.testing.assert_array_equal(branch.series(0), [[1.0, 1.0], [9.0, 9.0]])
+    np.testing.assert_array_equal(two.append([3.0, 3.0], [0.0, 0.0]).series(0)[-1], [3.0, 3.0])
+    np.testing.assert_array_equal(two.series(0), [[1.0, 1.0], [2.0, 2.0]])
     with pytest.raises(ValueError):
-        two.rows[0, 0] = 5.0  # read-only
+        two.series(0)[0, 0] = 5.0  # read-only
 
 
 def test_an_acoustic_state_stays_as_it_was():
@@ -81,17 +82,17 @@ def test_an_acoustic_state_stays_as_it_was():
     for _ in range(20):
         env.step(np.array([100.0, 100.0, -5.0]))
     kept = env._episode.state
-    rows = kept.estimates.rows.copy()
+    rows = kept.estimates.copy()
     snapshot = copy.deepcopy(env._get_runtime_state())
     for _ in range(5):
         env.step(np.array([50.0, 50.0, -5.0]))
-    np.testing.assert_array_equal(kept.estimates.rows, rows)
+    np.testing.assert_array_equal(kept.estimates, rows)
     env._set_runtime_state(snapshot)
     for _ in range(5):
         env.step(np.array([60.0, 60.0, -5.0]))
-    np.testing.assert_array_equal(kept.estimates.rows, rows)
-    assert env._episode.state.estimates.rows.shape == (25, 3)
-    np.testing.assert_array_equal(env._episode.state.estimates.rows[20:], [[60.0, 60.0, -5.0]] * 5)
+    np.testing.assert_array_equal(kept.estimates, rows)
+    assert env._episode.state.estimates.shape == (25, 3)
+    np.testing.assert_array_equal(env._episode.state.estimates[20:], [[60.0, 60.0, -5.0]] * 5)
     env.close()
 
 

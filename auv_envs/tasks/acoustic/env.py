@@ -629,7 +629,7 @@ class AcousticTrackingEnv(TaskEnv):
         j = k - block.start
         trail_steps = int(round(RENDER_TRAIL / self._dt))
         first = max(0, k - trail_steps)
-        truths, estimates = state.truths.rows, state.estimates.rows
+        truths, estimates = state.truths, state.estimates
         trail = np.concatenate([truths[first:k], block.positions[j : j + 1]])
         m = block.measurements  # drawn whenever rendering
         mask = m.mask[j].ravel()

@@ -178,51 +178,68 @@ class Assessment(NamedTuple):
     terminated: Any
 
 
-class Trail(NamedTuple):
-    """Rows recorded one per step (an episode's estimates, its truths), persistent:
-    :meth:`append` returns a trail one row longer and leaves this one as it was. Trails
-    of one episode share a buffer, each reading its first ``length`` rows; an append
-    writes the row after them, which no trail reads, and copies the buffer first when
-    another trail has already grown it past this one (a state stepped twice), so no
+class Trail:
+    """Rows recorded one per step in several series (an episode's estimates and truths),
+    persistent: :meth:`append` returns a trail one step longer and leaves this one as it
+    was. Trails of one episode share a buffer, each reading its first ``length`` steps; an
+    append writes the step after them, which no trail reads, and copies the buffer first
+    when another trail has already grown it past this one (a state stepped twice), so no
     trail's rows ever change."""
 
-    buffer: np.ndarray
-    length: int
-    #: ``[rows written to the buffer]``, shared by the trails on it.
-    filled: list
+    __slots__ = ("_buffer", "length", "_filled")
+
+    def __init__(self, buffer: np.ndarray, length: int, filled: list):
+        #: (capacity, series, width) rows, NaN beyond the written ones.
+        self._buffer = buffer
+        #: Steps recorded.
+        self.length = length
+        #: ``[steps written to the buffer]``, shared by the trails on it.
+        self._filled = filled
 
     @classmethod
-    def empty(cls, capacity: int, width: int) -> Trail:
-        """A trail of no rows, room for ``capacity`` rows of ``width`` (NaN ahead)."""
-        return cls(np.full((capacity, width), np.nan), 0, [0])
+    def empty(cls, capacity: int, series: int, width: int) -> Trail:
+        """A trail of no steps, room for ``capacity`` steps of ``series`` rows of ``width``."""
+        return cls(np.full((capacity, series, width), np.nan), 0, [0])
 
-    def append(self, row) -> Trail:
-        buffer, filled = self.buffer, self.filled
-        if filled[0] != self.length:  # another trail grew the buffer past this one
-            buffer, filled = buffer.copy(), [self.length]
-        buffer[self.length] = row
-        filled[0] = self.length + 1
-        return Trail(buffer, self.length + 1, filled)
+    def append(self, *rows) -> Trail:
+        """This trail with one more step: ``rows``, one per series."""
+        buffer, filled, n = self._buffer, self._filled, self.length
+        if filled[0] != n:  # another trail grew the buffer past this one
+            buffer, filled = buffer.copy(), [n]
+        step = buffer[n]
+        for k, row in enumerate(rows):
+            step[k] = row
+        filled[0] = n + 1
+        return Trail(buffer, n + 1, filled)
 
-    @property
-    def rows(self) -> np.ndarray:
-        """The recorded rows, (length, width), a read-only view."""
-        view = self.buffer[: self.length]
+    def series(self, k: int) -> np.ndarray:
+        """Series ``k``'s recorded rows, (length, width), a read-only view."""
+        view = self._buffer[: self.length, k]
         view.flags.writeable = False
         return view
 
 
 class EpisodeState(NamedTuple):
     """Everything an episode changes besides the plant: the plan, the block being
-    served, the steps taken, the estimates and truths so far (:class:`Trail` s; None
-    without ``params.record``) and the sum of squared errors."""
+    served, the steps taken, the sum of squared errors and the record of the estimates and
+    the truths they were scored against (a :class:`Trail` of the two series; None without
+    ``params.record``)."""
 
     plan: Plan
     block: Block
     steps: int
     squared_error_sum: float
-    estimates: Trail | None
-    truths: Trail | None
+    record: Trail | None
+
+    @property
+    def estimates(self) -> np.ndarray:
+        """The estimates so far, (steps, 3), read-only (``params.record`` only)."""
+        return self.record.series(0)
+
+    @property
+    def truths(self) -> np.ndarray:
+        """The truths the estimates were scored against, (steps, 3), read-only."""
+        return self.record.series(1)
 
 
 # ------------------------------------------------------------------ the plan
@@ -572,10 +589,9 @@ def begin(params: AcousticParams, plan: Plan, backend: Backend) -> Transition:
     carrier, _, arm, _ = references(params, plan, xp.asarray(0), xp)
     rig, block = simulate_block(params, plan, None, 0, backend.plant.place(carrier, arm),
                                 backend)
-    record = Trail.empty(params.horizon, 3) if params.record else None
     state = EpisodeState(plan=plan, block=block, steps=ops.integer(0),
-                         squared_error_sum=ops.real(0.0), estimates=record,
-                         truths=None if record is None else Trail.empty(params.horizon, 3))
+                         squared_error_sum=ops.real(0.0),
+                         record=Trail.empty(params.horizon, 2, 3) if params.record else None)
     now = {"k": state.steps, "error": ops.real(float("nan"))}
     return Transition(rig, state, now, observe(params, state, xp))
 
@@ -595,8 +611,7 @@ def step(params: AcousticParams, rig, state: EpisodeState, action,
     state = state._replace(steps=k + 1,
                            squared_error_sum=state.squared_error_sum + error * error)
     if params.record:
-        state = state._replace(estimates=state.estimates.append(action),
-                               truths=state.truths.append(position))
+        state = state._replace(record=state.record.append(action, position))
     if params.block == 1 or state.steps - block.start >= params.block:
         rig, block = simulate_block(params, state.plan, block, state.steps, rig, backend)
         state = state._replace(block=block)
@@ -666,7 +681,7 @@ def scores(params: AcousticParams, state: EpisodeState, now: dict, ops) -> dict:
 def summary(params: AcousticParams, state: EpisodeState) -> dict:
     """The episode's summary (``info["episode_metrics"]`` at its end), from the record
     of estimates and truths (``params.record``)."""
-    est, truth = state.estimates.rows, state.truths.rows
+    est, truth = state.estimates, state.truths
     errors = metrics.position_errors(est, truth)
     rmse = metrics.rmse(est, truth)
     # One estimate per step: the track is "on" the source while within the
