@@ -252,10 +252,12 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
       episode from ``rng``, place the physics; ``extras`` are added to the
       reset ``info``.
     * :meth:`_simulate` ``(action) -> truth``: one control period (counts
-      ``_episode.steps``).
+      ``_episode.steps``); by default one step of the task's ``transition``
+      (:mod:`auv_envs.core.task`) from the plant's MuJoCo data, the action as
+      :meth:`_command` gives it.
     * :meth:`_assess` ``(truth, action) -> (terms, terminated)``: the reward
       terms (a dict in ``reward_terms`` order) and whether the episode ended
-      in success or failure; records what the episode summary needs.
+      in success or failure; by default the transition's judgement.
     * :meth:`_observation` ``(truth)``, :meth:`_info` ``(truth)`` (without
       the reward terms, which the loop adds), :meth:`_episode_metrics`
       ``(truth)``, :meth:`_truth` ``()`` (the truth now, for
@@ -276,6 +278,9 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     _closeables: ClassVar[tuple[str, ...]] = ()
     #: The task's plant on the CPU (the transition's ``Backend.plant``).
     _plant: Any = None
+    #: The task's transition (``auv_envs/tasks/<family>/transition.py``), which
+    #: :meth:`_simulate` steps.
+    transition: ClassVar[Any] = None
     #: :meth:`_backend`'s last value (rebuilt when the generator changes).
     _backend_cache: Backend | None = None
 
@@ -378,13 +383,25 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     def _begin_episode(self, rng: np.random.Generator, options: dict | None) -> tuple[dict, dict]:
         """Draw a new episode from ``rng``; return its first truth and extra reset info."""
 
-    @abc.abstractmethod
     def _simulate(self, action: np.ndarray) -> dict:
-        """Apply the (validated) action for one control period; return the truth after it."""
+        """Apply the (validated) action for one control period; return the truth after it:
+        the task's ``transition.step`` from the plant's state (the physics' MuJoCo data),
+        its episode state, observation and judgement kept in ``_episode``."""
+        ep = self._episode
+        stepped = self.transition.step(self.params, self.physics.data, ep.state,
+                                       self._command(action), self._backend(self.np_random))
+        ep.state, ep.obs, ep.judged = stepped.episode, stepped.obs, stepped.judged
+        return stepped.truth
 
-    @abc.abstractmethod
+    def _command(self, action: np.ndarray):
+        """The validated action as the transition takes it (the array itself)."""
+        return action
+
     def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        """The reward terms (in ``reward_terms`` order) and whether the episode terminated."""
+        """The reward terms (in ``reward_terms`` order) and whether the episode terminated:
+        the transition's judgement of the step."""
+        judged = self._episode.judged
+        return judged.terms, judged.terminated
 
     @abc.abstractmethod
     def _observation(self, truth: dict):

@@ -450,6 +450,7 @@ class AcousticTrackingEnv(TaskEnv):
         "paper": {"acoustic": PAPER_ACOUSTICS},
         "hard": {"acoustic": HARD_ACOUSTICS},
     }
+    transition = transition
     reward_terms = transition.REWARD_TERMS
     metric_keys = transition.STEP_METRICS
 
@@ -583,19 +584,6 @@ class AcousticTrackingEnv(TaskEnv):
         if self.calibration.config.sound_speed_error_std > 0:
             extras["sound_speed"] = state.plan.sound_speed
         return truth, extras
-
-    def _simulate(self, action: np.ndarray) -> dict:
-        """Score the estimate ``action`` against the truth at the last observation, then
-        move on one sample period (:func:`~auv_envs.tasks.acoustic.transition.step`)."""
-        ep = self._episode
-        _, ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, self.physics.data, ep.state, action, self._backend(self.np_random))
-        return truth
-
-    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        """The (clipped, normalised) estimate error; an episode ends only at its time limit."""
-        judged = self._episode.judged
-        return judged.terms, judged.terminated
 
     def _truth(self) -> dict:
         if self._episode.steps < 1:

@@ -506,6 +506,7 @@ class DockingEnv(TaskEnv):
         "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
                  "navigation": HARD_NAVIGATION},
     }
+    transition = transition
     reward_terms = transition.REWARD_TERMS
     metric_keys = (
         "distance_to_entrance", "longitudinal_error", "lateral_error", "vertical_error",
@@ -793,16 +794,9 @@ class DockingEnv(TaskEnv):
         self.integrator.force = self.hull.passive_force
         self.vehicle = vehicle
 
-    def _simulate(self, action: np.ndarray) -> dict:
-        ep = self._episode
-        _, ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, self.physics.data, ep.state, action.tolist(),
-            self._backend(self.np_random))
-        return truth
-
-    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        judged = self._episode.judged
-        return judged.terms, judged.terminated
+    def _command(self, action: np.ndarray) -> list:
+        """The transition takes the four commands as Python floats."""
+        return action.tolist()
 
     def _render_frame(self) -> np.ndarray:
         return self._render_camera(self._view)

@@ -333,6 +333,7 @@ class LARSCaptureEnv(TaskEnv):
         "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD,
                  "glint": HARD_GLINT},
     }
+    transition = transition
     reward_terms = transition.REWARD_TERMS
     metric_keys = (
         "capture_error", "relative_position", "relative_speed", "is_success", "collision",
@@ -525,16 +526,6 @@ class LARSCaptureEnv(TaskEnv):
         _, state, truth, obs, _ = transition.reset(self.params, self._backend(rng), options)
         self._episode = ShellEpisode(state, obs)
         return truth, transition.reset_info(self.params, state)
-
-    def _simulate(self, action: np.ndarray) -> dict:
-        ep = self._episode
-        _, ep.state, truth, ep.obs, ep.judged = transition.step(
-            self.params, self.physics.data, ep.state, action, self._backend(self.np_random))
-        return truth
-
-    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
-        judged = self._episode.judged
-        return judged.terms, judged.terminated
 
     def _truth(self) -> dict:
         return transition.truth_now(self.params, self.physics.data, self._episode.state,
