@@ -608,10 +608,9 @@ def step(params: AcousticParams, rig, state: EpisodeState, action,
     position = block.positions[k - block.start]
     difference = action - position
     error = ops.sqrt(difference.dot(difference))  # np.linalg.norm's arithmetic, sooner
-    state = state._replace(steps=k + 1,
-                           squared_error_sum=state.squared_error_sum + error * error)
-    if params.record:
-        state = state._replace(record=state.record.append(action, position))
+    record = state.record.append(action, position) if params.record else state.record
+    state = state._replace(steps=k + 1, squared_error_sum=state.squared_error_sum + error * error,
+                           record=record)
     if params.block == 1 or state.steps - block.start >= params.block:
         rig, block = simulate_block(params, state.plan, block, state.steps, rig, backend)
         state = state._replace(block=block)
