@@ -485,11 +485,11 @@ class FunctionalEnv:
         (``episode_<key>``)."""
         terms = ({term: 0.0 for term in self.task.transition.REWARD_TERMS} if judged is None
                  else judged.terms)
+        step, summary = self.task.metrics(truth, episode, judged)
         return {
-            **self.task.step_metrics(truth, episode, judged),
+            **step,
             **{f"reward_{term}": jnp.float32(value) for term, value in terms.items()},
-            **{f"episode_{key}": value
-               for key, value in self.task.episode_metrics(truth, episode).items()},
+            **{f"episode_{key}": value for key, value in summary.items()},
         }
 
     def _action(self, action) -> jax.Array:

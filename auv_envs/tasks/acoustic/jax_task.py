@@ -98,16 +98,14 @@ class AcousticJax:
         return transition.step(self.params, plant, episode, action,
                                self._backend(draws, world))
 
-    def step_metrics(self, truth: dict, episode, judged) -> dict:
-        """The step's scores (:func:`~auv_envs.tasks.acoustic.transition.scores`)."""
-        return transition.scores(self.params, episode, truth, self.ops)
-
-    def episode_metrics(self, truth: dict, episode) -> dict:
-        """The episode's running summary: ``rmse``, ``steps`` and ``success`` (the state
-        keeps the running sum of squared errors, not the record the CPU summary reads)."""
+    def metrics(self, truth: dict, episode, judged) -> tuple[dict, dict]:
+        """The step's scores (:func:`~auv_envs.tasks.acoustic.transition.scores`) and the
+        episode's running summary made of them: ``rmse``, ``steps`` and ``success`` (the
+        state keeps the running sum of squared errors, not the record the CPU summary
+        reads)."""
         scores = transition.scores(self.params, episode, truth, self.ops)
-        return {"rmse": scores["running_rmse"], "steps": episode.steps,
-                "success": scores["is_success"]}
+        return scores, {"rmse": scores["running_rmse"], "steps": episode.steps,
+                        "success": scores["is_success"]}
 
     def state_observation(self, episode, truth: dict) -> jax.Array:
         """:func:`auv_envs.tasks.acoustic.transition.observe` in ``state`` mode (the source's

@@ -95,13 +95,10 @@ class DockingJax:
         return transition.step(self.params, plant, episode, self.ops.unpack(action),
                                self._backend(draws, world))
 
-    def step_metrics(self, truth: dict, episode, judged) -> dict:
-        """:func:`~auv_envs.tasks.docking.transition.step_metrics`."""
-        return transition.step_metrics(truth, episode)
-
-    def episode_metrics(self, truth: dict, episode) -> dict:
-        """The episode's summary so far (:func:`~auv_envs.tasks.docking.transition.summary`)."""
-        return transition.summary(episode, truth)
+    def metrics(self, truth: dict, episode, judged) -> tuple[dict, dict]:
+        """The step's metrics (:func:`~auv_envs.tasks.docking.transition.step_metrics`) and
+        the episode's summary so far (:func:`~auv_envs.tasks.docking.transition.summary`)."""
+        return transition.step_metrics(truth, episode), transition.summary(episode, truth)
 
     def state_observation(self, episode, truth: dict) -> jax.Array:
         """:func:`auv_envs.tasks.docking.transition.observe` in ``state`` mode (it draws

@@ -117,13 +117,11 @@ class LARSJax:
         return transition.step(self.params, plant, episode, action,
                                self._backend(draws, world))
 
-    def step_metrics(self, truth: dict, episode, judged) -> dict:
-        """:func:`~auv_envs.tasks.lars.transition.step_metrics`."""
-        return transition.step_metrics(episode, truth, judged, self.ops)
-
-    def episode_metrics(self, truth: dict, episode) -> dict:
-        """The episode's summary so far (:func:`~auv_envs.tasks.lars.transition.summary`)."""
-        return transition.summary(self.params, episode, truth, self.ops)
+    def metrics(self, truth: dict, episode, judged) -> tuple[dict, dict]:
+        """The step's metrics (:func:`~auv_envs.tasks.lars.transition.step_metrics`) and the
+        episode's summary so far (:func:`~auv_envs.tasks.lars.transition.summary`)."""
+        return (transition.step_metrics(episode, truth, judged, self.ops),
+                transition.summary(self.params, episode, truth, self.ops))
 
     def state_observation(self, episode, truth: dict) -> jax.Array:
         """:func:`auv_envs.tasks.lars.transition.observe` in ``state`` mode (it draws
@@ -158,8 +156,8 @@ class LARSJax:
     def truth(self, plant, episode, world) -> dict:
         """The ground truth of the arm at ``plant`` in ``episode``
         (:func:`auv_envs.tasks.lars.transition.truth`)."""
-        return transition.truth_now(self.params, plant, episode, _Arm(self.plant, self.ops,
-                                                                     world.mjx), self.ops)
+        return transition.truth_now(self.params, plant, episode,
+                                    self._backend(None, world).plant, self.ops)
 
     def _backend(self, draws, world) -> transition.Backend:
         return transition.Backend(self.ops, draws, _Arm(self.plant, self.ops, world.mjx))
