@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from auv_envs.core.assets import asset_path
+from auv_envs.tasks.docking import config as docking_config
 from auv_envs.tasks.docking import env as docking
 from tests.conftest import DOCKING_IDS, ENV_IDS, leaves, make_env
 
@@ -80,8 +81,8 @@ def test_missing_asset_names_the_file():
 
 
 def test_missing_layout_asset_fails_at_construction(monkeypatch):
-    broken = dataclasses.replace(docking.SIX_LIGHTS, asset="docking/missing_layout.xml")
-    monkeypatch.setattr(docking.DockingStationEnv, "layout", broken)
+    broken = dataclasses.replace(docking_config.SIX_LIGHTS, asset="docking/missing_layout.xml")
+    monkeypatch.setitem(docking_config.LAYOUTS, "six_lights", broken)
     with pytest.raises(FileNotFoundError, match="missing_layout.xml"):
         docking.DockingStationEnv()
 

@@ -143,13 +143,13 @@ def test_observations_lie_in_the_dict_space(rollouts):
         space = env.observation_space
         assert isinstance(space, gym.spaces.Dict)
         assert set(space.spaces) == {"state", "privileged_state"}
-        assert space["state"] == env.cpu_env.observation_space
+        assert space["state"] == env.task.observation_space
         privileged_space = space[PRIVILEGED_KEY]
         assert isinstance(privileged_space, gym.spaces.Box)
         assert privileged_space.dtype == np.float32
     # The privileged state's space is the CPU state-mode env's.
     assert (rollouts["privileged_env"].observation_space[PRIVILEGED_KEY]
-            == rollouts["state_env"].cpu_env.observation_space)
+            == rollouts["state_env"].task.observation_space)
     space = rollouts["privileged_env"].observation_space
     for state in rollouts["privileged"]:
         for obs in (state.obs, state.info["final_obs"]):
@@ -162,7 +162,7 @@ def test_load_gives_brax_the_two_flat_entries(env_id):
     mode = OTHER_MODE[env_id]
     env = auv_envs.batched.load(env_id, obs_mode=mode, privileged=True)
     flat = auv_envs.batched.load(env_id, obs_mode=mode)
-    state_size = gym.spaces.flatdim(env.cpu_env.observation_space)
+    state_size = gym.spaces.flatdim(env.task.observation_space)
     privileged_size = env.observation_space[PRIVILEGED_KEY].shape[0]
     assert env.observation_space["state"] == flat.observation_space
     assert env.observation_size == {"state": (state_size,),

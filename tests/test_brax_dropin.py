@@ -54,7 +54,7 @@ def test_load_takes_every_family_and_refuses_the_rest():
     # Flat float32 observations (10 x 8 x 8 azimuths and elevations, 10 x 8 masks, 10 x 8 x 7
     # TDOAs) and actions in [-1, 1] mapped onto the tank.
     assert env.observation_size == 10 * 8 * 8 * 2 + 10 * 8 + 10 * 8 * 7
-    assert env.action_size == 3 and env.episode_length == env.cpu_env.max_episode_steps
+    assert env.action_size == 3 and env.episode_length == env.task.max_episode_steps
     np.testing.assert_allclose(np.asarray(env._action(jnp.array([-1.0, 1.0, 0.0]))),
                                [0.0, 300.0, -15.0])
     np.testing.assert_allclose(np.asarray(env._action(jnp.array([-7.0, 2.0, 0.0]))),

@@ -174,9 +174,9 @@ class FunctionalEnv:
             the nominal world unless given others (Playground's
             ``wrap_for_brax_training(..., randomization_fn=...)``, ``gym.make_vec(...,
             randomize=True)``).
-        **env_kwargs: the CPU environment's arguments (``difficulty``, ``time_limit``,
-            ...); they are checked by building that environment, whose model, calibration
-            and transition parameters the task uses.
+        **env_kwargs: the family's configuration (the CPU environment's arguments:
+            ``difficulty``, ``time_limit``, ...), each checked as the CPU environment checks
+            it; the task is built from them (its JAX task's ``build``).
 
     The family's task (:attr:`task`) holds what is the family's: its parameters, its
     plant on MJX, its metrics and its state vector; it returns the transition's
@@ -209,16 +209,15 @@ class FunctionalEnv:
         task_class = entry.jax_task_class()
         self._use_randomization(randomization, task_class.randomization_class)
         #: The family's task on JAX (``auv_envs/tasks/<family>/jax_task.py``).
-        self.task = task = task_class(entry.env_id, obs_mode, **env_kwargs)
+        self.task = task = task_class.build(entry.env_id, obs_mode, **env_kwargs)
         self.env_id, self.obs_mode, self.auto_reset = env_id, obs_mode, auto_reset
-        cpu = self.cpu_env = task.cpu_env
         self.params, self.plant, self.ops = task.params, task.plant, task.ops
         self.calibration = task.calibration
-        self.max_episode_steps = cpu.max_episode_steps
-        self.observation_space, self.action_space = cpu.observation_space, cpu.action_space
+        self.max_episode_steps = task.max_episode_steps
+        self.observation_space, self.action_space = task.observation_space, task.action_space
         self._offer_privileged(privileged)
 
-    cpu_env = plant = calibration = observation_space = action_space = None
+    plant = calibration = observation_space = action_space = None
     max_episode_steps: int
     auto_reset: bool = True
     #: Playground's and Brax's conventions (:meth:`use_playground_conventions`).
@@ -265,15 +264,15 @@ class FunctionalEnv:
 
     @property
     def episode_length(self) -> int:
-        """The CPU environment's episode length in steps (its time limit): what Brax's
-        ``ppo.train(episode_length=...)`` is given."""
-        return self.cpu_env.max_episode_steps
+        """The episode length in steps (its time limit, as the CPU environment's): what
+        Brax's ``ppo.train(episode_length=...)`` is given."""
+        return self.max_episode_steps
 
     @property
     def mj_model(self):
-        """The env's MuJoCo model (the CPU env's: what its plant simulates; the batched
+        """The env's MuJoCo model (the task's, as the CPU env composes it; the batched
         plant's copy on MJX switches its contacts off)."""
-        return self.cpu_env.physics.model
+        return self.task.mj_model
 
     @property
     def xml_path(self) -> str:
@@ -283,7 +282,7 @@ class FunctionalEnv:
         ``~/.cache/auv_envs/models``). ``mujoco.MjModel.from_xml_path`` of it is
         :attr:`mj_model`."""
         model = self.mj_model
-        source = self.cpu_env.model_source.with_option(
+        source = self.task.model_source.with_option(
             timestep=float(model.opt.timestep),
             integrator=_INTEGRATOR_NAMES[int(model.opt.integrator)])
         return str(source.write(native.cache_dir() / "models"))
@@ -291,7 +290,7 @@ class FunctionalEnv:
     @property
     def model_assets(self) -> dict:
         """The assets :attr:`xml_path`'s MJCF names (file name -> bytes)."""
-        return dict(self.cpu_env.model_source.assets)
+        return dict(self.task.model_source.assets)
 
     @property
     def sim_dt(self) -> float:

@@ -23,6 +23,7 @@ the CPU plants.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 
@@ -61,3 +62,21 @@ def truncated(terminated, steps, max_episode_steps: int, ops):
     """Whether a step ends its episode at the time limit: ``steps`` reached
     ``max_episode_steps`` without terminating (``ops``: :mod:`auv_envs.core.ops`'s)."""
     return ops.logical_not(terminated) & (steps >= max_episode_steps)
+
+
+class Config:
+    """A family's configuration (``auv_envs/tasks/<family>/config.py``): a frozen dataclass
+    of everything that fixes the task, changed by :meth:`replace` only."""
+
+    def replace(self, **changes):
+        """This configuration with ``changes``.
+
+        Raises:
+            TypeError: a name that is not one of the configuration's fields.
+        """
+        names = [field.name for field in dataclasses.fields(self)]
+        unknown = sorted(set(changes) - set(names))
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no field {', '.join(unknown)}; its "
+                            f"fields are {names}")
+        return dataclasses.replace(self, **changes)

@@ -104,8 +104,9 @@ class FixParams:
 
     @classmethod
     def of(cls, env) -> FixParams:
-        """The parameters of an acoustic environment in ``measurements`` mode (a CPU or a
-        batched one; its ``calibration`` and action box).
+        """The parameters of an acoustic environment in ``measurements`` mode (a CPU one,
+        or the setup of one, :func:`auv_envs.tasks.acoustic.config.params`; its
+        ``calibration`` and action box).
 
         Raises:
             ConfigError: it is not such an environment.
@@ -248,7 +249,7 @@ class DetectionFixesMJX(BatchedFrontEnd):
 
     def __init__(self, env):
         super().__init__(env)
-        self.params = FixParams.of(env.cpu_env)
+        self.params = FixParams.of(env.task.setup)
         self.observation_space = self.around(self.params.observation_space())
 
     def start(self) -> Held:

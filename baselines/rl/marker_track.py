@@ -106,8 +106,9 @@ class TrackParams:
 
     @classmethod
     def of(cls, env: gym.Env, **gains) -> TrackParams:
-        """The parameters for ``env`` (a ``LARSCapture-v0`` CPU env, wrapped or not)."""
-        base = env.unwrapped
+        """The parameters for ``env`` (a ``LARSCapture-v0`` CPU env, wrapped or not, or the
+        setup of one, :func:`auv_envs.tasks.lars.config.params`)."""
+        base = getattr(env, "unwrapped", env)
         cal = getattr(base, "calibration", None)
         if getattr(base, "obs_mode", None) != "features" or not hasattr(cal, "stereo"):
             raise ConfigError("the marker tracker needs auv_envs/LARSCapture-v0 with "
@@ -277,7 +278,7 @@ class MarkerTrackMJX(BatchedFrontEnd):
 
     def __init__(self, env):
         super().__init__(env)
-        self.params = TrackParams.of(env.cpu_env)
+        self.params = TrackParams.of(env.task.setup)
         self.observation_space = self.around(spaces.Box(-np.inf, np.inf, (SIZE,), np.float32))
 
     def start(self) -> TrackState:

@@ -71,9 +71,10 @@ class Carry(NamedTuple):
 
 def params_of(env: gym.Env) -> Params:
     """The parameters for ``env`` (a ``DockingMission-v0`` CPU env in ``nav_features``
-    mode, wrapped or not): those ``MissionAgent`` gives its filter, and the lights' heading
+    mode, wrapped or not, or the setup of one, :func:`auv_envs.tasks.docking.config.params`):
+    those ``MissionAgent`` gives its filter, and the lights' heading
     filter's from the calibration and the navigation suite."""
-    base = env.unwrapped
+    base = getattr(env, "unwrapped", env)
     nav = getattr(base, "navigation", None)
     if getattr(base, "obs_mode", None) != "nav_features" or nav is None:
         raise ConfigError("the navigation filter needs a docking env with navigation "
@@ -161,9 +162,9 @@ class NavFilterMJX(BatchedFrontEnd):
 
     def __init__(self, env):
         super().__init__(env)
-        self.params = params_of(env.cpu_env)
+        self.params = params_of(env.task.setup)
         self.observation_space = self.around(
-            observation_space(env.cpu_env.observation_space))
+            observation_space(env.task.observation_space))
 
     def start(self) -> Carry:
         return start(self.params, self._jnp)

@@ -13,244 +13,50 @@ shell, its levels and its MuJoCo plant.
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
 
-import mujoco
 import numpy as np
-from dm_control import mjcf
-from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
 from auv_envs.core.acoustics import (
-    GMPHD_FLOW_NOISE_LEVEL,
-    NOISE_DRAWS,
     AcousticConfig,
-    HydrophoneArray,
 )
-from auv_envs.core.assets import MJCF, asset_path
 from auv_envs.core.env import (
     ActionValidator,
     ShellEpisode,
     TaskEnv,
-    check_choice,
     check_image_size,
-    check_positive_int,
 )
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.bound import EpisodeRecord, MotionPrior, bound_rmse
+from auv_envs.tasks.acoustic.config import (  # noqa: F401  (the names' home before the config)
+    HARD_ACOUSTICS,
+    OBS_MODES,
+    PAPER_ACOUSTICS,
+    PLANNERS,
+    PRESETS,
+    TRAJECTORIES,
+    AcousticCalibration,
+    AcousticTrackingConfig,
+    params,
+)
+from auv_envs.tasks.acoustic.plant import (  # noqa: F401  (the names' home before the plant)
+    ARM_JOINTS,
+    CARRIER_JOINTS,
+    INTEGRATORS,
+    AcousticPhysics,
+    build_tank_model,
+    compose_tank_model,
+)
 from auv_envs.tasks.acoustic.transition import (
     BLOCK,
-    DISTURBANCES,
-    NOMINAL_POSTURE,
-    STATIC_POINTS,
 )
 
-OBS_MODES = ("state", "measurements")
-TRAJECTORIES = ("dynamic", "static")
-#: The carrier route's planners (``planner=``): from v2 on ``"segments"``
-#: (:func:`~auv_envs.tasks.acoustic.transition.draw_route`, the same code on NumPy and
-#: JAX), in v0/v1 ``"tabulated"`` (:func:`~auv_envs.tasks.acoustic.transition.plan_route`).
-PLANNERS = ("segments", "tabulated")
-#: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
-#: in v0 implicitfast in one 10 ms step; each close to finer integrations of itself
-#: (``tests/test_plant_convergence.py``; ``docs/physics.md`` has the figures).
-INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
-               "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST}
-ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
-              "tool_roll")
-CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
 #: Seconds of the end effector's path that ``render()`` draws, and of estimates in its close-up.
 RENDER_TRAIL = 10.0
 RENDER_CLOSEUP = 2.0
 
 
-#: The ``paper`` level's measurement model: [GMPHD]'s tank (§4.1: 300 m x 300 m, water at
-#: 20 +- 2 degC, three current generators, precisely surveyed node positions). Each parameter
-#: beyond the defaults is physical (:mod:`auv_envs.core.acoustics` documents the models):
-#:
-#: * ``flow_noise_level``: the current generators' radiated noise (``GMPHD_FLOW_NOISE_LEVEL``).
-#: * ``propagation_delay``: sound takes R / c to reach a node, so a moving source is heard
-#:   where it was (not a parameter: the physics of a finite sound speed).
-#: * ``sound_speed_error_std`` 1 m/s: the tank's mean temperature known to about 0.3 degC
-#:   (dc/dT = 3.2 m/s per degC at 20 degC, Mackenzie 1981); our assumption.
-#: * ``fluctuation_intensity`` 3.5e-4, the rms fractional sound-speed fluctuation (about
-#:   0.1 degC of thermal microstructure and the generators' turbulence; correlation length
-#:   10 m and time 2 s, our assumptions): calibrated against [GMPHD]'s dynamic RMSE (0.18 m
-#:   average, Table 2).
-#: * ``source_level`` 110 dB re 1 uPa at 1 m (10 dB below the ``easy`` source): calibrated
-#:   against [GMPHD]'s static positioning error (0.11 m average over Table 1's five points);
-#:   it also makes each band's own noise, which fusing the bands averages, matter beside the
-#:   errors the bands share.
-PAPER_ACOUSTICS = AcousticConfig(
-    flow_noise_level=GMPHD_FLOW_NOISE_LEVEL,
-    propagation_delay=True,
-    sound_speed_error_std=1.0,
-    fluctuation_intensity=3.5e-4,
-    fluctuation_length=10.0,
-    fluctuation_time=2.0,
-    source_level=110.0,
-)
-#: The ``hard`` level: beyond [GMPHD]'s tank. A quieter source (105 dB) so that the far
-#: nodes and the high bands fade, twice the microstructure (7e-4), a temperature known to
-#: 1 degC (3 m/s), band fading of the saturated (Rayleigh) regime (5.6 dB rms, Flatte et al.
-#: 1979), boundaries that reflect more (surface 2 dB, bottom 6 dB loss: stronger ghosts),
-#: three false alarms per band and period, and node dropouts (Gilbert-Elliott outages, our
-#: choice: each node drops out once a minute on average, ``node_dropout_rate`` 1/60 per s,
-#: for 5 s on average, so it is out 7.7 % of the time and all eight work 53 % of it).
-HARD_ACOUSTICS = dataclasses.replace(
-    PAPER_ACOUSTICS,
-    source_level=105.0,
-    fluctuation_intensity=7e-4,
-    sound_speed_error_std=3.0,
-    fading_std=5.6,
-    surface_loss=2.0,
-    bottom_loss=6.0,
-    clutter_rate=3.0,
-    node_dropout_rate=1.0 / 60.0,
-    node_dropout_duration=5.0,
-)
-
-
-def build_tank_model() -> mujoco.MjModel:
-    """:func:`compose_tank_model`, compiled."""
-    return compose_tank_model().compile()
-
-
-def compose_tank_model() -> MJCF:
-    """Compose the tank and the carrier + arm from ``assets/acoustic`` with mjcf."""
-    tank = mjcf.from_path(str(asset_path("acoustic/tank.xml")))
-    rig = mjcf.from_path(str(asset_path("acoustic/carrier_arm.xml")))
-    rig.model = "rig"
-    tank.worldbody.attach(rig)
-    return MJCF.of(tank)
-
-
-@dataclasses.dataclass(frozen=True)
-class AcousticCalibration:
-    """What a tracker may know about the sensing system (read-only).
-
-    Attributes:
-      array: the :class:`~auv_envs.core.acoustics.HydrophoneArray`, with the
-        node positions, the noise model (``array.model(p)``) and the exact
-        measurement function (``array.noise_free(p)``).
-      hydrophone_positions: (8, 3) node positions in the tank frame (m);
-        index 0 is node 1, the TDOA reference.
-      sound_speed: m/s. sample_rate: fs in Hz. band_centres: (Q,) Hz.
-      bandwidth: Hz per band. config: the full
-        :class:`~auv_envs.core.acoustics.AcousticConfig`.
-      tank_size: (x, y) extent in m; tank_depth: m (surface z = 0).
-      work_area: ((x, y, z) low, (x, y, z) high) where the end effector moves.
-      max_detections: K, the padded detection-set size per band.
-    """
-
-    array: HydrophoneArray
-    hydrophone_positions: np.ndarray
-    sound_speed: float
-    sample_rate: float
-    band_centres: np.ndarray
-    bandwidth: float
-    config: AcousticConfig
-    tank_size: tuple[float, float]
-    tank_depth: float
-    work_area: tuple[tuple[float, float, float], tuple[float, float, float]]
-    max_detections: int
-
-
-class AcousticPhysics:
-    """The MuJoCo model/data pair with the ids this task needs, resolved once."""
-
-    def __init__(self, model: mujoco.MjModel):
-        self.model = model
-        self.data = mujoco.MjData(model)
-        self.source_site = model.site("rig/source").id
-        self.hydrophones = np.array(
-            [model.site_pos[model.site(f"hydrophone_{i}").id] for i in range(1, 9)]
-        )
-        self.carrier_qpos = np.array([model.joint(f"rig/{j}").qposadr[0] for j in CARRIER_JOINTS])
-        self.arm_qpos = np.array([model.joint(f"rig/{j}").qposadr[0] for j in ARM_JOINTS])
-        self.carrier_pos_act = np.array(
-            [model.actuator(f"rig/{j}_pos").id for j in CARRIER_JOINTS]
-        )
-        self.carrier_vel_act = np.array(
-            [model.actuator(f"rig/{j}_vel").id for j in CARRIER_JOINTS]
-        )
-        self.arm_act = np.array([model.actuator(f"rig/{j}").id for j in ARM_JOINTS])
-        # The tank as assets/acoustic/tank.xml draws it: the bottom plane spans it.
-        bottom = model.geom("bottom")
-        self.tank_depth = -float(bottom.pos[2])
-        self.tank_size = (2.0 * float(bottom.size[0]), 2.0 * float(bottom.size[1]))
-        self._jac = np.zeros((3, model.nv))
-        #: Physics steps per sample period.
-        self.substeps = 1
-
-    def place(self, carrier, arm):
-        """The rig at rest with the carrier's and the arm's joints at ``carrier`` (4) and
-        ``arm`` (6) (the transition's plant, :mod:`auv_envs.tasks.acoustic.transition`,
-        whose state is this ``MjData``, integrated in place: :mod:`auv_envs.core.task`)."""
-        model, data = self.model, self.data
-        mujoco.mj_resetData(model, data)
-        data.qpos[self.carrier_qpos] = carrier
-        data.qpos[self.arm_qpos] = arm
-        mujoco.mj_forward(model, data)
-        return data
-
-    def follow(self, rig, carrier_ref, carrier_vel, arm_ref, current, start: int):
-        """``(rig, positions, velocities)``: the source's positions and velocities (count,
-        3) at sample periods ``start``,
-        ``start + 1``, ...: the rig moved on one period (``substeps`` physics steps)
-        towards each row of the servos' references ((count, 4), (count, 4) and (count,
-        6)) in the current of the period before it (MuJoCo's ``wind``, (count, 3) rows:
-        row ``j`` is the current from period ``start + j - 1`` to ``start + j``).
-        Period 0 is the rig as :meth:`place` left it (that row's references and current
-        are unused); later calls continue from the integration state.
-
-        Each physics step is MuJoCo's ``mj_step1`` (positions, velocities and the fluid
-        forces in the current) then ``mj_step2`` (the servos' forces, the integration):
-        ``mj_step``'s arithmetic, with the source read from the next step's first half
-        instead of a further pass over the kinematics.
-        """
-        model, data = self.model, self.data
-        count = len(current)
-        ctrl = np.empty((count, model.nu))
-        ctrl[:, self.carrier_pos_act] = carrier_ref
-        ctrl[:, self.carrier_vel_act] = carrier_vel
-        ctrl[:, self.arm_act] = arm_ref
-        positions = np.empty((count, 3))
-        velocities = np.empty((count, 3))
-        # Views into this model and data, taken per call (a copied env has its own).
-        wind, data_ctrl, qvel, jac, site = model.opt.wind, data.ctrl, data.qvel, self._jac, \
-            self.source_site
-        xpos = data.site_xpos[site]
-        step1, step2, jac_site = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_jacSite
-        more = range(self.substeps - 1)
-        for j in range(count):
-            if start + j == 0:
-                continue  # period 0: the rig as placed
-            wind[:] = current[j]
-            step1(model, data)
-            if j:  # the state of period start + j - 1, its kinematics current
-                positions[j - 1] = xpos
-                jac_site(model, data, jac, None, site)
-                np.dot(jac, qvel, out=velocities[j - 1])
-            data_ctrl[:] = ctrl[j]
-            step2(model, data)
-            for _ in more:
-                step1(model, data)
-                step2(model, data)
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_comPos(model, data)
-        positions[-1] = xpos
-        jac_site(model, data, jac, None, site)
-        np.dot(jac, qvel, out=velocities[-1])
-        return rig, positions, velocities
-
-    def source_offset(self, posture) -> np.ndarray:
-        """Source position relative to the carrier at yaw 0 in a given arm posture."""
-        data = mujoco.MjData(self.model)
-        data.qpos[self.arm_qpos] = posture
-        mujoco.mj_kinematics(self.model, data)
-        return data.site_xpos[self.source_site].copy()
 
 
 class AcousticTrackingEnv(TaskEnv):
@@ -445,11 +251,7 @@ class AcousticTrackingEnv(TaskEnv):
     #: The contract the registry-driven tests read (see tests/conftest.py).
     obs_modes = OBS_MODES
     #: ``difficulty`` levels (:mod:`auv_envs.core.difficulty`): the acoustic measurement model.
-    difficulty_presets = {
-        "easy": {},
-        "paper": {"acoustic": PAPER_ACOUSTICS},
-        "hard": {"acoustic": HARD_ACOUSTICS},
-    }
+    difficulty_presets = PRESETS
     transition = transition
     reward_terms = transition.REWARD_TERMS
     metric_keys = transition.STEP_METRICS
@@ -485,41 +287,33 @@ class AcousticTrackingEnv(TaskEnv):
             render_mode=render_mode,
             render_size=render_size, difficulty=difficulty,
         )
-        acoustic = self._apply_difficulty(difficulty, acoustic=acoustic)["acoustic"]
         self._render_size = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = self._render_size
-        check_positive_int("physics_substeps", physics_substeps)
-        check_choice("integrator", integrator, tuple(INTEGRATORS))
-        check_choice("noise_draws", noise_draws, NOISE_DRAWS)
-        check_choice("planner", planner, PLANNERS)
-        if not isinstance(draw_detections, bool):
-            raise TypeError(f"draw_detections must be True or False, got {draw_detections!r}")
-        check_choice("disturbance", disturbance, tuple(DISTURBANCES))
-        check_choice("trajectory", trajectory, TRAJECTORIES)
-        if static_point is not None:
-            check_choice("static_point", static_point, range(1, len(STATIC_POINTS) + 1))
-        for name in ("time_limit", "error_clip", "track_gate", "success_radius"):
-            value = self._init_kwargs[name]
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        config = acoustic if acoustic is not None else AcousticConfig()
-        if not isinstance(config, AcousticConfig):
-            raise TypeError(f"acoustic must be an AcousticConfig, got {type(config).__name__}")
-
+        if render_mode is not None and draw_detections is False:
+            draw_detections = True  # a rendering env draws the detections it shows
+        setup = params(AcousticTrackingConfig(
+            obs_mode=obs_mode, disturbance=disturbance, trajectory=trajectory,
+            static_point=static_point, time_limit=time_limit, acoustic=acoustic,
+            error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
+            physics_substeps=physics_substeps, integrator=integrator,
+            noise_draws=noise_draws, draw_detections=draw_detections, planner=planner,
+            difficulty=difficulty))
+        #: What the configuration fixes (:class:`~auv_envs.tasks.acoustic.config.AcousticSetup`).
+        self.setup = setup
+        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
+        self.difficulty = difficulty
         self.obs_mode = obs_mode
         self.render_mode = render_mode
         self.disturbance = disturbance
         self.trajectory = trajectory
         self._static_point = static_point
         #: The composed model's text (:class:`~auv_envs.core.assets.MJCF`).
-        self.model_source = compose_tank_model()
-        self.physics = AcousticPhysics(self.model_source.compile())
-        self._dt = 1.0 / config.sample_rate
-        self.physics.model.opt.timestep = self._dt / physics_substeps
-        self.physics.model.opt.integrator = INTEGRATORS[integrator]
+        self.model_source = setup.model_source
+        self.physics = AcousticPhysics(setup.model)
         self.physics.substeps = physics_substeps
         self._plant = self.physics
-        self._horizon = int(round(time_limit * config.sample_rate))
+        self._dt = setup.dt
+        self._horizon = setup.max_episode_steps
         #: Step period, s (one env step).
         self.dt = self._dt
         #: Steps of an episode (it always runs to its ``time_limit``).
@@ -527,54 +321,14 @@ class AcousticTrackingEnv(TaskEnv):
         self._error_clip = float(error_clip)
         self._track_gate = float(track_gate)
         self._success_radius = float(success_radius)
-        depth = self.physics.tank_depth
-        array = HydrophoneArray(self.physics.hydrophones, 0.0, -depth, config)
-        band_centres = array.band_centres
-        tank_size = self.physics.tank_size
-        low = np.array([0.0, 0.0, -depth])
-        high = np.array([*tank_size, 0.0])
-        self.calibration = AcousticCalibration(
-            array=array,
-            hydrophone_positions=array.positions,
-            sound_speed=config.sound_speed,
-            sample_rate=config.sample_rate,
-            band_centres=band_centres,
-            bandwidth=config.bandwidth,
-            config=config,
-            tank_size=tank_size,
-            tank_depth=depth,
-            work_area=((40.0, 40.0, -25.0), (295.0, 295.0, -5.0)),
-            max_detections=config.max_detections,
-        )
+        self.calibration = setup.calibration
         #: The transition's :class:`~auv_envs.tasks.acoustic.transition.AcousticParams`.
-        self.params = transition.AcousticParams(
-            obs_mode=obs_mode, trajectory=trajectory, static_point=static_point,
-            current_range=DISTURBANCES[disturbance], dt=self._dt, horizon=self._horizon,
-            array=array, source_offset=self.physics.source_offset(NOMINAL_POSTURE),
-            error_clip=self._error_clip, track_gate=self._track_gate,
-            success_radius=self._success_radius, noise_draws=noise_draws, planner=planner,
-            draw_detections=bool(draw_detections or obs_mode == "measurements" or render_mode))
-        self.action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),
-                                       dtype=np.float32)
+        self.params = setup.params
+        self.action_space = setup.action_space
         self._validate_action = ActionValidator(self.action_space)
-        self.observation_space = self._make_observation_space(array)
+        self.observation_space = setup.observation_space
         self._episode = ShellEpisode()
         self._plot = None  # the TankPlot, built on the first render()
-
-    def _make_observation_space(self, array: HydrophoneArray) -> spaces.Space:
-        if self.obs_mode == "state":
-            return spaces.Box(-np.inf, np.inf, shape=(9,), dtype=np.float32)
-        q, k, n = array.config.n_bands, array.config.max_detections, array.n_nodes
-        bound = np.broadcast_to(array.max_tdoa * 1.1 + 0.01, (q, k, n - 1))
-        entries = {
-            "tdoa": spaces.Box(-bound, bound, dtype=np.float64),
-            "azimuth": spaces.Box(-np.pi, np.pi, shape=(q, k, n), dtype=np.float64),
-            "elevation": spaces.Box(0.0, np.pi, shape=(q, k, n), dtype=np.float64),
-            "mask": spaces.MultiBinary((q, k)),
-        }
-        if array.config.node_dropout_rate > 0:
-            entries["node_mask"] = spaces.MultiBinary(n)
-        return spaces.Dict(entries)
 
     # ------------------------------------------------------------------ episode hooks
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):

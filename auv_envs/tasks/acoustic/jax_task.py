@@ -39,8 +39,9 @@ from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
 from auv_envs.core.ops import Backend, jax_ops
 from auv_envs.core.task import Transition
 from auv_envs.tasks.acoustic import transition
-from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.config import AcousticSetup, config_of, params
 from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX
+from auv_envs.tasks.acoustic.plant import AcousticPhysics
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization
 
 # The detection sets are a JAX pytree of their arrays (registered when this module loads).
@@ -54,11 +55,9 @@ class AcousticJax:
     ``auv_envs/AcousticTracking-v2``).
 
     Args:
-        env_id: ``"auv_envs/AcousticTracking-v2"``.
-        obs_mode: ``"state"`` or ``"measurements"``.
-        **env_kwargs: the CPU environment's arguments (``disturbance``, ``trajectory``,
-            ``time_limit``, ``difficulty``, ...); they are checked by building that
-            environment, whose model, calibration and transition parameters this one uses.
+        setup: the task's parameters (:func:`auv_envs.tasks.acoustic.config.params` of an
+            :class:`~auv_envs.tasks.acoustic.config.AcousticTrackingConfig`; ``obs_mode``
+            ``"state"`` or ``"measurements"``).
 
     Raises:
         ValueError: for what is not built (module docstring), or a ``planner`` other
@@ -69,18 +68,29 @@ class AcousticJax:
     randomization_class = AcousticRandomization
     render_camera = ("rig/carrier", 6.0)
 
-    def __init__(self, env_id: str, obs_mode: str, **env_kwargs):
-        cpu = AcousticTrackingEnv(obs_mode=obs_mode, **env_kwargs)
-        if cpu.params.planner != "segments":
+    def __init__(self, setup: AcousticSetup):
+        if setup.params.planner != "segments":
             raise ValueError("the batched acoustic environment draws the v2 route "
-                             f"(planner='segments'), got planner={cpu.params.planner!r}")
-        self.cpu_env = cpu
-        self.params = dataclasses.replace(cpu.params, block=1, record=False,
+                             f"(planner='segments'), got planner={setup.params.planner!r}")
+        self.setup = setup
+        self.params = dataclasses.replace(setup.params, block=1, record=False,
                                           noise_draws=FIXED_DRAWS)
-        self.calibration = cpu.calibration
+        self.calibration = setup.calibration
         self.dt = self.params.dt
         self.ops = jax_ops()
-        self.plant = RigPlantMJX(cpu.physics)
+        physics = AcousticPhysics(setup.model)
+        physics.substeps = setup.config.physics_substeps
+        self.plant = RigPlantMJX(physics)
+        self.observation_space, self.action_space = setup.observation_space, setup.action_space
+        self.max_episode_steps = setup.max_episode_steps
+        #: The task's MuJoCo model (the tank's) and its MJCF.
+        self.mj_model, self.model_source = setup.model, setup.model_source
+
+    @classmethod
+    def build(cls, env_id: str, obs_mode: str, **kwargs) -> AcousticJax:
+        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
+        the rendering ones)."""
+        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     @staticmethod
     def end_reason(code, success) -> str:

@@ -30,8 +30,8 @@ from mujoco import mjx
 from mujoco.mjx._src import collision_driver, constraint, smooth
 from mujoco.mjx._src import math as mjx_math
 
-from auv_envs.tasks.acoustic.env import AcousticPhysics
 from auv_envs.tasks.acoustic.fluid import EllipsoidFluid
+from auv_envs.tasks.acoustic.plant import AcousticPhysics
 
 
 class ChainKinematics:

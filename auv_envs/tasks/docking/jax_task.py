@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 from typing import NamedTuple
 
-import gymnasium as gym
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -35,10 +34,11 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.task import Transition
 from auv_envs.core.vehicle import PlantPerturbation
 from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.config import DockingSetup, config_of, params
 from auv_envs.tasks.docking.mjx_plant import DockingPlantMJX
 from auv_envs.tasks.docking.randomization import DockingRandomization
 from auv_envs.tasks.docking.rules import failure_reason
-from auv_envs.tasks.docking.station import CHASE_CAMERA
+from auv_envs.tasks.docking.station import CHASE_CAMERA, DockingPhysics
 
 
 class DockingJax:
@@ -46,14 +46,11 @@ class DockingJax:
     serves for the docking ids).
 
     Args:
-        env_id: ``"auv_envs/DockingStation-v2"``, ``"auv_envs/LampArrayDocking-v2"`` or
-            ``"auv_envs/DockingMission-v0"`` (the RK4 plant; the v0 ids integrate with
-            Euler and are refused).
-        obs_mode: ``"state"``, ``"features"``, ``"nav"`` or ``"nav_features"``.
-        **env_kwargs: the CPU environment's arguments (``scenario``,
-            ``current_direction``, ``image_size``, ``time_limit``, ``difficulty``, ...);
-            they are checked by building that environment, whose model, calibration and
-            rules this one uses.
+        setup: the task's parameters (:func:`auv_envs.tasks.docking.config.params` of a
+            :class:`~auv_envs.tasks.docking.config.DockingConfig`: any id, scenario and
+            ``difficulty`` level); its ``integrator`` must be ``"rk4"`` (the v0 ids
+            integrate with Euler and are refused) and its ``obs_mode`` one of
+            ``"state"``, ``"features"``, ``"nav"`` or ``"nav_features"``.
     """
 
     transition = transition
@@ -61,28 +58,37 @@ class DockingJax:
     render_camera = CHASE_CAMERA
     end_reason = staticmethod(failure_reason)
 
-    def __init__(self, env_id: str, obs_mode: str, **env_kwargs):
-        cpu = gym.make(env_id, obs_mode=obs_mode, **env_kwargs).unwrapped
-        self.cpu_env = cpu
-        self.plant = DockingPlantMJX(cpu)
-        self.rules = cpu.rules
-        self.calibration = cal = cpu.calibration
+    def __init__(self, setup: DockingSetup):
+        self.setup = setup
+        self.plant = DockingPlantMJX(setup)
+        self.rules = setup.rules
+        self.calibration = cal = setup.calibration
         self.dt = cal.control_period
         self.ops = jax_ops()
-        #: The level's disturbances (the CPU env's, resolved from ``difficulty``).
+        #: The level's disturbances (resolved from ``difficulty``).
         self.disturbances = cal.disturbances
         lights = np.asarray(self.rules.lights, dtype=np.float32)
         self._lights = tuple(jnp.asarray(lights[:, k]) for k in range(3))
-        bounds = cpu.params.pixel_bounds
-        #: The CPU env's transition parameters, its arrays in float32.
+        bounds = setup.params.pixel_bounds
+        #: The transition's parameters, its arrays in float32.
         self.params = dataclasses.replace(
-            cpu.params, light_positions=jnp.asarray(lights),
+            setup.params, light_positions=jnp.asarray(lights),
             pixel_bounds=None if bounds is None else tuple(jnp.asarray(b, jnp.float32)
                                                            for b in bounds))
+        self.observation_space, self.action_space = setup.observation_space, setup.action_space
+        self.max_episode_steps = setup.max_episode_steps
+        #: The task's MuJoCo model and its MJCF (:class:`~auv_envs.core.assets.MJCF`).
+        self.mj_model, self.model_source = setup.model, setup.model_source
         # The scenery the lines of sight are cast against: static geoms, placed once.
-        physics = cpu.physics
+        physics = DockingPhysics(setup.model, len(setup.layout.light_labels))
         self._scenery = rays.static_primitives(physics.model, physics.data,
                                                physics.ray_groups, physics.hull_body)
+
+    @classmethod
+    def build(cls, env_id: str, obs_mode: str, **kwargs) -> DockingJax:
+        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
+        the rendering ones: :func:`~auv_envs.tasks.docking.config.config_of`)."""
+        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     # ------------------------------------------------------------------ the protocol
     def reset(self, draws, world) -> Transition:

@@ -10,17 +10,9 @@ from __future__ import annotations
 import inspect
 
 from auv_envs.core.env import check_choice
-from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.config import CLEAR_OCEAN, LAYOUTS  # noqa: F401  (their old home)
 from auv_envs.tasks.docking.env import DockingEnv
 from auv_envs.tasks.docking.navigation import NavigationSensors
-from auv_envs.tasks.docking.optics import WaterOptics
-from auv_envs.tasks.docking.station import LAMP_ARRAY, SIX_LIGHTS
-
-#: The station layouts a mission may end at.
-LAYOUTS = {"six_lights": SIX_LIGHTS, "lamp_array": LAMP_ARRAY}
-#: The mission's water at ``easy`` (``optics=None``): Jerlov's clearest oceanic type IA
-#: (Jerlov 1976), where a lamp in view is detected half the time at about 30 m.
-CLEAR_OCEAN = WaterOptics.jerlov("IA")
 
 
 class DockingMissionEnv(DockingEnv):
@@ -74,8 +66,7 @@ class DockingMissionEnv(DockingEnv):
     **Version history.** v0: the first.
     """
 
-    mission = transition.MissionSpec()
-    default_optics = CLEAR_OCEAN  # the levels are the six-light station's (PAPER_OPTICS...)
+    _variant = {"mission": True}  # and the layout given (the station's levels, clear ocean)
 
     def __init__(self, obs_mode: str = "state", layout: str = "six_lights",
                  time_limit: float = 600.0, navigation: NavigationSensors | None = None,
@@ -85,7 +76,7 @@ class DockingMissionEnv(DockingEnv):
                             "sight until the hand-over (lights_lost_timeout is the docking "
                             "ids' argument)")
         check_choice("layout", layout, LAYOUTS)
-        self.layout = LAYOUTS[layout]
+        self._variant = {"mission": True, "layout": layout}
         super().__init__(obs_mode=obs_mode, time_limit=time_limit, navigation=navigation,
                          **kwargs)
         self._init_kwargs["layout"] = layout

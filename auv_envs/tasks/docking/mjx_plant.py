@@ -24,15 +24,17 @@ from mujoco import mjx
 from auv_envs.core.hydrodynamics import HullForceModel
 from auv_envs.core.ops import jax_ops
 from auv_envs.core.plant import hull_advance
+from auv_envs.tasks.docking.station import DockingPhysics
 
 
 class DockingPlantMJX:
     """The plant of a docking environment, batched on JAX (its model on MJX beside it).
 
     Args:
-        env: an unwrapped docking environment (``DockingStation`` or
-            ``LampArrayDocking``); its model, its simulated vehicle and its
-            ``physics_substeps`` are used. Its ``integrator`` must be ``"rk4"``.
+        setup: the docking task's parameters
+            (:func:`auv_envs.tasks.docking.config.params`); its model, its simulated
+            vehicle and its ``physics_substeps`` are used. Its ``integrator`` must be
+            ``"rk4"``.
 
     The state is ``(qpos (B, 7), qvel (B, 6))``: the hull's free joint (world
     position, unit quaternion; world linear velocity, body angular velocity),
@@ -41,8 +43,8 @@ class DockingPlantMJX:
     ``current (B, 3)``, held over the period.
     """
 
-    def __init__(self, env):
-        model = copy.deepcopy(env.physics.model)
+    def __init__(self, setup):
+        model = copy.deepcopy(setup.model)
         if model.opt.integrator != mujoco.mjtIntegrator.mjINT_RK4:
             raise ValueError("the MJX plant integrates with RK4: build the env with "
                              "integrator='rk4' (the -v1 and -v2 ids)")
@@ -54,10 +56,10 @@ class DockingPlantMJX:
         self.model = mjx.put_model(model)
         #: An MJX data of the model at rest (the template each evaluation fills).
         self.rest_data = mjx.make_data(model)
-        hull = env.hull
-        self.hull = HullForceModel(hull.params, hull.body_id, hull.qvel_adr)
+        physics = DockingPhysics(setup.model, len(setup.layout.light_labels))  # its names
+        self.hull = HullForceModel(setup.vehicle, physics.hull_body, physics.qvel_adr)
         self.timestep = float(model.opt.timestep)
-        self.substeps = round(env.dt / self.timestep)
+        self.substeps = round(setup.dt / self.timestep)
         self._ops = jax_ops()
         self.step = jax.jit(jax.vmap(self.advance))
 

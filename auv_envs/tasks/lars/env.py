@@ -14,11 +14,9 @@ import math
 
 import mujoco
 import numpy as np
-from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
 from auv_envs.core import frames
-from auv_envs.core.camera import CameraIntrinsics, pixel_space
 from auv_envs.core.env import (
     ActionValidator,
     ShellEpisode,
@@ -29,94 +27,44 @@ from auv_envs.core.env import (
 from auv_envs.core.ops import FLOATS
 from auv_envs.core.rendering import CameraRenderer
 from auv_envs.tasks.lars import transition
-from auv_envs.tasks.lars.arm import ArmModel
 from auv_envs.tasks.lars.calibration import (
     CaptureTolerances,
-    LARSCalibration,
-    read_only,
-    read_only_pose,
 )
 from auv_envs.tasks.lars.compiled import CompiledTruth
-from auv_envs.tasks.lars.glint import GlintCamera
+from auv_envs.tasks.lars.config import (  # noqa: F401  (the names' home before the config)
+    CAMERA_MOUNT_IN_END,
+    CAPTURE_TIP_IN_END,
+    CONTROL_PERIOD,
+    CONTROLS,
+    DEFAULT_FOVY_DEG,
+    DEFAULT_PIXEL_NOISE_STD,
+    FRAME_SKIP,
+    HARD_GLINT,
+    HARD_PIXEL_NOISE_STD,
+    HARD_SEA,
+    OBS_MODES,
+    PAPER_SEA,
+    PARKED,
+    PHYSICS_TIMESTEP,
+    POSITION_GAINS,
+    PRESETS,
+    R_END_CV,
+    RENDER_CAMERAS,
+    SEA_STATES,
+    WATERLINE_HALF_WIDTH,
+    LARSConfig,
+    LARSSetup,
+    params,
+)
 from auv_envs.tasks.lars.physics import LARSPhysics
 from auv_envs.tasks.lars.scene import (
-    ANALOG_MARKER_BASE_X,
-    ANALOG_SCALE,
-    AUV_DIAMETER,
-    AUV_FREEBOARD,
-    AUV_LENGTH,
-    AUV_MASS,
-    CAPTURE_POINT_BODY,
-    MARKER_SIDES,
     AUVMotion,
-    MarkerGeometry,
-    compose_lars_model,
 )
 from auv_envs.tasks.lars.sea import (
     GlintField,
-    LARSSeaModel,
     SunGlint,
 )
-from auv_envs.tasks.lars.stereo import StereoRig
 from auv_envs.tasks.lars.waves import SeaSpectrum
-
-OBS_MODES = ("state", "features", "stereo")
-SEA_STATES = ("calm", "severe")
-CONTROLS = ("torque", "position")
-
-PHYSICS_TIMESTEP = 0.01
-FRAME_SKIP = 4
-#: Seconds per env step (``calibration.control_period``).
-CONTROL_PERIOD = PHYSICS_TIMESTEP * FRAME_SKIP
-#: [LTAT], eq. 30: Kp = 160, Kd = 20, used by ``control="position"`` as the
-#: acceleration gains of a computed-torque inner loop (eqs. 29-30).
-POSITION_GAINS = (160.0, 20.0)
-#: Capture head geometry in the arm-end frame (x along the ship at q1 = 0,
-#: y outboard, z up): the capture device's tip hangs below the head centre,
-#: the stereo pair sits outboard of it looking straight down.
-CAPTURE_TIP_IN_END = (0.0, 0.0, -0.35)
-CAMERA_MOUNT_IN_END = (0.0, 0.25, -0.065)
-#: ``render_camera`` values: ``"side"`` (a person's view of the ship's side,
-#: the arm and the AUV) or ``"stereo"`` (the capture head's pair).
-RENDER_CAMERAS = ("side", "stereo")
-#: ``features`` pixel noise of the released env (``difficulty="easy"``), px.
-DEFAULT_PIXEL_NOISE_STD = 1.0
-#: ``difficulty="paper"``: a low swell, JONSWAP (gamma 3.3, the JONSWAP mean;
-#: Hasselmann et al. 1973, DNV-RP-C205 §3.5.5), Hs = 0.3 m (the middle of
-#: WMO sea state code 2, "smooth", 0.1-0.5 m), Tp = 9 s (the long end of the
-#: scene's 5-9 s heave periods). The AUV's largest heave excursion in a
-#: 30 s episode then averages 0.17 m, near the 0.2 m amplitude the paper's
-#: sine has on every cycle (§3.1, Figs. 9/14c). Calibrated so that ``ckf-pd`` and
-#: ``ltat-ckf-pd`` keep [LTAT]'s capture (Fig. 15c, about 28 mm, success
-#: >= 90 %) in ``sea_state="calm"``; figures in ``docs/difficulty.md``.
-PAPER_SEA = SeaSpectrum(hs=0.3, tp=9.0)
-#: ``difficulty="hard"``: a steeper, shorter sea, JONSWAP Hs = 0.4 m, Tp = 7 s
-#: (still code 2; Tp the agents' prior swell period), whose heave is less
-#: regular than eq. 8's sinusoid, and 3 px of ``features`` pixel noise (the
-#: largest corner error the shipped LTAT corner extractor made on 1,251
-#: fully visible views, ``docs/reproductions.md``, taken as the noise std).
-#: Calibrated so that ``ckf-pd`` succeeds in at most 80 % of episodes while
-#: the privileged ``ckf-pd-state`` stays at >= 90 % (``docs/difficulty.md``).
-HARD_SEA = SeaSpectrum(hs=0.4, tp=7.0)
-HARD_PIXEL_NOISE_STD = 3.0
-#: ``difficulty="hard"``: sun glint (:class:`~auv_envs.tasks.lars.sea.SunGlint`)
-#: under a sun 40-80 deg high, any azimuth: the sun around noon from the
-#: equinox to the solstice between latitudes 30 and 50 deg (noon elevation
-#: 90 deg - latitude + declination, declination 0-23.4 deg); the wind is the
-#: one that raises ``HARD_SEA`` (4.3 m/s, Cox–Munk sigma^2 = 0.025). Not at
-#: ``paper``: [LTAT] reports no glint, and that level is calibrated without.
-HARD_GLINT = SunGlint(sun_elevation=(math.radians(40.0), math.radians(80.0)))
-
-#: Rotation from the OpenCV camera frame to the arm-end frame (looking down,
-#: image x along end x, image y down = end -y).
-R_END_CV = np.diag([1.0, -1.0, -1.0])
-#: Where the analogs wait while not in play (far below the opaque surface).
-PARKED = (0.0, 0.0, -50.0)
-DEFAULT_FOVY_DEG = 60.0
-#: Half-width of the hull's waterline, m: where the water meets the hull
-#: floating ``AUV_FREEBOARD`` proud (the hull's footprint seen from above).
-WATERLINE_HALF_WIDTH = math.sqrt(
-    (AUV_DIAMETER / 2.0) ** 2 - (AUV_DIAMETER / 2.0 - AUV_FREEBOARD) ** 2)
 
 
 class LARSCaptureEnv(TaskEnv):
@@ -327,12 +275,7 @@ class LARSCaptureEnv(TaskEnv):
 
     obs_modes = OBS_MODES
     #: ``difficulty`` levels (:mod:`auv_envs.core.difficulty`): the sea and the pixel noise.
-    difficulty_presets = {
-        "easy": {},
-        "paper": {"sea": PAPER_SEA},
-        "hard": {"sea": HARD_SEA, "pixel_noise_std": HARD_PIXEL_NOISE_STD,
-                 "glint": HARD_GLINT},
-    }
+    difficulty_presets = PRESETS
     transition = transition
     reward_terms = transition.REWARD_TERMS
     metric_keys = (
@@ -367,122 +310,42 @@ class LARSCaptureEnv(TaskEnv):
             render_mode=render_mode, render_camera=render_camera,
             render_size=render_size, sea=sea, glint=glint, difficulty=difficulty,
         )
-        level = self._apply_difficulty(difficulty, sea=sea, pixel_noise_std=pixel_noise_std,
-                                       glint=glint)
-        sea, pixel_noise_std, glint = level["sea"], level["pixel_noise_std"], level["glint"]
-        if glint is False:
-            glint = None
-        if glint is not None and not isinstance(glint, SunGlint):
-            raise TypeError(f"glint must be a SunGlint, False or None, got {glint!r}")
-        if pixel_noise_std is None:
-            pixel_noise_std = DEFAULT_PIXEL_NOISE_STD
-        check_choice("sea_state", sea_state, SEA_STATES)
-        sea_model = None if sea is None else LARSSeaModel.from_spectrum(sea)
-        #: The sun-glint model (``SunGlint``), None when off.
-        self.glint = glint
+        config = LARSConfig(
+            obs_mode=obs_mode, sea_state=sea_state, control=control,
+            image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
+            pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
+            sea=sea, glint=glint, difficulty=difficulty)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
-        check_choice("control", control, CONTROLS)
-        width, height = check_image_size(image_size)
-        if not (math.isfinite(baseline) and 0.0 < baseline <= 1.0):
-            raise ValueError(f"baseline must be in (0, 1] m, got {baseline}")
-        if focal_length is None:
-            fovy = DEFAULT_FOVY_DEG
-        elif math.isfinite(focal_length) and focal_length > 0:
-            fovy = math.degrees(2.0 * math.atan(0.5 * height / focal_length))
-        else:
-            raise ValueError(f"focal_length must be positive (pixels), got {focal_length}")
-        if not (math.isfinite(pixel_noise_std) and pixel_noise_std >= 0):
-            raise ValueError(f"pixel_noise_std must be >= 0, got {pixel_noise_std}")
-        if not (math.isfinite(time_limit) and time_limit > 0):
-            raise ValueError(f"time_limit must be positive, got {time_limit}")
-
-        self.obs_mode = obs_mode
-        self.sea_state = sea_state
-        self.control = control
+        setup = params(config)
+        #: What the configuration fixes (:class:`~auv_envs.tasks.lars.config.LARSSetup`).
+        self.setup = setup
+        #: The difficulty level (:mod:`auv_envs.core.difficulty`).
+        self.difficulty = difficulty
+        #: The sun-glint model (``SunGlint``), None when off.
+        self.glint = setup.levels["glint"]
+        self.obs_mode, self.sea_state, self.control = obs_mode, sea_state, control
         self.render_mode = render_mode
-        self._time_limit = float(time_limit)
-
-        marker = MarkerGeometry.on_cylinder()
-        analog_marker = MarkerGeometry.on_cylinder(
-            tuple(s * ANALOG_SCALE for s in MARKER_SIDES), base_x=ANALOG_MARKER_BASE_X
-        )
-        scene_source, arm_source = compose_lars_model(float(baseline), fovy, marker,
-                                                      analog_marker)
         #: The arm model's text (:class:`~auv_envs.core.assets.MJCF`: what the physics
         #: simulates; the scene around it is drawn only).
-        self.model_source = arm_source
-        scene_model, model = scene_source.compile(), arm_source.compile()
-        self.physics = LARSPhysics(scene_model, model)
-        arm = ArmModel(model)
-        self._arm = arm
-        self._dt = CONTROL_PERIOD
+        self.model_source = setup.model_source
+        scene_model = setup.scene_model
+        self.physics = LARSPhysics(scene_model, setup.model)
+        self._arm = setup.arm
+        self._dt = setup.dt
         #: Step period, s (one env step).
         self.dt = self._dt
         #: Steps of an episode that runs to its ``time_limit``.
-        self.max_episode_steps = math.ceil(self._time_limit / self._dt - 1e-6)
-        if abs(model.opt.timestep - PHYSICS_TIMESTEP) > 1e-12:
-            raise ValueError("assets/lars/scene.xml timestep differs from PHYSICS_TIMESTEP")
-
-        intr = CameraIntrinsics.from_fovy(width, height, fovy)
-        mount = np.array(CAMERA_MOUNT_IN_END)
-        left_t = mount + (-baseline / 2.0, 0.0, 0.0)
-        right_t = mount + (baseline / 2.0, 0.0, 0.0)
-        self.calibration = LARSCalibration(
-            stereo=StereoRig(intr, intr, float(baseline)),
-            left_in_end=read_only_pose(R_END_CV, left_t),
-            right_in_end=read_only_pose(R_END_CV, right_t),
-            capture_tip_in_end=read_only(CAPTURE_TIP_IN_END),
-            arm=arm,
-            control_period=self._dt,
-            torque_limits=arm.torque_limits,
-            joint_limits=arm.joint_limits,
-            position_gains=POSITION_GAINS,
-            marker=marker,
-            marker_sides=MARKER_SIDES,
-            capture_point_body=read_only(CAPTURE_POINT_BODY),
-            auv_length=AUV_LENGTH,
-            auv_diameter=AUV_DIAMETER,
-            auv_mass=AUV_MASS,
-            auv_freeboard=AUV_FREEBOARD,
-            tolerances=tolerances or CaptureTolerances(),
-            workspace=read_only([[-3.0, 3.0], [0.6, 3.9], [-0.1, 4.0]]),
-            pixel_noise_std=float(pixel_noise_std),
-            sea=sea_model,
-        )
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.max_episode_steps = setup.max_episode_steps
+        self.calibration = setup.calibration
+        self.action_space = setup.action_space
         self._validate_action = ActionValidator(self.action_space)
-        self.observation_space = self._make_observation_space(width, height)
-        pixel_bounds = None
-        if obs_mode == "features":  # noisy pixels are clipped to the space's bounds
-            pixels = self.observation_space["pixels"]
-            pixel_bounds = (tuple(pixels.low.ravel().tolist()),
-                            tuple(pixels.high.ravel().tolist()))
-        self._width, self._height = width, height
-        hull_half = AUV_LENGTH / 2.0 - AUV_DIAMETER / 2.0
-        self._glint_camera = None if glint is None else GlintCamera(
-            glint, intr, hull_half, WATERLINE_HALF_WIDTH, images=obs_mode == "stereo")
-        workspace = self.calibration.workspace
-        tol = self.calibration.tolerances
+        self.observation_space = setup.observation_space
+        width, height = self._width, self._height = setup.image_size
+        self._glint_camera = setup.glint_camera
         #: The transition's :class:`~auv_envs.tasks.lars.transition.LARSParams`.
-        self.params = transition.LARSParams(
-            obs_mode=obs_mode, control=control, sea_state=sea_state, dt=self._dt,
-            max_episode_steps=self.max_episode_steps, arm=arm, sea=sea_model, glint=glint,
-            glint_slope_variance=(None if glint is None else glint.slope_variance(
-                None if sea is None else sea.hs)),
-            glint_camera=self._glint_camera, intrinsics=intr, baseline=float(baseline),
-            left_in_end=tuple(left_t.tolist()), tip_z=CAPTURE_TIP_IN_END[2],
-            corners_body=tuple(tuple(v) for v in marker.corners.tolist()),
-            capture_point=tuple(self.calibration.capture_point_body.tolist()),
-            tolerance=(tol.position, tol.speed),
-            workspace=(tuple(workspace[:, 0].tolist()), tuple(workspace[:, 1].tolist())),
-            pixel_noise_std=float(pixel_noise_std), pixel_bounds=pixel_bounds,
-            hull_half=hull_half,
-            analog_centre=(float(analog_marker.corners[:, 0].mean()),
-                           float(analog_marker.corners[:, 2].mean())),
-            joint_mid=arm.joint_limits.mean(axis=1),
-            joint_half=0.5 * (arm.joint_limits[:, 1] - arm.joint_limits[:, 0]))
+        self.params = setup.params
         self._plant = _MujocoArm(self)
         # One renderer for the stereo observation, one for render().
         self.camera_renderer: CameraRenderer | None = None
@@ -497,29 +360,6 @@ class LARSCaptureEnv(TaskEnv):
                 render_height, skybox=side,
             )
         self._episode = ShellEpisode()
-
-    # ------------------------------------------------------------------ spaces
-    def _make_observation_space(self, width: int, height: int) -> spaces.Space:
-        if self.obs_mode == "state":
-            return spaces.Box(-np.inf, np.inf, shape=(24,), dtype=np.float32)
-        lim = self._arm.joint_limits
-        joints = {
-            "joint_position": spaces.Box(
-                lim[:, 0].astype(np.float32) - 0.5, lim[:, 1].astype(np.float32) + 0.5,
-                dtype=np.float32,
-            ),
-            "joint_velocity": spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float32),
-        }
-        if self.obs_mode == "features":
-            return spaces.Dict(
-                {
-                    "pixels": pixel_space(width, height, (2, 3)),
-                    "visible": spaces.MultiBinary((2, 3)),
-                    **joints,
-                }
-            )
-        image = spaces.Box(0, 255, shape=(height, width, 3), dtype=np.uint8)
-        return spaces.Dict({"left": image, "right": image, **joints})
 
     # ------------------------------------------------------------------ episode hooks
     def _begin_episode(self, rng: np.random.Generator, options: dict | None):
@@ -576,8 +416,8 @@ class LARSCaptureEnv(TaskEnv):
     def position_action(self, q, xp) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
         the inverse of the action's linear map onto the joint limits (not clipped);
-        ``xp``: NumPy, or ``jax.numpy`` for traced angles."""
-        return (xp.asarray(q, dtype=float) - self.params.joint_mid) / self.params.joint_half
+        ``xp``: NumPy, or ``jax.numpy`` for traced angles (the setup's)."""
+        return self.setup.position_action(q, xp)
 
     def _pose_scene(self) -> None:
         """Pose the kinematic bodies (AUV, sea, head, analogs) for rendering.

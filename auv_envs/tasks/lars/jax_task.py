@@ -36,7 +36,7 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.core.task import Transition
 from auv_envs.tasks.lars import transition
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.config import LARSSetup, config_of, params
 from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 from auv_envs.tasks.lars.randomization import LARSRandomization
 from auv_envs.tasks.lars.scene import AUVMotion
@@ -82,12 +82,9 @@ class LARSJax:
     serves for ``auv_envs/LARSCapture-v0``).
 
     Args:
-        env_id: ``"auv_envs/LARSCapture-v0"``.
-        obs_mode: ``"state"`` or ``"features"``.
-        **env_kwargs: the CPU environment's arguments (``sea_state``, ``control``,
-            ``image_size``, ``pixel_noise_std``, ``time_limit``, ``difficulty``, ...); they
-            are checked by building that environment, whose model, calibration and
-            transition parameters this one uses.
+        setup: the task's parameters (:func:`auv_envs.tasks.lars.config.params` of a
+            :class:`~auv_envs.tasks.lars.config.LARSConfig`; ``obs_mode`` ``"state"`` or
+            ``"features"``).
 
     Raises:
         ValueError: for what is not built yet (module docstring).
@@ -98,14 +95,23 @@ class LARSJax:
     render_camera = None
     end_reason = staticmethod(transition.end_reason)
 
-    def __init__(self, env_id: str, obs_mode: str, **env_kwargs):
-        cpu = LARSCaptureEnv(obs_mode=obs_mode, **env_kwargs)
-        self.cpu_env = cpu
-        self.params = cpu.params
-        self.calibration = cpu.calibration
-        self.dt = cpu.dt
+    def __init__(self, setup: LARSSetup):
+        self.setup = setup
+        self.params = setup.params
+        self.calibration = setup.calibration
+        self.dt = setup.dt
         self.ops = jax_ops()
-        self.plant = ArmPlantMJX(cpu)
+        self.plant = ArmPlantMJX(setup)
+        self.observation_space, self.action_space = setup.observation_space, setup.action_space
+        self.max_episode_steps = setup.max_episode_steps
+        #: The task's MuJoCo model (the arm's) and its MJCF.
+        self.mj_model, self.model_source = setup.model, setup.model_source
+
+    @classmethod
+    def build(cls, env_id: str, obs_mode: str, **kwargs) -> LARSJax:
+        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
+        the rendering ones)."""
+        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     # ------------------------------------------------------------------ the protocol
     def reset(self, draws, world) -> Transition:

@@ -1,7 +1,7 @@
 """The LARS arm on MuJoCo MJX: a batch of arms stepped in one compiled call.
 
-The CPU environment's own arm model (:class:`auv_envs.tasks.lars.env.LARSCaptureEnv`)
-on MJX, with contacts off (the CPU model has them disabled too), stepped
+The task's arm model (:func:`auv_envs.tasks.lars.config.params`, what the CPU
+environment simulates) on MJX, with contacts off (the CPU model has them disabled too), stepped
 ``FRAME_SKIP`` physics steps a control period; the joint limits' forces are the exact
 minimiser of MuJoCo's constraint problem (:meth:`ArmPlantMJX.constrain`), where MuJoCo
 iterates to a tolerance. The batched environment
@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
-from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureEnv
+from auv_envs.tasks.lars.config import FRAME_SKIP, LARSSetup
 
 
 def _spd_solve(matrix, rhs):
@@ -54,8 +54,8 @@ class ArmPlantMJX:
     and bias forces of each physics step's positions and velocities give its control.
     """
 
-    def __init__(self, env: LARSCaptureEnv):
-        model = copy.deepcopy(env.physics.model)
+    def __init__(self, setup: LARSSetup):
+        model = copy.deepcopy(setup.model)
         model.geom_contype[:] = 0
         model.geom_conaffinity[:] = 0
         if model.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER:
@@ -81,12 +81,12 @@ class ArmPlantMJX:
         self.rest_data = mjx.make_data(model)
         if self.rest_data._impl.efc_J.shape[0] != model.njnt:
             raise ValueError("expected one MJX constraint row per joint limit")
-        self.torque_mode = env.control == "torque"
-        self.dt = float(env.dt)
-        self.q_mid = jnp.asarray(env.params.joint_mid, jnp.float32)
-        self.q_half = jnp.asarray(env.params.joint_half, jnp.float32)
-        self.limits = jnp.asarray(env.calibration.torque_limits, jnp.float32)
-        self.kp, self.kd = env.calibration.position_gains
+        self.torque_mode = setup.config.control == "torque"
+        self.dt = float(setup.dt)
+        self.q_mid = jnp.asarray(setup.params.joint_mid, jnp.float32)
+        self.q_half = jnp.asarray(setup.params.joint_half, jnp.float32)
+        self.limits = jnp.asarray(setup.calibration.torque_limits, jnp.float32)
+        self.kp, self.kd = setup.calibration.position_gains
         self.timestep = float(model.opt.timestep)
 
     def place(self, q) -> mjx.Data:
