@@ -33,7 +33,7 @@ def usbl_row(sensors, slant: float, n: int, rng) -> dict:
     horizontal = math.sqrt(max(slant**2 - 9.0, 0.0))
     transceiver = transponder + np.array([-horizontal * math.cos(bearing),
                                           -horizontal * math.sin(bearing), 3.0])
-    rows = np.array(frames.rotation_rows(0.02, -0.03, bearing))
+    rows = np.array(frames.rotation_rows(0.02, -0.03, bearing, FLOATS))
     truth = (transponder - transceiver) @ rows
     c_true = array.draw_sound_speed(rng)
     out = [usbl.fix(array, transceiver, rows, transponder, c_true, rng, np) for _ in range(n)]

@@ -29,7 +29,7 @@ QUIET = dataclasses.replace(USBL_ACOUSTICS, sound_speed_error_std=0.0)
 #: A transceiver 10 m up, turned 0.4 rad, and a transponder 160 m away, between the surface
 #: (z = 50) and the bottom (z = -2).
 YAW = 0.4
-ROWS = np.array(frames.rotation_rows(0.0, 0.0, YAW))
+ROWS = np.array(frames.rotation_rows(0.0, 0.0, YAW, FLOATS))
 TRANSCEIVER = np.array([0.0, 0.0, 10.0])
 TRANSPONDER = np.array([150.0, 60.0, 0.0])
 TRUE_FIX = (TRANSPONDER - TRANSCEIVER) @ ROWS  # body axes

@@ -24,6 +24,7 @@ from auv_envs.core.camera import (
     project_few,
 )
 from auv_envs.core.env import validate_action
+from auv_envs.core.ops import FLOATS
 from tests.conftest import make_env
 
 SIX = "auv_envs/DockingStation-v2"
@@ -31,7 +32,7 @@ LAMPS = "auv_envs/LampArrayDocking-v2"
 
 
 def _random_rotation(rng):
-    return frames.rotation_from_euler(*rng.uniform(-math.pi, math.pi, size=3))
+    return frames.rotation_from_euler(*rng.uniform(-math.pi, math.pi, size=3), np)
 
 
 def test_project_few_matches_numpy_projection():
@@ -106,7 +107,7 @@ def test_rotation_helpers_match_numpy():
         a, b = _random_rotation(rng), _random_rotation(rng)
         np.testing.assert_allclose(frames.compose_rows(a.tolist(), b.tolist()), a @ b,
                                    rtol=0, atol=1e-15)
-        np.testing.assert_array_equal(frames.euler_floats(a.tolist()),
+        np.testing.assert_array_equal(frames.euler_floats(a.tolist(), FLOATS),
                                       frames.euler_from_rotation(a))
 
 
