@@ -46,7 +46,7 @@ def test_project_few_matches_numpy_projection():
         ref_pixels, in_front = project(intr, points_in_camera(points, cam, rot))
         ref_inside = in_front & inside_image(intr, ref_pixels)
         pixels, inside = project_few(intr, [tuple(p) for p in points.tolist()],
-                                     tuple(cam.tolist()), rot.tolist())
+                                     tuple(cam.tolist()), rot.tolist(), FLOATS)
         pixels = np.array(pixels)
         np.testing.assert_array_equal(np.isnan(pixels), np.isnan(ref_pixels))
         np.testing.assert_allclose(pixels, ref_pixels, rtol=1e-12, atol=1e-9)
@@ -62,7 +62,7 @@ def test_project_few_image_edges_follow_inside_image():
     targets = np.array([[0.0, 0.0], [639.5, 479.5], [640.0, 10.0], [10.0, 480.0],
                         [-0.25, 10.0], [10.0, -0.25]])
     points = [((u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, 1.0) for u, v in targets]
-    pixels, inside = project_few(intr, points, (0.0, 0.0, 0.0), np.eye(3).tolist())
+    pixels, inside = project_few(intr, points, (0.0, 0.0, 0.0), np.eye(3).tolist(), FLOATS)
     np.testing.assert_allclose(pixels, targets, atol=1e-9)
     np.testing.assert_array_equal(inside, inside_image(intr, np.array(pixels)))
     assert inside == [True, True, False, False, False, False]
