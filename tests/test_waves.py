@@ -218,7 +218,7 @@ def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
     # The [LTAT] sinusoid and a ship at rest.
     m = none.auv_motion
     for k, (_, _, info) in enumerate(b):
-        z = heave(k * none.dt, m.heave_amplitude, m.omega, m.heave_phase)[0]
+        z = heave(k * none.dt, m.heave_amplitude, m.omega, m.heave_phase, FLOATS)[0]
         assert info["true_position"][2] == z + (AUV_FREEBOARD - AUV_DIAMETER / 2.0)
         assert info["true_pitch"] == m.pitch and "ship_motion" not in info
     q = none.physics.data.qpos
