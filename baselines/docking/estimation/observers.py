@@ -656,7 +656,7 @@ class DockingMHE:
             buf[:, :-1] = buf[:, 1:]
         self._tau[:, -1] = tau_applied
         x_new = np.concatenate([x_hat[:, 1:], x_hat[:, -1:]], axis=1)
-        x_new[:, -1] = self.model.step(x_hat[:, -1], tau_applied + w_hat[:, -1], self.dt)
+        x_new[:, -1] = self.model.step(x_hat[:, -1], tau_applied + w_hat[:, -1], self.dt, ops=np)
         w_new = np.concatenate([w_hat[:, 1:], w_hat[:, -1:]], axis=1)
         self._guess = np.concatenate([x_new.ravel("F"), w_new.ravel("F")])
         if self._lam_g is not None:
