@@ -441,4 +441,4 @@ def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading,
         raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
     else:
         heading = float(heading)
-    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, heading, sea.band, xp)
+    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, heading, sea.band, xp=xp)
