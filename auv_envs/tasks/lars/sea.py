@@ -218,8 +218,7 @@ class ShipPose:
         """The ship-frame point (3,) that is at world ``point`` now (``xp``: NumPy, or
         ``jax.numpy``)."""
         origin = xp.asarray(self._origin)
-        offset = ((np.asarray(point, dtype=float) if xp is np else xp.stack(list(point)))
-                  - origin - xp.stack([0.0, 0.0, self._heave]))
+        offset = xp.stack(list(point)) - origin - xp.stack([0.0, 0.0, self._heave])
         return origin + xp.asarray(self._rows).T @ offset
 
     def transform(self) -> tuple[np.ndarray, np.ndarray]:

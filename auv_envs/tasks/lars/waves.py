@@ -89,7 +89,7 @@ def _finite_positive(name: str, value) -> float:
 def _pm_shape(x: np.ndarray, xp) -> np.ndarray:
     """``S_PM(w) wp / Hs^2`` at ``x = w / wp`` (integrates to 1/16)."""
     with np.errstate(divide="ignore", over="ignore"):
-        x = xp.maximum(np.asarray(x, dtype=float) if xp is np else x, 1e-3)
+        x = xp.maximum(x, 1e-3)
         return 0.3125 * x**-5 * xp.exp(-1.25 * x**-4)
 
 
