@@ -111,12 +111,12 @@ def main(argv=None) -> None:
     array = params.array
     speed = np.linalg.norm(block.current, axis=1)
     heard = block.heard if block.heard is not None else block.positions
-    wander = array.draw_wander(rng, len(block.positions))  # None when the level has none
+    wander = array.draw_wander(rng, len(block.positions), xp=np)  # None when the level has none
     measure = array.measure
 
     def measure_block():
         measure(rng, heard, state.plan.clock_offsets, speed, state.plan.sound_speed,
-                wander, block.fades, block.nodes, noise_draws=params.noise_draws)
+                wander, block.fades, block.nodes, noise_draws=params.noise_draws, xp=np)
 
     origin = block.measurements.origin
     kept = int(np.count_nonzero(block.measurements.mask))  # detections and false alarms

@@ -33,9 +33,9 @@ def usbl_row(sensors, slant: float, n: int, rng) -> dict:
     horizontal = math.sqrt(max(slant**2 - 9.0, 0.0))
     transceiver = transponder + np.array([-horizontal * math.cos(bearing),
                                           -horizontal * math.sin(bearing), 3.0])
-    rows = np.array(frames.rotation_rows(0.02, -0.03, bearing))
+    rows = np.array(frames.rotation_rows(0.02, -0.03, bearing, FLOATS))
     truth = (transponder - transceiver) @ rows
-    c_true = array.draw_sound_speed(rng)
+    c_true = array.draw_sound_speed(rng, np)
     out = [usbl.fix(array, transceiver, rows, transponder, c_true, rng, np) for _ in range(n)]
     vectors = np.array([v for v, _ in out])
     found = np.array([f for _, f in out])

@@ -66,7 +66,7 @@ def pilot_action(pd: DockingPDAgent, info: dict, waypoint: np.ndarray, heading: 
     true state expressed in a frame placed at the waypoint and turned by ``heading`` makes it
     hold the waypoint and heading instead (its law only uses the horizontal rotation).
     """
-    rot = rotation_from_euler(0.0, 0.0, -heading)
+    rot = rotation_from_euler(0.0, 0.0, -heading, np)
     position = target + rot @ (info["true_position"] - waypoint)
     roll, pitch, yaw = info["true_euler"]
     state = np.concatenate([

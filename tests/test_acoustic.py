@@ -350,7 +350,7 @@ def test_bad_acoustic_arguments():
     env = make()
     with pytest.raises(ValueError, match="positions"):
         env.unwrapped.calibration.array.measure(np.random.default_rng(0), [[np.nan, 0, 0]],
-                                                np.zeros(8))
+                                                np.zeros(8), xp=np)
     env.close()
 
 
@@ -410,14 +410,14 @@ def test_flow_noise_model_matches_the_documented_formula():
     # once the flow dominates (a doubling adds 18.06 dB) and hits low bands hardest.
     calm = make().unwrapped.calibration.array
     assert calm.model(p)["snr_db"] == pytest.approx(cal.array.model(p, 0.0)["snr_db"], abs=0)
-    rise = cal.array.flow_noise_rise([0.0, 0.5, 4.0, 8.0])
+    rise = cal.array.flow_noise_rise([0.0, 0.5, 4.0, 8.0], np)
     assert np.all(rise[0] == 0) and np.all(np.diff(rise[1]) < 0)
     np.testing.assert_allclose(rise[3] - rise[2], 60 * math.log10(2), atol=1e-3)
     flow = flow_noise_level(cal.band_centres, 0.5, GMPHD_FLOW_NOISE_LEVEL)
     np.testing.assert_allclose(
         rise[1], 10 * np.log10(1 + 10 ** ((flow - ambient_noise_level(cal.band_centres)) / 10)))
     # No flow-noise level: nothing rises whatever the current.
-    assert np.all(calm.flow_noise_rise(0.5) == 0)
+    assert np.all(calm.flow_noise_rise(0.5, np) == 0)
 
 
 def test_flow_noise_statistics_in_measure():
@@ -428,7 +428,7 @@ def test_flow_noise_statistics_in_measure():
     array = env.unwrapped.calibration.array
     env.close()
     p, speed, n = np.array([200.0, 120.0, -12.0]), 0.4, 3000
-    m = array.measure(np.random.default_rng(5), np.tile(p, (n, 1)), np.zeros(8), speed)
+    m = array.measure(np.random.default_rng(5), np.tile(p, (n, 1)), np.zeros(8), speed, xp=np)
     model = array.model(p, speed)
     pd = model["detection_probability"]
     assert 0.05 < pd.min() and pd.max() < 0.999  # informative
@@ -448,17 +448,17 @@ def test_flow_noise_needs_the_current_and_checks_it():
     env.close()
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="current_speed"):
-        array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8))
+        array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8), xp=np)
     for bad in (-0.1, float("nan")):
         with pytest.raises(ValueError, match="current_speed"):
-            array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8), bad)
+            array.measure(rng, [100.0, 100.0, -10.0], np.zeros(8), bad, xp=np)
     for bad in (float("inf"), True, "94"):
         with pytest.raises(ValueError, match="flow_noise_level"):
             AcousticConfig(flow_noise_level=bad)
     # Without flow noise the current is ignored: the same draws either way.
     calm = make().unwrapped.calibration.array
-    a = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8))
-    b = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8), 0.5)
+    a = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8), xp=np)
+    b = calm.measure(np.random.default_rng(1), [100.0, 100.0, -10.0], np.zeros(8), 0.5, xp=np)
     assert all(np.array_equal(getattr(a, f.name), getattr(b, f.name))
                for f in dataclasses.fields(a))
 

@@ -120,7 +120,7 @@ def test_information_matches_finite_differences_of_measure(array_of, working):
         m = exact.measure(np.random.default_rng(0), theta[:3],
                           np.concatenate([[0.0], theta[3:n + 2] * config.clock_offset_std]),
                           speed, c0 + theta[n + 2] * config.sound_speed_error_std,
-                          wander=theta[n + 3:][None])
+                          wander=theta[n + 3:][None], xp=np)
         return np.concatenate([m.tdoa[:, 0], m.azimuth[:, 0], m.elevation[:, 0]], axis=1)
 
     theta = np.concatenate([point, np.zeros(n - 1 + 1 + n)])
@@ -134,7 +134,7 @@ def test_information_matches_finite_differences_of_measure(array_of, working):
         jacobian[..., i] = diff / (2 * h)
     model = array.model(point, speed)
     on = np.ones(n, bool) if working is None else np.array(working)
-    pd = array.detection_probability(model["snr_db"], None if working is None else on)
+    pd = array.detection_probability(model["snr_db"], None if working is None else on, xp=np)
     rows = np.concatenate([on[1:] & on[0], on, on])
     expected = np.zeros((len(theta), len(theta)))
     for q in range(bands):

@@ -58,7 +58,7 @@ def test_outages_are_the_documented_two_state_process(base_array):
     rate, duration, fs = 0.5, 1.0, 100.0
     config = dataclasses.replace(AcousticConfig(), node_dropout_rate=rate,
                                  node_dropout_duration=duration)
-    states = _array(base_array, config).draw_node_states(np.random.default_rng(5), 200_000)
+    states = _array(base_array, config).draw_node_states(np.random.default_rng(5), 200_000, xp=np)
     assert states.shape == (200_000, 8) and states.dtype == bool
     # Continuous time: the up/down renewal process's fraction down, lambda d / (1 + lambda d).
     expected_out = rate * duration / (1.0 + rate * duration)
@@ -84,14 +84,14 @@ def test_a_draw_continues_the_previous_state(base_array):
                                  node_dropout_duration=1e9)  # nothing changes in 10 periods
     array = _array(base_array, config)
     previous = np.array([True, False] * 4)
-    states = array.draw_node_states(np.random.default_rng(0), 10, previous)
+    states = array.draw_node_states(np.random.default_rng(0), 10, previous, xp=np)
     np.testing.assert_array_equal(states, np.broadcast_to(previous, (10, 8)))
 
 
 def test_off_draws_nothing_and_leaves_the_observation_alone(base_array):
     rng = np.random.default_rng(1)
     state = rng.bit_generator.state
-    assert _array(base_array, AcousticConfig()).draw_node_states(rng, 50) is None
+    assert _array(base_array, AcousticConfig()).draw_node_states(rng, 50, xp=np) is None
     assert rng.bit_generator.state == state
     envs = [gym.make(ENV_ID, time_limit=1.0),
             gym.make(ENV_ID, time_limit=1.0, acoustic=AcousticConfig(node_dropout_rate=0.0))]
@@ -127,8 +127,8 @@ def test_an_out_node_measures_nothing(base_array):
     working[2, [0, 5]] = False  # node 1 (the TDOA reference) and node 6 out
     working[3] = False  # every node out
     m = array.measure(np.random.default_rng(2), np.broadcast_to(point, (b, 3)), np.zeros(8),
-                      working=working)
-    tdoa, az, el = array.noise_free(point)
+                      working=working, xp=np)
+    tdoa, az, el = array.noise_free(point, np)
     # Period 0: all nodes work, the source is measured exactly.
     source = m.origin[0] == 0
     np.testing.assert_allclose(m.tdoa[0][source], np.broadcast_to(tdoa, (10, 7)), atol=1e-12)
@@ -155,9 +155,9 @@ def test_an_out_node_measures_nothing(base_array):
 def test_detection_probability_is_the_working_nodes(base_array):
     array = _array(base_array, AcousticConfig())
     snr = np.array([[0.0, 10.0, 20.0, 30.0]])
-    pd = array.detection_probability(snr, np.array([False, False, True, True]))
+    pd = array.detection_probability(snr, np.array([False, False, True, True]), xp=np)
     assert pd[0] == pytest.approx(1.0 / (1.0 + math.exp(-(25.0 - 10.0) / 2.0)))
-    assert array.detection_probability(snr, np.zeros(4, bool))[0] == 0.0
+    assert array.detection_probability(snr, np.zeros(4, bool), xp=np)[0] == 0.0
 
 
 def test_the_env_marks_out_nodes_in_the_observation_and_info():
@@ -219,7 +219,7 @@ def test_fixes_use_only_the_working_nodes(method):
     rng = np.random.default_rng(6)
     lo, hi = (np.asarray(v) for v in cal.work_area)
     points = rng.uniform(lo, hi, (10, 4, 3))
-    tdoa, az, el = cal.array.noise_free(points)
+    tdoa, az, el = cal.array.noise_free(points, np)
     for out in ((3,), (0,), (0, 2, 5), (1, 2, 3, 4, 5, 6)):
         nodes = np.ones(8, bool)
         nodes[list(out)] = False

@@ -26,24 +26,24 @@ def test_sound_speed_error_scales_every_tdoa(array_of):
     array = array_of(EXACT)
     point = np.array(STATIC_POINTS[3])
     true_speed = 1507.5
-    m = array.measure(np.random.default_rng(0), point, np.zeros(8), sound_speed=true_speed)
+    m = array.measure(np.random.default_rng(0), point, np.zeros(8), sound_speed=true_speed, xp=np)
     ranges = np.linalg.norm(point - array.positions, axis=1)
     np.testing.assert_allclose(m.tdoa[0, 0], (ranges[1:] - ranges[0]) / true_speed, rtol=1e-12)
-    nominal = array.noise_free(point)[0]
+    nominal = array.noise_free(point, np)[0]
     np.testing.assert_allclose(m.tdoa[0, 0], nominal * 1500.0 / true_speed, rtol=1e-12)
     with pytest.raises(ValueError, match="sound_speed"):
-        array.measure(np.random.default_rng(0), point, np.zeros(8), sound_speed=-1.0)
+        array.measure(np.random.default_rng(0), point, np.zeros(8), sound_speed=-1.0, xp=np)
 
 
 def test_sound_speed_draws_follow_the_configured_spread(array_of):
     array = array_of(dataclasses.replace(EXACT, sound_speed_error_std=3.0))
     rng = np.random.default_rng(1)
-    speeds = np.array([array.draw_sound_speed(rng) for _ in range(4000)])
+    speeds = np.array([array.draw_sound_speed(rng, np) for _ in range(4000)])
     assert abs(speeds.mean() - 1500.0) < 0.2
     assert speeds.std() == pytest.approx(3.0, rel=0.05)
     off = array_of(EXACT)
     state = rng.bit_generator.state
-    assert off.draw_sound_speed(rng) == 1500.0
+    assert off.draw_sound_speed(rng, np) == 1500.0
     assert rng.bit_generator.state == state  # no draw when the error is off
 
 
@@ -55,7 +55,7 @@ def test_env_reports_and_uses_the_episode_sound_speed():
         c_true = info["sound_speed"]
         assert c_true != 1500.0
         array = env.unwrapped.calibration.array
-        exact = array.noise_free(info["true_position"])[0] * 1500.0 / c_true
+        exact = array.noise_free(info["true_position"], np)[0] * 1500.0 / c_true
         np.testing.assert_allclose(obs["tdoa"][0, 0], exact, rtol=1e-9)
     finally:
         env.close()
@@ -77,18 +77,18 @@ def test_emission_positions_match_the_retarded_time(array_of):
     start, velocity = np.array([120.0, 140.0, -12.0]), np.array([1.5, -0.8, 0.1])
     track = start + velocity * (dt * np.arange(n))[:, None]
     count = 50
-    emitted = array.emission_positions(track, count, dt)
+    emitted = array.emission_positions(track, count, dt, xp=np)
     for j in (0, 25, 49):
         t = dt * (n - count + j)
         for i in (0, 3, 7):
             expected = _retarded(start, velocity, t, array.positions[i], 1500.0)
             np.testing.assert_allclose(emitted[j, i], expected, atol=1e-6)
     # Angles see each node's own emission position, every TDOA node 1's.
-    m = array.measure(np.random.default_rng(0), emitted, np.zeros(8))
-    tdoa, azimuth, elevation = array.noise_free(emitted[:, 0])
+    m = array.measure(np.random.default_rng(0), emitted, np.zeros(8), xp=np)
+    tdoa, azimuth, elevation = array.noise_free(emitted[:, 0], np)
     np.testing.assert_allclose(m.tdoa[:, 0, 0], tdoa, atol=1e-12)
     for i in range(8):
-        own = array.noise_free(emitted[:, i])
+        own = array.noise_free(emitted[:, i], np)
         np.testing.assert_allclose(m.azimuth[:, 0, 0, i], own[1][:, i], atol=1e-12)
         np.testing.assert_allclose(m.elevation[:, 0, 0, i], own[2][:, i], atol=1e-12)
 
@@ -96,7 +96,7 @@ def test_emission_positions_match_the_retarded_time(array_of):
 def test_a_source_at_rest_is_heard_where_it_is(array_of):
     array = array_of(EXACT)
     track = np.broadcast_to(np.array(STATIC_POINTS[0]), (80, 3))
-    np.testing.assert_allclose(array.emission_positions(track, 50, 0.01),
+    np.testing.assert_allclose(array.emission_positions(track, 50, 0.01, xp=np),
                                np.broadcast_to(track[0], (50, 8, 3)), atol=1e-12)
 
 
@@ -105,25 +105,25 @@ def test_travel_time_wander_is_the_documented_gauss_markov_process(array_of):
                                  fluctuation_time=0.5)
     array = array_of(config)
     rng = np.random.default_rng(3)
-    unit = array.draw_wander(rng, 20000)
+    unit = array.draw_wander(rng, 20000, xp=np)
     assert unit.std() == pytest.approx(1.0, rel=0.05)
     lag = np.mean([np.corrcoef(unit[:-1, i], unit[1:, i])[0, 1] for i in range(8)])
     assert lag == pytest.approx(math.exp(-0.01 / 0.5), abs=0.01)
     # Continuing a block keeps the correlation across the boundary.
-    first = array.draw_wander(np.random.default_rng(5), 50)
-    nxt = array.draw_wander(np.random.default_rng(6), 50, first[-1])
+    first = array.draw_wander(np.random.default_rng(5), 50, xp=np)
+    nxt = array.draw_wander(np.random.default_rng(6), 50, first[-1], xp=np)
     a = math.exp(-0.01 / 0.5)
     shock = (nxt[0] - a * first[-1]) / math.sqrt(1 - a * a)
     assert np.all(np.abs(shock) < 5)
     # The arrival-time spread at a node is mu sqrt(L R) / c.
     point = np.array(STATIC_POINTS[2])
-    m = array.measure(rng, np.broadcast_to(point, (len(unit), 3)), np.zeros(8), wander=unit)
-    exact = array.noise_free(point)[0]
+    m = array.measure(rng, np.broadcast_to(point, (len(unit), 3)), np.zeros(8), wander=unit, xp=np)
+    exact = array.noise_free(point, np)[0]
     ranges = np.linalg.norm(point - array.positions, axis=1)
     sigma = 1e-3 * np.sqrt(10.0 * ranges) / 1500.0
     expected = np.hypot(sigma[1:], sigma[0])
     np.testing.assert_allclose((m.tdoa[:, 0, 0] - exact).std(axis=0), expected, rtol=0.08)
-    assert array_of(EXACT).draw_wander(rng, 10) is None
+    assert array_of(EXACT).draw_wander(rng, 10, xp=np) is None
 
 
 def test_crb_is_reached_by_the_weighted_least_squares_fix(array_of):
@@ -135,7 +135,8 @@ def test_crb_is_reached_by_the_weighted_least_squares_fix(array_of):
     bound = array.position_crb(point)
     model = array.model(point)
     n, trials = 8, 400
-    m = array.measure(np.random.default_rng(9), np.broadcast_to(point, (trials, 3)), np.zeros(n))
+    m = array.measure(np.random.default_rng(9), np.broadcast_to(point, (trials, 3)), np.zeros(n),
+                      xp=np)
     # Gauss-Newton weighted least squares over all bands of one period, written here from
     # the model's documented covariances (independent of position_crb's code).
     weights = []
@@ -152,8 +153,8 @@ def test_crb_is_reached_by_the_weighted_least_squares_fix(array_of):
              for q in range(config.n_bands)]
         x = point + 0.05
         for _ in range(4):
-            h0 = np.concatenate(array.noise_free(x))
-            jac = np.stack([(np.concatenate(array.noise_free(x + e)) - h0) / 1e-4
+            h0 = np.concatenate(array.noise_free(x, np))
+            jac = np.stack([(np.concatenate(array.noise_free(x + e, np)) - h0) / 1e-4
                             for e in 1e-4 * np.eye(3)], axis=1)
             normal, rhs = np.zeros((3, 3)), np.zeros(3)
             for q in range(config.n_bands):
@@ -248,7 +249,7 @@ def test_band_fading_is_a_gauss_markov_fade_of_each_bands_snr(array_of):
                                  timing_floor=0.0, clock_offset_std=0.0, clutter_rate=0.0,
                                  ideal_detection=True, multipath=False, max_detections=1)
     array = array_of(config)
-    fades = array.draw_fading(np.random.default_rng(2), 20000)
+    fades = array.draw_fading(np.random.default_rng(2), 20000, xp=np)
     assert fades.shape == (20000, 10, 8)
     assert fades.std() == pytest.approx(5.6, rel=0.05)
     lag = np.corrcoef(fades[:-1, 3, 5], fades[1:, 3, 5])[0, 1]
@@ -260,12 +261,12 @@ def test_band_fading_is_a_gauss_markov_fade_of_each_bands_snr(array_of):
     fade = np.zeros((n, 10, 8))
     fade[:, 2] = 20.0
     m = array.measure(np.random.default_rng(4), np.broadcast_to(point, (n, 3)), np.zeros(8),
-                      fading=fade)
-    exact = array.noise_free(point)[0]
+                      fading=fade, xp=np)
+    exact = array.noise_free(point, np)[0]
     spread = (m.tdoa[:, :, 0] - exact).std(axis=0)  # (Q, N-1)
     model = array.model(point)  # the unfaded noise of bands 1 and 2
     expected = 0.1 * model["tdoa_std"][2] / model["tdoa_std"][1]
     np.testing.assert_allclose(spread[2] / spread[1], expected, rtol=0.1)
     assert array_of(dataclasses.replace(config, fading_std=0.0)).draw_fading(
-        np.random.default_rng(0), 5) is None
+        np.random.default_rng(0), 5, xp=np) is None
 

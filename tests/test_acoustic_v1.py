@@ -94,8 +94,8 @@ def _direct_path_errors(noise_draws: str, seed: int) -> np.ndarray:
     array = HydrophoneArray(h, 0.0, -30.0, config)
     point = np.array([120.0, 180.0, -12.0])
     m = array.measure(np.random.default_rng(seed), np.broadcast_to(point, (400, 3)),
-                      np.zeros(8), noise_draws=noise_draws)
-    exact = array.noise_free(point)[0]
+                      np.zeros(8), noise_draws=noise_draws, xp=np)
+    exact = array.noise_free(point, np)[0]
     own = m.origin == ORIGIN_TARGET
     return (m.tdoa[own] - exact), own.any(axis=2).mean(axis=0)
 

@@ -61,7 +61,7 @@ def _sources(array) -> np.ndarray:
     rng = np.random.default_rng(3)
     points = np.concatenate([rng.uniform((40, 40, -25), (295, 295, -5), (40, 3)),
                              [[40, 40, -25], [295, 295, -5], [150, 150, -15]]])
-    return array.image_sources(points[:, None, :])
+    return array.image_sources(points[:, None, :], np)
 
 
 def _deterministic(array, xp, sources, track, speeds, angles):
@@ -69,16 +69,16 @@ def _deterministic(array, xp, sources, track, speeds, angles):
     tdoa, azimuth, elevation = array.noise_free(sources, xp)
     ranges = array.geometry(sources, xp)[0]
     rise = array.flow_noise_rise(speeds, xp)
-    snr = array.snr_db(ranges[:3, None], array._path_loss, rise, xp)  # (3, Q, P, N)
+    snr = array.snr_db(ranges[:3, None], array._path_loss, rise, xp=xp)  # (3, Q, P, N)
     working = np.arange(array.n_nodes) % 3 != 1
     timing, sigma_az, sigma_el = array.noise_std(snr, elevation[:3, None], xp)
     return {
         "tdoa": tdoa, "azimuth": azimuth, "elevation": elevation, "snr": snr,
         "detection_probability": array.detection_probability(snr, xp=xp),
-        "detection_probability_working": array.detection_probability(snr, working, xp),
+        "detection_probability_working": array.detection_probability(snr, working, xp=xp),
         "arrival_std": timing, "azimuth_std": sigma_az, "elevation_std": sigma_el,
         "wander_std": array.wander_std(ranges, xp),
-        "emission": array.emission_positions(track, 20, 0.01, SOUND_SPEED, xp),
+        "emission": array.emission_positions(track, 20, 0.01, SOUND_SPEED, xp=xp),
         "wrap": _wrap(angles, xp),
     }
 
@@ -149,11 +149,11 @@ def _episode_block(array, draws, xp, count: int = 5):
     offsets = array.draw_clock_offsets(draws, xp)
     speed = array.draw_sound_speed(draws, xp)
     track = xp.asarray(_track())
-    heard = array.emission_positions(track, count, 0.01, speed, xp)
-    wander = array.draw_wander(draws, count, array.draw_wander(draws, 1, xp=xp)[-1], xp)
-    fading = array.draw_fading(draws, count, array.draw_fading(draws, 1, xp=xp)[-1], xp)
+    heard = array.emission_positions(track, count, 0.01, speed, xp=xp)
+    wander = array.draw_wander(draws, count, array.draw_wander(draws, 1, xp=xp)[-1], xp=xp)
+    fading = array.draw_fading(draws, count, array.draw_fading(draws, 1, xp=xp)[-1], xp=xp)
     nodes = array.draw_node_states(draws, count, xp=xp)
-    nodes = array.draw_node_states(draws, count, nodes[-1], xp)
+    nodes = array.draw_node_states(draws, count, nodes[-1], xp=xp)
     # Node 4 out in every period and node 1 in the last: their columns zeroed.
     working = nodes & (xp.arange(array.n_nodes) != 3)
     working = xp.where((xp.arange(count) == count - 1)[:, None]
@@ -179,13 +179,14 @@ def test_fixed_draw_on_jax_is_numpy_fixed_draw(hard):
     # The chains alone, from their stationary start and continued.
     rng = _Record(np.random.default_rng(5))
     previous = np.array([True, False, True, False])
-    expected = (unit_gauss_markov(rng, 6, (2, 3), 0.2), two_state_markov(rng, 6, (4,), 0.3, 0.4),
-                two_state_markov(rng, 3, (4,), 0.3, 0.4, previous))
+    expected = (unit_gauss_markov(rng, 6, (2, 3), 0.2, xp=np),
+                two_state_markov(rng, 6, (4,), 0.3, 0.4, xp=np),
+                two_state_markov(rng, 3, (4,), 0.3, 0.4, previous, xp=np))
     with jax.enable_x64(True):
         replay = _Replay(jnp.asarray(draw) for draw in rng.draws)
         chains = (unit_gauss_markov(replay, 6, (2, 3), 0.2, xp=jnp),
                   two_state_markov(replay, 6, (4,), 0.3, 0.4, xp=jnp),
-                  two_state_markov(replay, 3, (4,), 0.3, 0.4, jnp.asarray(previous), jnp))
+                  two_state_markov(replay, 3, (4,), 0.3, 0.4, jnp.asarray(previous), xp=jnp))
     for a, b in zip(chains, expected, strict=True):
         _assert_close(a, b, "chain")
 
@@ -228,7 +229,7 @@ def _draw_both(array, jax_draw, working: np.ndarray, seed: int):
     JAX arrays as NumPy (PERIODS, Q, K, ...)."""
     rows = np.broadcast_to(working, (PERIODS, array.n_nodes))
     cpu = array.measure(np.random.default_rng(seed), np.broadcast_to(SOURCE, (PERIODS, 3)),
-                        CLOCKS, CURRENT, SOUND_SPEED, working=rows)
+                        CLOCKS, CURRENT, SOUND_SPEED, working=rows, xp=np)
     keys = jax.random.split(jax.random.key(seed), (PERIODS // BATCH, BATCH))
     calls = [jax_draw(batch, jnp.asarray(SOURCE[None], jnp.float32), jnp.asarray(working[None]))
              for batch in keys]
@@ -260,16 +261,17 @@ def test_fixed_draw_is_the_numpy_model_in_distribution(hard, jax_draw):
     assert np.all(_z(cpu.dropped, ours.dropped) < SIGMAS)
     assert ours.dropped.any()
 
-    ranges = hard.geometry(hard.image_sources(SOURCE))[0]  # (P, N)
-    snr = hard.snr_db(ranges, hard._path_loss, hard.flow_noise_rise(CURRENT))  # (Q, P, N)
-    pd = hard.detection_probability(snr, working).sum(axis=-1)  # (Q,)
+    ranges = hard.geometry(hard.image_sources(SOURCE, np), np)[0]  # (P, N)
+    rise = hard.flow_noise_rise(CURRENT, np)  # (Q,)
+    snr = hard.snr_db(ranges, hard._path_loss, rise, xp=np)  # (Q, P, N)
+    pd = hard.detection_probability(snr, working, xp=np).sum(axis=-1)  # (Q,)
     expected = pd + np.sum(1.0 - hard._clutter_cdf)  # + E[min(Poisson, K)]
     for m in (cpu, ours):
         candidates = m.mask.sum(axis=-1) + m.dropped
         error = candidates.std(axis=0) / np.sqrt(PERIODS)
         assert np.all(np.abs(candidates.mean(axis=0) - expected) < SIGMAS * error)
 
-    truth = hard.noise_free(hard.image_sources(SOURCE)[0])[0] * (
+    truth = hard.noise_free(hard.image_sources(SOURCE, np)[0], np)[0] * (
         hard.config.sound_speed / SOUND_SPEED) + CLOCKS[1:] - CLOCKS[0]
     tdoa_std = hard.model(SOURCE, CURRENT)["tdoa_std"]  # (Q, N - 1)
     for m in (cpu, ours):
@@ -294,7 +296,7 @@ def test_fixed_draw_crowds_bands_as_numpy(hard):
     working = np.broadcast_to(np.arange(hard.n_nodes) != 3, (2 * PERIODS, hard.n_nodes))
     sources = np.broadcast_to(SOURCE, (len(working), 3))
     draws = [crowded.measure(np.random.default_rng(seed), sources, CLOCKS, CURRENT, SOUND_SPEED,
-                             working=working, noise_draws=order)
+                             working=working, noise_draws=order, xp=np)
              for seed, order in ((6, "kept"), (7, "fixed"))]
     for origin in (ORIGIN_TARGET, 1, 2, ORIGIN_CLUTTER):
         counts = [np.sum(m.origin == origin, axis=-1) for m in draws]
@@ -341,7 +343,7 @@ def test_fixed_draw_shapes_and_conventions(hard, jax_draw, out):
     for noise_draws in ("kept", "fixed"):
         draws.append(hard.measure(np.random.default_rng(4), np.broadcast_to(SOURCE, (BATCH, 3)),
                                   CLOCKS, CURRENT, SOUND_SPEED, working=rows,
-                                  noise_draws=noise_draws))
+                                  noise_draws=noise_draws, xp=np))
     for draw in draws:
         _check_conventions(hard, draw, working)
         assert draw.mask.any() == working.any()

@@ -24,6 +24,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import auv_envs  # noqa: E402,F401
 from auv_envs.batched.functional import FunctionalEnv  # noqa: E402
+from auv_envs.core.ops import FLOATS  # noqa: E402
 from auv_envs.core.vehicle import PlantPerturbation  # noqa: E402
 from auv_envs.tasks.docking.env import DockingDisturbances  # noqa: E402
 from auv_envs.tasks.docking.rules import failure_reason  # noqa: E402
@@ -132,9 +133,9 @@ def test_the_levels_water_and_current_have_the_cpu_envs_statistics(env_id, level
     rng = np.random.default_rng(0)
     speeds = []
     for _ in range(4000):
-        speed, direction = current.start(0.0, 1.0, rng)
+        speed, direction = current.start(0.0, 1.0, rng, FLOATS)
         for _ in range(steps):
-            speed, direction = current.advance(speed, direction, 0.0, 1.0, cpu.dt, rng)
+            speed, direction = current.advance(speed, direction, 0.0, 1.0, cpu.dt, rng, FLOATS)
         speeds.append(speed)
     batch_speeds = np.asarray(state.episode.current_polar)[:, 0]
     np.testing.assert_allclose(np.hypot(*np.asarray(state.episode.current)[:, :2].T),

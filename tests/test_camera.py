@@ -67,7 +67,7 @@ def _hand_projection(position, euler, lights, width, height, tilt_deg):
     """Pixels of world points for a vehicle at ``position``/``euler``, by hand."""
     f = 0.5 * height / math.tan(math.radians(FOVY_DEG) / 2.0)
     cx, cy = width / 2.0, height / 2.0
-    r_body = rotation_from_euler(*euler)
+    r_body = rotation_from_euler(*euler, np)
     cam_pos = np.asarray(position) + r_body @ np.array([NOSE, 0.0, 0.0])
     r_cam = r_body @ _cam_rotation_cv_to_body(tilt_deg)  # cv -> world
     out = []
@@ -180,7 +180,7 @@ def test_light_on_optical_axis_projects_to_principal_point(make_env, env_id, lig
     env.reset(seed=0)
     light = u.calibration.light_positions[light_index]
     euler = (0.3, 0.1, 0.2)  # rolling about the optical axis keeps it centred
-    r_body = rotation_from_euler(*euler)
+    r_body = rotation_from_euler(*euler, np)
     axis_world = r_body @ _cam_rotation_cv_to_body(CAMERA_PITCH_DEG[env_id])[:, 2]
     cam_pos = light - 5.0 * axis_world
     position = cam_pos - r_body @ np.array([NOSE, 0.0, 0.0])
@@ -201,7 +201,7 @@ def test_truth_pixels_match_opencv_project_points(make_env, env_id):
     u.physics.set_state(position, euler, np.zeros(6))
     pixels = u.lights_in_view()[0]
     cal = u.calibration
-    r_body = rotation_from_euler(*euler)
+    r_body = rotation_from_euler(*euler, np)
     cam_pos = np.asarray(position) + r_body @ np.asarray(cal.extrinsics.position)
     r_world_to_cam = (r_body @ cal.extrinsics.rotation_matrix).T
     rvec, _ = cv2.Rodrigues(r_world_to_cam)

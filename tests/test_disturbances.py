@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.sea import GaussMarkovCurrent, current_vector
 from auv_envs.core.vehicle import PlantPerturbation, hovering_auv, thruster_lag_gain
 from auv_envs.tasks.docking.env import DockingDisturbances
@@ -22,10 +23,10 @@ DOCK = DOCKING_IDS[0]
 def _simulate(process: GaussMarkovCurrent, mean: tuple[float, float], dt: float, n: int,
               seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    state = process.start(*mean, rng)
+    state = process.start(*mean, rng, FLOATS)
     out = np.empty((n, 2))
     for k in range(n):
-        state = process.advance(*state, *mean, dt, rng)
+        state = process.advance(*state, *mean, dt, rng, FLOATS)
         out[k] = state
     return out
 
@@ -74,7 +75,7 @@ def test_inactive_current_draws_nothing():
     state = rng.bit_generator.state
     process = GaussMarkovCurrent()
     assert not process.active
-    assert process.start(0.3, 1.0, rng) == (0.3, 1.0)
+    assert process.start(0.3, 1.0, rng, FLOATS) == (0.3, 1.0)
     assert rng.bit_generator.state == state
     np.testing.assert_allclose(current_vector(0.3, math.pi / 2), [0.0, 0.3, 0.0], atol=1e-15)
 

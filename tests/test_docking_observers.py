@@ -119,7 +119,7 @@ def _nominal_sequence(calibration, force, steps, seed=0):
     states, inputs = [x], []
     for _ in range(steps):
         tau = rng.uniform(-20.0, 20.0, 4)
-        x = model.step(x, tau, calibration.control_period, d=force)
+        x = model.step(x, tau, calibration.control_period, d=force, ops=np)
         states.append(x)
         inputs.append(tau)
     return states, inputs

@@ -42,7 +42,7 @@ def _rz(a):
 
 def test_euler_round_trip_random_angles():
     for roll, pitch, yaw in _random_angles(200):
-        rot = frames.rotation_from_euler(roll, pitch, yaw)
+        rot = frames.rotation_from_euler(roll, pitch, yaw, np)
         back = frames.euler_from_rotation(rot)
         np.testing.assert_allclose(back, [roll, pitch, yaw], atol=1e-9)
         # Also accepts a nested list (the env passes ``rot.tolist()``).
@@ -53,13 +53,13 @@ def test_rotation_is_zyx_composition():
     for roll, pitch, yaw in _random_angles(50, seed=1):
         expected = _rz(yaw) @ _ry(pitch) @ _rx(roll)
         np.testing.assert_allclose(
-            frames.rotation_from_euler(roll, pitch, yaw), expected, atol=1e-12
+            frames.rotation_from_euler(roll, pitch, yaw, np), expected, atol=1e-12
         )
 
 
 def test_rotation_is_orthonormal_with_det_one():
     for roll, pitch, yaw in _random_angles(100, seed=2):
-        rot = frames.rotation_from_euler(roll, pitch, yaw)
+        rot = frames.rotation_from_euler(roll, pitch, yaw, np)
         np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-12)
         np.testing.assert_allclose(rot @ rot.T, np.eye(3), atol=1e-12)
         assert np.linalg.det(rot) == pytest.approx(1.0, abs=1e-12)
@@ -67,12 +67,12 @@ def test_rotation_is_orthonormal_with_det_one():
 
 def test_quat_from_euler_matches_mujoco():
     for roll, pitch, yaw in _random_angles(100, seed=3):
-        quat = frames.quat_from_euler(roll, pitch, yaw)
+        quat = frames.quat_from_euler(roll, pitch, yaw, np)
         assert np.linalg.norm(quat) == pytest.approx(1.0, abs=1e-12)
         mat = np.zeros(9)
         mujoco.mju_quat2Mat(mat, quat)
         np.testing.assert_allclose(
-            mat.reshape(3, 3), frames.rotation_from_euler(roll, pitch, yaw), atol=1e-12
+            mat.reshape(3, 3), frames.rotation_from_euler(roll, pitch, yaw, np), atol=1e-12
         )
 
 
@@ -86,13 +86,13 @@ def test_quat_from_euler_matches_mujoco_euler_composition():
         q = np.zeros(4)
         mujoco.mju_mulQuat(qzy, qz, qy)
         mujoco.mju_mulQuat(q, qzy, qx)
-        ours = frames.quat_from_euler(roll, pitch, yaw)
+        ours = frames.quat_from_euler(roll, pitch, yaw, np)
         # Same rotation: q and -q are equivalent.
         assert min(np.abs(ours - q).max(), np.abs(ours + q).max()) < 1e-12
 
 
 def test_yaw_plus_90_maps_body_x_to_world_y():
-    rot = frames.rotation_from_euler(0.0, 0.0, math.radians(90.0))
+    rot = frames.rotation_from_euler(0.0, 0.0, math.radians(90.0), np)
     np.testing.assert_allclose(rot @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
     # Body y (port) then points to world -x; z stays up.
     np.testing.assert_allclose(rot @ [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], atol=1e-12)
@@ -101,21 +101,21 @@ def test_yaw_plus_90_maps_body_x_to_world_y():
 
 def test_positive_pitch_is_nose_down_and_positive_roll_is_starboard_down():
     # z up, right-handed: a positive rotation about body y (port) lowers the bow.
-    rot = frames.rotation_from_euler(0.0, math.radians(30.0), 0.0)
+    rot = frames.rotation_from_euler(0.0, math.radians(30.0), 0.0, np)
     bow = rot @ [1.0, 0.0, 0.0]
     assert bow[2] == pytest.approx(-0.5, abs=1e-12)
     # A positive rotation about body x (forward) raises the port side.
-    rot = frames.rotation_from_euler(math.radians(30.0), 0.0, 0.0)
+    rot = frames.rotation_from_euler(math.radians(30.0), 0.0, 0.0, np)
     port = rot @ [0.0, 1.0, 0.0]
     assert port[2] == pytest.approx(0.5, abs=1e-12)
 
 
 def test_world_to_body_is_transpose():
-    rot = frames.rotation_from_euler(0.2, -0.3, 1.1)
+    rot = frames.rotation_from_euler(0.2, -0.3, 1.1, np)
     v = np.array([0.3, -1.2, 2.0])
     np.testing.assert_allclose(rot @ frames.world_to_body(rot, v), v, atol=1e-12)
     # yaw 90 deg: world +y is body +x.
-    rot90 = frames.rotation_from_euler(0.0, 0.0, math.pi / 2)
+    rot90 = frames.rotation_from_euler(0.0, 0.0, math.pi / 2, np)
     np.testing.assert_allclose(frames.world_to_body(rot90, [0, 1, 0]), [1, 0, 0], atol=1e-12)
 
 
@@ -178,7 +178,7 @@ def test_rotation_from_euler_casadi_equals_numpy():
     rng = np.random.default_rng(2)
     for roll, pitch, yaw in rng.uniform(-3.0, 3.0, (20, 3)):
         np.testing.assert_allclose(np.array(rotation([roll, pitch, yaw])),
-                                   frames.rotation_from_euler(roll, pitch, yaw), atol=1e-15)
+                                   frames.rotation_from_euler(roll, pitch, yaw, np), atol=1e-15)
 
 
 def test_quaternion_helpers_match_mujoco():
@@ -195,7 +195,7 @@ def test_quaternion_helpers_match_mujoco():
         np.testing.assert_allclose(frames.rotation_rows_from_quat(*quat), expected, atol=1e-15)
         turned = quat.copy()
         mujoco.mju_quatIntegrate(turned, omega, 0.03)
-        np.testing.assert_allclose(frames.quat_integrate(quat, omega, 0.03), turned, atol=1e-15)
-    batch = frames.quat_integrate(quats, omegas, 0.03)
+        np.testing.assert_allclose(frames.quat_integrate(quat, omega, 0.03, np), turned, atol=1e-15)
+    batch = frames.quat_integrate(quats, omegas, 0.03, np)
     for k in range(len(quats)):
-        np.testing.assert_allclose(batch[k], frames.quat_integrate(quats[k], omegas[k], 0.03))
+        np.testing.assert_allclose(batch[k], frames.quat_integrate(quats[k], omegas[k], 0.03, np))

@@ -23,7 +23,7 @@ def calibration():
 
 def _exact(cal, points):
     """Noise-free measurements of points (Q, M, 3), band-major like the env."""
-    tdoa, az, el = cal.array.noise_free(points)
+    tdoa, az, el = cal.array.noise_free(points, np)
     return tdoa, az, el
 
 
@@ -53,7 +53,7 @@ def test_unbiased_over_noisy_draws(calibration, method):
     noisy = HydrophoneArray(array.positions, array.surface_z, array.bottom_z, cfg)
     rng = np.random.default_rng(11)
     truth = np.array(STATIC_POINTS[1])
-    m = noisy.measure(rng, np.broadcast_to(truth, (400, 3)), np.zeros(8))
+    m = noisy.measure(rng, np.broadcast_to(truth, (400, 3)), np.zeros(8), xp=np)
     # (B, Q, K, .) -> band-major (Q, B*K, .)
     def band_major(a):
         return np.moveaxis(a, 1, 0).reshape(a.shape[1], -1, *a.shape[3:])
@@ -75,7 +75,7 @@ def test_rejects_ghosts_and_clutter(calibration):
     a = calibration.array
     arr = HydrophoneArray(a.positions, a.surface_z, a.bottom_z, cfg)
     m = arr.measure(np.random.default_rng(5), np.broadcast_to(STATIC_POINTS[2], (50, 3)),
-                    arr.draw_clock_offsets(np.random.default_rng(6)))
+                    arr.draw_clock_offsets(np.random.default_rng(6), np), xp=np)
     solver = LeastSquaresPositioner(calibration)
     fixes = [solver.solve(m.tdoa[i], m.azimuth[i], m.elevation[i], m.mask[i])
              for i in range(50)]
@@ -132,10 +132,10 @@ def _track_clock(calibration, config, periods, seed):
     a = calibration.array
     array = HydrophoneArray(a.positions, a.surface_z, a.bottom_z, config)
     rng = np.random.default_rng(seed)
-    offsets = array.draw_clock_offsets(rng)
+    offsets = array.draw_clock_offsets(rng, np)
     start = rng.uniform(*(np.asarray(v) for v in calibration.work_area))
     path = start + np.linspace(0.0, 1.0, periods)[:, None] * np.array([8.0, -5.0, 1.0])
-    m = array.measure(rng, path, offsets)
+    m = array.measure(rng, path, offsets, xp=np)
     solver = LeastSquaresPositioner(calibration)
     estimator = ClockOffsetEstimator(calibration)
     for i in range(periods):
@@ -182,7 +182,7 @@ def _static_fixes(calibration, solver, config, origin_periods=600, seed=4):
     array = HydrophoneArray(a.positions, a.surface_z, a.bottom_z, config)
     truth = work_area_centre(calibration)
     m = array.measure(np.random.default_rng(seed), np.broadcast_to(truth, (origin_periods, 3)),
-                      np.zeros(8))
+                      np.zeros(8), xp=np)
 
     def band_major(x):
         return np.moveaxis(x, 1, 0).reshape(x.shape[1], -1, *x.shape[3:])

@@ -217,7 +217,7 @@ def _view(points: np.ndarray, cam_pos, yaw: float, pitch: float, roll: float = 0
     """Project world points with a camera looking along its body x (OpenCV axes)."""
     k = CameraIntrinsics.from_fovy(640, 480, 45.0)
     body_to_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-    rot = rotation_from_euler(roll, pitch, yaw) @ body_to_cv
+    rot = rotation_from_euler(roll, pitch, yaw, np) @ body_to_cv
     return project(k, points_in_camera(points, np.asarray(cam_pos, float), rot))[0]
 
 
@@ -336,7 +336,7 @@ def test_camera_position_filter_recovers_the_camera_from_labelled_lamps():
     k = CameraIntrinsics.from_fovy(640, 480, 45.0)
     cam = np.array([-3.0, 0.4, 1.0])
     body_to_cv = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-    rot = rotation_from_euler(0.02, math.radians(20), -0.1) @ body_to_cv
+    rot = rotation_from_euler(0.02, math.radians(20), -0.1, np) @ body_to_cv
     pixels, _ = project(k, points_in_camera(L_LAYOUT, cam, rot))
     pose = CameraPositionFilter(k, L_LAYOUT)
     pose.set_rotation(rot)

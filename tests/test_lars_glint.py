@@ -110,7 +110,7 @@ def test_glints_in_an_image_are_the_density_integrated_over_its_footprint():
     xs = np.arange(-2.5, 3.0, step)
     gx, gy = np.meshgrid(xs, xs - 0.5)
     points = np.stack((gx.ravel(), gy.ravel(), np.zeros(gx.size)), axis=-1)
-    _, seen = project_few(intr, points.tolist(), camera, rows.tolist())
+    _, seen = project_few(intr, points.tolist(), camera, rows.tolist(), FLOATS)
     seen = np.array(seen)
     assert not seen[[0, -1]].any()  # the grid covers the footprint
     view = np.asarray(camera) - points[seen]
@@ -304,7 +304,7 @@ def test_glitter_centres_on_the_suns_mirror_image():
                            reach * math.sin(math.radians(azimuth)), 0.0)
         mirror[2] = info["water_level"]
         (pixel,), (inside,) = project_few(cal.stereo.left, [tuple(mirror)], tuple(camera),
-                                          pose[:3, :3].tolist())
+                                          pose[:3, :3].tolist(), FLOATS)
         assert inside
         offsets.append((u[changed].mean() - pixel[0], v[changed].mean() - pixel[1]))
     assert np.all(np.abs(np.mean(offsets, axis=0)) < 2.0)

@@ -20,7 +20,7 @@ def test_segments_cross_box_cases():
     ends = np.array([[0.0, 0.0, -5.0], [3.0, 0.0, -5.0], [0.0, 0.0, 2.0], [-3.0, 0.5, 0.5],
                      [-3.0, 2.0, 0.5], [5.0, 0.5, 0.5], [0.9, 0.5, -1.0]])
     np.testing.assert_array_equal(
-        segments_cross_box(starts, ends, centre, half),
+        segments_cross_box(starts, ends, centre, half, np),
         [True, False, False, True, False, False, True],
     )
 

@@ -31,7 +31,7 @@ def hard():
 
 def _pixels(cal, position, euler):
     """The lamps' pixels from the environment's camera functions, and which are in front."""
-    R_b = rotation_from_euler(*euler)
+    R_b = rotation_from_euler(*euler, np)
     ext = cal.extrinsics
     camera = np.asarray(position) + R_b @ np.asarray(ext.position)
     q = points_in_camera(cal.light_positions, camera, R_b @ ext.rotation_matrix)
@@ -67,7 +67,7 @@ def _approach(params, cal, deviation: float, steps: int = 120):
     for k in range(steps):
         euler = np.array([0.0, 0.0, 0.05 * math.sin(0.1 * k)])
         velocity = np.array([0.25, 0.0, 0.0])
-        position = position + rotation_from_euler(*euler) @ velocity * params.motion.dt
+        position = position + rotation_from_euler(*euler, np) @ velocity * params.motion.dt
         pixels, in_front = _pixels(cal, position, euler)
         shown = in_front & (pixels[:, 0] > 0) & (pixels[:, 0] < cal.intrinsics.width) \
             & (pixels[:, 1] > 0) & (pixels[:, 1] < cal.intrinsics.height)
@@ -115,7 +115,7 @@ def test_a_turned_filter_is_the_same_filter_turned_about_the_centre():
             "usbl_age": np.array([0.0]), "usbl": np.zeros(3)})
     centre = np.array([0.5, 0.0, 1.0])
     moved = nav.turned(state, 0.3, centre)
-    Rz = rotation_from_euler(0.0, 0.0, 0.3)
+    Rz = rotation_from_euler(0.0, 0.0, 0.3, np)
     np.testing.assert_allclose(moved.position - centre, Rz @ (state.position - centre))
     np.testing.assert_allclose(moved.covariance, Rz @ state.covariance @ Rz.T)
     np.testing.assert_allclose(moved.past_rotation[2], Rz @ state.past_rotation[2])

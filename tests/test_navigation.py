@@ -29,7 +29,7 @@ QUIET = dataclasses.replace(USBL_ACOUSTICS, sound_speed_error_std=0.0)
 #: A transceiver 10 m up, turned 0.4 rad, and a transponder 160 m away, between the surface
 #: (z = 50) and the bottom (z = -2).
 YAW = 0.4
-ROWS = np.array(frames.rotation_rows(0.0, 0.0, YAW))
+ROWS = np.array(frames.rotation_rows(0.0, 0.0, YAW, FLOATS))
 TRANSCEIVER = np.array([0.0, 0.0, 10.0])
 TRANSPONDER = np.array([150.0, 60.0, 0.0])
 TRUE_FIX = (TRANSPONDER - TRANSCEIVER) @ ROWS  # body axes
@@ -53,8 +53,8 @@ def test_usbl_fix_is_efficient_against_the_cramer_rao_bound():
     array = usbl.array(50.0, -2.0)
     offsets = TRUE_FIX - np.asarray(usbl.elements)
     ranges = np.linalg.norm(offsets, axis=1)
-    snr = array.snr_db(ranges[None, :], array.path_loss[:1])
-    sigma = array.noise_std(snr, np.ones_like(snr))[0][0, 0]  # (4,) s
+    snr = array.snr_db(ranges[None, :], array.path_loss[:1], xp=np)
+    sigma = array.noise_std(snr, np.ones_like(snr), np)[0][0, 0]  # (4,) s
     units = offsets / ranges[:, None]
     information = sum(np.outer(u, u) / (C * s) ** 2 for u, s in zip(units, sigma, strict=True))
     bound = np.trace(np.linalg.inv(information))

@@ -3,6 +3,8 @@ fallback, and a short seeded docking episode of the registered agent."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -39,7 +41,7 @@ def test_target_conditions_hold_inside_the_solution(controller, calibration):
     target = np.concatenate([calibration.target_position, [0.0], np.zeros(4)])
     # Holding the docking pose at rest is an equilibrium of the nominal model: the
     # whole derivative vanishes there, the pose rows included.
-    derivative = calibration.nominal_model.derivatives(target, us, d)
+    derivative = calibration.nominal_model.derivatives(target, us, d, ops=math)
     np.testing.assert_allclose(derivative, 0.0, atol=1e-6)
     # Net buoyancy B - W (N, up): holding depth takes -(B - W) - d_Z of heave thrust.
     buoyancy = calibration.nominal_params.net_buoyancy
@@ -69,7 +71,7 @@ def test_offset_free_on_nominal_model_with_constant_unmodelled_force(calibration
         result = controller.solve(estimate.state, estimate.disturbance)
         assert result.success
         tau = result.tau
-        x = model.step(x, tau, calibration.control_period, d=force)
+        x = model.step(x, tau, calibration.control_period, d=force, ops=np)
     np.testing.assert_allclose(x[:3], calibration.target_position, atol=1e-4)
     assert abs(x[3]) < 1e-6
     np.testing.assert_allclose(x[4:], 0.0, atol=1e-4)
@@ -163,7 +165,7 @@ def test_compiled_solver_gives_the_same_plan(calibration, tmp_path, monkeypatch)
         a, b = compiled.solve(x, d), reference.solve(x, d)
         assert a.success and b.success
         np.testing.assert_allclose(a.tau, b.tau, rtol=1e-9, atol=1e-9)
-        x = calibration.nominal_model.step(x, a.tau, calibration.control_period, d=d)
+        x = calibration.nominal_model.step(x, a.tau, calibration.control_period, d=d, ops=np)
     # A second controller finds the cached library instead of compiling again.
     assert OffsetFreeNMPC(calibration, config).compiled
 

@@ -314,7 +314,7 @@ def test_nominal_model_is_casadi_compatible(plant):
     np.testing.assert_allclose(np.array(step(x_num, tau_num)).ravel(), expected_step,
                                rtol=1e-12, atol=1e-12)
     # Also the float path (ops=math) agrees with NumPy.
-    np.testing.assert_allclose(model.derivatives(list(x_num), list(tau_num)), expected,
+    np.testing.assert_allclose(model.derivatives(list(x_num), list(tau_num), ops=math), expected,
                                rtol=1e-12, atol=1e-12)
 
 

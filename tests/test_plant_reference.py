@@ -77,7 +77,7 @@ def test_vehicle_drifts_with_uniform_current():
     params = neutral()  # W = B, CB above CG, full damping
     current = np.array([0.5, -0.3, 0.1])
     euler = (0.1, -0.2, 0.7)
-    rot0 = rotation_from_euler(*euler)
+    rot0 = rotation_from_euler(*euler, np)
     nu0 = np.concatenate((rot0.T @ current, [0.3, -0.2, 0.6]))
     traj = simulate(
         params, (1.0, 2.0, -3.0), euler, nu0, np.zeros((50, 6)), period=0.1,

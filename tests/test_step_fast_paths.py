@@ -24,6 +24,7 @@ from auv_envs.core.camera import (
     project_few,
 )
 from auv_envs.core.env import validate_action
+from auv_envs.core.ops import FLOATS
 from tests.conftest import make_env
 
 SIX = "auv_envs/DockingStation-v2"
@@ -31,7 +32,7 @@ LAMPS = "auv_envs/LampArrayDocking-v2"
 
 
 def _random_rotation(rng):
-    return frames.rotation_from_euler(*rng.uniform(-math.pi, math.pi, size=3))
+    return frames.rotation_from_euler(*rng.uniform(-math.pi, math.pi, size=3), np)
 
 
 def test_project_few_matches_numpy_projection():
@@ -45,7 +46,7 @@ def test_project_few_matches_numpy_projection():
         ref_pixels, in_front = project(intr, points_in_camera(points, cam, rot))
         ref_inside = in_front & inside_image(intr, ref_pixels)
         pixels, inside = project_few(intr, [tuple(p) for p in points.tolist()],
-                                     tuple(cam.tolist()), rot.tolist())
+                                     tuple(cam.tolist()), rot.tolist(), FLOATS)
         pixels = np.array(pixels)
         np.testing.assert_array_equal(np.isnan(pixels), np.isnan(ref_pixels))
         np.testing.assert_allclose(pixels, ref_pixels, rtol=1e-12, atol=1e-9)
@@ -61,7 +62,7 @@ def test_project_few_image_edges_follow_inside_image():
     targets = np.array([[0.0, 0.0], [639.5, 479.5], [640.0, 10.0], [10.0, 480.0],
                         [-0.25, 10.0], [10.0, -0.25]])
     points = [((u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, 1.0) for u, v in targets]
-    pixels, inside = project_few(intr, points, (0.0, 0.0, 0.0), np.eye(3).tolist())
+    pixels, inside = project_few(intr, points, (0.0, 0.0, 0.0), np.eye(3).tolist(), FLOATS)
     np.testing.assert_allclose(pixels, targets, atol=1e-9)
     np.testing.assert_array_equal(inside, inside_image(intr, np.array(pixels)))
     assert inside == [True, True, False, False, False, False]
@@ -106,7 +107,7 @@ def test_rotation_helpers_match_numpy():
         a, b = _random_rotation(rng), _random_rotation(rng)
         np.testing.assert_allclose(frames.compose_rows(a.tolist(), b.tolist()), a @ b,
                                    rtol=0, atol=1e-15)
-        np.testing.assert_array_equal(frames.euler_floats(a.tolist()),
+        np.testing.assert_array_equal(frames.euler_floats(a.tolist(), FLOATS),
                                       frames.euler_from_rotation(a))
 
 

@@ -136,8 +136,8 @@ excess, if any, is dropped at random and counted). Everything is vectorised
 over periods, bands, paths and nodes, and drawn from the episode's generator,
 so seeded runs are bit-identical.
 
-Each formula is written once and takes the array namespace ``xp``: NumPy (the
-default, the CPU environments) or ``jax.numpy``, whose arrays pass through ``jit``
+Each formula is written once and takes the array namespace ``xp``: NumPy (the CPU
+environments) or ``jax.numpy``, whose arrays pass through ``jit``
 and ``vmap`` (the batched environment, its draws from a JAX key). There the
 detection sets are drawn at fixed shapes (:meth:`HydrophoneArray.measure`'s
 ``noise_draws="fixed"``): the same model, other draws.
@@ -316,7 +316,7 @@ class Measurements:
 
 
 def unit_gauss_markov(rng, count: int, shape: tuple[int, ...], rate: float,
-                      previous=None, xp=np):
+                      previous=None, *, xp):
     """``count`` steps (count, *shape) of independent first-order Gauss-Markov processes
     with unit variance and ``exp(-rate)`` correlation between steps, continuing
     ``previous`` (None: the first step drawn from the stationary distribution).
@@ -334,7 +334,7 @@ def unit_gauss_markov(rng, count: int, shape: tuple[int, ...], rate: float,
 
 
 def two_state_markov(rng, count: int, shape: tuple[int, ...], p_fail: float,
-                     p_repair: float, previous=None, xp=np):
+                     p_repair: float, previous=None, *, xp):
     """``count`` steps (count, *shape) of independent two-state Markov chains, True in the
     good state: per step a good chain turns bad with probability ``p_fail`` and a bad one
     good with ``p_repair``. Continues ``previous`` (None: the first step drawn from the
@@ -362,12 +362,12 @@ FIXED_DRAWS = "fixed"
 _MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
-def _lift(elevation, xp=np):
+def _lift(elevation, xp):
     """What the azimuth's deviation divides by at an elevation: ``max(sin(el), 0.05)``."""
     return xp.maximum(xp.sin(elevation), 0.05)
 
 
-def _wrap(angle, xp=np):
+def _wrap(angle, xp):
     """``angle`` wrapped into (-pi, pi]. On NumPy ``np.mod`` runs only where ``pi - angle``
     is outside [0, 2 pi) (it returns the rest unchanged, so the result is the same, several
     times faster)."""
@@ -474,36 +474,36 @@ class HydrophoneArray:
         return self._path_loss
 
     # ------------------------------------------------------------ geometry
-    # Every method that computes takes the array namespace ``xp``: NumPy (the default) or
-    # ``jax.numpy``, whose arrays then pass through (under ``jit`` and ``vmap`` too).
-    def image_sources(self, position, xp=np):
+    # Every method that computes takes the array namespace ``xp``: NumPy or ``jax.numpy``,
+    # whose arrays then pass through (under ``jit`` and ``vmap`` too).
+    def image_sources(self, position, xp):
         """The source and its surface and bottom mirror images: (..., 3, 3) for (..., 3)."""
         return xp.asarray(position, dtype=float) * self._mirror_scale + self._mirror_shift
 
-    def _offsets(self, sources, xp=np):
+    def _offsets(self, sources, xp):
         """The offsets (..., N, 3) of sources (..., 3) from the nodes, their horizontal
         lengths and their ranges (each (..., N))."""
         d = xp.asarray(sources, dtype=float)[..., None, :] - self.positions
         horizontal = xp.hypot(d[..., 0], d[..., 1])
         return d, horizontal, xp.hypot(horizontal, d[..., 2])
 
-    def ranges(self, sources, xp=np):
+    def ranges(self, sources, xp):
         """The ranges (..., N) of sources (..., 3) from the nodes (:meth:`geometry`'s first)."""
         return self._offsets(sources, xp)[2]
 
-    def geometry(self, sources, xp=np):
+    def geometry(self, sources, xp):
         """Ranges, azimuths and elevations (each (..., N)) of sources (..., 3)."""
         d, horizontal, ranges = self._offsets(sources, xp)
         return ranges, xp.arctan2(d[..., 1], d[..., 0]), xp.arctan2(horizontal, d[..., 2])
 
-    def noise_free(self, sources, xp=np):
+    def noise_free(self, sources, xp):
         """Exact (tdoa (..., N-1), azimuth (..., N), elevation (..., N)) of sources (..., 3)."""
         ranges, azimuth, elevation = self.geometry(sources, xp)
         tdoa = (ranges[..., 1:] - ranges[..., :1]) / self.config.sound_speed
         return tdoa, azimuth, elevation
 
     # ------------------------------------------------------------ noise model
-    def flow_noise_rise(self, current_speed, xp=np):
+    def flow_noise_rise(self, current_speed, xp):
         """How much the flow noise raises each band's noise, dB: (..., Q) for speeds (...).
 
         Zero everywhere when the config has no ``flow_noise_level``.
@@ -516,7 +516,7 @@ class HydrophoneArray:
         u = u[..., None] / FLOW_NOISE_REF_SPEED
         return 10.0 * xp.log10(1.0 + self._flow_ratio * u**6)
 
-    def snr_db(self, ranges, path_loss, noise_rise=None, xp=np):
+    def snr_db(self, ranges, path_loss, noise_rise=None, *, xp):
         """Per-band SNR (Q, P, N) in dB for path ranges (P, N) with boundary losses (P, 1).
 
         ``noise_rise`` (Q,) dB, e.g. :meth:`flow_noise_rise`, lowers every SNR
@@ -528,13 +528,13 @@ class HydrophoneArray:
             snr = snr - xp.asarray(noise_rise)[..., None, None]
         return snr
 
-    def noise_std(self, snr_db, elevation, xp=np):
+    def noise_std(self, snr_db, elevation, xp):
         """Arrival-time, azimuth and elevation standard deviations for an SNR array
         (Q, ...) per band."""
         timing, theta = self._timing_and_angle_std(snr_db, self._angle_k, xp)
         return timing, theta / xp.maximum(xp.sin(elevation), 0.05), theta
 
-    def timing_std(self, snr_db, xp=np):
+    def timing_std(self, snr_db, xp):
         """The arrival-time standard deviations (s) alone, for an SNR array (Q, ...)."""
         return self._timing_std(xp.exp(snr_db * _MINUS_LN10_OVER_20), xp)
 
@@ -543,14 +543,14 @@ class HydrophoneArray:
         timing = self._timing_k * inv_root
         return xp.sqrt(self._timing_floor2 + timing * timing)
 
-    def _timing_and_angle_std(self, snr_db, angle_k, xp=np):
+    def _timing_and_angle_std(self, snr_db, angle_k, xp):
         """:meth:`noise_std`'s arrival-time and elevation deviations, with the band's
         angle constant ``angle_k`` broadcast against ``snr_db``."""
         inv_root = xp.exp(snr_db * _MINUS_LN10_OVER_20)  # 1 / sqrt(snr), snr linear
         theta = angle_k * inv_root
         return self._timing_std(inv_root, xp), xp.sqrt(self._angle_floor2 + theta * theta)
 
-    def detection_probability(self, snr_db, working=None, xp=np):
+    def detection_probability(self, snr_db, working=None, *, xp):
         """Per band and path: logistic in the array SNR (mean over nodes, dB).
 
         ``working`` (bool, broadcast against ``snr_db``'s (..., N)) restricts the mean to
@@ -580,11 +580,11 @@ class HydrophoneArray:
         ``detection_probability`` (Q,) of the direct path, and
         ``ghost_detection_probability`` (Q, 2) of the surface and bottom paths.
         """
-        sources = self.image_sources(position)
-        ranges, _, elevation = self.geometry(sources)
-        snr = self.snr_db(ranges, self._path_loss, self.flow_noise_rise(current_speed))
-        timing, azimuth, theta = self.noise_std(snr, elevation)
-        pd = self.detection_probability(snr)
+        sources = self.image_sources(position, np)
+        ranges, _, elevation = self.geometry(sources, np)
+        snr = self.snr_db(ranges, self._path_loss, self.flow_noise_rise(current_speed, np), xp=np)
+        timing, azimuth, theta = self.noise_std(snr, elevation, np)
+        pd = self.detection_probability(snr, xp=np)
         return {
             "snr_db": snr[:, 0],
             "arrival_std": timing[:, 0],
@@ -623,11 +623,11 @@ class HydrophoneArray:
         for axis in range(3):
             offset = np.zeros(3)
             offset[axis] = step
-            plus = np.concatenate(self.noise_free(p + offset))
-            minus = np.concatenate(self.noise_free(p - offset))
+            plus = np.concatenate(self.noise_free(p + offset, np))
+            minus = np.concatenate(self.noise_free(p - offset, np))
             difference = plus - minus
             n = self.n_nodes
-            difference[n - 1 : 2 * n - 1] = _wrap(difference[n - 1 : 2 * n - 1])
+            difference[n - 1 : 2 * n - 1] = _wrap(difference[n - 1 : 2 * n - 1], np)
             jacobian[:, axis] = difference / (2.0 * step)
         model = self.model(p, current_speed)
         information = np.zeros((3, 3))
@@ -643,12 +643,12 @@ class HydrophoneArray:
                 jacobian.T @ precision @ jacobian)
         return float(np.sqrt(np.trace(np.linalg.inv(periods * information))))
 
-    def draw_clock_offsets(self, rng, xp=np):
+    def draw_clock_offsets(self, rng, xp):
         """Per-episode clock offsets (N,), node 1's zero."""
         offsets = rng.normal(0.0, 1.0, self.n_nodes) * self.config.clock_offset_std
         return xp.where(xp.arange(self.n_nodes) == 0, 0.0, offsets)
 
-    def emission_positions(self, track, count: int, dt: float, sound_speed=None, xp=np):
+    def emission_positions(self, track, count: int, dt: float, sound_speed=None, *, xp):
         """Where the source was when the sound each node hears now left it (propagation delay).
 
         Args:
@@ -680,7 +680,7 @@ class HydrophoneArray:
             emitted = track[low] * (1.0 - frac) + track[high] * frac
         return emitted
 
-    def _node_angles(self, node_positions, paths: int, xp=np):
+    def _node_angles(self, node_positions, paths: int, xp):
         """Azimuths and elevations (B, P, N), node ``i`` seeing its own row of (B, N, 3)."""
         sources = self.image_sources(node_positions[:, :, None, :], xp)[:, :, :paths]
         d = sources - self.positions[None, :, None, :]  # (B, N, P, 3)
@@ -689,7 +689,7 @@ class HydrophoneArray:
         elevation = xp.arctan2(horizontal, d[..., 2]).transpose(0, 2, 1)
         return azimuth, elevation
 
-    def draw_wander(self, rng, count: int, previous=None, xp=np):
+    def draw_wander(self, rng, count: int, previous=None, *, xp):
         """``count`` periods of the nodes' unit travel-time wander (count, N), continuing
         ``previous`` (N,) (None: drawn from the stationary distribution). Scale it with
         :meth:`wander_std`. No draw when the wander is off (returns None)."""
@@ -697,9 +697,9 @@ class HydrophoneArray:
         if c.fluctuation_intensity == 0.0:
             return None
         return unit_gauss_markov(rng, count, (self.n_nodes,),
-                                 1.0 / (c.sample_rate * c.fluctuation_time), previous, xp)
+                                 1.0 / (c.sample_rate * c.fluctuation_time), previous, xp=xp)
 
-    def draw_fading(self, rng, count: int, previous=None, xp=np):
+    def draw_fading(self, rng, count: int, previous=None, *, xp):
         """``count`` periods of every band's and node's fading (count, Q, N) in dB,
         continuing ``previous`` (Q, N) dB. No draw when fading is off (returns None)."""
         c = self.config
@@ -708,9 +708,9 @@ class HydrophoneArray:
         unit = None if previous is None else previous / c.fading_std
         return c.fading_std * unit_gauss_markov(
             rng, count, (c.n_bands, self.n_nodes), 1.0 / (c.sample_rate * c.fading_time), unit,
-            xp)
+            xp=xp)
 
-    def draw_node_states(self, rng, count: int, previous=None, xp=np):
+    def draw_node_states(self, rng, count: int, previous=None, *, xp):
         """``count`` periods of which nodes work (count, N) bool, continuing ``previous``
         (N,) (None: drawn from the stationary distribution). No draw when dropouts are off
         (returns None).
@@ -728,14 +728,14 @@ class HydrophoneArray:
         moves = -math.expm1(-total / c.sample_rate)
         out = c.node_dropout_rate / total
         return two_state_markov(rng, count, (self.n_nodes,), out * moves, (1.0 - out) * moves,
-                                previous, xp)
+                                previous, xp=xp)
 
-    def wander_std(self, ranges, xp=np):
+    def wander_std(self, ranges, xp):
         """Travel-time wander's standard deviation, s, over ranges (m): mu sqrt(L_p R) / c."""
         c = self.config
         return c.fluctuation_intensity * xp.sqrt(c.fluctuation_length * ranges) / c.sound_speed
 
-    def draw_sound_speed(self, rng, xp=np):
+    def draw_sound_speed(self, rng, xp):
         """The water's true sound speed for an episode, m/s (no draw when the error is off;
         a float on NumPy, a scalar array on other backends)."""
         c = self.config
@@ -746,8 +746,8 @@ class HydrophoneArray:
         return c.sound_speed + (float(error) if xp is np else error)
 
     def measure(self, rng, positions, clock_offsets, current_speed=None, sound_speed=None,
-                wander=None, fading=None, working=None, noise_draws: str = "kept",
-                xp=np) -> Measurements:
+                wander=None, fading=None, working=None, noise_draws: str = "kept", *,
+                xp) -> Measurements:
         """Draw the detection sets of ``B`` sample periods, vectorised over periods.
 
         Args:
@@ -818,14 +818,14 @@ class HydrophoneArray:
         else:
             ranges = self.ranges(sources, xp)
             azimuth, elevation = self._node_angles(node_positions, p, xp)
-        snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise, xp)  # (B, Q, P, N)
+        snr = self.snr_db(ranges[:, None], self._path_loss[:p], rise, xp=xp)  # (B, Q, P, N)
         if fading is not None:
             snr = snr + xp.asarray(fading)[:, :, None, :]
         if working is not None:
             working = xp.atleast_2d(xp.asarray(working, dtype=bool))
             if working.shape != (b, n):
                 raise ValueError(f"working must be ({b}, {n}) node states, got {working.shape}")
-            pd = self.detection_probability(snr, working[:, None, None], xp)  # (B, Q, P)
+            pd = self.detection_probability(snr, working[:, None, None], xp=xp)  # (B, Q, P)
         else:
             pd = self.detection_probability(snr, xp=xp)  # (B, Q, P)
         speed = self.config.sound_speed if sound_speed is None else sound_speed
@@ -852,7 +852,7 @@ class HydrophoneArray:
                                   for f in dataclasses.fields(Measurements)))
         return result
 
-    def _noisy(self, delays, azimuth, elevation, lift, snr, angle_k, noise, xp=np):
+    def _noisy(self, delays, azimuth, elevation, lift, snr, angle_k, noise, xp):
         """Detection vectors (..., 3N - 1) of paths: their true arrival times (s), azimuths
         and elevations (with ``lift``, :func:`_lift` of the elevations), and SNRs (dB)
         (each (..., N)) with their bands' angle constants ``angle_k`` (broadcast against
@@ -939,9 +939,9 @@ class HydrophoneArray:
         detections = self._noisy(
             paths.delays.reshape(-1, n).take(row, axis=0),
             paths.azimuth.reshape(-1, n).take(row, axis=0),
-            elevation.take(row, axis=0), _lift(elevation).take(row, axis=0),
+            elevation.take(row, axis=0), _lift(elevation, np).take(row, axis=0),
             paths.snr.reshape(-1, n).take((path_b * q + path_q) * p + path_p, axis=0),
-            self._angle_k[path_q, 0], noise)
+            self._angle_k[path_q, 0], noise, np)
 
         # Each kept candidate into its slot; the rest of the K slots empty.
         picked = np.zeros((b, q, k, 3 * n - 1))

@@ -110,7 +110,7 @@ def inside_image_flat(intrinsics: CameraIntrinsics, pixels) -> list[bool]:
             for u, v in zip(pixels[0::2], pixels[1::2], strict=True)]
 
 
-def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, ops=FLOATS):
+def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, ops):
     """The pinhole projection of one world offset from the camera centre, in scalar arithmetic.
 
     The model of :func:`points_in_camera`, :func:`project` and
@@ -124,7 +124,7 @@ def project_point(intrinsics: CameraIntrinsics, dx, dy, dz, cam_rotation_world, 
         dx, dy, dz: the point minus the camera centre, world frame.
         cam_rotation_world: rotation from the OpenCV camera frame to the
             world as 3 rows of 3 scalars.
-        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` for Python floats).
 
     Returns:
         ``(u, v, in_image)``: the pixel (NaN behind the camera) and whether
@@ -196,7 +196,7 @@ def pixel_space(width: int, height: int, shape: tuple[int, ...]) -> spaces.Box:
                       np.broadcast_to(2 * bound, full).copy(), dtype=np.float32)
 
 
-def seen_pixels(pixels, noise, seen, low, high, ops=FLOATS) -> list:
+def seen_pixels(pixels, noise, seen, low, high, ops) -> list:
     """The noisy pixels of the points seen, clipped to their bounds; zero for the others.
 
     Args:

@@ -37,10 +37,10 @@ R_MJCAM_TO_CV = np.diag([1.0, -1.0, -1.0])
 GRAVITY = 9.81
 
 
-def rotation_from_euler(roll, pitch, yaw, ops=np):
+def rotation_from_euler(roll, pitch, yaw, ops):
     """Body-to-world rotation matrix for ZYX Euler angles (radians).
 
-    ``ops`` is ``numpy`` (the default; returns a (3, 3) array), ``jax.numpy`` (a
+    ``ops`` is ``numpy`` (returns a (3, 3) array), ``jax.numpy`` (a
     (3, 3) JAX array) or ``casadi`` (symbolic angles; returns a 3x3 CasADi matrix), as in
     :mod:`auv_envs.core.hydrodynamics`: one definition for the environments and
     the CasADi observers.
@@ -72,7 +72,7 @@ def rotation_rows_from_quat(w, x, y, z) -> tuple:
     )
 
 
-def quat_integrate(quat, omega_body, h, ops=np):
+def quat_integrate(quat, omega_body, h, ops):
     """The unit quaternion ``quat`` (w, x, y, z) turned by the body-frame angular velocity
     ``omega_body`` for ``h`` seconds: ``quat * exp(omega h / 2)``, normalised (MuJoCo's
     free-joint position update). ``ops``: ``numpy`` or ``jax.numpy``; the last axis holds
@@ -82,7 +82,7 @@ def quat_integrate(quat, omega_body, h, ops=np):
     return ops.stack(turned, axis=-1)
 
 
-def quat_turned(quat, omega_body, h, ops=FLOATS) -> tuple:
+def quat_turned(quat, omega_body, h, ops) -> tuple:
     """:func:`quat_integrate` in scalar arithmetic: the 4 components of ``quat`` turned by
     the 3 of ``omega_body`` for ``h`` s, normalised. Scalars of any backend of
     :mod:`auv_envs.core.ops` (floats, JAX or NumPy arrays elementwise, CasADi symbols)."""
@@ -106,10 +106,10 @@ def quat_turned(quat, omega_body, h, ops=FLOATS) -> tuple:
 def euler_from_rotation(rotation: np.ndarray) -> np.ndarray:
     """ZYX Euler angles ``(roll, pitch, yaw)`` of a body-to-world rotation."""
     r = rotation.tolist() if isinstance(rotation, np.ndarray) else rotation
-    return np.array(euler_floats(r))
+    return np.array(euler_floats(r, FLOATS))
 
 
-def rotation_rows(roll: float, pitch: float, yaw: float, ops=FLOATS) -> tuple:
+def rotation_rows(roll: float, pitch: float, yaw: float, ops) -> tuple:
     """:func:`rotation_from_euler` as rows of scalars (per-step use): Python floats, or
     any backend of :mod:`auv_envs.core.ops`."""
     cr, sr = ops.cos(roll), ops.sin(roll)
@@ -129,13 +129,13 @@ def rotate_rows(rows, point) -> tuple[float, float, float]:
     return tuple(a * x + b * y + c * z for a, b, c in rows)
 
 
-def euler_floats(rows, ops=FLOATS) -> tuple[float, float, float]:
+def euler_floats(rows, ops) -> tuple[float, float, float]:
     """:func:`euler_from_rotation` in scalar arithmetic: Python floats for per-step use,
     or any backend of :mod:`auv_envs.core.ops` (JAX arrays elementwise).
 
     Args:
         rows: the rotation as 3 rows of 3 scalars (nested sequences).
-        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` for Python floats).
     """
     pitch = -ops.asin(ops.clip(rows[2][0], -1.0, 1.0))
     roll = ops.atan2(rows[2][1], rows[2][2])

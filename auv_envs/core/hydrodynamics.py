@@ -29,7 +29,6 @@ floats and builds the controllers' symbolic CasADi model
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -265,7 +264,8 @@ class NominalModel:
     to 4 DOF, with whatever mismatch ``params`` carries.
 
     Works on floats, NumPy arrays and CasADi ``SX``/``MX`` symbols: pass the
-    matching ``ops`` module (``numpy`` or ``casadi``) for ``sin``/``cos``.
+    matching ``ops`` module (``math``, ``numpy`` or ``casadi``) for ``sin``/``cos``
+    (:meth:`step` takes ``numpy`` or ``casadi``).
     """
 
     state_names = ("x", "y", "z", "psi", "u", "v", "w", "r")
@@ -276,7 +276,7 @@ class NominalModel:
         total = params.inertia_with_added_mass
         self.inertia_diag = tuple(total[i] for i in DOF4)
 
-    def derivatives(self, x, tau, d=None, ops=math) -> list:
+    def derivatives(self, x, tau, d=None, *, ops) -> list:
         """Continuous-time ``x_dot`` as a list of 8 scalars."""
         psi, u, v, w, r = x[3], x[4], x[5], x[6], x[7]
         zero = 0.0 * u
@@ -292,12 +292,12 @@ class NominalModel:
         c, s = ops.cos(psi), ops.sin(psi)
         return [u * c - v * s, u * s + v * c, w, r, *acc]
 
-    def step(self, x, tau, dt: float, d=None, ops=np):
+    def step(self, x, tau, dt: float, d=None, *, ops):
         """One RK4 step of length ``dt``; returns the same container kind as NumPy/CasADi."""
         stack = _stacker(ops)
 
         def f(state):
-            return stack(self.derivatives(state, tau, d, ops))
+            return stack(self.derivatives(state, tau, d, ops=ops))
 
         k1 = f(x)
         k2 = f(x + 0.5 * dt * k1)

@@ -83,7 +83,7 @@ class FloatingAnalog:
         )
 
 
-def segments_cross_box(starts, ends, center, half_size, xp=np):
+def segments_cross_box(starts, ends, center, half_size, xp):
     """Whether each segment ``starts[i] -> ends[i]`` crosses an axis-aligned box.
 
     Args:
@@ -113,7 +113,7 @@ def segments_cross_box(starts, ends, center, half_size, xp=np):
     return t_enter <= t_exit
 
 
-def heave(t, amplitude, omega, phase, ops=FLOATS) -> tuple:
+def heave(t, amplitude, omega, phase, ops) -> tuple:
     """Sinusoidal heave ([LTAT], motion model) and its rate at time ``t`` (Python floats,
     or any backend of :mod:`auv_envs.core.ops`)."""
     arg = omega * t + phase
@@ -164,7 +164,7 @@ class GaussMarkovCurrent:
         return self.speed_std > 0 or self.direction_std_deg > 0
 
     def start(self, mean_speed: float, mean_direction: float, rng: np.random.Generator,
-              ops=FLOATS) -> tuple[float, float]:
+              ops) -> tuple[float, float]:
         """``(speed, direction)`` drawn from the stationary distribution (direction in rad);
         the means, drawing nothing, when the process is not :attr:`active`. ``rng``: the
         episode's draws (NumPy's ``Generator``, or a JAX key's with ``ops``)."""
@@ -174,7 +174,7 @@ class GaussMarkovCurrent:
                                rng.standard_normal(), ops)
 
     def start_from(self, mean_speed, mean_direction, noise_speed, noise_direction,
-                   ops=FLOATS) -> tuple:
+                   ops) -> tuple:
         """:meth:`start` given its two standard normal draws (any backend of
         :mod:`auv_envs.core.ops`)."""
         speed = mean_speed + self.speed_std * noise_speed
@@ -182,14 +182,14 @@ class GaussMarkovCurrent:
         return ops.clip(speed, 0.0, self.max_speed), direction
 
     def advance(self, speed: float, direction: float, mean_speed: float, mean_direction: float,
-                dt: float, rng: np.random.Generator, ops=FLOATS) -> tuple[float, float]:
+                dt: float, rng: np.random.Generator, ops) -> tuple[float, float]:
         """The ``(speed, direction)`` one period ``dt`` later (exact discretisation)."""
         noise_speed, noise_direction = rng.standard_normal(2)
         return self.relax(speed, direction, mean_speed, mean_direction, dt, noise_speed,
                           noise_direction, ops)
 
     def relax(self, speed, direction, mean_speed, mean_direction, dt: float, noise_speed,
-              noise_direction, ops=FLOATS) -> tuple:
+              noise_direction, ops) -> tuple:
         """:meth:`advance` given its two standard normal draws (any backend of
         :mod:`auv_envs.core.ops`)."""
         a = math.exp(-dt / self.time_constant)
@@ -202,9 +202,9 @@ class GaussMarkovCurrent:
 
 def current_vector(speed: float, direction: float) -> np.ndarray:
     """World-frame velocity (3) of a horizontal current flowing towards ``direction`` (rad)."""
-    return np.array(current_components(speed, direction))
+    return np.array(current_components(speed, direction, FLOATS))
 
 
-def current_components(speed, direction, ops=FLOATS) -> tuple:
+def current_components(speed, direction, ops) -> tuple:
     """:func:`current_vector`'s three components (any backend of :mod:`auv_envs.core.ops`)."""
     return speed * ops.cos(direction), speed * ops.sin(direction), 0.0

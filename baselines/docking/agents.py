@@ -313,7 +313,7 @@ class StateOFNMPCAgent:
         del info  # ground truth is not for agents
         x = self.state(observation)
         if self._last is not None:
-            predicted = self.model.step(self._last, self._tau, self._dt, self.disturbance)
+            predicted = self.model.step(self._last, self._tau, self._dt, self.disturbance, ops=np)
             miss = self._inertia * (x[4:] - predicted[4:]) / self._dt
             self.disturbance = self.disturbance + self.gain * miss
         self._last = x

@@ -278,12 +278,12 @@ def measurement_information(array: HydrophoneArray, record: EpisodeRecord,
         heard = record.heard[steps]
     t = len(heard)
     # Image sources are affine in the source: image = source @ mirror + shift.
-    origin = array.image_sources(np.zeros((1, 3)))[:paths]  # (P, 3)
-    mirror = (array.image_sources(np.eye(3)[:, None])[:, :paths] - origin).transpose(1, 0, 2)
+    origin = array.image_sources(np.zeros((1, 3)), np)[:paths]  # (P, 3)
+    mirror = (array.image_sources(np.eye(3)[:, None], np)[:, :paths] - origin).transpose(1, 0, 2)
     speed = record.sound_speed
 
     # TDOAs: every node at node 1's emission position (as measure() aligns them).
-    first = array.image_sources(heard[:, 0, None, :])[:, :paths]  # (T, P, 3)
+    first = array.image_sources(heard[:, 0, None, :], np)[:, :paths]  # (T, P, 3)
     d = first[:, :, None, :] - array.positions  # (T, P, N, 3)
     ranges = np.linalg.norm(d, axis=-1)
     unit = d / ranges[..., None]
@@ -295,7 +295,7 @@ def measurement_information(array: HydrophoneArray, record: EpisodeRecord,
         tdoa[..., 3 + nuisance.speed] = -(ranges[..., 1:] - ranges[..., :1]) / speed**2 * \
             c.sound_speed_error_std
     if nuisance.wander:
-        scale = array.wander_std(ranges[:, 0])  # (T, N): every path wanders as the direct one
+        scale = array.wander_std(ranges[:, 0], np)  # (T, N): every path wanders as the direct one
         block = np.zeros((t, n - 1, n))
         block[:, :, 0] = -scale[:, :1]
         block[:, np.arange(n - 1), np.arange(1, n)] = scale[:, 1:]
@@ -303,7 +303,7 @@ def measurement_information(array: HydrophoneArray, record: EpisodeRecord,
         tdoa[..., 3 + w.start:3 + w.stop] = block[:, None]
 
     # Angles: node i sees its own emission position.
-    own = array.image_sources(heard[:, :, None, :])[:, :, :paths]  # (T, N, P, 3)
+    own = array.image_sources(heard[:, :, None, :], np)[:, :, :paths]  # (T, N, P, 3)
     a = (own - array.positions[None, :, None, :]).transpose(0, 2, 1, 3)  # (T, P, N, 3)
     horizontal2 = a[..., 0] ** 2 + a[..., 1] ** 2
     horizontal = np.sqrt(horizontal2)
@@ -320,17 +320,17 @@ def measurement_information(array: HydrophoneArray, record: EpisodeRecord,
     # The noise model of measure(): SNRs at node 1's emission ranges, the azimuth noise at
     # each node's own elevation.
     path_loss = np.array([0.0, c.surface_loss, c.bottom_loss])[:paths, None]
-    rise = array.flow_noise_rise(record.current_speed[steps])  # (T, Q)
-    snr = array.snr_db(ranges[:, None], path_loss, rise)  # (T, Q, P, N)
+    rise = array.flow_noise_rise(record.current_speed[steps], np)  # (T, Q)
+    snr = array.snr_db(ranges[:, None], path_loss, rise, xp=np)  # (T, Q, P, N)
     if record.fading is not None:
         snr = snr + record.fading[steps][:, :, None, :]
-    timing, sigma_az, sigma_el = array.noise_std(snr, elevation[:, None])
+    timing, sigma_az, sigma_el = array.noise_std(snr, elevation[:, None], np)
     if record.working is None:
-        pd = array.detection_probability(snr)  # (T, Q, P)
+        pd = array.detection_probability(snr, xp=np)  # (T, Q, P)
         on = np.ones((t, 1, 1, n))
     else:
         working = record.working[steps]
-        pd = array.detection_probability(snr, working[:, None, None])
+        pd = array.detection_probability(snr, working[:, None, None], xp=np)
         on = working[:, None, None, :].astype(np.float64)
 
     # TDOA precision (diag(s_i^2) + s_1^2)^-1 by Sherman-Morrison; an out node's TDOA

@@ -240,7 +240,7 @@ class WaterOptics:
         """``τ_s = min(β) d``: the optical depth that scatters into the glow.
 
         ``xp`` (here and in the detection model below): the array module,
-        ``numpy`` (the default) or ``jax.numpy``."""
+        ``numpy`` or ``jax.numpy``."""
         return min(self.attenuation) * _as_float(distance, xp)
 
     def glow_width(self, distance, focal_px: float, xp) -> np.ndarray:

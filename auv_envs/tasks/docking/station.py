@@ -445,8 +445,8 @@ class DockingPhysics:
         mujoco.mj_resetData(self.model, self.data)
         adr = self.qpos_adr
         self.data.qpos[adr : adr + 3] = position
-        self.data.qpos[adr + 3 : adr + 7] = frames.quat_from_euler(*euler)
-        rot = frames.rotation_from_euler(*euler)
+        self.data.qpos[adr + 3 : adr + 7] = frames.quat_from_euler(*euler, np)
+        rot = frames.rotation_from_euler(*euler, np)
         self.data.qvel[self.qvel_adr : self.qvel_adr + 3] = rot @ np.asarray(body_velocity[0:3])
         self.data.qvel[self.qvel_adr + 3 : self.qvel_adr + 6] = body_velocity[3:6]
         mujoco.mj_forward(self.model, self.data)

@@ -89,7 +89,8 @@ class ArmModel:
 
     def end_rotation(self, q, ops) -> np.ndarray:
         """Rotation (3, 3) of the levelled arm-end frame: ``Rz(q1)``; ``ops``: Python floats
-        (the default), or :func:`~auv_envs.core.ops.jax_ops` for traced angles."""
+        (:data:`~auv_envs.core.ops.FLOATS`), or :func:`~auv_envs.core.ops.jax_ops` for traced
+        angles."""
         c, s = ops.cos(q[0]), ops.sin(q[0])
         return ops.xp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
@@ -127,8 +128,8 @@ class ArmModel:
     def joint_angles(self, position, ops) -> tuple:
         """:meth:`inverse_kinematics` in scalar arithmetic: the three angles for an end
         ``position`` (three scalars), in any backend of :mod:`auv_envs.core.ops`
-        (Python floats by default). Python floats out of reach raise ``ValueError``;
-        arrays are not checked (NaN angles)."""
+        (:data:`~auv_envs.core.ops.FLOATS` for Python floats). Python floats out of reach raise
+        ``ValueError``; arrays are not checked (NaN angles)."""
         sx, sy, sz = self._shoulder
         x, y, z = position
         dx, dy, dz = x - sx, y - sy, z - sz

@@ -144,7 +144,7 @@ class AUVMotion:
 
     def quaternion(self) -> np.ndarray:
         """The same rotation as a MuJoCo ``(w, x, y, z)`` quaternion (same pitch sign)."""
-        return frames.quat_from_euler(0.0, -self.pitch, self.yaw)
+        return frames.quat_from_euler(0.0, -self.pitch, self.yaw, np)
 
 
 #: Documented randomisation ranges of :class:`AUVMotion` (``reset`` draws

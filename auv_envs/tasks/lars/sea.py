@@ -218,8 +218,7 @@ class ShipPose:
         """The ship-frame point (3,) that is at world ``point`` now (``xp``: NumPy, or
         ``jax.numpy``)."""
         origin = xp.asarray(self._origin)
-        offset = ((np.asarray(point, dtype=float) if xp is np else xp.stack(list(point)))
-                  - origin - xp.stack([0.0, 0.0, self._heave]))
+        offset = xp.stack(list(point)) - origin - xp.stack([0.0, 0.0, self._heave])
         return origin + xp.asarray(self._rows).T @ offset
 
     def transform(self) -> tuple[np.ndarray, np.ndarray]:
@@ -441,4 +440,4 @@ def sample_waves(rng: np.random.Generator, sea: LARSSeaModel, heading,
         raise ValueError(f"wave_heading must be a finite angle in rad, got {heading!r}")
     else:
         heading = float(heading)
-    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, heading, sea.band, xp)
+    return WaveRealisation.sample(sea.spectrum, rng, sea.n_components, heading, sea.band, xp=xp)

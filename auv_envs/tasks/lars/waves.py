@@ -47,7 +47,6 @@ import numpy as np
 from scipy.integrate import trapezoid
 
 from auv_envs.core.frames import GRAVITY
-from auv_envs.core.ops import FLOATS
 
 SPECTRUM_KINDS = ("jonswap", "pierson-moskowitz")
 
@@ -87,14 +86,14 @@ def _finite_positive(name: str, value) -> float:
     return float(value)
 
 
-def _pm_shape(x: np.ndarray, xp=np) -> np.ndarray:
+def _pm_shape(x: np.ndarray, xp) -> np.ndarray:
     """``S_PM(w) wp / Hs^2`` at ``x = w / wp`` (integrates to 1/16)."""
     with np.errstate(divide="ignore", over="ignore"):
-        x = xp.maximum(np.asarray(x, dtype=float) if xp is np else x, 1e-3)
+        x = xp.maximum(x, 1e-3)
         return 0.3125 * x**-5 * xp.exp(-1.25 * x**-4)
 
 
-def _peak_factor(x: np.ndarray, gamma: float, xp=np) -> np.ndarray:
+def _peak_factor(x: np.ndarray, gamma: float, xp) -> np.ndarray:
     sigma = xp.where(x <= 1.0, 0.07, 0.09)
     return gamma ** xp.exp(-0.5 * ((x - 1.0) / sigma) ** 2)
 
@@ -161,7 +160,7 @@ class SeaSpectrum:
         """``A(gamma)``: the factor that keeps ``m0 = Hs^2 / 16`` (1 for PM)."""
         return _normalisation(self.effective_gamma)
 
-    def density(self, omega, xp=np) -> np.ndarray:
+    def density(self, omega, xp) -> np.ndarray:
         """``S(w)``, m^2 s/rad, at angular frequencies ``omega`` (0 where ``w <= 0``;
         ``xp``: NumPy, or ``jax.numpy`` for a JAX array)."""
         w = np.asarray(omega, dtype=float) if xp is np else omega
@@ -178,7 +177,7 @@ class SeaSpectrum:
             raise ValueError(f"moment order must be 0..3 (higher ones diverge), got {n}")
         x = np.linspace(0.3, 60.0, 200_001)
         wp = self.peak_frequency
-        body = trapezoid(x**n * self.density(x * wp) / self.hs**2 * wp, x)
+        body = trapezoid(x**n * self.density(x * wp, np) / self.hs**2 * wp, x)
         # Beyond the grid the shape is A x^-5 (the exponential and the peak factor are 1).
         tail = self.normalisation * 0.3125 * 60.0 ** (n - 4) / (4 - n)
         return float(self.hs**2 * wp**n * (body + tail))
@@ -199,7 +198,7 @@ def _normalisation(gamma: float) -> float:
         return 1.0
     if gamma not in _NORMALISATION_CACHE:
         x = np.linspace(0.5, 2.0, 6001)
-        extra = trapezoid(_pm_shape(x) * (_peak_factor(x, gamma) - 1.0), x)
+        extra = trapezoid(_pm_shape(x, np) * (_peak_factor(x, gamma, np) - 1.0), x)
         _NORMALISATION_CACHE[gamma] = (1.0 / 16.0) / (1.0 / 16.0 + float(extra))
     return _NORMALISATION_CACHE[gamma]
 
@@ -282,7 +281,8 @@ class WaveRealisation:
         n_components: int = DEFAULT_COMPONENTS,
         heading: float = 0.0,
         band: tuple[float, float] = DEFAULT_BAND,
-        xp=np,
+        *,
+        xp,
     ) -> WaveRealisation:
         """Draw a realisation of ``spectrum`` from ``rng`` (``2 n_components`` uniforms).
 
@@ -336,8 +336,7 @@ class WaveRealisation:
         a = self.amplitude
         return float(np.cos(arg) @ a), float(-(np.sin(arg) @ (a * self.omega)))
 
-    def along_track(self, x0: float, y0: float, vx: float = 0.0, vy: float = 0.0,
-                    ops=FLOATS):
+    def along_track(self, x0: float, y0: float, vx: float = 0.0, vy: float = 0.0, *, ops):
         """The elevation seen from a point moving as ``(x0 + vx t, y0 + vy t)`` (``ops``:
         a backend of :mod:`auv_envs.core.ops`).
 
@@ -362,12 +361,12 @@ def _complex(x, xp):
     return x.astype(complex if xp is np else xp.complex64)
 
 
-def plane_average(x, xp=np) -> np.ndarray:
+def plane_average(x, xp) -> np.ndarray:
     """Mean of ``exp(-i k s)`` over ``s`` in ``[-l, l]`` at ``x = k l``: ``sin(x) / x``."""
     return xp.sinc(_floats(x, xp) / math.pi)
 
 
-def slope_average(x, xp=np) -> np.ndarray:
+def slope_average(x, xp) -> np.ndarray:
     """Least-squares slope of ``exp(-i k s)`` over ``[-l, l]``, over the point slope
     ``-i k``, at ``x = k l``: ``3 (sin x - x cos x) / x^3`` (-> 1 - x^2 / 10)."""
     x = xp.abs(_floats(x, xp))
@@ -418,8 +417,7 @@ class FloaterResponse:
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
-    def transfer(self, omega, wavenumber, relative_heading,
-                 ops=FLOATS) -> tuple[np.ndarray, ...]:
+    def transfer(self, omega, wavenumber, relative_heading, ops) -> tuple[np.ndarray, ...]:
         """Complex ``(heave, roll, pitch)`` responses per unit wave amplitude.
 
         Args:
@@ -483,7 +481,7 @@ class ShipResponse:
         r = w * period / (2.0 * math.pi)
         return 1.0 / (1.0 - r * r + 2j * damping * r)
 
-    def transfer(self, omega, wavenumber, heading, ops=FLOATS) -> tuple[np.ndarray, ...]:
+    def transfer(self, omega, wavenumber, heading, ops) -> tuple[np.ndarray, ...]:
         """Complex ``(heave, roll, pitch)`` responses per unit wave amplitude.
 
         Args:
@@ -518,7 +516,7 @@ class HarmonicSeries:
     array (``xp=jax.numpy``: the batched environment, where the series is a pytree).
     """
 
-    def __init__(self, blocks, xp=np):
+    def __init__(self, blocks, xp):
         """Args:
             blocks: ``(omega, coefficients)`` pairs, ``omega`` (N_b,) and
                 ``coefficients`` (M_b, N_b) complex; channels are listed block

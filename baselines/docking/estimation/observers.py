@@ -361,7 +361,7 @@ def initial_state(model: VisualObservationModel, meas: Measurement, noise: Obser
     k = model.intrinsics
     pix = meas.z[: 2 * model.n_lights].reshape(-1, 2)[meas.mask[: 2 * model.n_lights : 2]]
     ray_cam = np.array([(pix[:, 0].mean() - k.cx) / k.fx, (pix[:, 1].mean() - k.cy) / k.fy, 1.0])
-    rot = rotation_from_euler(meas.attitude[0], meas.attitude[1], yaw)
+    rot = rotation_from_euler(meas.attitude[0], meas.attitude[1], yaw, np)
     ray = rot @ (model.camera_rotation @ ray_cam)
     ray /= np.linalg.norm(ray)
     centre = model.lights.mean(axis=0)
@@ -370,7 +370,7 @@ def initial_state(model: VisualObservationModel, meas: Measurement, noise: Obser
         cam = centre - rng * ray
         guess = np.concatenate([cam - rot @ model.camera_position, [yaw]])
         fit = least_squares(residual, guess, jac=jacobian, method="lm")
-        fit_rot = rotation_from_euler(meas.attitude[0], meas.attitude[1], fit.x[3])
+        fit_rot = rotation_from_euler(meas.attitude[0], meas.attitude[1], fit.x[3], np)
         to_lights = centre - (fit.x[:3] + fit_rot @ model.camera_position)
         ahead = float(to_lights @ (fit_rot @ model.camera_rotation[:, 2]))
         plausible = 0.0 < ahead and np.linalg.norm(to_lights) <= max_range
@@ -656,7 +656,7 @@ class DockingMHE:
             buf[:, :-1] = buf[:, 1:]
         self._tau[:, -1] = tau_applied
         x_new = np.concatenate([x_hat[:, 1:], x_hat[:, -1:]], axis=1)
-        x_new[:, -1] = self.model.step(x_hat[:, -1], tau_applied + w_hat[:, -1], self.dt)
+        x_new[:, -1] = self.model.step(x_hat[:, -1], tau_applied + w_hat[:, -1], self.dt, ops=np)
         w_new = np.concatenate([w_hat[:, 1:], w_hat[:, -1:]], axis=1)
         self._guess = np.concatenate([x_new.ravel("F"), w_new.ravel("F")])
         if self._lam_g is not None:

@@ -146,7 +146,7 @@ class LampArrayFrontEnd:
         image, velocity, attitude = self._check_observation(observation)
         gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
         blobs = segment_lamps(gray, self.segmentation)
-        body_rot = rotation_from_euler(*attitude)
+        body_rot = rotation_from_euler(*attitude, np)
         self._pose.set_rotation(body_rot @ self._cam_rot_body, self._attitude_sigma)
         world_velocity = body_rot @ velocity[:3]
         if self._tracks is None:
