@@ -22,9 +22,13 @@ class Family:
     Attributes:
         env_id: the current CPU id, ``auv_envs/<Name>-v<N>``.
         entry_point: its Gymnasium env class, ``"module:Class"``.
-        jax_task: its task on JAX (``"module:Class"``, built as ``Class(env_id, obs_mode,
-            **kwargs)`` by :class:`~auv_envs.batched.functional.FunctionalEnv`; ``pip install
-            -e ".[jax]"``).
+        config: the family's configuration module (``default_config(env_id)``,
+            ``config_of(env_id, **arguments)`` and ``params(config)``, the task's parameters
+            built without an environment).
+        jax_task: its task on JAX (``"module:Class"``, built as ``Class(setup)`` from the
+            configuration's ``params`` by
+            :class:`~auv_envs.batched.functional.FunctionalEnv`; ``pip install -e
+            ".[jax]"``).
         batched_modes: the observation modes the JAX task builds (the rendered ones are
             the CPU env's alone).
         batched_mode: the batched twin's default observation mode (what
@@ -38,6 +42,7 @@ class Family:
 
     env_id: str
     entry_point: str
+    config: str
     jax_task: str
     batched_modes: tuple
     batched_mode: str
@@ -55,6 +60,13 @@ class Family:
         namespace, name_version = self.env_id.split("/")
         name, version = name_version.rsplit("-v", 1)
         return f"{namespace}/{name}MJX-v{version}"
+
+    def setup(self, env_id: str | None = None, **arguments):
+        """The parameters of ``gym.make(env_id, **arguments)`` (its arguments but the
+        rendering ones; ``env_id`` default: the current id) built without an environment:
+        the configuration module's ``params(config_of(env_id, **arguments))``."""
+        module = importlib.import_module(self.config)
+        return module.params(module.config_of(env_id or self.env_id, **arguments))
 
     def jax_task_class(self):
         """The task class on JAX (imports JAX)."""
@@ -77,7 +89,8 @@ _ACOUSTIC_V0 = {"integrator": "implicitfast", "physics_substeps": 1, "noise_draw
 #: per segment, every draw made, by the same code on NumPy and JAX).
 _ACOUSTIC_V1 = {"planner": "tabulated"}
 
-_DOCKING_BATCHED = ("auv_envs.tasks.docking.jax_task:DockingJax",
+_DOCKING_BATCHED = ("auv_envs.tasks.docking.config",
+                    "auv_envs.tasks.docking.jax_task:DockingJax",
                     ("state", "features", "nav", "nav_features"), "features")
 
 #: Every family, in the order the docs and the tests list them. Episode lengths: docking
@@ -92,12 +105,13 @@ FAMILIES = (
            {"auv_envs/LampArrayDocking-v0": _DOCKING_V0_PLANT,
             "auv_envs/LampArrayDocking-v1": _DOCKING_V1_PLANT}),
     Family("auv_envs/AcousticTracking-v2", "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
-           "auv_envs.tasks.acoustic.jax_task:AcousticJax", ("state", "measurements"),
-           "measurements", 6000,
+           "auv_envs.tasks.acoustic.config", "auv_envs.tasks.acoustic.jax_task:AcousticJax",
+           ("state", "measurements"), "measurements", 6000,
            {"auv_envs/AcousticTracking-v0": _ACOUSTIC_V0,
             "auv_envs/AcousticTracking-v1": _ACOUSTIC_V1}),
     Family("auv_envs/LARSCapture-v0", "auv_envs.tasks.lars.env:LARSCaptureEnv",
-           "auv_envs.tasks.lars.jax_task:LARSJax", ("state", "features"), "features", 750),
+           "auv_envs.tasks.lars.config", "auv_envs.tasks.lars.jax_task:LARSJax",
+           ("state", "features"), "features", 750),
     Family("auv_envs/DockingMission-v0", "auv_envs.tasks.docking.mission:DockingMissionEnv",
            *_DOCKING_BATCHED, 6000),
 )

@@ -176,7 +176,8 @@ class FunctionalEnv:
             randomize=True)``).
         **env_kwargs: the family's configuration (the CPU environment's arguments:
             ``difficulty``, ``time_limit``, ...), each checked as the CPU environment checks
-            it; the task is built from them (its JAX task's ``build``).
+            it; the task is built from their parameters (:meth:`Family.setup
+            <auv_envs.families.Family.setup>`), without a Gymnasium environment.
 
     The family's task (:attr:`task`) holds what is the family's: its parameters, its
     plant on MJX, its metrics and its state vector; it returns the transition's
@@ -209,7 +210,8 @@ class FunctionalEnv:
         task_class = entry.jax_task_class()
         self._use_randomization(randomization, task_class.randomization_class)
         #: The family's task on JAX (``auv_envs/tasks/<family>/jax_task.py``).
-        self.task = task = task_class.build(entry.env_id, obs_mode, **env_kwargs)
+        self.task = task = task_class(entry.setup(entry.env_id, obs_mode=obs_mode,
+                                                  **env_kwargs))
         self.env_id, self.obs_mode, self.auto_reset = env_id, obs_mode, auto_reset
         self.params, self.plant, self.ops = task.params, task.plant, task.ops
         self.calibration = task.calibration

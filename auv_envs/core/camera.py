@@ -140,7 +140,7 @@ def project_few(
     points_world,
     cam_position_world: tuple,
     cam_rotation_world,
-    ops=FLOATS,
+    ops,
     inside: bool = True,
 ) -> tuple[list, list]:
     """Project a handful of world points into the image: an environment's per-step path.
@@ -155,7 +155,7 @@ def project_few(
         cam_position_world: camera centre in the world, 3 scalars.
         cam_rotation_world: rotation from the OpenCV camera frame to the
             world as 3 rows of 3 scalars.
-        ops: the backend (:data:`auv_envs.core.ops.FLOATS` by default).
+        ops: the backend (:data:`auv_envs.core.ops.FLOATS` on the CPU).
         inside: whether to say which points are in the image (False: ``in_image``
             is empty; for CasADi's symbols, whose comparisons do not combine with
             ``&``: a NaN pixel or one outside the image is not in it).

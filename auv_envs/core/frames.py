@@ -160,10 +160,10 @@ def compose_rows(a, b) -> tuple:
     )
 
 
-def quat_from_euler(roll, pitch, yaw, xp=np):
+def quat_from_euler(roll, pitch, yaw, xp):
     """Unit quaternion ``(w, x, y, z)`` (MuJoCo order) for ZYX Euler angles.
 
-    ``xp``: the array module, ``numpy`` (the default) or ``jax.numpy``.
+    ``xp``: the array module, ``numpy`` or ``jax.numpy``.
     """
     cr, sr = xp.cos(roll / 2), xp.sin(roll / 2)
     cp, sp = xp.cos(pitch / 2), xp.sin(pitch / 2)

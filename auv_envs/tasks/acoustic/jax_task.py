@@ -39,7 +39,7 @@ from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
 from auv_envs.core.ops import Backend, jax_ops
 from auv_envs.core.task import Transition
 from auv_envs.tasks.acoustic import transition
-from auv_envs.tasks.acoustic.config import AcousticSetup, config_of, params
+from auv_envs.tasks.acoustic.config import AcousticSetup
 from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX
 from auv_envs.tasks.acoustic.plant import AcousticPhysics
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization
@@ -85,12 +85,6 @@ class AcousticJax:
         self.max_episode_steps = setup.max_episode_steps
         #: The task's MuJoCo model (the tank's) and its MJCF.
         self.mj_model, self.model_source = setup.model, setup.model_source
-
-    @classmethod
-    def build(cls, env_id: str, obs_mode: str, **kwargs) -> AcousticJax:
-        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
-        the rendering ones)."""
-        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     @staticmethod
     def end_reason(code, success) -> str:

@@ -485,8 +485,8 @@ class DockingEnv(TaskEnv):
         truth = self.rules.kinematics(*phys.kinematics(), FLOATS)
         cam_pos = truth["camera_position"]
         pixels, in_image = project_few(
-            self.calibration.intrinsics, self.rules.lights, cam_pos, truth.pop("camera_rows")
-        )
+            self.calibration.intrinsics, self.rules.lights, cam_pos, truth.pop("camera_rows"),
+            FLOATS)
         visible = phys.unoccluded(cam_pos, self.rules.lights, in_image)
         return transition.truth_with_lights(truth, np.array(pixels), np.array(visible), FLOATS)
 

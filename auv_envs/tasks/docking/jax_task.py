@@ -34,7 +34,7 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.task import Transition
 from auv_envs.core.vehicle import PlantPerturbation
 from auv_envs.tasks.docking import transition
-from auv_envs.tasks.docking.config import DockingSetup, config_of, params
+from auv_envs.tasks.docking.config import DockingSetup
 from auv_envs.tasks.docking.mjx_plant import DockingPlantMJX
 from auv_envs.tasks.docking.randomization import DockingRandomization
 from auv_envs.tasks.docking.rules import failure_reason
@@ -83,12 +83,6 @@ class DockingJax:
         physics = DockingPhysics(setup.model, len(setup.layout.light_labels))
         self._scenery = rays.static_primitives(physics.model, physics.data,
                                                physics.ray_groups, physics.hull_body)
-
-    @classmethod
-    def build(cls, env_id: str, obs_mode: str, **kwargs) -> DockingJax:
-        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
-        the rendering ones: :func:`~auv_envs.tasks.docking.config.config_of`)."""
-        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     # ------------------------------------------------------------------ the protocol
     def reset(self, draws, world) -> Transition:

@@ -439,7 +439,7 @@ class LARSCaptureEnv(TaskEnv):
         else:
             level = sample.level
             roll, pitch = transition.auv_attitude(scene, sample)
-            quat = frames.quat_from_euler(roll, -pitch, scene.motion.yaw)
+            quat = frames.quat_from_euler(roll, -pitch, scene.motion.yaw, np)
             pose = transition.ship_pose(self.params, sample, FLOATS)
             end = pose.carry(*end.tolist(), 0.0, 0.0, 0.0)[:3]
             ship = pose.transform()

@@ -36,7 +36,7 @@ from auv_envs.core.ops import jax_ops
 from auv_envs.core.sea import FloatingAnalog, WashOver
 from auv_envs.core.task import Transition
 from auv_envs.tasks.lars import transition
-from auv_envs.tasks.lars.config import LARSSetup, config_of, params
+from auv_envs.tasks.lars.config import LARSSetup
 from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 from auv_envs.tasks.lars.randomization import LARSRandomization
 from auv_envs.tasks.lars.scene import AUVMotion
@@ -106,12 +106,6 @@ class LARSJax:
         self.max_episode_steps = setup.max_episode_steps
         #: The task's MuJoCo model (the arm's) and its MJCF.
         self.mj_model, self.model_source = setup.model, setup.model_source
-
-    @classmethod
-    def build(cls, env_id: str, obs_mode: str, **kwargs) -> LARSJax:
-        """The task of ``gym.make(env_id, obs_mode=obs_mode, **kwargs)`` (its arguments but
-        the rendering ones)."""
-        return cls(params(config_of(env_id, obs_mode=obs_mode, **kwargs)))
 
     # ------------------------------------------------------------------ the protocol
     def reset(self, draws, world) -> Transition:
