@@ -164,7 +164,7 @@ def main(argv=None) -> None:
     if args.no_plant or FAMILY != "docking":
         return
     env = gym.make(ENV_ID).unwrapped
-    plant = DockingPlantMJX(env)
+    plant = DockingPlantMJX(env.setup)
     print()
     print("| batch | batched plant vehicle-steps/s | CPU staged plant steps/s (same run) "
           "| ratio |")

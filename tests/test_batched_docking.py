@@ -27,7 +27,7 @@ def _plant(env) -> DockingPlantMJX:
     is fixed)."""
     key = env.spec.id
     if key not in _PLANTS:
-        _PLANTS[key] = DockingPlantMJX(env)
+        _PLANTS[key] = DockingPlantMJX(env.setup)
     return _PLANTS[key]
 
 
@@ -104,5 +104,5 @@ def test_a_batch_steps_each_vehicle_as_alone():
 def test_the_euler_plant_is_refused():
     env = gym.make("auv_envs/DockingStation-v0").unwrapped
     with pytest.raises(ValueError, match="rk4"):
-        DockingPlantMJX(env)
+        DockingPlantMJX(env.setup)
     env.close()

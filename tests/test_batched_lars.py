@@ -273,7 +273,7 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
     from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 
     env = LARSCaptureEnv(obs_mode="state", control="torque")
-    plant = ArmPlantMJX(env)
+    plant = ArmPlantMJX(env.setup)
     model = env.physics.model
     low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
     rng = np.random.default_rng(7)
