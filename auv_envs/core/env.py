@@ -237,10 +237,11 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     ``reward_terms`` (the names of the terms that sum to the reward, each
     reported as ``info["reward_<term>"]``), ``metric_keys`` (the ``info``
     keys with the task's metrics at every step), ``difficulty_presets`` (the
-    keywords each level of :mod:`auv_envs.core.difficulty` sets; the
-    constructor resolves its ``difficulty`` with :meth:`_apply_difficulty`).
-    Its ``__init__`` records its arguments (:meth:`_accept_arguments`) and
-    sets ``calibration`` (what an agent may know), ``physics`` (the MuJoCo
+    keywords each level of :mod:`auv_envs.core.difficulty` sets; the shipped
+    families resolve ``difficulty`` in their configuration's ``params``
+    (``auv_envs/tasks/<family>/config.py``), a new task may with
+    :meth:`_apply_difficulty`). Its ``__init__`` records its arguments
+    (:meth:`_accept_arguments`) and sets ``calibration`` (what an agent may know), ``physics`` (the MuJoCo
     model and data with named accessors), ``action_space``,
     ``observation_space``, ``dt`` and ``max_episode_steps``, and ``_episode``
     (everything else an episode changes, with ``steps`` and ``done``).
