@@ -86,7 +86,7 @@ def make_vec_rate(batch: int, steps: int, repeats: int, difficulty: str = "easy"
 
 def fused_rate(env, batch: int, steps: int, repeats: int) -> float:
     """Env-steps per second, ``steps`` steps fused in one compiled scan."""
-    action = jnp.tile(jnp.asarray(FAMILIES[FAMILY][3], jnp.float32), (batch, 1))
+    action = jnp.tile(jnp.asarray(FAMILIES[FAMILY][2], jnp.float32), (batch, 1))
     step = env.step_batch
 
     @jax.jit
