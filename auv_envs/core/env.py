@@ -241,8 +241,9 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     families resolve ``difficulty`` in their configuration's ``params``
     (``auv_envs/tasks/<family>/config.py``), a new task may with
     :meth:`_apply_difficulty`). Its ``__init__`` records its arguments
-    (:meth:`_accept_arguments`) and sets ``calibration`` (what an agent may know), ``physics`` (the MuJoCo
-    model and data with named accessors), ``action_space``,
+    (:meth:`_accept_arguments`) and sets ``calibration`` (what an agent may
+    know), ``physics`` (the MuJoCo model and data with named accessors),
+    ``action_space``,
     ``observation_space``, ``dt`` and ``max_episode_steps``, and ``_episode``
     (everything else an episode changes, with ``steps`` and ``done``).
 

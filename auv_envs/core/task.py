@@ -80,3 +80,36 @@ class Config:
             raise TypeError(f"{type(self).__name__} has no field {', '.join(unknown)}; its "
                             f"fields are {names}")
         return dataclasses.replace(self, **changes)
+
+
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """What a family's configuration fixes (its ``params(config)``), for the Gymnasium
+    environment and the task on JAX alike; each family's setup adds its own fields.
+
+    Attributes:
+        config: the configuration it was built from.
+        model_source: the composed MJCF of the model the physics simulates
+            (:class:`~auv_envs.core.assets.MJCF`).
+        model: its compiled MuJoCo model, the integrator and timestep set: a Gymnasium
+            environment built from this setup simulates (and changes) this very model.
+        calibration: what an agent may know.
+        params: the transition's parameters.
+        observation_space, action_space: the spaces.
+        dt: the step period, s.
+        max_episode_steps: steps of an episode that runs to its time limit.
+    """
+
+    config: Any
+    model_source: Any
+    model: Any
+    calibration: Any
+    params: Any
+    observation_space: Any
+    action_space: Any
+    dt: float
+    max_episode_steps: int
+
+    @property
+    def obs_mode(self) -> str:
+        return self.config.obs_mode

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -26,9 +25,8 @@ from auv_envs.core.acoustics import (
     AcousticConfig,
     HydrophoneArray,
 )
-from auv_envs.core.assets import MJCF
 from auv_envs.core.env import check_choice, check_positive_int
-from auv_envs.core.task import Config
+from auv_envs.core.task import Config, Setup
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.plant import INTEGRATORS, AcousticPhysics, compose_tank_model
 from auv_envs.tasks.acoustic.transition import DISTURBANCES, NOMINAL_POSTURE, STATIC_POINTS
@@ -177,7 +175,7 @@ def config_of(env_id: str, **arguments) -> AcousticTrackingConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class AcousticSetup:
+class AcousticSetup(Setup):
     """What an :class:`AcousticTrackingConfig` fixes (:func:`params`), for the Gymnasium
     environment and the task on JAX alike.
 
@@ -196,20 +194,7 @@ class AcousticSetup:
         max_episode_steps: steps of an episode (it always runs to ``time_limit``).
     """
 
-    config: AcousticTrackingConfig
     acoustic: AcousticConfig
-    model_source: MJCF
-    model: Any
-    calibration: AcousticCalibration
-    params: Any
-    observation_space: spaces.Space
-    action_space: spaces.Box
-    dt: float
-    max_episode_steps: int
-
-    @property
-    def obs_mode(self) -> str:
-        return self.config.obs_mode
 
 
 def params(config: AcousticTrackingConfig) -> AcousticSetup:

@@ -24,12 +24,11 @@ import numpy as np
 from gymnasium import spaces
 
 from auv_envs.core import difficulty as levels
-from auv_envs.core.assets import MJCF
 from auv_envs.core.camera import CameraExtrinsics, CameraIntrinsics, pixel_space
 from auv_envs.core.env import check_choice, check_image_size, check_positive_int
 from auv_envs.core.hydrodynamics import NominalModel
 from auv_envs.core.sea import GaussMarkovCurrent
-from auv_envs.core.task import Config
+from auv_envs.core.task import Config, Setup
 from auv_envs.core.vehicle import (
     PlantPerturbation,
     VehicleParams,
@@ -269,11 +268,8 @@ STATION_PRESETS = {
 #: ``difficulty`` levels of ``LampArrayDocking``: as :data:`STATION_PRESETS`, with the
 #: laboratory water of [LAMP] at ``paper`` (:data:`PAPER_LAMP_ARRAY_OPTICS`).
 LAMP_ARRAY_PRESETS = {
-    "easy": {},
-    "paper": {"disturbances": PAPER_DISTURBANCES, "optics": PAPER_LAMP_ARRAY_OPTICS,
-              "navigation": PAPER_NAVIGATION},
-    "hard": {"disturbances": HARD_DISTURBANCES, "optics": HARD_OPTICS,
-             "navigation": HARD_NAVIGATION},
+    **STATION_PRESETS,
+    "paper": {**STATION_PRESETS["paper"], "optics": PAPER_LAMP_ARRAY_OPTICS},
 }
 #: The station layouts: ``"six_lights"`` ([OFNMPC]) and ``"lamp_array"`` ([LAMP]).
 LAYOUTS = {"six_lights": SIX_LIGHTS, "lamp_array": LAMP_ARRAY}
@@ -371,7 +367,7 @@ def config_of(env_id: str, **arguments) -> DockingConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class DockingSetup:
+class DockingSetup(Setup):
     """What a :class:`DockingConfig` fixes (:func:`params`), for the Gymnasium environment
     and the task on JAX alike.
 
@@ -396,24 +392,11 @@ class DockingSetup:
         max_episode_steps: steps of an episode that runs to ``time_limit``.
     """
 
-    config: DockingConfig
     levels: dict
     layout: StationLayout
     mission: Any
     vehicle: VehicleParams
-    model_source: MJCF
-    model: Any
-    calibration: DockingCalibration
     rules: DockingRules
-    params: Any
-    observation_space: spaces.Space
-    action_space: spaces.Box
-    dt: float
-    max_episode_steps: int
-
-    @property
-    def obs_mode(self) -> str:
-        return self.config.obs_mode
 
     @property
     def navigation(self) -> NavigationSensors:

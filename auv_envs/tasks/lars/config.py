@@ -22,7 +22,7 @@ from auv_envs.core import difficulty as levels
 from auv_envs.core.assets import MJCF
 from auv_envs.core.camera import CameraIntrinsics, pixel_space
 from auv_envs.core.env import check_choice, check_image_size
-from auv_envs.core.task import Config
+from auv_envs.core.task import Config, Setup
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.arm import ArmModel
 from auv_envs.tasks.lars.calibration import (
@@ -158,7 +158,7 @@ def config_of(env_id: str, **arguments) -> LARSConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class LARSSetup:
+class LARSSetup(Setup):
     """What a :class:`LARSConfig` fixes (:func:`params`), for the Gymnasium environment and
     the task on JAX alike.
 
@@ -181,24 +181,11 @@ class LARSSetup:
         max_episode_steps: steps of an episode that runs to ``time_limit``.
     """
 
-    config: LARSConfig
     levels: dict
     scene_source: MJCF
-    model_source: MJCF
     scene_model: Any
-    model: Any
     arm: ArmModel
-    calibration: LARSCalibration
     glint_camera: Any
-    params: Any
-    observation_space: spaces.Space
-    action_space: spaces.Box
-    dt: float
-    max_episode_steps: int
-
-    @property
-    def obs_mode(self) -> str:
-        return self.config.obs_mode
 
     def position_action(self, q, xp) -> np.ndarray:
         """The ``control="position"`` action whose joint targets are ``q`` (rad, (..., 3)):
