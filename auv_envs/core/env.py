@@ -179,6 +179,14 @@ class ReconstructingPickleMixin:
             "render_mode", arguments["render_mode"], (None, *self.metadata["render_modes"])
         )
 
+    def _configuration(self, kind: type, **changes):
+        """The family's configuration ``kind`` (a dataclass) of the arguments
+        :meth:`_accept_arguments` recorded, those it has fields for (the rendering ones are
+        the shell's), with ``changes``."""
+        names = {field.name for field in dataclasses.fields(kind)}
+        recorded = {name: value for name, value in self._init_kwargs.items() if name in names}
+        return kind(**{**recorded, **changes})
+
     def _get_runtime_state(self) -> dict:
         physics = self.physics
         return {

@@ -291,13 +291,8 @@ class AcousticTrackingEnv(TaskEnv):
         self._init_kwargs["render_size"] = self._render_size
         if render_mode is not None and draw_detections is False:
             draw_detections = True  # a rendering env draws the detections it shows
-        setup = params(AcousticTrackingConfig(
-            obs_mode=obs_mode, disturbance=disturbance, trajectory=trajectory,
-            static_point=static_point, time_limit=time_limit, acoustic=acoustic,
-            error_clip=error_clip, track_gate=track_gate, success_radius=success_radius,
-            physics_substeps=physics_substeps, integrator=integrator,
-            noise_draws=noise_draws, draw_detections=draw_detections, planner=planner,
-            difficulty=difficulty))
+        setup = params(self._configuration(AcousticTrackingConfig,
+                                           draw_detections=draw_detections))
         #: What the configuration fixes (:class:`~auv_envs.tasks.acoustic.config.AcousticSetup`).
         self.setup = setup
         #: The difficulty level (:mod:`auv_envs.core.difficulty`).

@@ -335,15 +335,7 @@ class DockingEnv(TaskEnv):
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
             optics=optics, navigation=navigation, difficulty=difficulty,
         )
-        config = DockingConfig(
-            obs_mode=obs_mode, scenario=scenario, current_direction=current_direction,
-            image_size=tuple(image_size), model_mismatch=model_mismatch,
-            damping_mismatch=tuple(damping_mismatch), tolerances=tolerances,
-            time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
-            min_visible_lights=min_visible_lights, integrator=integrator,
-            physics_substeps=physics_substeps, plant=plant, disturbances=disturbances,
-            optics=optics, navigation=navigation, difficulty=difficulty,
-            **self._variant)
+        config = self._configuration(DockingConfig, **self._variant)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)

@@ -310,11 +310,7 @@ class LARSCaptureEnv(TaskEnv):
             render_mode=render_mode, render_camera=render_camera,
             render_size=render_size, sea=sea, glint=glint, difficulty=difficulty,
         )
-        config = LARSConfig(
-            obs_mode=obs_mode, sea_state=sea_state, control=control,
-            image_size=tuple(image_size), baseline=baseline, focal_length=focal_length,
-            pixel_noise_std=pixel_noise_std, tolerances=tolerances, time_limit=time_limit,
-            sea=sea, glint=glint, difficulty=difficulty)
+        config = self._configuration(LARSConfig)
         check_choice("render_camera", render_camera, RENDER_CAMERAS)
         render_width, render_height = check_image_size(render_size, "render_size")
         self._init_kwargs["render_size"] = (render_width, render_height)
