@@ -49,15 +49,13 @@ class TaskFuncEnv(FuncEnv):
 
     def initial(self, rng, params: World | None = None) -> State:
         """A new episode drawn from ``rng`` in the world ``params``."""
-        with self.shell.in_world(self._world(params)):
-            return self.shell.reset(rng)
+        return self.shell.reset(rng, params)
 
     def transition(self, state: State, action, rng, params: World | None = None) -> State:
         """One step under ``action`` (clipped to the action space), its draws from ``rng``,
         in the world ``params``."""
         state = state.replace(info={**state.info, "rng": rng})
-        with self.shell.in_world(self._world(params)):
-            return self.shell.step(state, action)
+        return self.shell.step(state, action, params)
 
     def observation(self, state: State, rng=None, params: World | None = None):
         return state.obs
@@ -77,6 +75,3 @@ class TaskFuncEnv(FuncEnv):
     def transition_info(self, state: State, action, next_state: State,
                         params: World | None = None) -> dict:
         return dict(next_state.metrics)
-
-    def _world(self, params: World | None) -> World:
-        return self.default_params if params is None else params

@@ -12,7 +12,6 @@ randomiser varies.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from typing import Any
 
@@ -363,16 +362,6 @@ class FunctionalEnv:
             raise TypeError(f"randomization must be a {kind.__name__}, got {randomization!r}")
         self.randomization = kind() if randomization is None else randomization
 
-    @contextlib.contextmanager
-    def in_world(self, world: World):
-        """This env simulating ``world`` for the duration (as Playground's wrapper does)."""
-        old = self._mjx_model
-        self._mjx_model = world
-        try:
-            yield self
-        finally:
-            self._mjx_model = old
-
     @property
     def unwrapped(self) -> FunctionalEnv:
         return self
@@ -448,10 +437,16 @@ class FunctionalEnv:
         return self
 
     # ------------------------------------------------------------------ episodes
-    def reset(self, rng: jax.Array) -> State:
-        """A new episode drawn from ``rng`` (the CPU env's start distribution)."""
+    def reset(self, rng: jax.Array, world: World | None = None) -> State:
+        """A new episode drawn from ``rng`` (the CPU env's start distribution) in ``world``
+        (default :attr:`mjx_model`)."""
+        world = self._world(world)
         rng, key = jax.random.split(rng)
-        return self._first(rng, self.task.reset(KeyDraws(key), self.mjx_model))
+        return self._first(rng, self.task.reset(KeyDraws(key), world))
+
+    def _world(self, world: World | None) -> World:
+        """``world``, or the env's own (:attr:`mjx_model`) for None."""
+        return self.mjx_model if world is None else world
 
     def reset_to(self, *args, **kwargs) -> State:
         """An episode started as the family's task's ``reset_to`` says (docking: from a
@@ -460,9 +455,10 @@ class FunctionalEnv:
         rng, start = self.task.reset_to(*args, world=self.mjx_model, **kwargs)
         return self._first(rng, start)
 
-    def truth(self, state: State) -> dict:
-        """The ground truth of ``state`` (the family's task's; docking and LARS)."""
-        return self.task.truth(state.plant, state.episode, self.mjx_model)
+    def truth(self, state: State, world: World | None = None) -> dict:
+        """The ground truth of ``state`` in ``world`` (the family's task's; docking and
+        LARS)."""
+        return self.task.truth(state.plant, state.episode, self._world(world))
 
     def _first(self, rng, start) -> State:
         """The :class:`State` of an episode's start (a :class:`~auv_envs.core.task.Transition`
@@ -470,11 +466,11 @@ class FunctionalEnv:
         return self._started(rng, start.plant, start.episode, start.truth, start.obs,
                              self._metrics(start.truth, start.episode, None))
 
-    def _step(self, state: State, action: jax.Array) -> State:
-        """One step of the family's transition (without the auto-reset)."""
+    def _step(self, state: State, action: jax.Array, world: World | None = None) -> State:
+        """One step of the family's transition in ``world`` (without the auto-reset)."""
         rng, key, _ = self._keys(state)
         stepped = self.task.step(state.plant, state.episode, self._action(action),
-                                 KeyDraws(key), self.mjx_model)
+                                 KeyDraws(key), self._world(world))
         judged = stepped.judged
         return self._conclude(state, rng, stepped.plant, stepped.episode, stepped.truth,
                               stepped.obs, judged.terms, judged.terminated,
@@ -540,15 +536,15 @@ class FunctionalEnv:
         return State({"plant": plant, "episode": episode}, obs, jnp.float32(0.0), false,
                      self._metrics_out(metrics), info)
 
-    def step(self, state: State, action: jax.Array) -> State:
-        """One step of the family's transition (:meth:`_step`); with ``auto_reset``, an
-        episode that ended replaced by a fresh one (its ``data`` and ``obs``; the step's
-        ``reward``, ``done``, ``metrics``, ``terminated``, ``truncation`` and
-        ``final_obs`` kept)."""
-        stepped = self._step(state, action)
+    def step(self, state: State, action: jax.Array, world: World | None = None) -> State:
+        """One step of the family's transition in ``world`` (default :attr:`mjx_model`;
+        :meth:`_step`); with ``auto_reset``, an episode that ended replaced by a fresh one
+        (its ``data`` and ``obs``; the step's ``reward``, ``done``, ``metrics``,
+        ``terminated``, ``truncation`` and ``final_obs`` kept)."""
+        stepped = self._step(state, action, world)
         if not self.auto_reset:
             return stepped
-        return self._restart(stepped, self._keys(state)[2])
+        return self._restart(stepped, self._keys(state)[2], world)
 
     def step_batch(self, states: State, actions: jax.Array, worlds: World | None = None,
                    in_axes=None) -> State:
@@ -557,11 +553,7 @@ class FunctionalEnv:
         ``vmap`` a reset inside :meth:`step` is computed for every environment at every
         step, a large share of a step's time; ``docs/speed.md``). With ``worlds``
         (:meth:`randomize`'s, mapped over ``in_axes``) each environment simulates its own."""
-        step, restart = self._step, self._restart
-        if worlds is not None:
-            step, restart = (self._within(worlds, in_axes, f) for f in (step, restart))
-        else:
-            step, restart = jax.vmap(step), jax.vmap(restart)
+        step, restart = (self._batched(f, worlds, in_axes) for f in (self._step, self._restart))
         stepped = step(states, actions)
         if not self.auto_reset:
             return stepped
@@ -572,18 +564,15 @@ class FunctionalEnv:
     def reset_batch(self, keys: jax.Array, worlds: World | None = None,
                     in_axes=None) -> State:
         """``jax.vmap(self.reset)(keys)``; with ``worlds``, each in its own."""
+        return self._batched(self.reset, worlds, in_axes)(keys)
+
+    def _batched(self, function, worlds: World | None, in_axes):
+        """``function(*args, world)`` mapped over a batch of ``args``: entry ``i`` in world
+        ``i`` of ``worlds`` (mapped over ``in_axes``), or all in the env's own for None."""
         if worlds is None:
-            return jax.vmap(self.reset)(keys)
-        return self._within(worlds, in_axes, self.reset)(keys)
-
-    def _within(self, worlds: World, in_axes, function):
-        """``function`` mapped over a batch, entry ``i`` evaluated in world ``i``."""
-        def in_world(world, *args):
-            with self.in_world(world):
-                return function(*args)
-
-        return lambda *args: jax.vmap(in_world, in_axes=(in_axes, *[0] * len(args)))(
-            worlds, *args)
+            return jax.vmap(function)
+        return lambda *args: jax.vmap(function, in_axes=(*[0] * len(args), in_axes))(
+            *args, worlds)
 
     @staticmethod
     def _keys(state: State) -> jax.Array:
@@ -591,9 +580,10 @@ class FunctionalEnv:
         and the reset's."""
         return jax.random.split(state.info["rng"], 3)
 
-    def _restart(self, stepped: State, reset_key) -> State:
-        """``stepped`` with its episode, where it ended, replaced by a fresh one."""
-        fresh = self.reset(reset_key)
+    def _restart(self, stepped: State, reset_key, world: World | None = None) -> State:
+        """``stepped`` with its episode, where it ended, replaced by a fresh one (in
+        ``world``)."""
+        fresh = self.reset(reset_key, world)
 
         def restart(new, old):
             return jnp.where(stepped.done, new, old).astype(old.dtype)
