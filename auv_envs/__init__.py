@@ -25,13 +25,14 @@ __version__ = "0.1.0"
 
 from auv_envs.families import FAMILIES, family  # noqa: E402
 
-#: Every current environment id, with its entry point (a view of :data:`FAMILIES`).
-ENVIRONMENTS = {entry.env_id: entry.entry_point for entry in FAMILIES}
+#: Every current environment id, with its task on the CPU (``"module:Class"``, a view of
+#: :data:`FAMILIES`): ``gym.make(id)`` builds ``auv_envs.core.env.TaskEnv(task=<it>)``.
+ENVIRONMENTS = {entry.env_id: entry.task for entry in FAMILIES}
 
 #: Superseded versions, still registered so that published results stay
-#: reproducible: id -> (entry point, the keywords that give the old behaviour).
+#: reproducible: id -> (its task, the keywords that give the old behaviour).
 #: Agents, the leaderboard and the tests use :data:`ENVIRONMENTS`.
-PREVIOUS_VERSIONS = {old: (entry.entry_point, kwargs) for entry in FAMILIES
+PREVIOUS_VERSIONS = {old: (entry.task, kwargs) for entry in FAMILIES
                      for old, kwargs in entry.previous.items()}
 
 #: Applied by ``gym.make`` above its ``TimeLimit``: the episode summary on a
@@ -45,14 +46,15 @@ def max_episode_steps(env_id: str) -> int:
     return family(env_id).max_episode_steps
 
 
-for _env_id, (_entry_point, _kwargs) in {
+for _env_id, (_task, _kwargs) in {
     **{env_id: (entry, {}) for env_id, entry in ENVIRONMENTS.items()},
     **PREVIOUS_VERSIONS,
 }.items():
     if _env_id not in registry:
         # Each env also truncates at its own time_limit (writing its episode
         # summary); TimeLimit truncates on the same step by default.
-        register(id=_env_id, entry_point=_entry_point, kwargs=_kwargs, disable_env_checker=False,
+        register(id=_env_id, entry_point="auv_envs.core.env:TaskEnv",
+                 kwargs={"task": _task, **_kwargs}, disable_env_checker=False,
                  max_episode_steps=max_episode_steps(_env_id), additional_wrappers=(_SUMMARY,))
 
 
@@ -91,18 +93,20 @@ for _env_id in (*ENVIRONMENTS, *PREVIOUS_VERSIONS):
                  disable_env_checker=True)
 
 
-def env_class(env_id: str):
-    """The class (or creator function) Gymnasium has registered for ``env_id``.
+def task_class(env_id: str):
+    """The task class (:class:`auv_envs.core.env.CPUTask`) the env of ``env_id`` runs: its
+    docstring, its signature (the env's arguments but ``task``), its ``obs_modes`` and
+    ``difficulty_presets``.
 
     Raises:
-        KeyError: ``env_id`` is not registered with Gymnasium.
+        KeyError: ``env_id`` is not registered with Gymnasium, or not as a task.
     """
     import gymnasium as gym
 
+    from auv_envs.core.env import load_task
+
     try:
-        entry_point = gym.spec(env_id).entry_point
-    except gym.error.Error as exc:
+        task = gym.spec(env_id).kwargs["task"]
+    except (gym.error.Error, KeyError) as exc:
         raise KeyError(f"unknown environment {env_id!r}") from exc
-    if isinstance(entry_point, str):
-        entry_point = gym.envs.registration.load_env_creator(entry_point)
-    return entry_point
+    return load_task(task)

@@ -1,7 +1,8 @@
 """The family table: every task family of the package, listed once.
 
-Each :class:`Family` names its current Gymnasium id, its Gymnasium class, its task on JAX
-(which the one batched shell, :class:`auv_envs.batched.functional.FunctionalEnv`, serves),
+Each :class:`Family` names its current Gymnasium id, its task on the CPU (which the one
+Gymnasium env, :class:`auv_envs.core.env.TaskEnv`, runs), its task on JAX (which the one
+batched shell, :class:`auv_envs.batched.functional.FunctionalEnv`, serves),
 its registered episode length and its superseded versions.
 ``import auv_envs`` registers the ids from this table (``gym.make``, and ``gym.make_vec``
 of the batched twins), :func:`auv_envs.batched.load`, the compiled trainer, the docs'
@@ -21,7 +22,9 @@ class Family:
 
     Attributes:
         env_id: the current CPU id, ``auv_envs/<Name>-v<N>``.
-        entry_point: its Gymnasium env class, ``"module:Class"``.
+        task: its task on the CPU, ``"module:Class"`` (a
+            :class:`~auv_envs.core.env.CPUTask`; ``gym.make`` builds
+            ``TaskEnv(task=<it>, ...)``).
         config: the family's configuration module (``default_config(env_id)``,
             ``config_of(env_id, **arguments)`` and ``params(config)``, the task's parameters
             built without an environment).
@@ -41,7 +44,7 @@ class Family:
     """
 
     env_id: str
-    entry_point: str
+    task: str
     config: str
     jax_task: str
     batched_modes: tuple
@@ -67,6 +70,12 @@ class Family:
         the configuration module's ``params(config_of(env_id, **arguments))``."""
         module = importlib.import_module(self.config)
         return module.params(module.config_of(env_id or self.env_id, **arguments))
+
+    def task_class(self):
+        """The task class on the CPU (a :class:`~auv_envs.core.env.CPUTask`): its
+        docstring, signature, ``obs_modes`` and ``difficulty_presets`` describe the env."""
+        module, name = self.task.split(":")
+        return getattr(importlib.import_module(module), name)
 
     def jax_task_class(self):
         """The task class on JAX (imports JAX)."""
@@ -96,23 +105,23 @@ _DOCKING_BATCHED = ("auv_envs.tasks.docking.config",
 #: Every family, in the order the docs and the tests list them. Episode lengths: docking
 #: 100 s at 0.1 s, acoustic 60 s at 0.01 s, LARS 30 s at 0.04 s, the mission 600 s at 0.1 s.
 FAMILIES = (
-    Family("auv_envs/DockingStation-v2", "auv_envs.tasks.docking.env:DockingStationEnv",
+    Family("auv_envs/DockingStation-v2", "auv_envs.tasks.docking.env:DockingStationTask",
            *_DOCKING_BATCHED, 1000,
            {"auv_envs/DockingStation-v0": _DOCKING_V0_PLANT,
             "auv_envs/DockingStation-v1": _DOCKING_V1_PLANT}),
-    Family("auv_envs/LampArrayDocking-v2", "auv_envs.tasks.docking.env:LampArrayDockingEnv",
+    Family("auv_envs/LampArrayDocking-v2", "auv_envs.tasks.docking.env:LampArrayDockingTask",
            *_DOCKING_BATCHED, 1000,
            {"auv_envs/LampArrayDocking-v0": _DOCKING_V0_PLANT,
             "auv_envs/LampArrayDocking-v1": _DOCKING_V1_PLANT}),
-    Family("auv_envs/AcousticTracking-v2", "auv_envs.tasks.acoustic.env:AcousticTrackingEnv",
+    Family("auv_envs/AcousticTracking-v2", "auv_envs.tasks.acoustic.env:AcousticTrackingTask",
            "auv_envs.tasks.acoustic.config", "auv_envs.tasks.acoustic.jax_task:AcousticJax",
            ("state", "measurements"), "measurements", 6000,
            {"auv_envs/AcousticTracking-v0": _ACOUSTIC_V0,
             "auv_envs/AcousticTracking-v1": _ACOUSTIC_V1}),
-    Family("auv_envs/LARSCapture-v0", "auv_envs.tasks.lars.env:LARSCaptureEnv",
+    Family("auv_envs/LARSCapture-v0", "auv_envs.tasks.lars.env:LARSCaptureTask",
            "auv_envs.tasks.lars.config", "auv_envs.tasks.lars.jax_task:LARSJax",
            ("state", "features"), "features", 750),
-    Family("auv_envs/DockingMission-v0", "auv_envs.tasks.docking.mission:DockingMissionEnv",
+    Family("auv_envs/DockingMission-v0", "auv_envs.tasks.docking.mission:DockingMissionTask",
            *_DOCKING_BATCHED, 6000),
 )
 

@@ -124,7 +124,7 @@ def env_obs_modes(env_id: str) -> tuple[str, ...] | None:
     Raises:
         KeyError: ``env_id`` is not registered with Gymnasium.
     """
-    modes = getattr(auv_envs.env_class(env_id), "obs_modes", None)
+    modes = getattr(auv_envs.task_class(env_id), "obs_modes", None)
     return tuple(modes) if modes else None
 
 

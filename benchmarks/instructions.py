@@ -29,6 +29,8 @@ import subprocess
 import sys
 import tempfile
 
+from auv_envs.core.env import TaskEnv
+
 REFERENCE = "HalfCheetah-v5"
 
 #: The child: ``python instructions.py --child ENV MODE STEPS`` steps the env.
@@ -49,9 +51,9 @@ def _child(env_id: str, mode: str, n_steps: int) -> None:
     if env_id in LARS_MODELS:
         import mujoco
 
-        from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureEnv
+        from auv_envs.tasks.lars.env import FRAME_SKIP, LARSCaptureTask
 
-        model = getattr(LARSCaptureEnv().physics, LARS_MODELS[env_id])
+        model = getattr(TaskEnv(LARSCaptureTask).physics, LARS_MODELS[env_id])
         data = mujoco.MjData(model)
         data.qpos[:], data.ctrl[:] = (0.1, 0.2, -0.5), (0.1, -0.2, 0.3)
         for _ in range(n_steps):

@@ -18,11 +18,12 @@ import gymnasium as gym
 from throughput import steps_per_second  # benchmarks/ is the script's path
 
 import auv_envs  # noqa: F401
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.rendering import CameraRenderer
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 
 
-def render_seconds(env: LARSCaptureEnv, views, size, n: int, repeats: int):
+def render_seconds(env: TaskEnv, views, size, n: int, repeats: int):
     """Best mean wall and CPU seconds per render for each camera tuple in ``views``.
 
     The renderers are timed in alternating blocks of ``n`` renders (``repeats``
@@ -64,7 +65,7 @@ def main(argv=None) -> None:
     features = steps_per_second(features_env, args.steps, args.repeats)
     features_env.close()
 
-    env = LARSCaptureEnv(obs_mode="stereo", image_size=size)
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", image_size=size)
     env.reset(seed=0)
     (mono, pair), (mono_cpu, pair_cpu) = render_seconds(
         env, (("left",), ("left", "right")), size, 20, 3 * args.repeats)

@@ -24,8 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars.env import CONTROL_PERIOD, LARSCaptureEnv
+from auv_envs.tasks.lars.env import CONTROL_PERIOD, LARSCaptureTask
 from baselines.lars.perception.front_end import LTATFrontEnd
 from baselines.lars.perception.siamese import Pyramid, SiameseTracker, marker_box
 
@@ -34,7 +35,7 @@ TARGET_FPS = 25.0
 
 def render_episode(seed: int, frames: int):
     """Stereo observations of a severe-sea episode, the env's calibration, frame-0 truth."""
-    env = LARSCaptureEnv(obs_mode="stereo", sea_state="severe", control="position",
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", sea_state="severe", control="position",
                          time_limit=frames * CONTROL_PERIOD + 1.0)
     obs, info = env.reset(seed=seed)
     truth = info["true_pixels"]

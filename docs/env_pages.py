@@ -67,7 +67,7 @@ def _overview(gallery: dict[str, dict]) -> str:
         "|---|---|---|---|---|---|",
     ]
     for env_id in auv_envs.ENVIRONMENTS:
-        cls = auv_envs.env_class(env_id)
+        cls = auv_envs.task_class(env_id)
         name = env_id.split("/")[-1]
         picture = gallery.get(env_id)
         thumb = (f"![{name}](../images/{picture['file']}){{ width=\"160\" }}" if picture
@@ -85,7 +85,7 @@ def _overview(gallery: dict[str, dict]) -> str:
 
 
 def _page(env_id: str, picture: dict | None) -> str:
-    cls = auv_envs.env_class(env_id)
+    cls = auv_envs.task_class(env_id)
     name = env_id.split("/")[-1]
     spec = gym.spec(env_id)
     lines = [f"# {name}", "", _summary(cls), ""]

@@ -112,7 +112,7 @@ def fuzz_env(env_id: str, obs_mode: str, level: str, steps: int, seed: int) -> d
 def batched_levels(env_id: str) -> tuple[str, ...]:
     """The ``difficulty`` levels a batched id builds (its CPU env's: the batched env takes
     the CPU env's arguments)."""
-    return tuple(auv_envs.env_class(auv_envs.family(env_id).env_id).difficulty_presets)
+    return tuple(auv_envs.task_class(auv_envs.family(env_id).env_id).difficulty_presets)
 
 
 def fuzz_batched(env_id: str, obs_mode: str, level: str, steps: int, seed: int,
@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     total = {"steps": 0, "episodes": 0, "failures": 0}
     cases = [(env_id, mode, level, False) for env_id in auv_envs.ENVIRONMENTS
-             for mode in auv_envs.env_class(env_id).obs_modes if mode not in RENDERED
+             for mode in auv_envs.task_class(env_id).obs_modes if mode not in RENDERED
              for level in args.levels]
     if not args.no_batched:
         cases += [(env_id, "measurements" if "Acoustic" in env_id else "features", level, True)

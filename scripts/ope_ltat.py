@@ -54,9 +54,10 @@ import numpy as np
 import torch
 
 from auv_envs.core.difficulty import LEVELS
+from auv_envs.core.env import TaskEnv
 from auv_envs.datasets.lars import export_sequence, load_sequence
 from auv_envs.metrics import box_iou
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 from baselines.evaluation import EVAL_SEED_BASE, write_figures
 from baselines.lars.perception.corners import MarkerCornerExtractor
 from baselines.lars.perception.ltat import LTATParams, LTATracker
@@ -217,7 +218,7 @@ def main(argv=None) -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     net, _ = load_siamese()
-    env = LARSCaptureEnv()  # calibration only (no rendering)
+    env = TaskEnv(LARSCaptureTask)  # calibration only (no rendering)
     rig, sides = env.calibration.stereo, env.calibration.marker_sides
     env.close()
 

@@ -42,7 +42,7 @@ import numpy as np
 import auv_envs  # noqa: F401
 from auv_envs.core.acoustics import AcousticConfig
 from auv_envs.core.difficulty import LEVELS as DIFFICULTIES
-from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingTask
 from auv_envs.tasks.acoustic.transition import TCFE_BIN_WIDTH
 from baselines.acoustic.perception.positioning import METHODS, LeastSquaresPositioner
 from baselines.evaluation import run_episode, write_figures
@@ -57,7 +57,7 @@ SECTIONS = ("static", "dynamic", "variants", "tcfe")
 
 def acoustic_model(difficulty: str) -> AcousticConfig:
     """The measurement model of a difficulty level (``easy``: the released default)."""
-    return AcousticTrackingEnv.difficulty_presets[difficulty].get("acoustic", AcousticConfig())
+    return AcousticTrackingTask.difficulty_presets[difficulty].get("acoustic", AcousticConfig())
 
 
 def static_errors(acoustic: AcousticConfig, seeds: range,

@@ -24,11 +24,11 @@ IMAGE_MODES = ("image", "stereo")
 SMALL_IMAGE = (64, 48)
 
 
-env_class = auv_envs.env_class
+task_class = auv_envs.task_class
 
 
 def obs_modes(env_id: str) -> tuple[str, ...]:
-    modes = getattr(env_class(env_id), "obs_modes", None)
+    modes = getattr(task_class(env_id), "obs_modes", None)
     if not modes:
         raise AssertionError(f"{env_id} does not declare its obs_modes")
     return tuple(modes)

@@ -75,7 +75,7 @@ def cases() -> list[tuple[str, str, dict]]:
     out = []
     for env_id in auv_envs.ENVIRONMENTS:
         family = env_id.split("/")[1].split("-")[0]
-        for mode in auv_envs.env_class(env_id).obs_modes:
+        for mode in auv_envs.task_class(env_id).obs_modes:
             if mode not in IMAGE_MODES:
                 out += [(env_id, mode, {}), (env_id, mode, VARIANTS[family])]
     return out
@@ -90,7 +90,7 @@ def level_cases() -> list[tuple[str, str, dict]]:
     :data:`LEVELS`, plain and varied."""
     return [(env_id, mode, {**kwargs, "difficulty": level})
             for env_id, mode, kwargs in cases()
-            if hasattr(auv_envs.env_class(env_id), "difficulty_presets")
+            if hasattr(auv_envs.task_class(env_id), "difficulty_presets")
             for level in LEVELS]
 
 

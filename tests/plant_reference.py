@@ -348,9 +348,9 @@ def acoustic_truth(disturbance: str, seed: int, duration: float,
 
     import gymnasium as gym
 
-    from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+    from auv_envs.tasks.acoustic.env import AcousticTrackingTask
 
-    shipped = inspect.signature(AcousticTrackingEnv).parameters["physics_substeps"].default
+    shipped = inspect.signature(AcousticTrackingTask).parameters["physics_substeps"].default
     env = gym.make("auv_envs/AcousticTracking-v2", obs_mode="state", disturbance=disturbance,
                    time_limit=duration, physics_substeps=refinement * shipped)
     try:

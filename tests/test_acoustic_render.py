@@ -1,4 +1,4 @@
-"""AcousticTrackingEnv's rgb_array render: size, content, motion, and no effect on the episode."""
+"""AcousticTrackingTask's rgb_array render: size, content, motion, and no effect on the episode."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.core.env import TaskEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingTask
 from auv_envs.tasks.acoustic.render import TankPlot
 
 ENV_ID = "auv_envs/AcousticTracking-v2"
@@ -44,7 +45,7 @@ def not_blank(frame):
 
 @pytest.mark.parametrize("size", [(640, 480), (320, 240), (1000, 300), (8, 8)])
 def test_frame_has_the_size_asked_for(size):
-    env = AcousticTrackingEnv(render_mode="rgb_array", render_size=size, time_limit=2.0)
+    env = TaskEnv(AcousticTrackingTask, render_mode="rgb_array", render_size=size, time_limit=2.0)
     run(env, 20)
     frame = env.render()
     assert frame.shape == (size[1], size[0], 3)
@@ -55,7 +56,7 @@ def test_frame_has_the_size_asked_for(size):
 
 
 def test_sample_frame_is_not_blank():
-    env = AcousticTrackingEnv(render_mode="rgb_array")
+    env = TaskEnv(AcousticTrackingTask, render_mode="rgb_array")
     run(env, 600, seed=3)
     frame = env.render()
     assert frame.shape == (480, 640, 3)
@@ -68,7 +69,7 @@ def test_sample_frame_is_not_blank():
 
 
 def test_pixels_change_where_the_source_moves():
-    env = AcousticTrackingEnv(render_mode="rgb_array", time_limit=30.0)
+    env = TaskEnv(AcousticTrackingTask, render_mode="rgb_array", time_limit=30.0)
     rng = np.random.default_rng(1)
     obs, info = env.reset(seed=1)
     before = env.render()
@@ -97,8 +98,8 @@ def test_pixels_change_where_the_source_moves():
 
 
 def test_render_changes_no_observation_reward_info_or_random_draw():
-    plain = AcousticTrackingEnv(time_limit=3.0)
-    drawn = AcousticTrackingEnv(render_mode="rgb_array", time_limit=3.0)
+    plain = TaskEnv(AcousticTrackingTask, time_limit=3.0)
+    drawn = TaskEnv(AcousticTrackingTask, render_mode="rgb_array", time_limit=3.0)
     a = run(plain, 300, seed=11)
     b = run(drawn, 300, seed=11, render_every=3)
     assert drawn.render().shape == (480, 640, 3)  # the last step, after truncation
@@ -114,8 +115,8 @@ def test_render_changes_no_observation_reward_info_or_random_draw():
 
 
 def test_state_observations_are_unchanged_too():
-    plain = AcousticTrackingEnv(obs_mode="state", time_limit=1.0)
-    drawn = AcousticTrackingEnv(obs_mode="state", render_mode="rgb_array", time_limit=1.0)
+    plain = TaskEnv(AcousticTrackingTask, obs_mode="state", time_limit=1.0)
+    drawn = TaskEnv(AcousticTrackingTask, obs_mode="state", render_mode="rgb_array", time_limit=1.0)
     a = run(plain, 100, seed=5)
     b = run(drawn, 100, seed=5, render_every=7)
     for (obs_a, reward_a, _), (obs_b, reward_b, _) in zip(a, b, strict=True):
@@ -128,11 +129,11 @@ def test_state_observations_are_unchanged_too():
 )
 def test_bad_render_size_raises_value_error(size):
     with pytest.raises(ValueError, match="render_size"):
-        AcousticTrackingEnv(render_mode="rgb_array", render_size=size)
+        TaskEnv(AcousticTrackingTask, render_mode="rgb_array", render_size=size)
 
 
 def test_no_render_mode_renders_none():
-    env = AcousticTrackingEnv(time_limit=1.0)
+    env = TaskEnv(AcousticTrackingTask, time_limit=1.0)
     env.reset(seed=0)
     assert env.render() is None
     assert env.plot is None
@@ -140,7 +141,7 @@ def test_no_render_mode_renders_none():
 
 
 def test_render_before_reset_draws_the_empty_tank():
-    env = AcousticTrackingEnv(render_mode="rgb_array")
+    env = TaskEnv(AcousticTrackingTask, render_mode="rgb_array")
     frame = env.render()
     assert frame.shape == (480, 640, 3)
     not_blank(frame)
@@ -163,7 +164,8 @@ def test_through_gym_make():
 
 
 def test_close_then_close_and_render_again():
-    env = AcousticTrackingEnv(render_mode="rgb_array", render_size=(320, 240), time_limit=1.0)
+    env = TaskEnv(AcousticTrackingTask,
+                  render_mode="rgb_array", render_size=(320, 240), time_limit=1.0)
     run(env, 10)
     first = env.render()
     env.close()
@@ -174,7 +176,8 @@ def test_close_then_close_and_render_again():
 
 
 def test_pickled_env_renders_the_same_frame():
-    env = AcousticTrackingEnv(render_mode="rgb_array", render_size=(320, 240), time_limit=2.0)
+    env = TaskEnv(AcousticTrackingTask,
+                  render_mode="rgb_array", render_size=(320, 240), time_limit=2.0)
     run(env, 120, seed=4)
     frame = env.render()
     copy = pickle.loads(pickle.dumps(env))
@@ -192,7 +195,7 @@ def test_pickled_env_renders_the_same_frame():
 
 def test_tank_plot_alone():
     """TankPlot needs only the calibration; a frame with no detections still draws."""
-    env = AcousticTrackingEnv()
+    env = TaskEnv(AcousticTrackingTask)
     plot = TankPlot(env.calibration, (400, 300))
     frame = plot.frame(time=1.0, trail=[[100.0, 100.0, -10.0], [101.0, 100.0, -10.0]],
                        estimate=[101.5, 100.0, -10.0], azimuth=np.zeros((0, 8)),

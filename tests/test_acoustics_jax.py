@@ -22,7 +22,8 @@ from auv_envs.core.acoustics import (
     two_state_markov,
     unit_gauss_markov,
 )
-from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.core.env import TaskEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingTask
 
 #: Environments of one period each in a ``jit(vmap(measure))`` call, and the sample
 #: periods of each side of the comparisons in distribution (calls of ``BATCH``).
@@ -41,7 +42,8 @@ SOUND_SPEED = 1503.0
 
 
 def _array(level: str):
-    return AcousticTrackingEnv(obs_mode="measurements", difficulty=level).calibration.array
+    return TaskEnv(AcousticTrackingTask,
+                   obs_mode="measurements", difficulty=level).calibration.array
 
 
 @pytest.fixture(scope="module")

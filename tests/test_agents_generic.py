@@ -19,7 +19,7 @@ import pytest
 
 from baselines.catalogue import builtin_specs
 from baselines.registry import agent_names, agent_spec, make_agent
-from tests.conftest import ENV_IDS, IMAGE_MODES, env_class, make_env, obs_modes
+from tests.conftest import ENV_IDS, IMAGE_MODES, make_env, obs_modes, task_class
 
 #: Seconds of simulated time per test episode: a guard, so that an episode
 #: ends early even if an agent never terminates it (the tests take fewer steps).
@@ -42,7 +42,7 @@ def _n_steps(name: str, mode: str) -> int:
 
 def _make_env(name: str, env_id: str, mode: str) -> gym.Env:
     kwargs = dict(agent_spec(name).env_kwargs)
-    if "time_limit" in inspect.signature(env_class(env_id)).parameters:
+    if "time_limit" in inspect.signature(task_class(env_id)).parameters:
         kwargs.setdefault("time_limit", SHORT_TIME_LIMIT)
     return make_env(env_id, mode, **kwargs)
 

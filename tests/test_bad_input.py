@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from auv_envs.core.assets import asset_path
+from auv_envs.core.env import TaskEnv
 from auv_envs.tasks.docking import config as docking_config
 from auv_envs.tasks.docking import env as docking
 from tests.conftest import DOCKING_IDS, ENV_IDS, leaves, make_env
@@ -72,7 +73,7 @@ def test_unknown_render_mode_lists_valid_values():
     # Through gym.make, "human" is turned into rgb_array + a viewer wrapper by
     # Gymnasium itself, so check the constructor directly.
     with pytest.raises(ValueError, match="'rgb_array'"):
-        docking.DockingStationEnv(render_mode="window")
+        TaskEnv(docking.DockingStationTask, render_mode="window")
 
 
 def test_missing_asset_names_the_file():
@@ -84,7 +85,7 @@ def test_missing_layout_asset_fails_at_construction(monkeypatch):
     broken = dataclasses.replace(docking_config.SIX_LIGHTS, asset="docking/missing_layout.xml")
     monkeypatch.setitem(docking_config.LAYOUTS, "six_lights", broken)
     with pytest.raises(FileNotFoundError, match="missing_layout.xml"):
-        docking.DockingStationEnv()
+        TaskEnv(docking.DockingStationTask)
 
 
 def test_unknown_argument_is_a_type_error_naming_valid_ones(env):

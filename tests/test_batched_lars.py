@@ -18,7 +18,8 @@ jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
 from auv_envs.batched.functional import FunctionalEnv  # noqa: E402
-from auv_envs.tasks.lars.env import LARSCaptureEnv  # noqa: E402
+from auv_envs.core.env import TaskEnv  # noqa: E402
+from auv_envs.tasks.lars.env import LARSCaptureTask  # noqa: E402
 
 ENV_ID = "auv_envs/LARSCapture-v0"
 SECONDS = 20.0
@@ -36,7 +37,7 @@ def _run_alike(kwargs: dict, seeds, actions_of, steps: int):
     """CPU episodes of ``seeds`` and the batched env started alike, stepped together by
     ``actions_of(k, env, q0)`` while no CPU episode has ended: per step the CPU truths and
     rewards and the batched ones."""
-    cpus = [LARSCaptureEnv(**kwargs) for _ in seeds]
+    cpus = [TaskEnv(LARSCaptureTask, **kwargs) for _ in seeds]
     batched = FunctionalEnv(ENV_ID, auto_reset=False, **kwargs)
     starts, q0s = [], []
     for env, seed in zip(cpus, seeds, strict=True):
@@ -126,7 +127,7 @@ def test_make_vec_runs_episodes_and_reports_them_in_the_cpu_envs_names():
 
     envs = gym.make_vec("auv_envs/LARSCaptureMJX-v0", num_envs=8, obs_mode="features",
                         sea_state="severe", difficulty="hard")
-    cpu = LARSCaptureEnv(obs_mode="features", sea_state="severe", difficulty="hard")
+    cpu = TaskEnv(LARSCaptureTask, obs_mode="features", sea_state="severe", difficulty="hard")
     cpu.reset(seed=0)
     cpu_keys = set(cpu.episode_metrics())
     cpu.close()
@@ -164,9 +165,10 @@ def test_glint_on_the_corners_is_the_cpu_envs_given_the_same_uniforms():
     """``hard``'s glint in ``features``: for frames where glints can fall near the corners,
     the JAX evaluation of :meth:`GlintCamera.on_corners` gives the CPU's probabilities,
     outcomes (moved, hidden) and reported pixels when both get the same uniforms."""
+    import auv_envs.tasks.lars.jax_task  # noqa: F401  (the episode's draws as JAX pytrees)
     from auv_envs.core.ops import FLOATS, jax_ops
 
-    env = LARSCaptureEnv(obs_mode="features", difficulty="hard")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", difficulty="hard")
     camera = env.params.glint_camera
     ops = jax_ops()
     compared = glinted = 0
@@ -176,7 +178,7 @@ def test_glint_on_the_corners_is_the_cpu_envs_given_the_same_uniforms():
         for _ in range(25):
             _, _, terminated, truncated, info = env.step(
                 env.position_action(env.physics.data.qpos, np))
-            truth = env._truth()
+            truth = env.truth_now()
             seen = truth["visible"][0] + truth["visible"][1]
             uniforms = np.random.default_rng(seed).random((6, 4))
             uniforms[:, 0] *= 0.05  # a glint wherever one can fall
@@ -223,7 +225,7 @@ def test_a_fixed_policys_outcomes_agree_on_100_seeds():
 
     kwargs = dict(obs_mode="state", control="position", difficulty="paper")
     seeds = range(500, 600)
-    cpu = LARSCaptureEnv(**kwargs)
+    cpu = TaskEnv(LARSCaptureTask, **kwargs)
     batched = FunctionalEnv(ENV_ID, auto_reset=False, **kwargs)
     cpu_success, starts = [], []
     for seed in seeds:
@@ -272,7 +274,7 @@ def test_the_arm_against_its_joint_limits_steps_as_mujoco_on_the_cpu():
     from auv_envs.tasks.lars.env import FRAME_SKIP
     from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 
-    env = LARSCaptureEnv(obs_mode="state", control="torque")
+    env = TaskEnv(LARSCaptureTask, obs_mode="state", control="torque")
     plant = ArmPlantMJX(env.setup)
     model = env.physics.model
     low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]

@@ -83,7 +83,7 @@ def test_round_trip_matches_a_fresh_rerun(root, case, monkeypatch):
         env_id, agent, obs_mode, "paper")
     assert meta["env_kwargs"] == kwargs and meta["first_seed"] == FIRST_SEED
     space = dataset.action_space
-    cls = auv_envs.env_class(env_id)
+    cls = auv_envs.task_class(env_id)
     assert meta["step_info_keys"] == list(dict.fromkeys(
         [*cls.metric_keys, *(f"reward_{term}" for term in cls.reward_terms)]))
     episodes = list(dataset.iterate_episodes())
@@ -132,7 +132,8 @@ def test_dataset_recovers_its_environment(root, monkeypatch):
     dataset = minari.load_dataset(datasets.default_dataset_id(env_id, agent, obs_mode, "paper"))
     env = dataset.recover_environment()  # gym.make(spec): auv_envs' summary wrapper included
     try:
-        assert env.spec.kwargs == {"obs_mode": obs_mode, "difficulty": "paper", **kwargs}
+        assert env.spec.kwargs == {"task": auv_envs.ENVIRONMENTS[env_id], "obs_mode": obs_mode,
+                                   "difficulty": "paper", **kwargs}
         obs, _ = env.reset(seed=FIRST_SEED)
         np.testing.assert_array_equal(obs, dataset[0].observations[0])
     finally:

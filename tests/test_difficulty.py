@@ -17,7 +17,7 @@ from tests.fingerprints import SEEDS, cases, fingerprint, key, level_cases
 RELEASE = json.loads((Path(__file__).parent / "data" / "release_fingerprints.json").read_text())
 LEVELS = json.loads((Path(__file__).parent / "data" / "level_fingerprints.json").read_text())
 LEVELLED = [case for case in cases()
-            if hasattr(auv_envs.env_class(case[0]), "difficulty_presets")]
+            if hasattr(auv_envs.task_class(case[0]), "difficulty_presets")]
 
 
 def _ids(case):
@@ -58,7 +58,7 @@ def test_levels_are_unchanged(case):
 
 @pytest.mark.parametrize("env_id", sorted({case[0] for case in LEVELLED}))
 def test_presets_apply_and_keywords_override(env_id):
-    cls = auv_envs.env_class(env_id)
+    cls = auv_envs.task_class(env_id)
     presets = cls.difficulty_presets
     difficulty.check_presets(presets)
     for level in ("paper", "hard"):

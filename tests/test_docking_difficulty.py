@@ -25,7 +25,7 @@ def _calibration(env_id: str, **kwargs):
 @pytest.mark.parametrize("env_id", DOCKING_IDS)
 @pytest.mark.parametrize("level", ["paper", "hard"])
 def test_preset_reaches_the_calibration(env_id, level):
-    preset = auv_envs.env_class(env_id).difficulty_presets[level]
+    preset = auv_envs.task_class(env_id).difficulty_presets[level]
     cal, difficulty = _calibration(env_id, difficulty=level)
     assert difficulty == level
     assert cal.disturbances == preset["disturbances"]
@@ -45,7 +45,7 @@ def test_easy_sets_nothing(env_id):
 
 def test_hard_is_harder_than_paper():
     for env_id in DOCKING_IDS[:2]:
-        presets = auv_envs.env_class(env_id).difficulty_presets
+        presets = auv_envs.task_class(env_id).difficulty_presets
         paper, hard = presets["paper"]["disturbances"], presets["hard"]["disturbances"]
         assert hard.current.max_speed > paper.current.max_speed
         assert hard.plant.damping > paper.plant.damping
@@ -58,7 +58,7 @@ def test_given_keyword_overrides_the_preset():
     clear = WaterOptics.jerlov("IB")
     still = DockingDisturbances()
     env_id = DOCKING_IDS[0]
-    preset = auv_envs.env_class(env_id).difficulty_presets["hard"]
+    preset = auv_envs.task_class(env_id).difficulty_presets["hard"]
     cal, _ = _calibration(env_id, difficulty="hard", optics=clear)
     assert cal.optics == clear
     assert cal.disturbances == preset["disturbances"]

@@ -52,7 +52,7 @@ def site(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("env_id", tuple(auv_envs.ENVIRONMENTS))
 def test_every_environment_has_a_page_from_its_declarations(site, env_id):
-    cls = auv_envs.env_class(env_id)
+    cls = auv_envs.task_class(env_id)
     page = site / "env" / env_id.split("/")[-1] / "index.html"
     assert page.is_file(), f"no page for {env_id}"
     html = page.read_text()
@@ -108,7 +108,7 @@ def test_every_environment_has_its_own_summary_and_a_picture(site):
         name = env_id.split("/")[-1]
         page = (site / "env" / name / "index.html").read_text()
         assert "<img" in page, f"{env_id}: no picture on its page"
-        summaries.add(inspect.cleandoc(auv_envs.env_class(env_id).__doc__).split("\n\n")[0])
+        summaries.add(inspect.cleandoc(auv_envs.task_class(env_id).__doc__).split("\n\n")[0])
     assert len(summaries) == len(auv_envs.ENVIRONMENTS)  # no two share a summary
     assert index.count("<img") == len(auv_envs.ENVIRONMENTS)
 

@@ -193,7 +193,7 @@ def test_observations_do_not_share_memory_with_mjdata(env_and_mode):
 
 def test_reward_is_sum_of_named_terms(env_and_mode):
     _, _, env = env_and_mode
-    expected = {f"reward_{t}" for t in type(env.unwrapped).reward_terms}
+    expected = {f"reward_{t}" for t in type(env.unwrapped.task).reward_terms}
     _, info = env.reset(seed=2)
     assert expected <= set(info)
     for action in _actions(env, 30, action_seed=0):
@@ -207,7 +207,7 @@ def test_reward_is_sum_of_named_terms(env_and_mode):
 
 def test_task_metrics_in_info_every_step(env_and_mode):
     _, _, env = env_and_mode
-    keys = set(type(env.unwrapped).metric_keys)
+    keys = set(type(env.unwrapped.task).metric_keys)
     assert "is_success" in keys
     _, info = env.reset(seed=0)
     assert keys <= set(info)
@@ -279,7 +279,7 @@ def test_env_class_docstring_documents_the_contract(env_id):
     # Every environment is documented in its class docstring, as Gymnasium's MuJoCo v5 envs.
     env = gym.make(env_id)
     try:
-        doc = type(env.unwrapped).__doc__ or ""
+        doc = type(env.unwrapped.task).__doc__ or ""
     finally:
         env.close()
     for section in ("Description", "Action space", "Observation space", "Rewards",

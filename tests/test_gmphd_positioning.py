@@ -5,7 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from auv_envs.tasks.acoustic.env import AcousticTrackingEnv
+from auv_envs.core.env import TaskEnv
+from auv_envs.tasks.acoustic.env import AcousticTrackingTask
 from auv_envs.tasks.acoustic.transition import STATIC_POINTS
 from baselines.acoustic.perception.positioning import (
     METHODS,
@@ -17,7 +18,7 @@ from baselines.acoustic.perception.positioning import (
 
 @pytest.fixture(scope="module")
 def calibration():
-    env = AcousticTrackingEnv(obs_mode="measurements")
+    env = TaskEnv(AcousticTrackingTask, obs_mode="measurements")
     return env.calibration
 
 

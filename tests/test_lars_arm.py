@@ -6,13 +6,14 @@ import mujoco
 import numpy as np
 import pytest
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.ops import FLOATS
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 
 
 @pytest.fixture(scope="module")
 def env():
-    e = LARSCaptureEnv(obs_mode="features")
+    e = TaskEnv(LARSCaptureTask, obs_mode="features")
     yield e
     e.close()
 
@@ -91,7 +92,7 @@ def test_inverse_dynamics_reproduces_simulated_acceleration(env):
 
 
 def test_gravity_torque_holds_the_arm_still():
-    env = LARSCaptureEnv(obs_mode="features", time_limit=100.0)
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", time_limit=100.0)
     obs, _ = env.reset(seed=4)
     cal = env.calibration
     q0 = env.physics.data.qpos.copy()
@@ -107,7 +108,7 @@ def test_gravity_torque_holds_the_arm_still():
 
 
 def test_position_control_tracks_a_target():
-    env = LARSCaptureEnv(obs_mode="features", control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", control="position")
     _, info = env.reset(seed=1)
     cal = env.calibration
     target = cal.arm.inverse_kinematics(info["end_position"] + (0.3, -0.2, 0.2))

@@ -8,9 +8,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.ops import FLOATS
 from auv_envs.tasks.lars import transition
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 
 
 def _same(a, b) -> bool:
@@ -25,7 +26,7 @@ def _same(a, b) -> bool:
 
 @pytest.mark.parametrize("sea_state", ["calm", "severe"])
 def test_compiled_truth_is_the_float_truth(sea_state):
-    env = LARSCaptureEnv(obs_mode="features", sea_state=sea_state)
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", sea_state=sea_state)
     plant, params = env._plant, env.params
     rng = np.random.default_rng(11)
     compared = 0
@@ -46,14 +47,14 @@ def test_compiled_truth_is_the_float_truth(sea_state):
 
 
 def test_the_sea_ids_use_the_float_truth():
-    env = LARSCaptureEnv(obs_mode="state", difficulty="paper")
+    env = TaskEnv(LARSCaptureTask, obs_mode="state", difficulty="paper")
     env.reset(seed=0)
     env.step(np.zeros(3))
     assert env._plant._compiled is None
 
 
 def test_the_arm_model_steps_as_the_whole_scene():
-    env = LARSCaptureEnv()
+    env = TaskEnv(LARSCaptureTask)
     physics = env.physics
     assert physics.model.nbody < physics.scene_model.nbody
     datas = [mujoco.MjData(physics.model), mujoco.MjData(physics.scene_model)]
@@ -71,7 +72,7 @@ def test_the_arm_model_steps_as_the_whole_scene():
 
 
 def test_a_render_shows_the_arm_where_it_is():
-    env = LARSCaptureEnv(render_mode="rgb_array", render_size=(64, 48))
+    env = TaskEnv(LARSCaptureTask, render_mode="rgb_array", render_size=(64, 48))
     env.reset(seed=1)
     for _ in range(20):
         env.step(np.ones(3))

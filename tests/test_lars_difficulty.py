@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 import auv_envs  # noqa: F401
+from auv_envs.core.env import TaskEnv
 from auv_envs.tasks.lars.env import (
     DEFAULT_PIXEL_NOISE_STD,
     HARD_PIXEL_NOISE_STD,
     HARD_SEA,
     PAPER_SEA,
-    LARSCaptureEnv,
+    LARSCaptureTask,
 )
 from auv_envs.tasks.lars.sea import SunGlint
 from auv_envs.tasks.lars.waves import SeaSpectrum
@@ -48,7 +49,7 @@ def test_each_level_applies_its_parameters(level, sea, noise):
 
 
 def test_presets_are_the_documented_values():
-    presets = LARSCaptureEnv.difficulty_presets
+    presets = LARSCaptureTask.difficulty_presets
     assert presets["paper"] == {"sea": SeaSpectrum(0.3, 9.0, "jonswap", 3.3)}
     assert presets["hard"] == {"sea": SeaSpectrum(0.4, 7.0, "jonswap", 3.3),
                                "pixel_noise_std": 3.0,
@@ -98,7 +99,7 @@ def test_paper_differs_from_easy_and_is_seeded():
 @pytest.mark.parametrize("level", ["Paper", "extreme", ""])
 def test_unknown_level_raises(level):
     with pytest.raises(ValueError, match="difficulty"):
-        LARSCaptureEnv(difficulty=level)
+        TaskEnv(LARSCaptureTask, difficulty=level)
 
 
 def test_state_reference_agent_captures():

@@ -8,8 +8,9 @@ import pickle
 import numpy as np
 import pytest
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 
 
 def _capture_action(env, info, height):
@@ -22,7 +23,7 @@ def _capture_action(env, info, height):
 
 
 def test_contract_attributes_and_info_keys():
-    env = LARSCaptureEnv(obs_mode="features")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features")
     assert env.obs_modes == ("state", "features", "stereo")
     assert "is_success" in env.metric_keys
     _, info = env.reset(seed=0)
@@ -36,7 +37,7 @@ def test_contract_attributes_and_info_keys():
 
 @pytest.mark.parametrize("seed", range(5))
 def test_start_within_one_metre_and_marker_in_view(seed):
-    env = LARSCaptureEnv(obs_mode="features")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features")
     obs, info = env.reset(seed=seed)
     assert np.linalg.norm(info["relative_position"]) <= 1.0
     assert obs["visible"].all()
@@ -44,17 +45,17 @@ def test_start_within_one_metre_and_marker_in_view(seed):
 
 
 def test_features_are_noisy_masked_truth():
-    env = LARSCaptureEnv(obs_mode="features", pixel_noise_std=1.0)
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", pixel_noise_std=1.0)
     obs, info = env.reset(seed=3)
     err = obs["pixels"] - info["true_pixels"]
     assert 0.1 < np.abs(err).mean() < 3.0
-    quiet = LARSCaptureEnv(obs_mode="features", pixel_noise_std=0.0)
+    quiet = TaskEnv(LARSCaptureTask, obs_mode="features", pixel_noise_std=0.0)
     obs, info = quiet.reset(seed=3)
     np.testing.assert_allclose(obs["pixels"], info["true_pixels"], atol=1e-4)
 
 
 def test_privileged_capture_succeeds():
-    env = LARSCaptureEnv(obs_mode="features", control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", control="position")
     _, info = env.reset(seed=1)
     for k in range(750):
         # Track 0.3 m above, then descend to the capture point.
@@ -69,7 +70,7 @@ def test_privileged_capture_succeeds():
 
 
 def test_ramming_the_hull_is_a_hard_collision():
-    env = LARSCaptureEnv(obs_mode="features", control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", control="position")
     _, info = env.reset(seed=2)
     for _ in range(200):
         # Aim 0.4 m forward of the capture point, 0.15 m into the hull.
@@ -85,7 +86,7 @@ def test_ramming_the_hull_is_a_hard_collision():
 
 
 def test_falling_arm_leaves_the_workspace():
-    env = LARSCaptureEnv(obs_mode="state")
+    env = TaskEnv(LARSCaptureTask, obs_mode="state")
     env.reset(seed=0)
     for _ in range(200):
         _, _, terminated, truncated, info = env.step(np.array([0.0, -1.0, -1.0]))
@@ -98,7 +99,7 @@ def test_falling_arm_leaves_the_workspace():
 
 
 def test_time_limit_truncates_with_metrics():
-    env = LARSCaptureEnv(obs_mode="features", control="position", time_limit=1.0)
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", control="position", time_limit=1.0)
     _, info = env.reset(seed=0)
     for _ in range(30):
         _, _, terminated, truncated, info = env.step(tracking_action(env, info))
@@ -125,17 +126,17 @@ def test_time_limit_truncates_with_metrics():
 )
 def test_bad_arguments(kwargs, exc, match):
     with pytest.raises(exc, match=match):
-        LARSCaptureEnv(**kwargs)
+        TaskEnv(LARSCaptureTask, **kwargs)
 
 
 def test_bad_actions():
-    env = LARSCaptureEnv()
+    env = TaskEnv(LARSCaptureTask)
     env.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         env.step(np.array([0.0, np.nan, 0.0]))
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(4))
-    other = LARSCaptureEnv()
+    other = TaskEnv(LARSCaptureTask)
     other.reset(seed=0)
     o1, *_ = env.step(np.array([5.0, -3.0, 0.5]))
     o2, *_ = other.step(np.array([1.0, -1.0, 0.5]))
@@ -143,7 +144,7 @@ def test_bad_actions():
 
 
 def test_focal_length_and_baseline_reach_the_calibration():
-    env = LARSCaptureEnv(image_size=(1280, 960), focal_length=1000.0, baseline=0.2)
+    env = TaskEnv(LARSCaptureTask, image_size=(1280, 960), focal_length=1000.0, baseline=0.2)
     cal = env.calibration
     assert cal.stereo.left.fx == pytest.approx(1000.0)
     assert (cal.stereo.left.width, cal.stereo.left.height) == (1280, 960)
@@ -152,7 +153,7 @@ def test_focal_length_and_baseline_reach_the_calibration():
 
 
 def test_calibration_is_read_only():
-    cal = LARSCaptureEnv().calibration
+    cal = TaskEnv(LARSCaptureTask).calibration
     with pytest.raises(dataclasses.FrozenInstanceError):
         cal.control_period = 1.0
     for array in (cal.left_in_end, cal.right_in_end, cal.torque_limits, cal.joint_limits,
@@ -163,7 +164,7 @@ def test_calibration_is_read_only():
 
 @pytest.mark.parametrize("sea_state", ["calm", "severe"])
 def test_pickle_mid_episode_continues_identically(sea_state):
-    env = LARSCaptureEnv(obs_mode="features", sea_state=sea_state, control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", sea_state=sea_state, control="position")
     _, info = env.reset(seed=6)
     for _ in range(40):
         _, _, _, _, info = env.step(tracking_action(env, info))
@@ -178,10 +179,11 @@ def test_pickle_mid_episode_continues_identically(sea_state):
 
 
 def test_state_and_stereo_observations():
-    env = LARSCaptureEnv(obs_mode="state")
+    env = TaskEnv(LARSCaptureTask, obs_mode="state")
     obs, info = env.reset(seed=0)
     np.testing.assert_allclose(obs[12:15], info["relative_position"], rtol=1e-6)
-    stereo = LARSCaptureEnv(obs_mode="stereo", image_size=(64, 48), render_mode="rgb_array",
+    stereo = TaskEnv(LARSCaptureTask,
+                     obs_mode="stereo", image_size=(64, 48), render_mode="rgb_array",
                             render_camera="stereo", render_size=(64, 48))
     try:
         obs, _ = stereo.reset(seed=0)

@@ -9,8 +9,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.ops import FLOATS
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 from auv_envs.tasks.lars.scene import (
     MARKER_SIDES,
     MOTION_RANGES,
@@ -35,7 +36,7 @@ def test_marker_corners_have_the_paper_side_lengths():
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_triangulating_true_pixels_recovers_corners(seed):
-    env = LARSCaptureEnv(obs_mode="features")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features")
     _, info = env.reset(seed=seed)
     for _ in range(seed):
         _, _, _, _, info = env.step(np.zeros(3, dtype=np.float32))
@@ -47,7 +48,7 @@ def test_triangulating_true_pixels_recovers_corners(seed):
 
 
 def test_triangulation_rejects_bad_input():
-    env = LARSCaptureEnv(obs_mode="features")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features")
     rig = env.calibration.stereo
     with pytest.raises(ValueError, match="disparity"):
         triangulate(rig, [[100.0, 100.0]], [[120.0, 100.0]])
@@ -105,7 +106,7 @@ def _rendered_corners(image, projected):
 
 @pytest.mark.parametrize("seed", [0, 5])
 def test_rendered_marker_corners_match_projection(seed):
-    env = LARSCaptureEnv(obs_mode="stereo", image_size=(640, 480))
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", image_size=(640, 480))
     try:
         obs, info = env.reset(seed=seed)
         assert info["true_visible"].all()
@@ -125,7 +126,7 @@ def test_rendered_marker_corners_match_projection(seed):
     [(0.0, 0.0), (15.0, -30.0), (20.0, 0.0), (30.0, 30.0), (-4.0, 12.0), (3.0, -25.0)],
 )
 def test_marker_pitch_yaw_recover_set_angles(pitch_deg, yaw_deg):
-    env = LARSCaptureEnv(obs_mode="state")
+    env = TaskEnv(LARSCaptureTask, obs_mode="state")
     motion = {"pitch": math.radians(pitch_deg), "yaw": math.radians(yaw_deg)}
     _, info = env.reset(seed=0, options={"motion": motion})
     corners = info["true_corners"][:, [1, 0, 2]]  # eq. 6's y axis is our heading (+x)
@@ -142,7 +143,7 @@ def test_marker_pitch_yaw_recover_set_angles(pitch_deg, yaw_deg):
 
 
 def test_bad_motion_options_raise():
-    env = LARSCaptureEnv()
+    env = TaskEnv(LARSCaptureTask)
     with pytest.raises(ValueError, match="unknown motion option"):
         env.reset(seed=0, options={"motion": {"roll": 0.1}})
     with pytest.raises(ValueError, match="unknown reset option"):

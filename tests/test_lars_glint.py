@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 
 from auv_envs.core.camera import CameraIntrinsics, project_few
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.frames import GRAVITY
 from auv_envs.core.ops import FLOATS
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars.env import HARD_SEA, LARSCaptureEnv
+from auv_envs.tasks.lars.env import HARD_SEA, LARSCaptureTask
 from auv_envs.tasks.lars.sea import (
     GlintField,
     SunGlint,
@@ -147,7 +148,7 @@ def test_glint_grows_with_hs():
     # In the env: the same sun over a rougher sea sends more glints into the images.
     expected = []
     for hs in (0.2, 0.6):
-        env = LARSCaptureEnv(obs_mode="stereo", image_size=(160, 120), control="position",
+        env = TaskEnv(LARSCaptureTask, obs_mode="stereo", image_size=(160, 120), control="position",
                              sea=SeaSpectrum(hs, 7.0), glint=_sun_at(45.0, 90.0))
         _, info = env.reset(seed=4)
         expected.append(info["glint_expected"].sum())
@@ -157,7 +158,7 @@ def test_glint_grows_with_hs():
 
 # ---------------------------------------------------------------------- the env
 def _rollout(steps=20, **kwargs):
-    env = LARSCaptureEnv(control="position", **kwargs)
+    env = TaskEnv(LARSCaptureTask, control="position", **kwargs)
     obs, info = env.reset(seed=11)
     out = [obs]
     for _ in range(steps):
@@ -195,12 +196,12 @@ def test_off_draws_nothing():
 
 
 def test_paper_has_no_glint_and_bad_arguments():
-    assert LARSCaptureEnv(difficulty="paper").glint is None
-    assert LARSCaptureEnv().glint is None
+    assert TaskEnv(LARSCaptureTask, difficulty="paper").glint is None
+    assert TaskEnv(LARSCaptureTask).glint is None
     with pytest.raises(TypeError, match="glint"):
-        LARSCaptureEnv(glint="on")
+        TaskEnv(LARSCaptureTask, glint="on")
     with pytest.raises(ValueError, match="wind_speed"):
-        LARSCaptureEnv(glint=SunGlint())  # no sea, no wind
+        TaskEnv(LARSCaptureTask, glint=SunGlint())  # no sea, no wind
     with pytest.raises(ValueError, match="sun_elevation"):
         SunGlint(sun_elevation=(0.5, 2.0))
     with pytest.raises(ValueError, match="bloom"):
@@ -212,7 +213,7 @@ def test_features_corruption_rate_matches_the_model():
     probabilities (within 4 binomial standard deviations); the corrupted ones read as
     documented (near the corner, or lost)."""
     glint = _sun_at(85.0, 200.0, detector_radius=16.0, bloom=4)
-    env = LARSCaptureEnv(obs_mode="features", control="position", difficulty="hard",
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", control="position", difficulty="hard",
                          glint=glint)
     probability, corrupted = [], []
     for seed in (1, 2):
@@ -244,7 +245,8 @@ def test_stereo_glints_are_saturated_where_the_model_says():
     """Glints change only water pixels' neighbourhoods, to white; their number and place
     follow the model's mean map, computed here from the calibration's camera poses."""
     width, height = 160, 120
-    env = LARSCaptureEnv(obs_mode="stereo", image_size=(width, height), control="position",
+    env = TaskEnv(LARSCaptureTask,
+                  obs_mode="stereo", image_size=(width, height), control="position",
                          glint=_sun_at(80.0, 120.0, wind_speed=4.3))  # a still ship (no sea)
     obs, info = env.reset(seed=3)
     cal = env.calibration
@@ -287,7 +289,8 @@ def test_glitter_centres_on_the_suns_mirror_image():
     water point ``H tan(zenith)`` from the camera's nadir towards the sun's azimuth."""
     width, height = 160, 120
     elevation, azimuth = 65.0, 300.0
-    env = LARSCaptureEnv(obs_mode="stereo", image_size=(width, height), control="position",
+    env = TaskEnv(LARSCaptureTask,
+                  obs_mode="stereo", image_size=(width, height), control="position",
                          glint=_sun_at(elevation, azimuth, wind_speed=0.5))
     obs, info = env.reset(seed=8)
     cal = env.calibration
@@ -312,7 +315,7 @@ def test_glitter_centres_on_the_suns_mirror_image():
 
 
 def test_pickle_mid_episode_continues_identically():
-    env = LARSCaptureEnv(obs_mode="features", difficulty="hard", control="position",
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", difficulty="hard", control="position",
                          glint=_sun_at(85.0))
     _, info = env.reset(seed=5)
     for _ in range(5):

@@ -8,9 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.sea import WashOver, segments_cross_box
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 
 
 def test_segments_cross_box_cases():
@@ -43,7 +44,7 @@ def _count_in_rendered_episode(sea_state, seed, steps=150):
     """Frames (left image) where a crest hides the marker's paint, and frames
     with more red triangles than the one marker, counted from the pixels."""
     size = (160, 120)
-    env = LARSCaptureEnv(obs_mode="stereo", sea_state=sea_state, control="position",
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", sea_state=sea_state, control="position",
                          image_size=size)
     try:
         obs, info = env.reset(seed=seed)
@@ -80,7 +81,7 @@ def test_calm_sea_has_neither(seed):
 
 
 def test_severe_info_flags_match_geometry():
-    env = LARSCaptureEnv(obs_mode="features", sea_state="severe", control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", sea_state="severe", control="position")
     _, info = env.reset(seed=2)
     occluded = hidden_corner = 0
     for _ in range(200):

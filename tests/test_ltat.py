@@ -16,9 +16,10 @@ import pytest
 import torch
 
 from auv_envs.core.assets import sha256_file
+from auv_envs.core.env import TaskEnv
 from auv_envs.datasets.lars import tracking_action
 from auv_envs.metrics import box_iou
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 from baselines.evaluation import EVAL_SEED_BASE
 from baselines.lars.perception.corners import MarkerCornerExtractor
 from baselines.lars.perception.detector import OnlineDetector
@@ -66,7 +67,7 @@ def _rollout(seed, sea_state, steps, offset=(0.0, 0.0, 0.0), offset_from=0):
     """Stereo observations and infos with the exporter's privileged tracking arm,
     which moves ``offset`` (m, world) off its station from step ``offset_from`` on."""
     # (the default 30 s time limit is far beyond the <= 48 steps rolled out here)
-    env = LARSCaptureEnv(obs_mode="stereo", sea_state=sea_state, control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", sea_state=sea_state, control="position")
     try:
         obs, info = env.reset(seed=seed)
         out = [(obs, info)]
@@ -193,7 +194,7 @@ def test_front_end_finds_marker_from_first_frame_without_truth(calm_rollout):
 def test_marker_cut_by_one_image_border_gives_the_corners_seen_in_both():
     """Arm held still while the AUV drifts: the apex leaves the left image first
     (seed 100004, from step 2; the right image keeps all three corners)."""
-    env = LARSCaptureEnv(obs_mode="stereo", sea_state="calm", control="position")
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", sea_state="calm", control="position")
     try:
         obs, info = env.reset(seed=EVAL_SEED_BASE + 4)
         lo, hi = env.calibration.joint_limits.T
@@ -338,7 +339,7 @@ def test_ltat_ckf_pd_is_registered_for_stereo():
 def test_ltat_ckf_pd_builds_on_the_ckf_pd_agent():
     from baselines.lars.agents import CKFPDAgent
 
-    env = LARSCaptureEnv(obs_mode="stereo")
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo")
     try:
         assert "ckf-pd" in agent_names()  # a builtin: the inner agent must be there
         agent = make_agent("ltat-ckf-pd", env)
@@ -360,4 +361,4 @@ def test_front_end_rejects_wrong_images(calm_rollout):
     with pytest.raises(ValueError, match="obs_mode='stereo'"):
         from baselines.lars.agents import make_front_end
 
-        make_front_end(LARSCaptureEnv(obs_mode="features"))
+        make_front_end(TaskEnv(LARSCaptureTask, obs_mode="features"))

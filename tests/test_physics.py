@@ -4,7 +4,7 @@ The plant is MuJoCo's rigid body (classical RK4, one 0.1 s step per control
 period) plus the Fossen wrench of
 :class:`auv_envs.core.hydrodynamics.HullForceModel`, re-evaluated at every
 stage (``env.integrator``, :class:`auv_envs.core.plant.StagedIntegrator`) exactly as
-``DockingEnv.step`` does.
+``DockingTask.step`` does.
 Most tests drive the physics directly so that episode termination cannot
 interfere; instantaneous accelerations are read from ``qacc`` after a forward
 pass with the hull force. ``test_plant_convergence.py`` compares the plant with
@@ -50,7 +50,7 @@ def plant():
 
 
 def _substeps(env, tau6, n=1, current=(0.0, 0.0, 0.0)):
-    """``n`` physics steps exactly as ``DockingEnv.step`` does them."""
+    """``n`` physics steps exactly as ``DockingTask.step`` does them."""
     env.hull.command(tuple(float(t) for t in tau6), tuple(float(c) for c in current))
     env.integrator.step(n)
 

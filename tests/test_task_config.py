@@ -33,8 +33,9 @@ def test_params_without_an_environment_are_the_environments(env_id, monkeypatch)
     module = config_module(env_id)
     config = module.default_config(env_id).replace(difficulty="hard")
     env = gym.make(env_id, difficulty="hard").unwrapped
-    # No Gymnasium environment may be built on the way.
+    # No Gymnasium environment, nor the task it runs, may be built on the way.
     monkeypatch.setattr(type(env), "__init__", _refuse)
+    monkeypatch.setattr(type(env.task), "__init__", _refuse)
     setup = module.params(config)
     assert setup.config == env.setup.config
     assert setup.observation_space == env.observation_space
@@ -94,7 +95,7 @@ def test_the_batched_env_builds_no_gymnasium_env(env_id, monkeypatch):
     from auv_envs.batched.functional import FunctionalEnv
 
     entry = family(env_id)
-    module, name = entry.entry_point.split(":")
+    module, name = entry.task.split(":")
     monkeypatch.setattr(getattr(importlib.import_module(module), name), "__init__", _refuse)
     env = FunctionalEnv(env_id, difficulty="paper")
     assert env.task.setup.config == entry.setup(obs_mode=env.obs_mode,

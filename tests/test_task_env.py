@@ -1,4 +1,5 @@
-"""The episode loop every task shares (auv_envs.core.env.TaskEnv), on a toy task.
+"""The one Gymnasium env (auv_envs.core.env.TaskEnv) and the task protocol it runs
+(CPUTask), on a toy task.
 
 The toy task moves a point along a line by the action; its terms are a
 progress reward and a constant cost, it succeeds within 0.1 of the goal and
@@ -8,13 +9,15 @@ pinned by their seeded rollouts (test_envs_generic.py, test_difficulty.py).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import pickle
 
 import numpy as np
 import pytest
 from gymnasium import spaces
 
-from auv_envs.core.env import ActionValidator, TaskEnv
+from auv_envs.core.env import CPUTask, TaskEnv
 
 PRESETS = {"easy": {}, "paper": {"noise": 0.1}, "hard": {"noise": 0.3}}
 
@@ -27,8 +30,8 @@ class _Episode:
     path: float = 0.0
 
 
-class Line(TaskEnv):
-    metadata = {"render_modes": ["rgb_array"]}
+class LineTask(CPUTask):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
     obs_modes = ("state",)
     reward_terms = ("progress", "cost")
     metric_keys = ("distance",)
@@ -45,41 +48,44 @@ class Line(TaskEnv):
         self.physics = None
         self.dt, self.max_episode_steps = 1.0, max_steps
         self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
-        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(1,), dtype=np.float32)
         self.canvas = _Canvas()
         self._episode = _Episode()
 
     def _begin_episode(self, rng, options):
         self._episode = _Episode(position=float(rng.uniform(-0.5, 0.5)))
-        return self._truth(), {"start": self._episode.position}
+        return self.truth_now(), {"start": self._episode.position}
 
-    def _simulate(self, action):
+    def simulate(self, action):
         self._episode.position += float(action[0])
         self._episode.path += abs(float(action[0]))
         self._episode.steps += 1
-        return self._truth()
+        return self.truth_now()
 
-    def _assess(self, truth, action):
+    def assess(self, truth, action):
         before = truth["distance"] + abs(float(action[0]))
         terms = {"progress": before - truth["distance"], "cost": -0.5}
         return terms, truth["distance"] < 0.1 or truth["distance"] > 5.0
 
-    def _observation(self, truth):
+    def observe(self, truth):
         return np.array([self._episode.position], dtype=np.float32)
 
-    def _info(self, truth):
+    def step_info(self, truth):
         return {"distance": truth["distance"]}
 
-    def _truth(self):
+    def truth_now(self):
         return {"distance": abs(self.calibration["goal"] - self._episode.position)}
 
-    def _episode_metrics(self, truth):
+    def summarise(self, truth):
         return {"steps": self._episode.steps, "path": self._episode.path,
                 "final_distance": truth["distance"]}
 
-    def _render_frame(self):
+    def render_frame(self):
         return np.zeros((4, 4, 3), dtype=np.uint8)
+
+
+def Line(**arguments) -> TaskEnv:  # noqa: N802  (reads as the env it builds)
+    return TaskEnv(LineTask, **arguments)
 
 
 class _Canvas:
@@ -165,11 +171,11 @@ def test_difficulty_presets_resolve_and_explicit_keywords_win():
     assert Line(difficulty="paper").difficulty == "paper"
     with pytest.raises(ValueError, match="difficulty"):
         Line(difficulty="medium")
-    preset = Line.preset("hard")
+    preset = LineTask.preset("hard")
     preset["noise"] = 9.0  # a copy: the class's preset is untouched
-    assert Line.preset("hard") == {"noise": 0.3}
+    assert LineTask.preset("hard") == {"noise": 0.3}
     with pytest.raises(ValueError, match="difficulty"):
-        Line.preset("medium")
+        LineTask.preset("medium")
 
 
 def test_unknown_keyword_is_refused():
@@ -180,7 +186,7 @@ def test_unknown_keyword_is_refused():
 def _task(**attributes):
     body = {"obs_modes": ("state",), "reward_terms": ("r",), "metric_keys": ("m",),
             "difficulty_presets": PRESETS, **attributes}
-    return type("Task", (TaskEnv,), body)
+    return type("Task", (CPUTask,), body)
 
 
 @pytest.mark.parametrize("name", ["obs_modes", "reward_terms", "metric_keys"])
@@ -202,3 +208,35 @@ def test_a_task_must_declare_all_three_levels():
 def test_a_task_without_its_hooks_cannot_be_built():
     with pytest.raises(TypeError, match="abstract"):
         _task()()
+
+
+def test_the_env_runs_a_task_named_by_its_path_and_refuses_others():
+    env = TaskEnv(f"{__name__}:LineTask", max_steps=4)
+    assert isinstance(env.task, LineTask) and env.max_episode_steps == 4
+    assert env.metadata["render_fps"] == 10
+    with pytest.raises(ValueError, match="no task"):
+        TaskEnv(f"{__name__}:NoSuchTask")
+    with pytest.raises(TypeError, match="CPUTask"):
+        TaskEnv(dict)
+
+
+def test_the_tasks_attributes_read_through_the_env():
+    env = Line(difficulty="hard")
+    assert env.noise == 0.3 and env.calibration == {"goal": 1.0}
+    with pytest.raises(AttributeError, match="colour"):
+        env.colour  # noqa: B018
+
+
+def test_a_pickled_env_goes_on_as_the_original():
+    env = Line(max_steps=50)
+    env.reset(seed=5)
+    env.step(np.array([0.1], np.float32))
+    twin = pickle.loads(pickle.dumps(env))
+    same = copy.deepcopy(env)
+    for other in (twin, same):
+        assert other.np_random is other.task.rng  # one generator: the env's and the episode's
+    action = np.array([0.2], np.float32)
+    first = [env.step(action)[:2] for _ in range(3)]
+    assert [twin.step(action)[:2] for _ in range(3)] == first
+    assert [same.step(action)[:2] for _ in range(3)] == first
+    assert twin.reset()[0] == env.reset()[0]  # the generator's state travelled too

@@ -34,7 +34,7 @@ def test_registered_length_is_the_default_time_limit(env_id):
 def _default_time_limit(env_id: str) -> float:
     import inspect
 
-    return inspect.signature(auv_envs.env_class(env_id)).parameters["time_limit"].default
+    return inspect.signature(auv_envs.task_class(env_id)).parameters["time_limit"].default
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

@@ -12,10 +12,11 @@ from scipy.integrate import trapezoid
 from scipy.signal import welch
 
 from auv_envs.core.camera import points_in_camera, project
+from auv_envs.core.env import TaskEnv
 from auv_envs.core.ops import FLOATS
 from auv_envs.core.sea import heave
 from auv_envs.datasets.lars import tracking_action
-from auv_envs.tasks.lars.env import LARSCaptureEnv
+from auv_envs.tasks.lars.env import LARSCaptureTask
 from auv_envs.tasks.lars.scene import AUV_DIAMETER, AUV_FREEBOARD
 from auv_envs.tasks.lars.sea import (
     AUV_RESPONSE,
@@ -206,8 +207,8 @@ def _leaves(x):
 
 @pytest.mark.parametrize("obs_mode", ["state", "features"])
 def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
-    plain = LARSCaptureEnv(obs_mode=obs_mode, control="position")
-    none = LARSCaptureEnv(obs_mode=obs_mode, control="position", sea=None)
+    plain = TaskEnv(LARSCaptureTask, obs_mode=obs_mode, control="position")
+    none = TaskEnv(LARSCaptureTask, obs_mode=obs_mode, control="position", sea=None)
     a, b = _rollout(plain, 7), _rollout(none, 7)
     for (oa, ra, ia), (ob, rb, ib) in zip(a, b, strict=True):
         for x, y in zip(_leaves(oa), _leaves(ob), strict=True):
@@ -233,13 +234,14 @@ def test_default_is_the_sinusoid_bit_identical_without_extra_draws(obs_mode):
     for _ in range(len(b) if obs_mode == "features" else 0):
         rng.normal(0.0, 1.0, 12)
     assert none.np_random.bit_generator.state == rng.bit_generator.state
-    sea = LARSCaptureEnv(obs_mode=obs_mode, control="position", sea=MODERATE)
+    sea = TaskEnv(LARSCaptureTask, obs_mode=obs_mode, control="position", sea=MODERATE)
     _rollout(sea, 7)
     assert sea.np_random.bit_generator.state != rng.bit_generator.state
 
 
 def test_ship_motion_moves_the_cameras_and_the_auv_rolls():
-    env = LARSCaptureEnv(obs_mode="features", control="position", sea=SeaSpectrum(1.0, 7.0))
+    env = TaskEnv(LARSCaptureTask,
+                  obs_mode="features", control="position", sea=SeaSpectrum(1.0, 7.0))
     cal = env.calibration
     _, info = env.reset(seed=2, options={"wave_heading": math.pi / 2})
     shift_px, rolls, ship_roll = [], [], []
@@ -265,7 +267,7 @@ def test_ship_motion_moves_the_cameras_and_the_auv_rolls():
 def test_rendered_marker_follows_the_sea():
     """The rendered stereo image (AUV posed with roll and pitch, head on the moving
     ship) shows the marker where the env's geometry projects it."""
-    env = LARSCaptureEnv(obs_mode="stereo", control="position", image_size=(160, 120),
+    env = TaskEnv(LARSCaptureTask, obs_mode="stereo", control="position", image_size=(160, 120),
                          sea=SeaSpectrum(1.0, 7.0))
     obs, info = env.reset(seed=2, options={"wave_heading": math.pi / 2})
     for k in range(41):
@@ -281,7 +283,8 @@ def test_rendered_marker_follows_the_sea():
 
 
 def test_sea_info_and_calibration():
-    env = LARSCaptureEnv(obs_mode="features", sea_state="severe", sea=SeaSpectrum(1.0, 7.0))
+    env = TaskEnv(LARSCaptureTask,
+                  obs_mode="features", sea_state="severe", sea=SeaSpectrum(1.0, 7.0))
     _, info = env.reset(seed=0)
     sea = info["sea"]
     assert sea["components"] == env.calibration.sea.n_components
@@ -289,7 +292,7 @@ def test_sea_info_and_calibration():
     assert sea["wash_period"] is not None and 0 <= sea["wave_heading"] < 2 * math.pi
     assert env.calibration.sea.spectrum == SeaSpectrum(1.0, 7.0)
     assert env.calibration.sea.auv == AUV_RESPONSE
-    assert LARSCaptureEnv().calibration.sea is None
+    assert TaskEnv(LARSCaptureTask).calibration.sea is None
 
 
 # ------------------------------------------------------------------ errors, pickling
@@ -310,11 +313,11 @@ def test_bad_inputs_raise():
     with pytest.raises(ValueError, match="band"):
         WaveRealisation.sample(MODERATE, rng, band=(2.0, 1.0), xp=np)
     with pytest.raises(ValueError, match="sea"):
-        LARSCaptureEnv(sea="severe")
+        TaskEnv(LARSCaptureTask, sea="severe")
     with pytest.raises(ValueError, match="wave_heading"):
-        LARSCaptureEnv().reset(seed=0, options={"wave_heading": 0.0})
+        TaskEnv(LARSCaptureTask).reset(seed=0, options={"wave_heading": 0.0})
     with pytest.raises(ValueError, match="wave_heading"):
-        LARSCaptureEnv(sea=MODERATE).reset(seed=0, options={"wave_heading": math.inf})
+        TaskEnv(LARSCaptureTask, sea=MODERATE).reset(seed=0, options={"wave_heading": math.inf})
     with pytest.raises(ValueError):
         sea_state_code(-1.0)
     with pytest.raises(ValueError):
@@ -328,7 +331,7 @@ def test_pickling_round_trips():
     copy = pickle.loads(pickle.dumps(waves))
     np.testing.assert_array_equal(copy.elevation(np.arange(5.0)), waves.elevation(np.arange(5.0)))
     assert pickle.loads(pickle.dumps(MODERATE)) == MODERATE
-    env = LARSCaptureEnv(obs_mode="features", sea_state="severe", control="position",
+    env = TaskEnv(LARSCaptureTask, obs_mode="features", sea_state="severe", control="position",
                          sea=MODERATE)
     env.reset(seed=4)
     action = np.full(3, 0.1, dtype=np.float32)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import abc
 import copy
 import dataclasses
+import importlib
 import math
 import sys
 from collections.abc import Iterable
@@ -152,12 +153,12 @@ def set_physics_state(model: mujoco.MjModel, data: mujoco.MjData, state: np.ndar
 
 
 class ReconstructingPickleMixin:
-    """Pickle an env as its constructor arguments plus its explicit run-time state.
+    """Pickle a task as its constructor arguments plus its explicit run-time state.
 
     The class must record its arguments in ``__init__`` with
     :meth:`_accept_arguments` (or set ``self._init_kwargs``). The run-time
     state is, by default, MuJoCo's integration state of ``self.physics``
-    (an object with ``model`` and ``data``) plus a deep copy of
+    (an object with ``model`` and ``data``, or None) plus a deep copy of
     ``self._episode`` (everything else that changes during an episode); a
     class that keeps more overrides ``_get_runtime_state()`` /
     ``_set_runtime_state(state)`` and calls these. MuJoCo models, data and
@@ -190,21 +191,22 @@ class ReconstructingPickleMixin:
     def _get_runtime_state(self) -> dict:
         physics = self.physics
         return {
-            "physics": get_physics_state(physics.model, physics.data),
+            "physics": None if physics is None else get_physics_state(physics.model,
+                                                                      physics.data),
             "episode": copy.deepcopy(self._episode),
         }
 
     def _set_runtime_state(self, state: dict) -> None:
         physics = self.physics
-        set_physics_state(physics.model, physics.data, state["physics"])
+        if physics is not None:
+            set_physics_state(physics.model, physics.data, state["physics"])
         self._episode = copy.deepcopy(state["episode"])
 
     def __getstate__(self):
-        rng = getattr(self, "_np_random", None)
+        rng = getattr(self, "rng", None)
         return {
             "init_kwargs": dict(self._init_kwargs),
             "rng_state": None if rng is None else rng.bit_generator.state,
-            "rng_seed": getattr(self, "_np_random_seed", None),
             "runtime": self._get_runtime_state(),
         }
 
@@ -213,21 +215,18 @@ class ReconstructingPickleMixin:
         if state["rng_state"] is not None:
             rng = np.random.Generator(np.random.PCG64())
             rng.bit_generator.state = state["rng_state"]
-            self._np_random = rng
-            self._np_random_seed = state["rng_seed"]
+            self.rng = rng
         self._set_runtime_state(state["runtime"])
 
 
 @dataclasses.dataclass
 class ShellEpisode:
-    """A Gymnasium shell's hold on an episode of a task's transition: its typed state and
-    what the transition's last call returned (the observation, the judgement) for the
-    hooks of :class:`TaskEnv`; ``done`` is the loop's."""
+    """A task's hold on an episode of its transition: its typed state and what the
+    transition's last call returned (the observation, the judgement) for its hooks."""
 
     state: Any = None
     obs: Any = None
     judged: Any = None
-    done: bool = False
 
     @property
     def steps(self) -> int:
@@ -237,8 +236,12 @@ class ShellEpisode:
 _REQUIRED_CLASS_ATTRIBUTES = ("obs_modes", "reward_terms", "metric_keys")
 
 
-class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
-    """The episode loop of every ``auv_envs`` task; a task supplies the hooks.
+class CPUTask(ReconstructingPickleMixin, abc.ABC):
+    """A task family on the CPU: what the one Gymnasium env, :class:`TaskEnv`, runs.
+
+    The design is dm_control's (one ``Environment`` running a ``Task``'s hooks): a task
+    is everything that makes the family that family (its model, plant, renderers, its
+    observation, info and summary), the env the loop around it, written once.
 
     **What a task declares** (checked when the class is defined):
     ``obs_modes`` (the ``obs_mode`` values it offers, the first the default),
@@ -248,38 +251,36 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     keywords each level of :mod:`auv_envs.core.difficulty` sets; the shipped
     families resolve ``difficulty`` in their configuration's ``params``
     (``auv_envs/tasks/<family>/config.py``), a new task may with
-    :meth:`_apply_difficulty`). Its ``__init__`` records its arguments
-    (:meth:`_accept_arguments`) and sets ``calibration`` (what an agent may
-    know), ``physics`` (the MuJoCo model and data with named accessors),
-    ``action_space``,
-    ``observation_space``, ``dt`` and ``max_episode_steps``, and ``_episode``
-    (everything else an episode changes, with ``steps`` and ``done``).
+    :meth:`_apply_difficulty`), ``metadata`` (Gymnasium's: ``render_modes``,
+    ``render_fps``). Its ``__init__`` takes the env's arguments (``render_mode``
+    among them), records them (:meth:`_accept_arguments`) and sets ``calibration``
+    (what an agent may know), ``physics`` (the MuJoCo model and data with named
+    accessors), ``action_space``, ``observation_space``, ``dt``,
+    ``max_episode_steps`` and ``_episode`` (everything else an episode changes, with
+    ``steps``).
 
     **Hooks** (the truth is a dict the task computes once a step and shares
     between them):
 
-    * :meth:`_begin_episode` ``(rng, options) -> (truth, extras)``: draw the
-      episode from ``rng``, place the physics; ``extras`` are added to the
-      reset ``info``.
-    * :meth:`_simulate` ``(action) -> truth``: one control period (counts
+    * :meth:`begin_episode` ``(rng, options) -> (truth, extras)``: draw the
+      episode from ``rng`` (held as :attr:`rng` for the episode's later draws),
+      place the physics; ``extras`` are added to the reset ``info``.
+    * :meth:`simulate` ``(action) -> truth``: one control period (counts
       ``_episode.steps``); by default one step of the task's ``transition``
       (:mod:`auv_envs.core.task`) from the plant's MuJoCo data, the action as
-      :meth:`_command` gives it.
-    * :meth:`_assess` ``(truth, action) -> (terms, terminated)``: the reward
+      :meth:`command` gives it.
+    * :meth:`assess` ``(truth, action) -> (terms, terminated)``: the reward
       terms (a dict in ``reward_terms`` order) and whether the episode ended
       in success or failure; by default the transition's judgement.
-    * :meth:`_observation` ``(truth)``, :meth:`_info` ``(truth)`` (without
-      the reward terms, which the loop adds), :meth:`_episode_metrics`
-      ``(truth)``, :meth:`_truth` ``()`` (the truth now, for
-      :meth:`episode_metrics`), :meth:`_render_frame` ``()``.
+    * :meth:`observe` ``(truth)``, :meth:`step_info` ``(truth)`` (without
+      the reward terms, which the loop adds), :meth:`summarise`
+      ``(truth)``, :meth:`truth_now` ``()`` (the truth now, for the summary
+      of an episode cut short), :meth:`render_frame` ``()``.
 
-    The loop: ``step`` validates the action (finite values outside the
-    space are clipped, NaN or inf raise ``ValueError``), refuses to run
-    after the episode ended, sums the terms in order, truncates after
-    ``max_episode_steps`` and puts ``episode_metrics`` in the last step's
-    ``info``. ``close`` closes the attributes named in ``_closeables``.
+    ``close`` closes the attributes named in ``_closeables``.
     """
 
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 30}
     obs_modes: ClassVar[tuple[str, ...]]
     reward_terms: ClassVar[tuple[str, ...]]
     metric_keys: ClassVar[tuple[str, ...]]
@@ -289,10 +290,13 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     #: The task's plant on the CPU (the transition's ``Backend.plant``).
     _plant: Any = None
     #: The task's transition (``auv_envs/tasks/<family>/transition.py``), which
-    #: :meth:`_simulate` steps.
+    #: :meth:`simulate` steps.
     transition: ClassVar[Any] = None
     #: :meth:`_backend`'s last value (rebuilt when the generator changes).
     _backend_cache: Backend | None = None
+    #: The episode's generator (given to :meth:`begin_episode`; None before the first).
+    rng: np.random.Generator | None = None
+    render_mode: str | None = None
 
     #: What an agent may know about the task (camera, layout, nominal model...), read-only.
     calibration: Any
@@ -302,6 +306,8 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
     dt: float
     #: Steps of an episode that runs to its time limit.
     max_episode_steps: int
+    observation_space: spaces.Space
+    action_space: spaces.Space
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -315,7 +321,6 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
         if not isinstance(presets, dict):
             raise TypeError(f"{cls.__name__}.difficulty_presets must be a dict of levels")
         levels.check_presets(presets)
-        cls._reward_keys = tuple(f"reward_{name}" for name in cls.reward_terms)
 
     @classmethod
     def preset(cls, level: str) -> dict[str, Any]:
@@ -331,40 +336,6 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
         self.difficulty = difficulty
         return resolved
 
-    # ------------------------------------------------------------------ the loop
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
-        truth, extras = self._begin_episode(self.np_random, options)
-        obs = self._observation(truth)
-        info = self._info(truth)
-        for key in self._reward_keys:
-            info[key] = 0.0
-        info.update(extras)
-        return obs, info
-
-    def step(self, action):
-        a = self._validate_action(action)
-        ep = self._episode
-        if ep.done:
-            raise RuntimeError("step() called after the episode ended; call reset()")
-        truth = self._simulate(a)
-        terms, terminated = self._assess(truth, a)
-        reward = float(task.reward(terms))
-        truncated = bool(task.truncated(terminated, ep.steps, self.max_episode_steps, FLOATS))
-        ep.done = terminated or truncated
-        obs = self._observation(truth)
-        info = self._info(truth)
-        for key, value in zip(self._reward_keys, terms.values(), strict=True):
-            info[key] = float(value)
-        if ep.done:
-            info["episode_metrics"] = self._episode_metrics(truth)
-        return obs, reward, terminated, truncated, info
-
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        return self._render_frame()
-
     def close(self):
         for name in self._closeables:
             closeable = getattr(self, name, None)
@@ -372,16 +343,8 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
                 closeable.close()
             setattr(self, name, None)
 
-    def episode_metrics(self) -> dict:
-        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
-
-        Read by :class:`EpisodeSummary` when a time limit outside the env
-        (``gym.make(..., max_episode_steps=N)``) truncates the episode.
-        """
-        return self._episode_metrics(self._truth())
-
     def _backend(self, rng: np.random.Generator) -> Backend:
-        """The CPU backend of the task's transition: Python floats, ``rng`` (the env's
+        """The CPU backend of the task's transition: Python floats, ``rng`` (the episode's
         generator) and ``_plant``; built once per generator."""
         backend = self._backend_cache
         if backend is None or backend.draws is not rng:
@@ -389,49 +352,203 @@ class TaskEnv(ReconstructingPickleMixin, gym.Env, abc.ABC):
         return backend
 
     # ------------------------------------------------------------------ the hooks
+    def begin_episode(self, rng: np.random.Generator, options: dict | None) -> tuple[dict, dict]:
+        """Draw a new episode from ``rng``; return its first truth and extra reset info.
+        Holds ``rng`` as :attr:`rng` and calls :meth:`_begin_episode`."""
+        self.rng = rng
+        return self._begin_episode(rng, options)
+
     @abc.abstractmethod
     def _begin_episode(self, rng: np.random.Generator, options: dict | None) -> tuple[dict, dict]:
-        """Draw a new episode from ``rng``; return its first truth and extra reset info."""
+        """The family's start of an episode (:meth:`begin_episode`)."""
 
-    def _simulate(self, action: np.ndarray) -> dict:
+    def simulate(self, action: np.ndarray) -> dict:
         """Apply the (validated) action for one control period; return the truth after it:
         the task's ``transition.step`` from the plant's state (the physics' MuJoCo data),
         its episode state, observation and judgement kept in ``_episode``."""
         ep = self._episode
         stepped = self.transition.step(self.params, self.physics.data, ep.state,
-                                       self._command(action), self._backend(self.np_random))
+                                       self.command(action), self._backend(self.rng))
         ep.state, ep.obs, ep.judged = stepped.episode, stepped.obs, stepped.judged
         return stepped.truth
 
-    def _command(self, action: np.ndarray):
+    def command(self, action: np.ndarray):
         """The validated action as the transition takes it (the array itself)."""
         return action
 
-    def _assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
+    def assess(self, truth: dict, action: np.ndarray) -> tuple[dict, bool]:
         """The reward terms (in ``reward_terms`` order) and whether the episode terminated:
         the transition's judgement of the step."""
         judged = self._episode.judged
         return judged.terms, judged.terminated
 
     @abc.abstractmethod
-    def _observation(self, truth: dict):
+    def observe(self, truth: dict):
         """The observation of ``obs_mode``."""
 
     @abc.abstractmethod
-    def _info(self, truth: dict) -> dict:
+    def step_info(self, truth: dict) -> dict:
         """The step's ``info`` without the reward terms."""
 
     @abc.abstractmethod
-    def _truth(self) -> dict:
-        """The truth now (for :meth:`episode_metrics`)."""
+    def truth_now(self) -> dict:
+        """The truth now (for the summary of an episode cut short)."""
 
     @abc.abstractmethod
-    def _episode_metrics(self, truth: dict) -> dict:
+    def summarise(self, truth: dict) -> dict:
         """The episode's summary."""
 
     @abc.abstractmethod
-    def _render_frame(self):
+    def render_frame(self):
         """The ``render_mode="rgb_array"`` frame."""
+
+
+def load_task(task) -> type[CPUTask]:
+    """``task`` (a :class:`CPUTask` subclass, or its ``"module:Class"`` path) as a class."""
+    if isinstance(task, str):
+        module, _, name = task.partition(":")
+        try:
+            task = getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise ValueError(f"no task {task!r}: {exc}") from exc
+    if not (isinstance(task, type) and issubclass(task, CPUTask)):
+        raise TypeError(f"task must be a CPUTask subclass or its 'module:Class' path, "
+                        f"got {task!r}")
+    return task
+
+
+class TaskEnv(gym.Env):
+    """The Gymnasium environment of every ``auv_envs`` task: one class, the task its part.
+
+    ``gym.make("auv_envs/DockingStation-v2", ...)`` builds
+    ``TaskEnv(task="auv_envs.tasks.docking.env:DockingStationTask", ...)`` (the family
+    table, :data:`auv_envs.families.FAMILIES`, names each id's task); any other
+    :class:`CPUTask` runs the same way, ``TaskEnv(MyTask, **arguments)``.
+
+    Args:
+        task: the task's class (a :class:`CPUTask`) or its ``"module:Class"`` path.
+        render_mode: None or ``"rgb_array"``.
+        **arguments: the task's arguments (its class's docstring lists them).
+
+    The loop: ``step`` validates the action (finite values outside the space are
+    clipped, NaN or inf raise ``ValueError``), refuses to run after the episode ended,
+    sums the terms in order, truncates after ``max_episode_steps`` and puts the episode's
+    summary in the last step's ``info["episode_metrics"]``. The task is :attr:`task`;
+    its own attributes and methods (``physics``, ``lights_in_view()``, ``plot``...) are
+    read through the env as well (``env.unwrapped.physics`` is
+    ``env.unwrapped.task.physics``). Pickled as the task's arguments and its episode.
+    """
+
+    metadata = CPUTask.metadata
+
+    def __init__(self, task, render_mode: str | None = None, **arguments):
+        task_class = load_task(task)
+        self._adopt(task_class(render_mode=render_mode, **arguments))
+
+    def _adopt(self, task_: CPUTask) -> None:
+        """Run ``task_``: its spaces, metadata and render mode become the env's."""
+        #: The task this env runs (a :class:`CPUTask`).
+        self.task = task_
+        self.metadata = task_.metadata
+        self.render_mode = task_.render_mode
+        self.observation_space = task_.observation_space
+        self.action_space = task_.action_space
+        self._validate_action = ActionValidator(self.action_space)
+        self._reward_keys = tuple(f"reward_{name}" for name in task_.reward_terms)
+        self._done = False
+
+    def __getattr__(self, name: str):
+        # The task's attributes, read through the env (class docstring); only reached for
+        # names the env itself lacks.
+        if name == "task" or name.startswith("__"):
+            raise AttributeError(name)
+        try:
+            return getattr(self.task, name)
+        except AttributeError:
+            raise AttributeError(f"{type(self).__name__} (task {type(self.task).__name__}) "
+                                 f"has no attribute {name!r}") from None
+
+    # The contract every task keeps, named here for tools that read the class.
+    @property
+    def calibration(self):
+        """What an agent may know about the task (camera, layout, nominal model...)."""
+        return self.task.calibration
+
+    @property
+    def dt(self) -> float:
+        """Control period, s (one env step)."""
+        return self.task.dt
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Steps of an episode that runs to its time limit."""
+        return self.task.max_episode_steps
+
+    # ------------------------------------------------------------------ the loop
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        truth, extras = self.task.begin_episode(self.np_random, options)
+        self._done = False
+        obs = self.task.observe(truth)
+        info = self.task.step_info(truth)
+        for key in self._reward_keys:
+            info[key] = 0.0
+        info.update(extras)
+        return obs, info
+
+    def step(self, action):
+        a = self._validate_action(action)
+        if self._done:
+            raise RuntimeError("step() called after the episode ended; call reset()")
+        task_ = self.task
+        truth = task_.simulate(a)
+        terms, terminated = task_.assess(truth, a)
+        reward = float(task.reward(terms))
+        truncated = bool(task.truncated(terminated, task_._episode.steps,
+                                        task_.max_episode_steps, FLOATS))
+        self._done = terminated or truncated
+        obs = task_.observe(truth)
+        info = task_.step_info(truth)
+        for key, value in zip(self._reward_keys, terms.values(), strict=True):
+            info[key] = float(value)
+        if self._done:
+            info["episode_metrics"] = task_.summarise(truth)
+        return obs, reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return self.task.render_frame()
+
+    def close(self):
+        self.task.close()
+
+    def episode_metrics(self) -> dict:
+        """The episode's summary so far: what ``info["episode_metrics"]`` holds at its end.
+
+        Read by :class:`EpisodeSummary` when a time limit outside the env
+        (``gym.make(..., max_episode_steps=N)``) truncates the episode.
+        """
+        return self.task.summarise(self.task.truth_now())
+
+    def __getstate__(self):
+        rng = self._np_random
+        return {"task": self.task, "done": self._done, "spec": self.spec,
+                "rng_state": None if rng is None else rng.bit_generator.state,
+                "rng_seed": self._np_random_seed}
+
+    def __setstate__(self, state):
+        task_ = state["task"]
+        self._adopt(task_)
+        self._done, self.spec = state["done"], state["spec"]
+        if state["rng_state"] is not None:
+            if task_.rng is not None and task_.rng.bit_generator.state == state["rng_state"]:
+                self._np_random = task_.rng  # one generator, the env's and the episode's
+            else:
+                rng = np.random.Generator(np.random.PCG64())
+                rng.bit_generator.state = state["rng_state"]
+                self._np_random = rng
+            self._np_random_seed = state["rng_seed"]
 
 
 class EpisodeSummary(gym.Wrapper, gym.utils.RecordConstructorArgs):

@@ -44,13 +44,14 @@ import cv2
 import numpy as np
 
 from auv_envs.core.camera import points_in_camera, project
-from auv_envs.tasks.lars.env import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureEnv
+from auv_envs.core.env import TaskEnv
+from auv_envs.tasks.lars.env import CAMERA_MOUNT_IN_END, CONTROL_PERIOD, LARSCaptureTask
 from auv_envs.tasks.lars.scene import auv_rotation
 
 FORMAT_VERSION = 1
 
 
-def tracking_action(env: LARSCaptureEnv, info: dict, wander=(0.0, 0.0, 0.0)) -> np.ndarray:
+def tracking_action(env: TaskEnv, info: dict, wander=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Position-control action: arm end ``0.8 m + wander`` above the AUV, cameras over it.
 
     Privileged (uses ``info["true_position"]``): for data generation and
@@ -68,7 +69,7 @@ def tracking_action(env: LARSCaptureEnv, info: dict, wander=(0.0, 0.0, 0.0)) -> 
     return np.clip((2.0 * q - lo - hi) / (hi - lo), -1.0, 1.0).astype(np.float32)
 
 
-def auv_bounding_boxes(env: LARSCaptureEnv, info: dict, q) -> np.ndarray:
+def auv_bounding_boxes(env: TaskEnv, info: dict, q) -> np.ndarray:
     """AUV boxes (2, 4) in the left and right images: the projected hull box, clipped."""
     cal = env.unwrapped.calibration
     half_l, r = cal.auv_length / 2.0, cal.auv_diameter / 2.0
@@ -99,7 +100,7 @@ def export_sequence(
     out_dir = Path(out_dir)
     (out_dir / "left").mkdir(parents=True, exist_ok=True)
     (out_dir / "right").mkdir(parents=True, exist_ok=True)
-    env = LARSCaptureEnv(
+    env = TaskEnv(LARSCaptureTask,
         obs_mode="stereo", sea_state=sea_state, control="position",
         image_size=tuple(image_size), time_limit=max(steps, 1) * CONTROL_PERIOD + 1.0,
         difficulty=difficulty,

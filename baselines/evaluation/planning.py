@@ -26,7 +26,7 @@ def env_parameters(env_id: str) -> tuple[str, ...]:
     Raises:
         KeyError: ``env_id`` is not registered with Gymnasium.
     """
-    params = inspect.signature(auv_envs.env_class(env_id)).parameters.values()
+    params = inspect.signature(auv_envs.task_class(env_id)).parameters.values()
     return tuple(p.name for p in params
                  if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "obs_mode")
 

@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 import auv_envs
+from auv_envs.core.env import TaskEnv
 from baselines.evaluation.episodes import EpisodeRow, is_number
 from baselines.stats import RANK_METRICS, bootstrap_interval, wilson_interval
 
@@ -101,10 +102,10 @@ def bound_rows(summary: Sequence[Mapping]) -> list[dict]:
         if key in seen or not seeds.get(key):
             continue
         seen.add(key)
-        cls = auv_envs.env_class(row["env_id"])
+        cls = auv_envs.task_class(row["env_id"])
         if not hasattr(cls, "trajectory_bound"):
             continue
-        env = cls(**row["env_kwargs"])
+        env = TaskEnv(cls, **row["env_kwargs"])
         try:
             values = []
             for seed in sorted(seeds[key]):

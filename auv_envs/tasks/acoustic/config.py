@@ -5,9 +5,10 @@ gives ``auv_envs/AcousticTracking-v2``'s configuration (or a superseded version'
 frozen :class:`AcousticTrackingConfig`, changed with ``replace``), and :func:`params`
 builds from it everything the configuration fixes (a frozen :class:`AcousticSetup`: the
 tank's model, what an agent may know, the transition's parameters and the spaces),
-checking every value. The Gymnasium environment
-(:class:`auv_envs.tasks.acoustic.env.AcousticTrackingEnv`) and the task on JAX
-(:class:`auv_envs.tasks.acoustic.jax_task.AcousticJax`) are both built from a setup.
+checking every value. The task on the CPU
+(:class:`auv_envs.tasks.acoustic.env.AcousticTrackingTask`, which the one Gymnasium env
+runs) and the task on JAX (:class:`auv_envs.tasks.acoustic.jax_task.AcousticJax`) are
+both built from a setup.
 """
 
 from __future__ import annotations
@@ -259,7 +260,7 @@ def params(config: AcousticTrackingConfig) -> AcousticSetup:
         dt=dt, horizon=horizon, array=array,
         source_offset=physics.source_offset(NOMINAL_POSTURE),
         error_clip=float(config.error_clip), track_gate=float(config.track_gate),
-        success_radius=float(config.success_radius), noise_draws=config.noise_draws,
+        success_radius=float(config.success_radius),
         planner=config.planner,
         draw_detections=config.draw_detections or config.obs_mode == "measurements")
     action_space = spaces.Box(low.astype(np.float32), high.astype(np.float32),

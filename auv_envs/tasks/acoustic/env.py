@@ -6,8 +6,8 @@ carrier and disturbed by the current, is heard by eight hydrophone nodes. The
 agent estimates the end effector's position from the multi-band detection
 sets (:mod:`auv_envs.core.acoustics`). The episode is
 :mod:`auv_envs.tasks.acoustic.transition` (which also says why the physics
-runs in blocks of ``BLOCK`` sample periods); this module is its Gymnasium
-shell, its levels and its MuJoCo plant.
+runs in blocks of sample periods on the CPU); this module is its task on the CPU,
+which the one Gymnasium env runs.
 """
 
 from __future__ import annotations
@@ -22,9 +22,8 @@ from auv_envs.core.acoustics import (
     AcousticConfig,
 )
 from auv_envs.core.env import (
-    ActionValidator,
+    CPUTask,
     ShellEpisode,
-    TaskEnv,
     check_image_size,
 )
 from auv_envs.tasks.acoustic import transition
@@ -48,9 +47,6 @@ from auv_envs.tasks.acoustic.plant import (  # noqa: F401  (the names' home befo
     build_tank_model,
     compose_tank_model,
 )
-from auv_envs.tasks.acoustic.transition import (
-    BLOCK,
-)
 
 #: Seconds of the end effector's path that ``render()`` draws, and of estimates in its close-up.
 RENDER_TRAIL = 10.0
@@ -59,7 +55,7 @@ RENDER_CLOSEUP = 2.0
 
 
 
-class AcousticTrackingEnv(TaskEnv):
+class AcousticTrackingTask(CPUTask):
     """Track an underwater arm's end effector with an 8-node hydrophone array [GMPHD].
 
     **Description.** A 300 m x 300 m x 30 m tank (tank frame: origin at a
@@ -304,7 +300,7 @@ class AcousticTrackingEnv(TaskEnv):
         self._static_point = static_point
         #: The composed model's text (:class:`~auv_envs.core.assets.MJCF`).
         self.model_source = setup.model_source
-        self.physics = AcousticPhysics(setup.model)
+        self.physics = AcousticPhysics(setup.model, noise_draws=noise_draws)
         self.physics.substeps = physics_substeps
         self._plant = self.physics
         self._dt = setup.dt
@@ -320,7 +316,6 @@ class AcousticTrackingEnv(TaskEnv):
         #: The transition's :class:`~auv_envs.tasks.acoustic.transition.AcousticParams`.
         self.params = setup.params
         self.action_space = setup.action_space
-        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = setup.observation_space
         self._episode = ShellEpisode()
         self._plot = None  # the TankPlot, built on the first render()
@@ -334,7 +329,7 @@ class AcousticTrackingEnv(TaskEnv):
             extras["sound_speed"] = state.plan.sound_speed
         return truth, extras
 
-    def _truth(self) -> dict:
+    def truth_now(self) -> dict:
         if self._episode.steps < 1:
             raise RuntimeError("no step taken yet: nothing to summarise")
         return {"k": self._episode.steps, "error": float("nan")}
@@ -345,7 +340,7 @@ class AcousticTrackingEnv(TaskEnv):
         frames: built on the first render, None before it and after ``close()``."""
         return self._plot
 
-    def _render_frame(self) -> np.ndarray:
+    def render_frame(self) -> np.ndarray:
         """The tank as an (H, W, 3) uint8 frame (``render_mode="rgb_array"``).
 
         Drawn from the episode's own record (true positions, estimates and the
@@ -394,10 +389,10 @@ class AcousticTrackingEnv(TaskEnv):
             rmse=rmse,
         )
 
-    def _observation(self, truth: dict):
+    def observe(self, truth: dict):
         return self._episode.obs  # the transition's
 
-    def _info(self, truth: dict) -> dict:
+    def step_info(self, truth: dict) -> dict:
         return transition.info(self.params, self._episode.state, truth)
 
     def episode_record(self) -> EpisodeRecord:
@@ -421,10 +416,11 @@ class AcousticTrackingEnv(TaskEnv):
             raise RuntimeError("this episode draws no detections (obs_mode='state'): make the "
                                "env with draw_detections=True for its record and bound")
         replay = copy.deepcopy(self)
-        backend = replay._backend(replay.np_random)
+        backend = replay._backend(replay.rng)
         t = self.params.horizon
         blocks = [state.block]
-        for start in range(BLOCK, t, BLOCK):
+        block = replay.physics.block
+        for start in range(block, t, block):
             _, block = transition.simulate_block(self.params, state.plan, blocks[-1], start,
                                                  replay.physics.data, backend)
             blocks.append(block)
@@ -450,5 +446,5 @@ class AcousticTrackingEnv(TaskEnv):
         after ``reset()`` (:meth:`episode_record`)."""
         return bound_rmse(self.calibration.array, self.episode_record(), prior)
 
-    def _episode_metrics(self, truth: dict) -> dict:
+    def summarise(self, truth: dict) -> dict:
         return transition.summary(self.params, self._episode.state)

@@ -8,15 +8,17 @@ calls) evaluated on JAX arrays for ``jit`` and
 MJX with MuJoCo's ellipsoid fluid model written in JAX
 (:class:`~auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`), the episode's draws come from
 a JAX key (:class:`~auv_envs.batched.functional.KeyDraws`), and every step simulates its
-own sample period (``block=1``; the CPU env simulates 50 at a time, the same model).
+own sample period (the plant's ``block=1``; the CPU env simulates 50 at a time, the
+same model).
 The detection sets become a JAX pytree when this module loads (JAX is an optional extra:
 the CPU environment never imports it).
 
 Built: ``state`` and ``measurements`` (the padded detection sets with their mask and,
 with dropouts, the node mask), both trajectories, every ``disturbance`` and
 ``difficulty`` (multipath, clutter, dropouts, propagation delay, wander, fading). The
-detections are drawn in the measurement model's fixed-shape order (``noise_draws=
-"fixed"``: every candidate's noise drawn, the first K of the shuffled candidates kept),
+detections are drawn in the measurement model's fixed-shape order (the plant's
+``noise_draws="fixed"``: every candidate's noise drawn, the first K of the shuffled
+candidates kept),
 the same model as the CPU's draws of the kept detections only.
 
 What differs from the CPU environment: a seed gives other episodes (JAX's generator;
@@ -73,8 +75,7 @@ class AcousticJax:
             raise ValueError("the batched acoustic environment draws the v2 route "
                              f"(planner='segments'), got planner={setup.params.planner!r}")
         self.setup = setup
-        self.params = dataclasses.replace(setup.params, block=1, record=False,
-                                          noise_draws=FIXED_DRAWS)
+        self.params = setup.params
         self.calibration = setup.calibration
         self.dt = self.params.dt
         self.ops = jax_ops()
@@ -138,10 +139,19 @@ class AcousticJax:
 class _Rig(NamedTuple):
     """The transition's plant on JAX, a function of the rig's MJX data
     (:mod:`auv_envs.core.task`): :class:`~auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`
-    simulating ``model``, the shell's world's, one sample period a call."""
+    simulating ``model``, the shell's world's, one sample period a call; its state keeps
+    no record and its detections are drawn in the fixed-shape order (how the plants
+    differ: :mod:`auv_envs.tasks.acoustic.plant`)."""
 
     plant: RigPlantMJX
     model: Any
+
+    #: One sample period simulated and measured a step.
+    block = 1
+    #: No record of the estimates (the state keeps the running sum of squared errors).
+    record = False
+    #: The measurement model's fixed-shape draw order.
+    noise_draws = FIXED_DRAWS
 
     def place(self, carrier, arm):
         return self.plant.place(carrier, arm, self.model)

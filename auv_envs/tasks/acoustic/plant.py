@@ -3,6 +3,23 @@
 :func:`compose_tank_model` composes the tank and the carrier with its arm from
 ``assets/acoustic``; :class:`AcousticPhysics` is the transition's plant on the CPU
 (:mod:`auv_envs.tasks.acoustic.transition`), its state the model's ``MjData``.
+
+The plants on the CPU and on JAX (:class:`~auv_envs.tasks.acoustic.mjx_plant.RigPlantMJX`)
+differ in three ways, each declared by the plant and read by the transition:
+
+* ``block``: the sample periods simulated and measured at a time. The CPU plant simulates
+  :data:`BLOCK` periods and the measurement model draws them together (vectorised over the
+  block, many times faster than period by period); the JAX plant one period a step, so
+  that the state keeps fixed shapes. The model is the same; the order of the draws is not.
+* ``record``: whether the state keeps every estimate and truth (the CPU episode summary's
+  record); the JAX plant's state keeps the running sum only.
+* ``noise_draws``: the order of the measurement model's draws
+  (:meth:`~auv_envs.core.acoustics.HydrophoneArray.measure`): on the CPU the noise of the
+  kept detections only (``"kept"``, ``AcousticTracking-v1`` on) or of every path
+  (``"all"``, v0); on JAX the fixed-shape order.
+
+So a CPU episode and a batched one from the same key are the same model, not the same
+draws; the equivalence tests start both from one plan and compare their statistics.
 """
 
 from __future__ import annotations
@@ -11,6 +28,7 @@ import mujoco
 import numpy as np
 from dm_control import mjcf
 
+from auv_envs.core.acoustics import NOISE_DRAWS
 from auv_envs.core.assets import MJCF, asset_path
 
 #: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
@@ -21,6 +39,8 @@ INTEGRATORS = {"euler": mujoco.mjtIntegrator.mjINT_EULER,
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch",
               "tool_roll")
 CARRIER_JOINTS = ("carrier_x", "carrier_y", "carrier_z", "carrier_yaw")
+#: Sample periods the CPU plant simulates and measures at a time (0.5 s at 100 Hz).
+BLOCK = 50
 
 
 def build_tank_model() -> mujoco.MjModel:
@@ -38,9 +58,25 @@ def compose_tank_model() -> MJCF:
 
 
 class AcousticPhysics:
-    """The MuJoCo model/data pair with the ids this task needs, resolved once."""
+    """The MuJoCo model/data pair with the ids this task needs, resolved once: the
+    transition's plant on the CPU.
 
-    def __init__(self, model: mujoco.MjModel):
+    Args:
+        model: the tank's model (:func:`build_tank_model`).
+        noise_draws: the measurement model's draw order (module docstring).
+    """
+
+    #: Sample periods simulated and measured at a time (module docstring).
+    block = BLOCK
+    #: The state keeps every estimate and truth (module docstring).
+    record = True
+
+    def __init__(self, model: mujoco.MjModel, noise_draws: str = "kept"):
+        if noise_draws not in NOISE_DRAWS:
+            raise ValueError(f"unknown noise_draws {noise_draws!r}; valid values: "
+                             f"{', '.join(map(repr, NOISE_DRAWS))}")
+        #: The measurement model's draw order (module docstring).
+        self.noise_draws = noise_draws
         self.model = model
         self.data = mujoco.MjData(model)
         self.source_site = model.site("rig/source").id

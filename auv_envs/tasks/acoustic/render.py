@@ -1,4 +1,4 @@
-"""A readable picture of the acoustic tracking tank (``AcousticTrackingEnv.render``).
+"""A readable picture of the acoustic tracking tank (``AcousticTrackingTask.render_frame``).
 
 :class:`TankPlot` draws one RGB frame with matplotlib's object API on an Agg
 canvas (no pyplot, no window, no global state): a top view (x-y) of the tank

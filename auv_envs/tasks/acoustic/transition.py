@@ -16,8 +16,8 @@ references, in each row's current). The start draw, the step's order (score the
 estimate, move on one period, measure the next block when this one is served), the
 reward, the end (an episode never terminates: it is truncated at its horizon), the
 observations, the step's metrics, ``info`` and the episode summary exist here only;
-:class:`auv_envs.tasks.acoustic.env.AcousticTrackingEnv` is the Gymnasium
-shell around them (it renders and computes the bound).
+:class:`auv_envs.tasks.acoustic.env.AcousticTrackingTask` is the task
+on the CPU around them, which the one Gymnasium env runs (it renders and computes the bound).
 
 The agent's estimates do not act on the physics, so the physics runs and the
 measurements are drawn in blocks of :data:`BLOCK` sample periods, vectorised
@@ -28,8 +28,9 @@ has always made them, so its episodes are the released ones, bit for bit.
 
 The same functions run on JAX arrays (:mod:`auv_envs.tasks.acoustic.jax_task`):
 with ``ops`` :func:`~auv_envs.core.ops.jax_ops`, a JAX key's draws and the rig on MJX,
-blocks of one period (``params.block``: every step simulates its own period, so the
-state keeps fixed shapes) and no record of the estimates (``params.record``).
+whose plant declares blocks of one period (every step simulates its own period, so the
+state keeps fixed shapes) and no record of the estimates: the plant's ``block``,
+``record`` and ``noise_draws`` (:mod:`auv_envs.tasks.acoustic.plant`).
 
 On the CPU the record of the estimates and truths is a :class:`Trail`, append-only and
 persistent: a step's state has one more row than the last's, and the last's stays as it
@@ -48,6 +49,7 @@ from auv_envs import metrics
 from auv_envs.core.acoustics import HydrophoneArray, Measurements
 from auv_envs.core.ops import FLOATS, Backend
 from auv_envs.core.task import Transition
+from auv_envs.tasks.acoustic.plant import BLOCK  # noqa: F401  (its home before the plant's)
 
 #: The reward's terms, in the order they sum (each reported as ``info["reward_<term>"]``).
 REWARD_TERMS = ("estimate",)
@@ -68,8 +70,6 @@ STATIC_POINTS = (
 #: differences), which also bins the end effector's own speed; ``tcfe_fluctuation`` uses
 #: second differences, which the true motion leaves at 0 (measured: ``CHANGELOG.md``).
 TCFE_BIN_WIDTH = 0.01
-#: Sample periods simulated and measured per block (0.5 s at 100 Hz).
-BLOCK = 50
 #: Source positions kept from before a block for the propagation delay (0.64 s at 100 Hz:
 #: sound crosses the tank's 424 m diagonal in 0.28 s).
 HISTORY = 64
@@ -98,18 +98,12 @@ class AcousticParams:
             :data:`NOMINAL_POSTURE` (places the static points).
         error_clip, track_gate, success_radius: m (the reward's clip, the tracked
             gate, the success radius of the running RMSE).
-        noise_draws: the order of the measurement model's draws
-            (:meth:`~auv_envs.core.acoustics.HydrophoneArray.measure`).
         draw_detections: whether the blocks draw the detections (and the nuisance
             behind them: wander, fading, node states); without them a block holds the
             source's motion only, which is all the ``state`` observation and the reward
             read.
         planner: ``"segments"`` (:func:`draw_route`) or ``"tabulated"``
             (:func:`plan_route`, ``AcousticTracking-v0``/``-v1``).
-        block: sample periods simulated and measured at a time (module docstring):
-            :data:`BLOCK` on the CPU, 1 under JAX (every step simulates its period).
-        record: whether the state keeps every estimate and truth (the summary's
-            record; the batched environment keeps the running sum only).
     """
 
     obs_mode: str
@@ -123,11 +117,8 @@ class AcousticParams:
     error_clip: float
     track_gate: float
     success_radius: float
-    noise_draws: str = "kept"
     draw_detections: bool = True
     planner: str = "segments"
-    block: int = BLOCK
-    record: bool = True
 
 
 class Plan(NamedTuple):
@@ -222,8 +213,8 @@ class Trail:
 class EpisodeState(NamedTuple):
     """Everything an episode changes besides the plant: the plan, the block being
     served, the steps taken, the sum of squared errors and the record of the estimates and
-    the truths they were scored against (a :class:`Trail` of the two series; None without
-    ``params.record``)."""
+    the truths they were scored against (a :class:`Trail` of the two series; None where the
+    plant keeps no record)."""
 
     plan: Plan
     block: Block
@@ -233,7 +224,7 @@ class EpisodeState(NamedTuple):
 
     @property
     def estimates(self) -> np.ndarray:
-        """The estimates so far, (steps, 3), read-only (``params.record`` only)."""
+        """The estimates so far, (steps, 3), read-only (a plant with a ``record`` only)."""
         return self.record.series(0)
 
     @property
@@ -529,12 +520,12 @@ def references(params: AcousticParams, plan: Plan, rows, xp):
 # ------------------------------------------------------------------ blocks
 def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, start, rig,
                    backend: Backend) -> tuple[Any, Block]:
-    """Advance the plant from ``rig`` over sample periods ``[start, start + params.block)``
+    """Advance the plant from ``rig`` over sample periods ``[start, start + plant.block)``
     (to the horizon) and measure them, continuing ``previous`` (None at reset):
     ``(rig, block)``."""
     ops, draws, plant = backend
     xp = ops.xp
-    count = 1 if params.block == 1 else min(params.block, params.horizon + 1 - start)
+    count = 1 if plant.block == 1 else min(plant.block, params.horizon + 1 - start)
     # The block's periods and the one before it (whose current moves the rig into the first).
     rows = xp.maximum(xp.arange(count + 1) + (start - 1), 0)
     carrier_ref, carrier_vel, arm_ref, current = references(params, plan, rows, xp)
@@ -552,7 +543,7 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
         nodes = previous.nodes
     heard = positions
     if array.config.propagation_delay:
-        if history is None and params.block == 1:
+        if history is None and plant.block == 1:
             # A fixed-size history from the start (JAX's shapes): the first position
             # repeated, the source held still before the episode, as emission_positions
             # clamps earlier times to a track's first row.
@@ -569,7 +560,7 @@ def simulate_block(params: AcousticParams, plan: Plan, previous: Block | None, s
     nodes = array.draw_node_states(draws, count, None if nodes is None else nodes[-1], xp=xp)
     measurements = array.measure(
         draws, heard, plan.clock_offsets, xp.linalg.norm(current, axis=1), plan.sound_speed,
-        wanders, fades, nodes, noise_draws=params.noise_draws, xp=xp,
+        wanders, fades, nodes, noise_draws=plant.noise_draws, xp=xp,
     )
     return rig, Block(start, positions, velocities, current, heard, fades, nodes,
                       measurements, history, wander, fading)
@@ -591,7 +582,8 @@ def begin(params: AcousticParams, plan: Plan, backend: Backend) -> Transition:
                                 backend)
     state = EpisodeState(plan=plan, block=block, steps=ops.integer(0),
                          squared_error_sum=ops.real(0.0),
-                         record=Trail.empty(params.horizon, 2, 3) if params.record else None)
+                         record=(Trail.empty(params.horizon, 2, 3) if backend.plant.record
+                                 else None))
     now = {"k": state.steps, "error": ops.real(float("nan"))}
     return Transition(rig, state, now, observe(params, state, xp))
 
@@ -608,10 +600,11 @@ def step(params: AcousticParams, rig, state: EpisodeState, action,
     position = block.positions[k - block.start]
     difference = action - position
     error = ops.sqrt(difference.dot(difference))  # np.linalg.norm's arithmetic, sooner
-    record = state.record.append(action, position) if params.record else state.record
+    plant = backend.plant
+    record = state.record.append(action, position) if plant.record else state.record
     state = state._replace(steps=k + 1, squared_error_sum=state.squared_error_sum + error * error,
                            record=record)
-    if params.block == 1 or state.steps - block.start >= params.block:
+    if plant.block == 1 or state.steps - block.start >= plant.block:
         rig, block = simulate_block(params, state.plan, block, state.steps, rig, backend)
         state = state._replace(block=block)
     now = {"k": state.steps, "error": error}
@@ -679,7 +672,7 @@ def scores(params: AcousticParams, state: EpisodeState, now: dict, ops) -> dict:
 
 def summary(params: AcousticParams, state: EpisodeState) -> dict:
     """The episode's summary (``info["episode_metrics"]`` at its end), from the record
-    of estimates and truths (``params.record``)."""
+    of estimates and truths (the CPU plant's ``record``)."""
     est, truth = state.estimates, state.truths
     errors = metrics.position_errors(est, truth)
     rmse = metrics.rmse(est, truth)

@@ -5,9 +5,10 @@ Playground's ``MjxEnv``: :func:`default_config` gives an id's configuration (a f
 :class:`DockingConfig`, changed with :meth:`DockingConfig.replace`), and :func:`params`
 builds from it everything the configuration fixes (a frozen :class:`DockingSetup`: the
 composed MuJoCo model, what an agent may know, the rules, the transition's parameters and
-the spaces), checking every value. The Gymnasium environment
-(:class:`auv_envs.tasks.docking.env.DockingEnv`) and the task on JAX
-(:class:`auv_envs.tasks.docking.jax_task.DockingJax`) are both built from a setup.
+the spaces), checking every value. The task on the CPU
+(:class:`auv_envs.tasks.docking.env.DockingTask`, which the one Gymnasium env runs) and
+the task on JAX (:class:`auv_envs.tasks.docking.jax_task.DockingJax`) are both built from
+a setup.
 
 The difficulty levels' presets (``PAPER_DISTURBANCES`` and after) are here too, each
 with its units, sources and calibration.

@@ -18,7 +18,7 @@ import numpy as np
 
 from auv_envs.core import difficulty as levels
 from auv_envs.core.camera import project_few
-from auv_envs.core.env import ActionValidator, ShellEpisode, TaskEnv, check_choice, check_image_size
+from auv_envs.core.env import CPUTask, ShellEpisode, check_choice, check_image_size
 from auv_envs.core.hydrodynamics import HullForceModel
 from auv_envs.core.ops import FLOATS
 from auv_envs.core.plant import StagedIntegrator
@@ -74,7 +74,7 @@ from auv_envs.tasks.docking.transition import (  # noqa: F401  (their home befor
 NONE_IF_NAN = frozenset({"docking_time", *transition.MISSION_METRICS}) - {"path_length"}
 
 
-class DockingEnv(TaskEnv):
+class DockingTask(CPUTask):
     """AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).
 
     **Description.** A fully actuated hovering AUV (6-DOF MuJoCo rigid body
@@ -396,7 +396,6 @@ class DockingEnv(TaskEnv):
         #: batched environment evaluates too.
         self.rules = setup.rules
         self.action_space = setup.action_space
-        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = setup.observation_space
         #: The task as the transition sees it (:mod:`auv_envs.tasks.docking.transition`),
         #: which the batched environment runs too.
@@ -454,15 +453,15 @@ class DockingEnv(TaskEnv):
         self.integrator.force = self.hull.passive_force
         self.vehicle = vehicle
 
-    def _command(self, action: np.ndarray) -> list:
+    def command(self, action: np.ndarray) -> list:
         """The transition takes the four commands as Python floats."""
         return action.tolist()
 
-    def _render_frame(self) -> np.ndarray:
+    def render_frame(self) -> np.ndarray:
         return self._render_camera(self._view)
 
     # ------------------------------------------------------------------ internals
-    def _truth(self) -> dict:
+    def truth_now(self) -> dict:
         """Ground truth now (the plant's: compiled or in Python floats)."""
         return self._plant.truth(self.physics.data)
 
@@ -482,7 +481,7 @@ class DockingEnv(TaskEnv):
         visible = phys.unoccluded(cam_pos, self.rules.lights, in_image)
         return transition.truth_with_lights(truth, np.array(pixels), np.array(visible), FLOATS)
 
-    def _observation(self, truth: dict):
+    def observe(self, truth: dict):
         obs = self._episode.obs  # the transition's: state, features, or image mode's sensors
         if self.obs_mode != "image":
             return obs
@@ -496,7 +495,7 @@ class DockingEnv(TaskEnv):
         image) and a clear line of sight to it inside the image; what
         ``info["true_pixels"]`` and ``info["true_visible"]`` report after a step (there
         zero where not visible). Draws nothing from the generator."""
-        truth = self._truth()
+        truth = self.truth_now()
         return truth["pixels"], truth["visible"]
 
     def lamps_in_image(self) -> tuple[np.ndarray, np.ndarray]:
@@ -532,13 +531,13 @@ class DockingEnv(TaskEnv):
         mujoco.mj_forward(self.physics.model, self.physics.data)
         image, distance = self.camera_renderer.render_with_range(self.physics.data)
         return degrade_image(image, distance, self._optics, self.calibration.intrinsics.fy,
-                             self.np_random)
+                             self.rng)
 
     def _render_camera(self, renderer: CameraRenderer) -> np.ndarray:
         mujoco.mj_forward(self.physics.model, self.physics.data)
         return renderer.render(self.physics.data)
 
-    def _info(self, truth: dict) -> dict:
+    def step_info(self, truth: dict) -> dict:
         ep = self._episode
         state, judged = ep.state, ep.judged
         info = {
@@ -566,7 +565,7 @@ class DockingEnv(TaskEnv):
             info["thrust"] = state.thrust
         return info
 
-    def _episode_metrics(self, truth: dict) -> dict:
+    def summarise(self, truth: dict) -> dict:
         state = self._episode.state
         metrics = {}
         for key, value in transition.summary(state, truth).items():
@@ -579,8 +578,8 @@ class DockingEnv(TaskEnv):
 
 
 
-class DockingStationEnv(DockingEnv):
-    __doc__ = DockingEnv.__doc__.replace(
+class DockingStationTask(DockingTask):
+    __doc__ = DockingTask.__doc__.replace(
         "AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).",
         "AUV approach to a seabed docking station guided by six lights around its "
         "entrance ([OFNMPC]).",
@@ -592,8 +591,8 @@ class DockingStationEnv(DockingEnv):
     _variant = {"layout": "six_lights"}
 
 
-class LampArrayDockingEnv(DockingEnv):
-    __doc__ = DockingEnv.__doc__.replace(
+class LampArrayDockingTask(DockingTask):
+    __doc__ = DockingTask.__doc__.replace(
         "AUV approach to a light-guided docking station ([OFNMPC] / [LAMP]).",
         "AUV approach to a recovery fork guided by an L-shaped four-lamp array ([LAMP]).",
         1,
@@ -603,6 +602,6 @@ class LampArrayDockingEnv(DockingEnv):
         "\n\n    **Version history.**",
     )
     _variant = {"layout": "lamp_array"}
-    #: ``difficulty`` levels: as :class:`DockingEnv`'s, with the laboratory water of [LAMP]
+    #: ``difficulty`` levels: as :class:`DockingTask`'s, with the laboratory water of [LAMP]
     #: at ``paper`` (:data:`~auv_envs.tasks.docking.config.LAMP_ARRAY_PRESETS`).
     difficulty_presets = LAMP_ARRAY_PRESETS

@@ -11,11 +11,11 @@ import inspect
 
 from auv_envs.core.env import check_choice
 from auv_envs.tasks.docking.config import CLEAR_OCEAN, LAYOUTS  # noqa: F401  (their old home)
-from auv_envs.tasks.docking.env import DockingEnv
+from auv_envs.tasks.docking.env import DockingTask
 from auv_envs.tasks.docking.navigation import NavigationSensors
 
 
-class DockingMissionEnv(DockingEnv):
+class DockingMissionTask(DockingTask):
     """The whole approach to a docking station: acoustic homing from 100-300 m, the
     hand-over to the lights, and the terminal docking.
 
@@ -87,8 +87,8 @@ def _signature() -> inspect.Signature:
     """The mission's constructor as callers see it: its own arguments, then the docking
     ids' it passes on (``inspect.signature`` reads it: the evaluation's ``KEY=VALUE``
     routing, the documentation)."""
-    own = inspect.signature(DockingMissionEnv.__init__).parameters
-    base = inspect.signature(DockingEnv.__init__).parameters
+    own = inspect.signature(DockingMissionTask.__init__).parameters
+    base = inspect.signature(DockingTask.__init__).parameters
     keep = [p for name, p in own.items() if p.kind != p.VAR_KEYWORD and name != "self"]
     keep += [p for name, p in base.items()
              if name not in own and name not in ("self", "lights_lost_timeout")
@@ -97,4 +97,4 @@ def _signature() -> inspect.Signature:
     return inspect.Signature(keep)
 
 
-DockingMissionEnv.__signature__ = _signature()
+DockingMissionTask.__signature__ = _signature()

@@ -13,7 +13,7 @@ failed) -> body``, ``advance(body, tau, current, vehicle_draws) -> body`` and
 2), ``visible`` (n,), ``visible_pixels`` and ``n_visible``, :func:`truth_with_lights`).
 The start draw, the order of the step (thrusters, current, plant, judgement, water,
 observation), the reward terms, the termination, the observation, the step's metrics and
-the episode summary exist here only; :class:`auv_envs.tasks.docking.env.DockingEnv`
+the episode summary exist here only; :class:`auv_envs.tasks.docking.env.DockingTask`
 (Gymnasium) and :class:`auv_envs.tasks.docking.jax_task.DockingJax` (``jit``/``vmap``) are
 shells around them.
 

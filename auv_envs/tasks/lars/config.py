@@ -4,9 +4,10 @@ As the docking family's (:mod:`auv_envs.tasks.docking.config`): :func:`default_c
 gives ``auv_envs/LARSCapture-v0``'s configuration (a frozen :class:`LARSConfig`, changed
 with ``replace``), and :func:`params` builds from it everything the configuration fixes
 (a frozen :class:`LARSSetup`: the composed models, what an agent may know, the
-transition's parameters and the spaces), checking every value. The Gymnasium environment
-(:class:`auv_envs.tasks.lars.env.LARSCaptureEnv`) and the task on JAX
-(:class:`auv_envs.tasks.lars.jax_task.LARSJax`) are both built from a setup.
+transition's parameters and the spaces), checking every value. The task on the CPU
+(:class:`auv_envs.tasks.lars.env.LARSCaptureTask`, which the one Gymnasium env runs) and
+the task on JAX (:class:`auv_envs.tasks.lars.jax_task.LARSJax`) are both built from a
+setup.
 """
 
 from __future__ import annotations

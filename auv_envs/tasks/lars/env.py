@@ -1,7 +1,7 @@
 """Launch-and-recovery (LARS) capture of a surfaced AUV with stereo vision [LTAT].
 
 Registered as ``auv_envs/LARSCapture-v0``. The episode is
-:mod:`auv_envs.tasks.lars.transition`; this module is its Gymnasium shell (and
+:mod:`auv_envs.tasks.lars.transition`; this module is its task on the CPU (and
 renders the ``stereo`` images). The scene (arm, AUV, marker, sea) is
 described in :mod:`auv_envs.tasks.lars.scene`, the arm's kinematics and
 dynamics in :mod:`auv_envs.tasks.lars.arm`, the opt-in irregular sea and sun
@@ -18,9 +18,8 @@ import numpy as np
 from auv_envs.core import difficulty as levels
 from auv_envs.core import frames
 from auv_envs.core.env import (
-    ActionValidator,
+    CPUTask,
     ShellEpisode,
-    TaskEnv,
     check_choice,
     check_image_size,
 )
@@ -67,7 +66,7 @@ from auv_envs.tasks.lars.sea import (
 from auv_envs.tasks.lars.waves import SeaSpectrum
 
 
-class LARSCaptureEnv(TaskEnv):
+class LARSCaptureTask(CPUTask):
     """Capture of a surfaced AUV by a ship's launch-and-recovery arm [LTAT].
 
     **Description.** The side of a mother ship carries a 3-DOF articulated
@@ -336,7 +335,6 @@ class LARSCaptureEnv(TaskEnv):
         self.max_episode_steps = setup.max_episode_steps
         self.calibration = setup.calibration
         self.action_space = setup.action_space
-        self._validate_action = ActionValidator(self.action_space)
         self.observation_space = setup.observation_space
         width, height = self._width, self._height = setup.image_size
         self._glint_camera = setup.glint_camera
@@ -363,11 +361,11 @@ class LARSCaptureEnv(TaskEnv):
         self._episode = ShellEpisode(state, obs)
         return truth, transition.reset_info(self.params, state)
 
-    def _truth(self) -> dict:
+    def truth_now(self) -> dict:
         return transition.truth_now(self.params, self.physics.data, self._episode.state,
                                     self._plant, FLOATS)
 
-    def _observation(self, truth: dict):
+    def observe(self, truth: dict):
         ep = self._episode
         if self.obs_mode != "stereo":
             return ep.obs  # the transition's
@@ -377,20 +375,20 @@ class LARSCaptureEnv(TaskEnv):
         else:
             self._pose_scene()
             pair, ranges = self.camera_renderer.render_with_range(self.physics.scene_data)
-            pair, frame = self._glint_camera.on_pair(field, truth, pair, ranges, self.np_random)
+            pair, frame = self._glint_camera.on_pair(field, truth, pair, ranges, self.rng)
             ep.state = transition.with_glint_frame(ep.state, frame, FLOATS)
         w = self._width
         return {"left": np.ascontiguousarray(pair[:, :w]),
                 "right": np.ascontiguousarray(pair[:, w:]), **ep.obs}
 
-    def _info(self, truth: dict) -> dict:
+    def step_info(self, truth: dict) -> dict:
         ep = self._episode
         return transition.info(self.params, ep.state, truth, ep.judged)
 
-    def _episode_metrics(self, truth: dict) -> dict:
+    def summarise(self, truth: dict) -> dict:
         return transition.episode_metrics(self.params, self._episode.state, truth)
 
-    def _render_frame(self) -> np.ndarray:
+    def render_frame(self) -> np.ndarray:
         self._pose_scene()
         return self._view.render(self.physics.scene_data)
 
@@ -469,7 +467,7 @@ class _MujocoArm:
     at the physics rate (``control="position"``). Its state is the env's ``MjData``,
     which MuJoCo integrates in place (:mod:`auv_envs.core.task`)."""
 
-    def __init__(self, env: LARSCaptureEnv):
+    def __init__(self, env: LARSCaptureTask):
         self.model, self.data = env.physics.model, env.physics.data
         self.physics = env.physics
         self.torque_mode = env.control == "torque"

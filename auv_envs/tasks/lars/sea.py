@@ -1,4 +1,4 @@
-"""Irregular seas for the LARS capture task (opt-in: ``LARSCaptureEnv(sea=SeaSpectrum(...))``).
+"""Irregular seas for the LARS capture task (opt-in: ``LARSCaptureTask(sea=SeaSpectrum(...))``).
 
 What the sea does to one episode, built from :mod:`auv_envs.tasks.lars.waves`:
 
@@ -265,7 +265,7 @@ def _angle_range(name: str, value, low: float, high: float) -> tuple[float, floa
 
 @dataclasses.dataclass(frozen=True)
 class SunGlint:
-    """The sun's glitter on the water seen by the stereo pair (``LARSCaptureEnv(glint=...)``).
+    """The sun's glitter on the water seen by the stereo pair (``LARSCaptureTask(glint=...)``).
 
     **Slopes.** The slopes ``(zx, zy)`` of a wind-roughened sea are Gaussian,
     isotropic to first order (Cox & Munk 1954)::

@@ -13,8 +13,8 @@ control period under the checked action, the running control effort updated) and
 compiled where it can be, :mod:`auv_envs.tasks.lars.compiled`). The start draw, the order
 of the step (arm, truth, judgement, observation), the reward terms, the episode's end,
 the ``state``/``features`` observations, the step's metrics, ``info`` and the episode
-summary exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureEnv` is the
-Gymnasium shell around them (it renders the ``stereo`` images).
+summary exist here only; :class:`auv_envs.tasks.lars.env.LARSCaptureTask` is the
+task on the CPU around them, which the one Gymnasium env runs (it renders the ``stereo`` images).
 
 The draws come in the order the environment has always made them
 (``docs/environments.md``), so its episodes are the released ones, bit for
