@@ -74,8 +74,9 @@ class Family:
     def task_class(self):
         """The task class on the CPU (a :class:`~auv_envs.core.env.CPUTask`): its
         docstring, signature, ``obs_modes`` and ``difficulty_presets`` describe the env."""
-        module, name = self.task.split(":")
-        return getattr(importlib.import_module(module), name)
+        from auv_envs.core.env import load_task
+
+        return load_task(self.task)
 
     def jax_task_class(self):
         """The task class on JAX (imports JAX)."""

@@ -468,22 +468,6 @@ class TaskEnv(gym.Env):
             raise AttributeError(f"{type(self).__name__} (task {type(self.task).__name__}) "
                                  f"has no attribute {name!r}") from None
 
-    # The contract every task keeps, named here for tools that read the class.
-    @property
-    def calibration(self):
-        """What an agent may know about the task (camera, layout, nominal model...)."""
-        return self.task.calibration
-
-    @property
-    def dt(self) -> float:
-        """Control period, s (one env step)."""
-        return self.task.dt
-
-    @property
-    def max_episode_steps(self) -> int:
-        """Steps of an episode that runs to its time limit."""
-        return self.task.max_episode_steps
-
     # ------------------------------------------------------------------ the loop
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -71,7 +71,7 @@ def _check_env(env, name: str):
         raise ValueError(f"{name} needs obs_mode='measurements', got "
                          f"{getattr(env, 'obs_mode', None)!r}")
     if not hasattr(env, "calibration"):
-        raise ValueError(f"{name} needs an AcousticTrackingTask (with .calibration)")
+        raise ValueError(f"{name} needs an AcousticTracking env (with .calibration)")
     return env.calibration
 
 
@@ -129,7 +129,7 @@ class GMPHDGCIAgent:
     """Multi-band GM-PHD tracking with GCI fusion ([GMPHD] §2).
 
     Args:
-      env: an unwrapped ``AcousticTrackingTask`` with ``obs_mode="measurements"``.
+      env: an unwrapped ``AcousticTracking`` env with ``obs_mode="measurements"``.
       bands: indices of the sub-bands to track (default: all Q).
       gci_weights: omega_q over ``bands`` (default equal, 1/Q).
       accel_std: sigma_q of the constant-velocity model (m/s^2).
@@ -200,7 +200,7 @@ class LSKalmanAgent:
     """Fused LS fixes + one Kalman filter with nearest-neighbour gating (comparator).
 
     Args:
-      env: an unwrapped ``AcousticTrackingTask`` with ``obs_mode="measurements"``.
+      env: an unwrapped ``AcousticTracking`` env with ``obs_mode="measurements"``.
       accel_std: sigma_q of the constant-velocity model (m/s^2).
       gate: chi-square gate on the innovation (3 dof; 14.16 = 99.7 %).
       max_misses: consecutive steps without a gated fix before re-initialising.

@@ -92,7 +92,7 @@ def marker_estimator(calibration) -> MarkerAUVEstimator:
 def _check_env(env):
     cal = getattr(env, "calibration", None)
     if cal is None or not hasattr(cal, "stereo") or not hasattr(cal, "arm"):
-        raise ValueError("ckf-pd needs a LARSCaptureTask (with a stereo/arm calibration)")
+        raise ValueError("ckf-pd needs a LARSCapture env (with a stereo/arm calibration)")
     if getattr(env, "control", "torque") != "torque":
         raise ValueError(f"ckf-pd outputs joint torques: it needs control='torque', "
                          f"got {env.control!r}")
@@ -121,7 +121,7 @@ class CKFPDAgent:
     strategy, quintic, IK) -> :class:`~baselines.lars.control.arm.ComputedTorquePD`.
 
     Args:
-        env: an unwrapped ``LARSCaptureTask`` with ``control="torque"``.
+        env: an unwrapped ``LARSCapture`` env with ``control="torque"``.
         pixel_std: pixel noise (px) the fixes assume at the start (default: the
             calibration's; raised to the noise measured in the observations,
             see :class:`~baselines.lars.perception.marker.MarkerLocaliser`).

@@ -19,7 +19,8 @@ differ in three ways, each declared by the plant and read by the transition:
   (``"all"``, v0); on JAX the fixed-shape order.
 
 So a CPU episode and a batched one from the same key are the same model, not the same
-draws; the equivalence tests start both from one plan and compare their statistics.
+draws; the equivalence tests start both from one plan and compare the source's path
+step by step and the detections' statistics.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from dm_control import mjcf
 
 from auv_envs.core.acoustics import NOISE_DRAWS
 from auv_envs.core.assets import MJCF, asset_path
+from auv_envs.core.env import check_choice
 
 #: The rig's integrators (``integrator=``): from v1 on Euler in two 5 ms steps a period,
 #: in v0 implicitfast in one 10 ms step; each close to finer integrations of itself
@@ -72,9 +74,7 @@ class AcousticPhysics:
     record = True
 
     def __init__(self, model: mujoco.MjModel, noise_draws: str = "kept"):
-        if noise_draws not in NOISE_DRAWS:
-            raise ValueError(f"unknown noise_draws {noise_draws!r}; valid values: "
-                             f"{', '.join(map(repr, NOISE_DRAWS))}")
+        check_choice("noise_draws", noise_draws, NOISE_DRAWS)
         #: The measurement model's draw order (module docstring).
         self.noise_draws = noise_draws
         self.model = model
