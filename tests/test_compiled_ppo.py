@@ -294,13 +294,14 @@ def test_another_host_never_shares_the_default_cache(monkeypatch):
     """The default cache is one directory per kind of host: a second host with other CPU
     features (faked) gets another directory, one with the same features the same."""
     from auv_envs.batched import compile_cache
+    from auv_envs.core import cache
 
     here = compile_cache.default_compilation_cache()
-    assert here.name == compile_cache.host_key()
-    features = compile_cache.cpu_features()
-    monkeypatch.setattr(compile_cache, "cpu_features", lambda: features + " avx512f_fake")
+    assert here.name == cache.host_key() and here.parent.name == "jax"
+    features = cache.cpu_features()
+    monkeypatch.setattr(cache, "cpu_features", lambda: features + " avx512f_fake")
     assert compile_cache.default_compilation_cache() != here
-    monkeypatch.setattr(compile_cache, "cpu_features", lambda: features)
+    monkeypatch.setattr(cache, "cpu_features", lambda: features)
     assert compile_cache.default_compilation_cache() == here
 
 

@@ -56,7 +56,7 @@ def test_machine_code_gives_the_virtual_machines_bits(own_cache):
     function = _function()
     code = native.machine_code(function)
     assert code is not function  # machine code, loaded
-    assert list(own_cache.glob("native_check-*.so"))
+    assert list(own_cache.glob("native/*/native_check-*.so"))
     theirs = _bound(code)
     vm = _bound(function)
     rng = np.random.default_rng(0)
@@ -89,11 +89,59 @@ def _bound(function):
 def test_envs_step_the_same_bits_with_and_without_machine_code(env_id, kwargs, own_cache,
                                                                 monkeypatch):
     on = _episode(env_id, monkeypatch, True, **kwargs)
-    assert list(own_cache.glob("*.so"))  # the env's functions did run as machine code
+    assert list(own_cache.glob("native/*/*.so"))  # the env's functions did run as machine code
     off = _episode(env_id, monkeypatch, False, **kwargs)
     assert len(on) == len(off)
     for a, b in zip(on, off, strict=True):
         np.testing.assert_equal(a, b)
+
+
+@needs_compiler
+def test_a_host_with_other_cpu_features_builds_its_own_library(own_cache, monkeypatch):
+    """Nodes sharing a cache (faked here: a second host's CPU features) never load each
+    other's libraries: each kind of host builds and keeps its own, and a host of the
+    same kind finds the one already built."""
+    from auv_envs.core import cache
+
+    function = _function("host_check")
+    assert native.machine_code(function) is not function
+    here = native.library(function, native.compiler())[0]
+    assert here.exists() and here.parent == own_cache / "native" / cache.host_key()
+
+    features = cache.cpu_features()
+    monkeypatch.setattr(cache, "cpu_features", lambda: features + " avx512f_fake")
+    monkeypatch.setattr(native, "_loaded", {})
+    there = native.library(function, native.compiler())[0]
+    assert there.parent != here.parent and not there.exists()
+    stamp = here.stat().st_mtime_ns
+    assert native.machine_code(function) is not function
+    assert there.exists() and str(there) in native._loaded and str(here) not in native._loaded
+    assert here.stat().st_mtime_ns == stamp  # the first host's library is untouched
+
+    monkeypatch.setattr(cache, "cpu_features", lambda: features)
+    monkeypatch.setattr(native, "_loaded", {})
+    assert native.machine_code(function) is not function
+    assert list(native._loaded) == [str(here)]  # the same kind of host: the same library
+
+
+def test_every_cache_is_kept_per_kind_of_host(tmp_path, monkeypatch):
+    """The compiled C steps, the compiled solvers and JAX's programs each live under
+    ``<user cache>/<kind>/<host key>``, and a second host's identity moves all three."""
+    from auv_envs.core import cache
+    from baselines.docking.control import ofnmpc
+
+    monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
+    here = {"native": native.cache_dir(), "casadi": ofnmpc.cache_dir()}
+    for kind, path in here.items():
+        assert path == tmp_path / kind / cache.host_key()
+    monkeypatch.delenv("AUV_ENVS_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert native.cache_dir() == tmp_path / "xdg" / "auv_envs" / "native" / cache.host_key()
+    monkeypatch.setenv("AUV_ENVS_CACHE", str(tmp_path))
+    features = cache.cpu_features()
+    monkeypatch.setattr(cache, "cpu_features", lambda: features + " sve_fake")
+    assert native.cache_dir() != here["native"] and ofnmpc.cache_dir() != here["casadi"]
+    assert native.cache_dir().parent == here["native"].parent
 
 
 def test_no_compiler_leaves_the_virtual_machine(own_cache, monkeypatch):

@@ -18,45 +18,22 @@ the compiled PPO's start-up (``benchmarks/compiled_startup.py``, ``docs/training
 
 from __future__ import annotations
 
-import hashlib
-import os
-import platform
 import warnings
 from pathlib import Path
 
 import jax
 
+from auv_envs.core.cache import host_cache
+
 #: Backends whose cache loader we trust by default.
 SAFE_PLATFORMS = ("gpu", "cuda", "rocm", "tpu")
 
 
-def cpu_features() -> str:
-    """This host's CPU feature flags (``/proc/cpuinfo``'s first ``flags``, or the
-    processor's name where there is none)."""
-    try:
-        with open("/proc/cpuinfo") as handle:
-            for line in handle:
-                if line.startswith(("flags", "Features")):
-                    return " ".join(sorted(line.split(":", 1)[1].split()))
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def host_key() -> str:
-    """``<machine>-<12 hex digits of the CPU features>``: hosts whose programs may differ
-    (other CPU features) get different keys."""
-    digest = hashlib.sha256(cpu_features().encode()).hexdigest()[:12]
-    return f"{platform.machine()}-{digest}"
-
-
 def default_compilation_cache() -> Path:
-    """``$XDG_CACHE_HOME/auv_envs/jax/<host key>`` (``~/.cache`` without it): one
-    directory per kind of host (:func:`host_key`), so that a cache shared between
-    machines (a home directory on a cluster) never loads a program compiled for other
-    CPU features."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "auv_envs" / "jax" / host_key()
+    """``<user cache>/jax/<host key>`` (:func:`auv_envs.core.cache.host_cache`): one
+    directory per kind of host, so that a cache shared between machines (a home
+    directory on a cluster) never loads a program compiled for other CPU features."""
+    return host_cache("jax")
 
 
 def cache_for(platform: str | None = None) -> Path | None:

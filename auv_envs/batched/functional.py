@@ -20,7 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from auv_envs.core import native, task
+from auv_envs.core import task
+from auv_envs.core.cache import user_cache
 from auv_envs.families import Family, family
 
 #: MuJoCo's integrators by their MJCF names (``mjtIntegrator``'s order).
@@ -279,14 +280,14 @@ class FunctionalEnv:
     def xml_path(self) -> str:
         """A file of :attr:`mj_model`'s MJCF, its assets beside it: the model the env
         composed from ``assets/``, with the solver options it sets (timestep, integrator),
-        written once under the user's cache (``$AUV_ENVS_CACHE/models``, else
-        ``~/.cache/auv_envs/models``). ``mujoco.MjModel.from_xml_path`` of it is
+        written once under the user's cache (``<user cache>/models``,
+        :func:`auv_envs.core.cache.user_cache`). ``mujoco.MjModel.from_xml_path`` of it is
         :attr:`mj_model`."""
         model = self.mj_model
         source = self.task.model_source.with_option(
             timestep=float(model.opt.timestep),
             integrator=_INTEGRATOR_NAMES[int(model.opt.integrator)])
-        return str(source.write(native.cache_dir() / "models"))
+        return str(source.write(user_cache() / "models"))
 
     @property
     def model_assets(self) -> dict:

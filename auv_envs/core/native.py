@@ -15,8 +15,9 @@ inputs drawn once (:func:`machine_code`); a function that differs, a compiler th
 missing or fails, or a library that does not load leaves the virtual machine in use,
 with the same results. ``tests/test_native.py`` checks each shipped function.
 
-Built libraries are kept under ``$AUV_ENVS_CACHE`` (default
-``$XDG_CACHE_HOME/auv_envs`` or ``~/.cache/auv_envs``), each named by the SHA-256 of
+Built libraries are kept under :func:`cache_dir` (``<user cache>/native/<host key>``,
+:mod:`auv_envs.core.cache`: one directory per kind of host, so a node sharing the cache
+never loads a library built for other CPU features), each named by the SHA-256 of
 its C source, the compiler's identity and the flags: a changed function is a new file,
 never a stale one. ``AUV_ENVS_NATIVE=0`` turns machine code off.
 """
@@ -32,6 +33,8 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+
+from auv_envs.core.cache import host_cache
 
 #: The flags: optimised, position-independent, no contraction into fused multiply-adds
 #: (which would round once where the virtual machine rounds twice); CasADi's helpers
@@ -50,11 +53,8 @@ def enabled() -> bool:
 
 
 def cache_dir() -> Path:
-    """Where built libraries are kept (see the module's docstring)."""
-    if os.environ.get("AUV_ENVS_CACHE"):
-        return Path(os.environ["AUV_ENVS_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "auv_envs"
+    """Where this host's built libraries are kept (see the module's docstring)."""
+    return host_cache("native")
 
 
 def compiler() -> str | None:

@@ -93,6 +93,7 @@ try:
 except ImportError:  # not POSIX
     fcntl = None
 
+from auv_envs.core.cache import host_cache
 from baselines.docking.estimation.observers import N_INPUT, N_STATE, PSI, VisualObservationModel
 
 
@@ -158,10 +159,10 @@ _NLP_FUNCTIONS = ("nlp_f", "nlp_g", "nlp_grad", "nlp_grad_f", "nlp_jac_g", "nlp_
 
 
 def cache_dir() -> Path:
-    """Where compiled solver libraries are kept: ``$AUV_ENVS_CACHE/casadi`` or
-    ``~/.cache/auv_envs/casadi``."""
-    root = os.environ.get("AUV_ENVS_CACHE") or Path.home() / ".cache" / "auv_envs"
-    return Path(root) / "casadi"
+    """Where this host's compiled solver libraries are kept: ``<user cache>/casadi/<host
+    key>`` (:func:`auv_envs.core.cache.host_cache`: a node sharing the cache never loads
+    a library built for other CPU features)."""
+    return host_cache("casadi")
 
 
 def compiled_nlpsol(name: str, plugin: str, solver: ca.Function, options: dict,
