@@ -101,6 +101,9 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
                              "CPU, where jaxlib can crash loading a large program)")
     parser.add_argument("--no-compilation-cache", action="store_true",
                         help="cppo: compile everything afresh, write no cache")
+    parser.add_argument("--devices", type=int, metavar="N",
+                        help="cppo: split the environments over the first N local devices "
+                             "(GPUs, TPU cores; default: all that split the batch evenly)")
     args = parser.parse_args(argv)
     if args.export is None and args.resume is None and (args.algo is None or args.env is None):
         parser.error("--algo and --env are required (unless --resume or --export)")
@@ -140,6 +143,9 @@ def _main(argv, prog: str) -> int:
                                       args.hyperparams_dir)
         elif args.overrides and args.resume is None:
             raise ConfigError("--set needs --algo and --env, or --resume")
+        if args.devices is not None and (expected is None or expected.algo != COMPILED):
+            raise ConfigError("--devices splits a new --algo cppo run's environments over "
+                              "local devices; the other trainers run on one")
         progress = not args.no_progress_bar
         if args.resume is not None:
             overrides = parse_overrides(args.overrides) if expected is None else None
@@ -214,7 +220,7 @@ def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespac
     from baselines.rl import compiled
     cache = None if args.no_compilation_cache else (
         args.compilation_cache or compiled.cache_for())
-    return compiled.train_run(config, run_dir, command, cache)
+    return compiled.train_run(config, run_dir, command, cache, args.devices)
 
 
 def write_curve(run_dir: Path) -> Path | None:

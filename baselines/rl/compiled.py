@@ -58,6 +58,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 from auv_envs.batched.compile_cache import (  # noqa: F401  (re-exported: train.py, tests)
     cache_for,
@@ -339,6 +341,71 @@ class Steps(NamedTuple):
     mean: jax.Array
 
 
+def local_devices(count: int | None = None) -> list:
+    """The first ``count`` of JAX's local devices (None: all of them)."""
+    devices = jax.local_devices()
+    if count is None:
+        return devices
+    if not 1 <= count <= len(devices):
+        raise ConfigError(f"devices {count}: this host has {len(devices)} local "
+                          f"{devices[0].platform} device(s)")
+    return devices[:count]
+
+
+def batch_devices(settings: Settings, count: int | None = None) -> list:
+    """The devices a run splits its environments over: ``count`` of them (None: as many
+    local devices as split the batch evenly, all of them where they do). Each device
+    needs whole environments and an equal share of every minibatch."""
+    recurrent = settings.lstm_hidden_size > 0
+    minibatch = settings.num_envs // settings.n_minibatches if recurrent else (
+        settings.num_envs * settings.n_steps // settings.n_minibatches)
+
+    def fits(n: int) -> bool:
+        return settings.num_envs % n == 0 and minibatch % n == 0
+
+    if count is None:
+        devices = local_devices()
+        return devices[:max(n for n in range(1, len(devices) + 1) if fits(n))]
+    devices = local_devices(count)
+    if not fits(count):
+        unit = "environments" if recurrent else "steps"
+        raise ConfigError(f"devices {count}: num_envs ({settings.num_envs}) and a minibatch "
+                          f"({minibatch} {unit}) must split evenly over the devices")
+    return devices
+
+
+class DataParallel:
+    """The environment batch split over ``devices`` (a mesh of one axis, ``"envs"``).
+
+    Arrays with a batch of environments (or a minibatch of their steps) along an axis are
+    split along it, a slice a device; everything else (the networks, the optimiser, the
+    normaliser, the keys) is replicated. The iteration stays one compiled program: XLA
+    partitions it, each device steps its own environments and computes its share of a
+    minibatch's gradient, and the reductions (the gradient's mean, the normaliser's
+    statistics, the auto-reset's ``any``) are summed across the devices.
+    """
+
+    def __init__(self, devices):
+        self.devices = tuple(devices)
+        self.mesh = Mesh(np.array(self.devices), ("envs",))
+        self.whole = NamedSharding(self.mesh, P())
+
+    def _layout(self, apply, tree, size: int | None, axis: int):
+        split = NamedSharding(self.mesh, P(*(None,) * axis, "envs"))
+        return jax.tree_util.tree_map(
+            lambda a: apply(a, split if a.ndim > axis and a.shape[axis] == size
+                            else self.whole), tree)
+
+    def put(self, tree, size: int | None, axis: int = 0):
+        """``tree`` placed on the devices: split along ``axis`` where it has ``size``
+        entries, replicated elsewhere (everywhere with ``size`` None)."""
+        return self._layout(jax.device_put, tree, size, axis)
+
+    def constrain(self, tree, size: int | None, axis: int = 0):
+        """:meth:`put`'s layout inside a traced function."""
+        return self._layout(jax.lax.with_sharding_constraint, tree, size, axis)
+
+
 class Trainer:
     """PPO on a batched environment (actions in [-1, 1]: :meth:`FunctionalEnv.use_unit_actions`);
     :meth:`iteration` is one compiled call.
@@ -358,11 +425,18 @@ class Trainer:
     Ross, Gordon and Bagnell 2011, "A Reduction of Imitation Learning and Structured
     Prediction to No-Regret Online Learning", AISTATS), and the policy's mean is fitted
     to the labels (squared error); there is no critic.
+
+    ``devices``: the local devices to split the environments over (:class:`DataParallel`;
+    default: :func:`batch_devices`, all that split the batch evenly). On one device the
+    program is the single-device one.
     """
 
     def __init__(self, env: FunctionalEnv, settings: Settings = DEFAULT_SETTINGS,
-                 total_iterations=1):
+                 total_iterations=1, devices=None):
         self.env, self.settings = env, settings
+        self.devices = tuple(batch_devices(settings) if devices is None else devices)
+        #: The split over several devices; None on one.
+        self.parallel = DataParallel(self.devices) if len(self.devices) > 1 else None
         space = env.observation_space
         self.privileged = settings.privileged_critic or bool(settings.teacher)
         is_split = isinstance(space, gym.spaces.Dict) and PRIVILEGED_KEY in space.spaces
@@ -438,7 +512,19 @@ class Trainer:
         normalizer = Normalizer.create(self.obs_size + (self.privileged_size or 0)).update(
             self._joined(obs, privileged))
         rollout = self._fresh_rollout(states)
-        return params, self.optimizer.init(params), normalizer, rollout, key
+        opt_state = self.optimizer.init(params)
+        if self.parallel is not None:
+            params, opt_state, normalizer, key = self.parallel.put(
+                (params, opt_state, normalizer, key), None)
+            rollout = self.parallel.put(rollout, self.settings.num_envs)
+        return params, opt_state, normalizer, rollout, key
+
+    def _split_envs(self, tree, size: int | None, axis: int = 0):
+        """``tree`` split over the devices along ``axis`` where it has ``size`` entries,
+        replicated elsewhere (:meth:`DataParallel.constrain`); as it is on one device."""
+        if self.parallel is None:
+            return tree
+        return self.parallel.constrain(tree, size, axis)
 
     def _fresh_rollout(self, states) -> Rollout:
         """Environments just reset: blank memories, every one at an episode's start."""
@@ -585,7 +671,8 @@ class Trainer:
                                       jax.random.uniform(sample_key, mean.shape[:1]), share,
                                       jnp)
                 log_prob = jnp.zeros(mean.shape[:1])
-            nxt = self._step(stepped.env, jnp.clip(executed, -1.0, 1.0))
+            nxt = self._split_envs(self._step(stepped.env, jnp.clip(executed, -1.0, 1.0)),
+                                   s.num_envs)
             out = Steps(obs, privileged, rollout.starts, action, log_prob, value, nxt.reward,
                         nxt.done.astype(jnp.float32), nxt.metrics["is_success"] & nxt.done,
                         mean)
@@ -625,7 +712,10 @@ class Trainer:
                  "reward": rewards.mean()}
         if self.teacher is not None:  # the student's actions against the labels, before
             stats["imitation_error"] = self._distillation_loss(params, means, None, actions)
-        return params, opt_state, normalizer, rollout, key, stats
+        params, opt_state, normalizer, key = self._split_envs(
+            (params, opt_state, normalizer, key), None)
+        return (params, opt_state, normalizer, self._split_envs(rollout, s.num_envs), key,
+                stats)
 
     def _ppo_loss(self, params, mean, value, action, old_log_prob, advantage, ret):
         """PPO's clipped surrogate, the value's squared error and the entropy bonus."""
@@ -674,6 +764,7 @@ class Trainer:
             order = jax.random.permutation(key, batch[0].shape[0])
             minibatches = jax.tree_util.tree_map(
                 lambda a: a[order].reshape(s.n_minibatches, -1, *a.shape[1:]), batch)
+            minibatches = self._split_envs(minibatches, order.shape[0] // s.n_minibatches, 1)
             return jax.lax.scan(self._update(loss_fn), carry, minibatches)[0], None
 
         _, epoch_key = jax.random.split(key)
@@ -705,6 +796,9 @@ class Trainer:
                 jax.tree_util.tree_map(  # time first: (groups, time, envs, ...)
                 lambda a: jnp.swapaxes(a[:, order].reshape(
                     a.shape[0], s.n_minibatches, -1, *a.shape[2:]), 0, 1), steps))
+            group = s.num_envs // s.n_minibatches
+            groups = (self._split_envs(groups[0], group, 1),
+                      self._split_envs(groups[1], group, 2))
             return jax.lax.scan(self._update(loss_fn), carry, groups)[0], None
 
         _, epoch_key = jax.random.split(key)
@@ -721,18 +815,26 @@ class Trainer:
         params = jax.eval_shape(lambda: self.init_params(jax.random.PRNGKey(0)))
         normalizer = jax.eval_shape(
             lambda: Normalizer.create(self.obs_size + (self.privileged_size or 0)))
+        if self.parallel is not None:  # as the run holds them: replicated
+            params, normalizer = jax.tree_util.tree_map(
+                lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=self.parallel.whole),
+                (params, normalizer))
         return self.evaluate.lower(params, normalizer, episodes, steps).compile()
 
     def _evaluate(self, params, normalizer, episodes: int, steps: int, key=None):
         """Deterministic (mean) actions on ``episodes`` fresh batched episodes:
         ``(success rate, mean return, standard deviation of the returns)``."""
         key = jax.random.PRNGKey(12345) if key is None else key
-        rollout = self._fresh_rollout(self._reset(jax.random.split(key, episodes)))
+
+        def split(tree):  # where the episodes split evenly over the devices
+            return tree if episodes % len(self.devices) else self._split_envs(tree, episodes)
+
+        rollout = split(self._fresh_rollout(self._reset(jax.random.split(key, episodes))))
 
         def act(carry, _):
             rollout, done, success, total = carry
             mean, _, rollout = self.policy_step(params, normalizer, rollout)
-            nxt = self._step(rollout.env, jnp.clip(mean, -1.0, 1.0))
+            nxt = split(self._step(rollout.env, jnp.clip(mean, -1.0, 1.0)))
             ended = nxt.done & ~done
             total = total + jnp.where(done, 0.0, nxt.reward)
             return (rollout._replace(env=nxt, starts=nxt.done), done | nxt.done,
@@ -793,13 +895,14 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
           checkpoints: bool = False, checkpoint_dir: Path | None = None, command: str = "",
           stop=lambda: False, obs_mode: str = "features", marker_track: bool = False,
           detection_fixes: bool = False, nav_filter: bool = False,
-          detection_track: bool = False) -> dict:
+          detection_track: bool = False, devices: int | None = None) -> dict:
     """Train and write ``out`` as an SB3 policy directory; returns its manifest.
 
     ``env_kwargs``: the environment's arguments (a difficulty level alone: a string);
     ``marker_track``, ``detection_fixes``, ``detection_track``, ``nav_filter``: train on
     the marker tracker's observation, on the detection fixes (with a track), with the
-    navigation filter (:func:`make_env`).
+    navigation filter (:func:`make_env`). ``devices``: how many local devices to split the
+    environments over (None: :func:`batch_devices`' choice).
 
     ``group``: the leaderboard pools policies of one group (training seeds) into one row.
     ``evals``: batched evaluations of :data:`EVAL_EPISODES` episodes during the run, the
@@ -822,7 +925,7 @@ def train(env_id: str, env_kwargs: dict | str, timesteps: int, seed: int, out: P
     difficulty = env_kwargs.get("difficulty", "paper")
     per_iteration = settings.num_envs * settings.n_steps
     iterations = max(1, math.ceil(timesteps / per_iteration))
-    trainer = Trainer(env, settings, iterations)
+    trainer = Trainer(env, settings, iterations, batch_devices(settings, devices))
     run = {"env_id": env_id, "obs_mode": obs_mode, "seed": seed, "difficulty": difficulty,
            "env_kwargs": env_kwargs, "marker_track": marker_track,
            "detection_fixes": detection_fixes, "detection_track": detection_track,
@@ -1010,7 +1113,8 @@ def export(params: dict, normalizer: Normalizer, out: Path, run: dict) -> dict:
 
 
 def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
-              compilation_cache: Path | None = None) -> TrainResult:
+              compilation_cache: Path | None = None, devices: int | None = None
+              ) -> TrainResult:
     """``train.py --algo cppo``: train ``config`` (``baselines/rl/hyperparams/cppo.yml``
     resolved) into a new run directory laid out as a ``train.py`` run.
 
@@ -1018,7 +1122,9 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
     status, steps, wall time), ``eval_curve.csv``, ``final/`` (the policy:
     ``evaluate.py --policy RUN_DIR``, ``train.py --export``) and, with
     ``checkpoints: true``, ``checkpoints/step_<N>/``. ``compilation_cache``: keep
-    compiled programs there (:func:`use_compilation_cache`). SIGINT or SIGTERM
+    compiled programs there (:func:`use_compilation_cache`). ``devices``: how many local
+    devices to split the environments over (None: :func:`batch_devices`' choice; the
+    devices used are recorded in ``run.json``). SIGINT or SIGTERM
     writes the policy so far to ``final/`` and stops (status ``interrupted``); a
     compiled run cannot be resumed, but the same config and seed train the same
     policy again.
@@ -1026,6 +1132,8 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
     validate(config)
     if config.algo != COMPILED:
         raise ConfigError(f"train_run trains {COMPILED!r} configs, got {config.algo!r}")
+    settings = Settings(**config.hyperparams)
+    used = batch_devices(settings, devices)
     run = RunDirectory(run_dir)
     if run.config.exists():
         raise ConfigError(f"{run.path} already holds a run; pick another --run-dir")
@@ -1036,6 +1144,7 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
     info = {**package_versions(), "jax": jax.__version__, "optax": optax.__version__,
             "algo": config.algo, "env_id": config.env_id, "seed": config.seed,
             "command": command, "n_timesteps": config.run["n_timesteps"], "status": "running",
+            "devices": [str(device) for device in used],
             "segments": [{"command": command, "start_step": 0, "status": "running"}]}
     write_run_info(run, info)
     flag = SimpleNamespace(stop_signal=None)
@@ -1043,11 +1152,11 @@ def train_run(config: TrainConfig, run_dir: str | Path, command: str = "",
         with stop_on_signals(flag, "writing the policy so far after this iteration"):
             manifest = train(config.env_id, {"difficulty": "paper", **config.run["env_kwargs"]},
                              config.run["n_timesteps"], config.seed, run.final,
-                             Settings(**config.hyperparams), config.run["evals"],
+                             settings, config.run["evals"],
                              checkpoints=config.run["checkpoints"],
                              checkpoint_dir=run.checkpoints, command=command,
                              stop=lambda: flag.stop_signal is not None,
-                             obs_mode=config.run["obs_mode"],
+                             obs_mode=config.run["obs_mode"], devices=len(used),
                              **{name: config.run[name] for name in BATCHED_FRONT_ENDS})
     except TrainingDiverged as exc:
         exc.run_dir = run.path
