@@ -5,6 +5,8 @@
                     [--run-dir DIR] [--no-progress-bar] [--export-policy NAME]
     python train.py --resume RUN_DIR [--n-timesteps N] [--set learning_rate=VALUE]
     python train.py --export RUN_DIR --export-policy NAME
+    python train.py --algo ppo --env DockingStation-v2 --sweep-dir DIR --seeds 0 1 2
+                    [--grid KEY=V1,V2 ...] [--ray-address ADDR] [--cpus-per-run N]
 
 Hyperparameters come from ``baselines/rl/hyperparams/<algo>.yml`` (the env's
 entry over ``default``); ``--set`` overrides any key (dotted keys reach into
@@ -26,7 +28,13 @@ with a smaller learning rate (``--resume`` may change only
 (:mod:`baselines.rl.compiled`, ``pip install -e ".[jax]"``), from
 ``cppo.yml``: the same run directory, minutes instead of tens of minutes.
 Ctrl-C writes its policy so far; it cannot be resumed (the same seed trains
-the same policy again). ``--n-envs`` sets its batch (``num_envs``).
+the same policy again). ``--n-envs`` sets its batch (``num_envs``); ``--devices N``
+splits it over N local devices (default: all that split it evenly).
+
+``--sweep-dir DIR`` trains every seed of ``--seeds`` with every combination of the
+``--grid`` values as Ray tasks, each run a run directory ``DIR/<run>``, with a summary
+table at the end; the same command again continues an unfinished sweep
+(:mod:`baselines.rl.sweep`, ``pip install -e ".[ray]"``).
 """
 
 from __future__ import annotations
@@ -101,6 +109,17 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
                              "CPU, where jaxlib can crash loading a large program)")
     parser.add_argument("--no-compilation-cache", action="store_true",
                         help="cppo: compile everything afresh, write no cache")
+    sweep = parser.add_argument_group("sweeps (Ray)")
+    sweep.add_argument("--sweep-dir", type=Path, metavar="DIR",
+                       help="train --seeds x --grid as a sweep of runs, DIR/<run> each")
+    sweep.add_argument("--seeds", type=int, nargs="+", metavar="SEED",
+                       help="the sweep's training seeds")
+    sweep.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2",
+                       help="a setting the sweep varies (repeatable: every combination)")
+    sweep.add_argument("--ray-address", metavar="ADDR",
+                       help="the sweep's Ray cluster (default: a local Ray for the sweep)")
+    sweep.add_argument("--cpus-per-run", type=float, default=1.0, metavar="N",
+                       help="CPUs Ray reserves for each run of the sweep (default 1)")
     parser.add_argument("--devices", type=int, metavar="N",
                         help="cppo: split the environments over the first N local devices "
                              "(GPUs, TPU cores; default: all that split the batch evenly)")
@@ -109,6 +128,20 @@ def parse_args(argv=None, prog: str | None = None) -> argparse.Namespace:
         parser.error("--algo and --env are required (unless --resume or --export)")
     if args.export is not None and args.export_policy is None:
         parser.error("--export needs --export-policy NAME")
+    if args.sweep_dir is None:
+        for name in ("seeds", "grid", "ray_address"):
+            if getattr(args, name):
+                parser.error(f"--{name.replace('_', '-')} belongs to a sweep (--sweep-dir)")
+    else:
+        if args.seeds is None:
+            parser.error("--sweep-dir needs --seeds")
+        for name in ("run_dir", "resume", "export", "export_policy"):
+            if getattr(args, name) is not None:
+                parser.error(f"--{name.replace('_', '-')} does not go with --sweep-dir")
+        if "--seed" in (argv or sys.argv[1:]):
+            parser.error("a sweep takes --seeds, not --seed")
+        if args.cpus_per_run <= 0:
+            parser.error("--cpus-per-run must be positive")
     return args
 
 
@@ -131,6 +164,8 @@ def _main(argv, prog: str) -> int:
                                         args.export_group)
             print(f"exported {args.export} -> {path}")
             return 0
+        if args.sweep_dir is not None:
+            return _sweep(args)
         expected = None
         if args.algo is not None and args.env is not None:
             overrides = parse_overrides(args.overrides)
@@ -221,6 +256,42 @@ def _train_compiled(config, run_dir: Path, command: str, args: argparse.Namespac
     cache = None if args.no_compilation_cache else (
         args.compilation_cache or compiled.cache_for())
     return compiled.train_run(config, run_dir, command, cache, args.devices)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    """``--sweep-dir``: every run's config checked first, then the runs as Ray tasks
+    (:mod:`baselines.rl.sweep`); 0 when every run finished."""
+    from baselines.rl import sweep
+
+    common = ["--algo", args.algo, "--env", args.env]
+    for flag, value in (("--obs-mode", args.obs_mode), ("--n-envs", args.n_envs),
+                        ("--n-timesteps", args.n_timesteps), ("--devices", args.devices),
+                        ("--compilation-cache", args.compilation_cache)):
+        if value is not None:
+            common += [flag, str(value)]
+    if args.no_compilation_cache:
+        common.append("--no-compilation-cache")
+    if args.hyperparams_dir is not None:  # relative to the working tree, which travels
+        path = args.hyperparams_dir.resolve()
+        common += ["--hyperparams-dir", str(path.relative_to(sweep.ROOT)
+                                            if path.is_relative_to(sweep.ROOT) else path)]
+    common += [arg for item in args.overrides for arg in ("--set", item)]
+    runs = sweep.plan(args.seeds, sweep.parse_grid(args.grid), common)
+    batch = "num_envs" if args.algo == COMPILED else "n_envs"
+    for run in runs:  # a bad value stops the sweep before anything runs
+        overrides = parse_overrides([*args.overrides, *(f"{k}={v}" for k, v in run.variant)])
+        for key, value in ((batch, args.n_envs), ("n_timesteps", args.n_timesteps),
+                           ("obs_mode", args.obs_mode)):
+            if value is not None:
+                overrides[key] = value
+        resolve_config(args.algo, _env_id(args.env), run.seed, overrides, args.hyperparams_dir)
+    print(f"sweep: {len(runs)} runs into {args.sweep_dir}", flush=True)
+    rows = sweep.sweep(runs, args.sweep_dir, args.algo, args.ray_address, args.cpus_per_run)
+    print(sweep.table(rows))
+    failed = [row["run"] for row in rows if row["status"] != sweep.FINISHED]
+    print(f"summary: {args.sweep_dir / 'summary.csv'}; "
+          + (f"not finished: {', '.join(failed)}" if failed else "every run finished"))
+    return 1 if failed else 0
 
 
 def write_curve(run_dir: Path) -> Path | None:

@@ -1,0 +1,101 @@
+"""Training sweeps on Ray (``train.py --sweep-dir``, :mod:`baselines.rl.sweep`): every
+seed x variant a run directory like a single run's, a failing run reported while the
+others finish, a summary table, and the same command continuing an unfinished sweep."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+
+import pytest
+
+pytest.importorskip("ray")
+
+import train as train_cli  # noqa: E402
+from baselines.rl import sweep  # noqa: E402
+from baselines.rl.config import ConfigError  # noqa: E402
+
+#: A tiny PPO run: 64 steps, one held-out episode at 32 and 64.
+TINY = ["--algo", "ppo", "--env", "DockingStation-v2", "--n-timesteps", "64",
+        "--set", "n_envs=1", "--set", "n_steps=32", "--set", "batch_size=16",
+        "--set", "n_eval_episodes=1", "--set", "eval_freq=32"]
+#: One variant that trains and one whose env cannot be built (a negative time limit is
+#: refused when the run builds its env, after the sweep has started).
+GRID = ["--grid", "env_kwargs.time_limit=5.0,-1.0"]
+GOOD, BAD = "s1-env_kwargs_time_limit=5.0", "s1-env_kwargs_time_limit=-1.0"
+
+
+def summary(sweep_dir) -> dict[str, dict]:
+    with open(sweep_dir / "summary.csv", newline="") as handle:
+        return {row["run"]: row for row in csv.DictReader(handle)}
+
+
+def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    code = train_cli.main([*TINY, *GRID, "--sweep-dir", str(out), "--seeds", "1", "2",
+                           "--cpus-per-run", "0.5"])
+    printed = capsys.readouterr().out
+    assert code == 1  # not every run finished
+    rows = summary(out)
+    assert len(rows) == 4
+    for seed in (1, 2):
+        good = rows[GOOD.replace("s1", f"s{seed}")]
+        assert good["status"] == "finished" and good["exit_code"] == "0"
+        assert good["steps"] == "64" and good["seed"] == str(seed)
+        run_dir = out / good["run"]
+        # The files of a single train.py run, its config with the seed and the variant.
+        for name in ("config.yml", "run.json", "eval_curve.csv", "final/model.zip"):
+            assert (run_dir / name).exists(), name
+        info = json.loads((run_dir / "run.json").read_text())
+        assert info["status"] == "finished" and info["seed"] == seed
+        assert "--run-dir " + good["run"] in info["command"]
+        assert "time_limit: 5.0" in (run_dir / "config.yml").read_text()
+        bad = rows[BAD.replace("s1", f"s{seed}")]
+        assert bad["status"] == "failed" and bad["exit_code"] == "2"
+        assert "time_limit must be a positive number" in (out / bad["log"]).read_text()
+    assert "| " + GOOD + " | 1 | env_kwargs.time_limit=5.0 | finished | 0 | 64 |" in printed
+    assert "not finished: " in printed and BAD in printed
+
+    # The same command again: the finished runs are kept as they are; an unfinished run
+    # with a checkpoint is continued; one without is set aside and started again.
+    kept = (out / GOOD / "run.json").read_text()
+    unfinished = out / GOOD.replace("s1", "s2")
+    # Stopped at its first checkpoint (as Ctrl-C leaves a run): step 0 of 64.
+    shutil.rmtree(unfinished / "checkpoints" / "step-0000000064")
+    (unfinished / "checkpoints" / "latest").write_text(
+        json.dumps({"checkpoint": "step-0000000000"}))
+    info = json.loads((unfinished / "run.json").read_text())
+    (unfinished / "run.json").write_text(json.dumps({**info, "status": "interrupted",
+                                                     "steps": 0}))
+    (out / BAD).mkdir()
+    (out / BAD / "run.json").write_text(json.dumps({"status": "running"}))
+    code = train_cli.main([*TINY, *GRID, "--sweep-dir", str(out), "--seeds", "1", "2",
+                           "--cpus-per-run", "0.5"])
+    printed = capsys.readouterr().out
+    assert code == 1
+    assert f"{GOOD}: finished before, kept" in printed
+    assert f"{unfinished.name}: continuing from its checkpoint" in printed
+    assert (out / GOOD / "run.json").read_text() == kept
+    resumed = json.loads((unfinished / "run.json").read_text())
+    assert resumed["status"] == "finished" and len(resumed["segments"]) == 2
+    assert (out / f"{BAD}.attempt-1" / "run.json").exists()  # nothing lost
+    assert summary(out)[unfinished.name]["status"] == "finished"
+
+
+def test_a_bad_sweep_is_refused_before_anything_runs(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    assert train_cli.main([*TINY, "--sweep-dir", str(out), "--seeds", "1",
+                           "--grid", "learning_rate=-1.0"]) == 2
+    assert "learning_rate" in capsys.readouterr().err and not out.exists()
+    with pytest.raises(SystemExit):
+        train_cli.main([*TINY, "--sweep-dir", str(out), "--seeds", "1", "--seed", "2"])
+    with pytest.raises(SystemExit):
+        train_cli.main([*TINY, "--seeds", "1", "2"])  # no --sweep-dir
+    with pytest.raises(ConfigError, match="repeats a seed"):
+        sweep.plan([1, 1], {}, [])
+    with pytest.raises(ConfigError, match="key=value1,value2"):
+        sweep.parse_grid(["learning_rate"])
+    runs = sweep.plan([0, 1], sweep.parse_grid(["gamma=0.9,0.99", "n_steps=32,64"]), ["-x"])
+    assert len(runs) == 8 and len({run.name for run in runs}) == 8
+    assert runs[0].argv == ("-x", "--seed", "0", "--set", "gamma=0.9", "--set", "n_steps=32")
