@@ -1,6 +1,8 @@
-"""Training sweeps on Ray (``train.py --sweep-dir``, :mod:`baselines.rl.sweep`): every
-seed x variant a run directory like a single run's, a failing run reported while the
-others finish, a summary table, and the same command continuing an unfinished sweep."""
+"""Training sweeps on Ray (``train.py --sweep-dir``, :mod:`baselines.rl.sweep`), on a
+local cluster of two nodes (:class:`~baselines.evaluation.backends.LocalRayCluster`):
+every seed x variant a run directory like a single run's, a failing run reported while
+the others finish, a summary table, and the same command continuing an unfinished
+sweep."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import pytest
 pytest.importorskip("ray")
 
 import train as train_cli  # noqa: E402
+from baselines.evaluation import LocalRayCluster  # noqa: E402
 from baselines.rl import sweep  # noqa: E402
 from baselines.rl.config import ConfigError  # noqa: E402
 
@@ -26,15 +29,23 @@ GRID = ["--grid", "env_kwargs.time_limit=5.0,-1.0"]
 GOOD, BAD = "s1-env_kwargs_time_limit=5.0", "s1-env_kwargs_time_limit=-1.0"
 
 
+@pytest.fixture(scope="module")
+def cluster():
+    with LocalRayCluster(nodes=2) as running:
+        yield running
+
+
 def summary(sweep_dir) -> dict[str, dict]:
     with open(sweep_dir / "summary.csv", newline="") as handle:
         return {row["run"]: row for row in csv.DictReader(handle)}
 
 
-def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, capsys):
+def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, capsys,
+                                                                      cluster):
     out = tmp_path / "sweep"
-    code = train_cli.main([*TINY, *GRID, "--sweep-dir", str(out), "--seeds", "1", "2",
-                           "--cpus-per-run", "0.5"])
+    on_cluster = ["--ray-address", cluster.address]
+    code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
+                           "--seeds", "1", "2", "--cpus-per-run", "0.5"])
     printed = capsys.readouterr().out
     assert code == 1  # not every run finished
     rows = summary(out)
@@ -70,8 +81,8 @@ def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, 
                                                      "steps": 0}))
     (out / BAD).mkdir()
     (out / BAD / "run.json").write_text(json.dumps({"status": "running"}))
-    code = train_cli.main([*TINY, *GRID, "--sweep-dir", str(out), "--seeds", "1", "2",
-                           "--cpus-per-run", "0.5"])
+    code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
+                           "--seeds", "1", "2", "--cpus-per-run", "0.5"])
     printed = capsys.readouterr().out
     assert code == 1
     assert f"{GOOD}: finished before, kept" in printed

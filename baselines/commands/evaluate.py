@@ -234,7 +234,10 @@ def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
     parser.add_argument("--backend", choices=BACKENDS, default="local",
                         help="local processes (default) or Ray tasks")
     parser.add_argument("--ray-address", type=str, default=None,
-                        help="address of an existing Ray cluster (default: start a local Ray)")
+                        help="address of an existing Ray cluster (default: start a local Ray); "
+                             "the source tree and the shipped policies go with the job, so each "
+                             "node needs only the Python environment, and the rows and clips "
+                             "come back to this machine")
     parser.add_argument("--workers", type=int, default=default_workers(),
                         help="local worker processes, 1 = in this process; with a local Ray, "
                              f"its CPUs (default {default_workers()})")
@@ -445,8 +448,12 @@ def _main(argv, prog: str) -> int:
     stats = run.stats
     rejected = (f" ({stats.rejected} cached episodes rejected and run again: see the "
                 f"warnings above)" if stats.rejected else "")
+    retried = ""
+    if args.backend == "ray":
+        retried = f", {stats.retried} retried" + (
+            " (Ray ran them again: a worker or node was lost)" if stats.retried else "")
     print(f"{len(run.rows)} episodes: {stats.ran} run, {stats.cached} from the cache{rejected}, "
-          f"{stats.failed} failed; wrote {paths['leaderboard.html']} and "
+          f"{stats.failed} failed{retried}; wrote {paths['leaderboard.html']} and "
           f"{len(paths) - 1} more files under {args.out}", file=sys.stderr)
     if video is not None:
         kind = "MP4 and GIF" if video.gif else "MP4"

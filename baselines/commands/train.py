@@ -272,9 +272,9 @@ def _sweep(args: argparse.Namespace) -> int:
     if args.no_compilation_cache:
         common.append("--no-compilation-cache")
     if args.hyperparams_dir is not None:  # relative to the working tree, which travels
-        path = args.hyperparams_dir.resolve()
-        common += ["--hyperparams-dir", str(path.relative_to(sweep.ROOT)
-                                            if path.is_relative_to(sweep.ROOT) else path)]
+        path, root = args.hyperparams_dir.resolve(), Path(__file__).resolve().parents[2]
+        common += ["--hyperparams-dir",
+                   str(path.relative_to(root) if path.is_relative_to(root) else path)]
     common += [arg for item in args.overrides for arg in ("--set", item)]
     runs = sweep.plan(args.seeds, sweep.parse_grid(args.grid), common)
     batch = "num_envs" if args.algo == COMPILED else "n_envs"

@@ -15,7 +15,9 @@ module has one job:
   request into tasks and the (env, agent) pairs it skips with the reason (the
   agent's own declaration, :meth:`baselines.registry.AgentSpec.skip_reason`).
 * :mod:`~baselines.evaluation.backends`: :func:`run_tasks` runs them in this
-  process, in local worker processes or as Ray tasks.
+  process, in local worker processes or as Ray tasks (the code goes with the
+  job, rows and clips come back, a lost worker or node costs a retry;
+  :class:`LocalRayCluster` runs a cluster of several nodes on one machine).
 * :mod:`~baselines.evaluation.cache`: every finished episode is written to an
   :class:`EpisodeCache` at once (one JSON file per episode, atomic), so a rerun
   skips it and an interrupted run loses only the episodes in flight. Failed
@@ -40,7 +42,7 @@ from typing import Any
 
 import auv_envs
 from baselines.evaluation import board
-from baselines.evaluation.backends import BACKENDS, RunStats, run_tasks
+from baselines.evaluation.backends import BACKENDS, LocalRayCluster, RunStats, run_tasks
 from baselines.evaluation.cache import EpisodeCache, row_from_dict, row_to_dict
 from baselines.evaluation.episodes import (
     POLICY_PREFIX,
@@ -85,6 +87,7 @@ __all__ = [
     "EpisodeRow",
     "EpisodeTask",
     "EvaluationRun",
+    "LocalRayCluster",
     "RunStats",
     "VideoSpec",
     "atomic_write",

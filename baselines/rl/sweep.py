@@ -22,8 +22,9 @@ overrides they all share), each run one Ray task that calls ``train.py`` itself:
   the end; the sweep's exit code is 0 only when every run finished.
 
 The cluster: ``--ray-address`` (a running cluster; the working tree travels to its
-workers through Ray's ``runtime_env``, as for ``evaluate.py --backend ray``) or a
-local Ray started for the sweep. ``--cpus-per-run`` CPUs are reserved for each run.
+workers through Ray's ``runtime_env``,
+:func:`~baselines.evaluation.backends.ray_session`, as for ``evaluate.py --backend
+ray``) or a local Ray started for the sweep. ``--cpus-per-run`` CPUs are reserved for each run.
 """
 
 from __future__ import annotations
@@ -97,30 +98,6 @@ def plan(seeds: Sequence[int], grid: dict[str, list[str]], common: Sequence[str]
             runs.append(SweepRun(f"s{seed}{suffix}", seed, variant,
                                  (*common, "--seed", str(seed), *sets)))
     return runs
-
-
-#: The repository: Ray's ``working_dir`` for the workers.
-ROOT = Path(__file__).resolve().parents[2]
-
-
-@contextlib.contextmanager
-def _ray(address: str | None):
-    """Ray connected to the cluster at ``address`` (or a local one started here), the
-    working tree shipped to its workers; shut down after, where started here."""
-    from auv_envs.extras import require
-
-    ray = require("ray", "ray", "train.py --sweep-dir")
-    started = not ray.is_initialized()
-    if started:
-        ray.init(address=address, include_dashboard=False, runtime_env={
-            "working_dir": str(ROOT),
-            "excludes": [".git", ".venv", "runs", "docs", "site", "**/__pycache__",
-                         ".ruff_cache", ".pytest_cache"]})
-    try:
-        yield ray
-    finally:
-        if started:
-            ray.shutdown()
 
 
 def _pack(directory: Path) -> bytes:
@@ -204,6 +181,8 @@ def sweep(runs: Sequence[SweepRun], sweep_dir: str | Path, algo: str,
           echo=print) -> list[dict]:
     """Run ``runs`` as Ray tasks into ``sweep_dir`` (module docstring); returns the summary's
     rows (also written to ``sweep_dir/summary.csv``) in ``runs``' order."""
+    from baselines.evaluation.backends import ray_session
+
     sweep_dir = Path(sweep_dir)
     (sweep_dir / "logs").mkdir(parents=True, exist_ok=True)
     rows, todo = {}, []
@@ -224,7 +203,7 @@ def sweep(runs: Sequence[SweepRun], sweep_dir: str | Path, algo: str,
                      f"{_set_aside(run_dir).name}; starting again")
         todo.append((run, previous))
     if todo:
-        with _ray(ray_address) as ray:
+        with ray_session(ray_address, None, [sweep_dir], "train.py --sweep-dir") as ray:
             remote = ray.remote(num_cpus=cpus_per_run, max_calls=1, max_retries=1)(run_one)
             pending = {remote.remote(run.name, run.argv, previous): run
                        for run, previous in todo}
