@@ -18,7 +18,7 @@ import warnings
 import numpy as np
 
 from auv_envs.core import frames, rays
-from auv_envs.core.camera import inside_image_flat, project_few
+from auv_envs.core.camera import project_few
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
 from auv_envs.tasks.docking import transition
@@ -112,34 +112,34 @@ class CompiledTruth:
         if scenery is not None and not self._call.native:
             # On CasADi's virtual machine the lines of sight cost more than MuJoCo's ray
             # casts; as machine code, less (docs/speed.md).
-            function, self._layout, self._pixels = _truth_function(rules, None)
+            scenery = None
+            function, self._layout, self._pixels = _truth_function(rules, scenery)
             self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
+        self._sight_compiled = scenery is not None
         self.physics, self.lights = physics, rules.lights
-        self._intrinsics = rules.intrinsics
 
     def __call__(self) -> dict:
-        out, clear = self._call()
+        out, seen = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
-        pixels = values[self._pixels]
-        in_image = inside_image_flat(self._intrinsics, pixels)
-        if clear.size:
-            visible = [inside and sight > 0.5
-                       for inside, sight in zip(in_image, clear.tolist(), strict=True)]
-        else:  # left to MuJoCo (see __init__)
-            visible = self.physics.unoccluded(truth["camera_position"], self.lights, in_image)
-        return transition.truth_with_lights(truth, np.array(pixels).reshape(-1, 2),
-                                            np.array(visible), FLOATS)
+        visible = seen > 0.5  # in the image and, where compiled, in sight
+        if not self._sight_compiled:  # lines of sight left to MuJoCo (see __init__)
+            visible = np.array(self.physics.unoccluded(truth["camera_position"], self.lights,
+                                                       visible.tolist()))
+        # A copy: the call's output array is written again by the next call.
+        return transition.truth_with_lights(truth, out[self._pixels].reshape(-1, 2).copy(),
+                                            visible, FLOATS)
 
 
 @functools.lru_cache(maxsize=32)
 def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | None):
     """:class:`CompiledTruth`'s CasADi function of ``(qpos, qvel)`` (outputs: the truth, and
-    per light 1 where no geom of ``scenery`` lies on the segment from the camera centre to
-    it, else 0; none where ``scenery`` is None), with the truth's keys (each with its
-    slice of the output and whether it is a tuple) and the pixels' slice; built once per
-    task's rules and scenery (a CasADi function is immutable)."""
+    per light 1 where its pixel is in the image (:func:`~auv_envs.core.camera.inside_image`:
+    a NaN pixel is not) and no geom of ``scenery`` lies on the segment from the camera
+    centre to it, else 0; the image alone where ``scenery`` is None), with the truth's keys
+    (each with its slice of the output and whether it is a tuple) and the pixels' slice;
+    built once per task's rules and scenery (a CasADi function is immutable)."""
     import casadi
 
     ops = casadi_ops()
@@ -157,9 +157,15 @@ def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | N
         flat.extend(values)
     pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
     flat.extend(c for pixel in pixels for c in pixel)
-    camera, clear = truth["camera_position"], []
-    for light in ([] if scenery is None else rules.lights):
-        clear.append(ops.where(rays.blocked(scenery, camera, light, ops), 0.0, 1.0))
+    camera, seen = truth["camera_position"], []
+    width, height = rules.intrinsics.width, rules.intrinsics.height
+    for light, (u, v) in zip(rules.lights, pixels, strict=True):
+        inside = casadi.logic_and(casadi.logic_and(0.0 <= u, u < width),
+                                  casadi.logic_and(0.0 <= v, v < height))
+        if scenery is not None:
+            inside = casadi.logic_and(inside, casadi.logic_not(
+                rays.blocked(scenery, camera, light, ops)))
+        seen.append(ops.where(inside, 1.0, 0.0))
     function = casadi.Function("docking_truth", [qpos, qvel],
-                               [casadi.vertcat(*flat), casadi.vertcat(*clear)], {"cse": True})
+                               [casadi.vertcat(*flat), casadi.vertcat(*seen)], {"cse": True})
     return function, tuple(layout), pixel_slice
