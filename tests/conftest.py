@@ -7,6 +7,10 @@ privileged ``info["true_position"]``, and its MuJoCo data at ``physics.data``.
 
 from __future__ import annotations
 
+import fcntl
+import tempfile
+from pathlib import Path
+
 import gymnasium as gym
 import pytest
 
@@ -78,3 +82,13 @@ def array_of():
     def make(config) -> HydrophoneArray:
         return HydrophoneArray(base.positions, base.surface_z, base.bottom_z, config)
     return make
+
+
+@pytest.fixture(scope="module")
+def one_ray_cluster_at_a_time():
+    """Hold this machine's lock for a local Ray cluster while a module uses one: the test
+    processes (``pytest -n``) never run two clusters side by side on the same cores,
+    whose daemons and workers would starve each other."""
+    with open(Path(tempfile.gettempdir()) / "auv-envs-ray-cluster-tests.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        yield

@@ -89,7 +89,7 @@ def _board(rows: list[EpisodeRow]) -> str:
 
 
 @pytest.fixture
-def cluster(tmp_path):
+def cluster(tmp_path, one_ray_cluster_at_a_time):
     """Two nodes of one CPU each; their processes know :data:`KILL_MARKER`."""
     with LocalRayCluster(nodes=2, cpus=1,
                          env={KILL_MARKER: str(tmp_path / "killed")}) as nodes:

@@ -30,7 +30,7 @@ GOOD, BAD = "s1-env_kwargs_time_limit=5.0", "s1-env_kwargs_time_limit=-1.0"
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def cluster(one_ray_cluster_at_a_time):
     with LocalRayCluster(nodes=2) as running:
         yield running
 
@@ -45,7 +45,7 @@ def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, 
     out = tmp_path / "sweep"
     on_cluster = ["--ray-address", cluster.address]
     code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
-                           "--seeds", "1", "2", "--cpus-per-run", "0.5"])
+                           "--seeds", "1", "2"])
     printed = capsys.readouterr().out
     assert code == 1  # not every run finished
     rows = summary(out)
@@ -82,7 +82,7 @@ def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, 
     (out / BAD).mkdir()
     (out / BAD / "run.json").write_text(json.dumps({"status": "running"}))
     code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
-                           "--seeds", "1", "2", "--cpus-per-run", "0.5"])
+                           "--seeds", "1", "2"])
     printed = capsys.readouterr().out
     assert code == 1
     assert f"{GOOD}: finished before, kept" in printed

@@ -29,7 +29,6 @@ ray``) or a local Ray started for the sweep. ``--cpus-per-run`` CPUs are reserve
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import io
@@ -37,9 +36,10 @@ import itertools
 import json
 import os
 import shutil
+import subprocess
+import sys
 import tarfile
 import tempfile
-import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -114,34 +114,30 @@ def _unpack(data: bytes, directory: Path) -> None:
 
 
 def run_one(name: str, argv: Sequence[str], previous: bytes | None) -> dict:
-    """One run, where Ray places it: ``train.py`` in a scratch directory (continuing
-    ``previous``, a run directory's archive, when given); returns its exit code, its
-    output and its run directory's archive (None where none was written)."""
-    from baselines.commands.train import main
-
+    """One run, where Ray places it: ``train.py`` in a process of its own, in a scratch
+    directory (continuing ``previous``, a run directory's archive, when given), with this
+    node's copy of the tree first on its path; returns the run's exit code, its output
+    and its run directory's archive (None where none was written)."""
+    root = Path(__file__).resolve().parents[2]
     # Paths the driver gave relative to the working tree, read against this node's copy.
-    argv = [str(Path(arg).resolve()) if previous_arg == "--hyperparams-dir" else arg
+    argv = [str(root / arg) if previous_arg == "--hyperparams-dir" else arg
             for previous_arg, arg in zip(("", *argv[:-1]), argv, strict=True)]
-    output = io.StringIO()
+    if previous is not None:
+        argv = ["--resume", name]
+    else:
+        argv = [*argv, "--run-dir", name]
+    path = os.pathsep.join(filter(None, (str(root), os.environ.get("PYTHONPATH"))))
     with tempfile.TemporaryDirectory(prefix="auv-envs-sweep-") as scratch:
-        here = os.getcwd()
-        os.chdir(scratch)  # the run directory is recorded as ``name``, not a scratch path
-        try:
-            if previous is not None:
-                _unpack(previous, Path(name))
-                argv = ["--resume", name, "--no-progress-bar"]
-            else:
-                argv = [*argv, "--run-dir", name, "--no-progress-bar"]
-            with contextlib.redirect_stdout(output), contextlib.redirect_stderr(output):
-                try:
-                    code = main(list(argv))
-                except BaseException:  # noqa: BLE001 - the run's failure is its report
-                    traceback.print_exc()
-                    code = 1
-            archive = _pack(Path(name)) if Path(name, "run.json").exists() else None
-        finally:
-            os.chdir(here)
-    return {"exit_code": int(code), "log": output.getvalue(), "archive": archive}
+        if previous is not None:
+            _unpack(previous, Path(scratch, name))
+        # The run directory is recorded as ``name``, relative: not a scratch path.
+        done = subprocess.run([sys.executable, "-m", "baselines.commands.train", *argv,
+                               "--no-progress-bar"], cwd=scratch, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True,
+                              env={**os.environ, "PYTHONPATH": path})
+        run_dir = Path(scratch, name)
+        archive = _pack(run_dir) if (run_dir / "run.json").exists() else None
+    return {"exit_code": done.returncode, "log": done.stdout, "archive": archive}
 
 
 def _status(run_dir: Path) -> dict:
