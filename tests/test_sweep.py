@@ -9,6 +9,9 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -35,18 +38,27 @@ def cluster(one_ray_cluster_at_a_time):
         yield running
 
 
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def train_py(*args: str) -> tuple[int, str]:
+    """``python train.py ARGS`` as a user runs it, in a process of its own (a sweep's
+    driver connects to Ray once a process); its exit code and standard output."""
+    run = subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT,
+                         capture_output=True, text=True, timeout=900)
+    return run.returncode, run.stdout
+
+
 def summary(sweep_dir) -> dict[str, dict]:
     with open(sweep_dir / "summary.csv", newline="") as handle:
         return {row["run"]: row for row in csv.DictReader(handle)}
 
 
-def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, capsys,
-                                                                      cluster):
+def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, cluster):
     out = tmp_path / "sweep"
     on_cluster = ["--ray-address", cluster.address]
-    code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
-                           "--seeds", "1", "2"])
-    printed = capsys.readouterr().out
+    code, printed = train_py(*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
+                             "--seeds", "1", "2")
     assert code == 1  # not every run finished
     rows = summary(out)
     assert len(rows) == 4
@@ -81,9 +93,8 @@ def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, 
                                                      "steps": 0}))
     (out / BAD).mkdir()
     (out / BAD / "run.json").write_text(json.dumps({"status": "running"}))
-    code = train_cli.main([*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
-                           "--seeds", "1", "2"])
-    printed = capsys.readouterr().out
+    code, printed = train_py(*TINY, *GRID, *on_cluster, "--sweep-dir", str(out),
+                             "--seeds", "1", "2")
     assert code == 1
     assert f"{GOOD}: finished before, kept" in printed
     assert f"{unfinished.name}: continuing from its checkpoint" in printed
