@@ -43,7 +43,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from baselines.rl.config import ConfigError, parse_overrides
+from baselines.rl.config import COMPILED, ConfigError, parse_overrides
 
 #: The summary's columns (``DIR/summary.csv``, the printed table).
 SUMMARY_FIELDS = ("run", "seed", "variant", "status", "exit_code", "steps", "wall_time_s",
@@ -159,8 +159,14 @@ def _status(run_dir: Path) -> dict:
 
 
 def _has_checkpoint(run_dir: Path) -> bool:
-    return any((run_dir / "checkpoints").glob("*")) if (run_dir / "checkpoints").is_dir() \
-        else False
+    """Whether ``run_dir``'s checkpoints hold one ``train.py --resume`` can continue."""
+    from baselines.rl.checkpoint import CheckpointError, latest_checkpoint
+
+    try:
+        latest_checkpoint(run_dir / "checkpoints")
+    except CheckpointError:
+        return False
+    return True
 
 
 def _set_aside(run_dir: Path) -> Path:
@@ -191,7 +197,7 @@ def sweep(runs: Sequence[SweepRun], sweep_dir: str | Path, algo: str,
             continue
         previous = None
         if run_dir.exists():
-            if algo != "cppo" and _has_checkpoint(run_dir):
+            if algo != COMPILED and _has_checkpoint(run_dir):
                 previous = _pack(run_dir)
                 echo(f"[sweep] {run.name}: continuing from its checkpoint")
             else:
