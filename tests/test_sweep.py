@@ -64,7 +64,8 @@ def test_a_sweep_trains_every_run_reports_the_failing_one_and_resumes(tmp_path, 
     assert len(rows) == 4
     for seed in (1, 2):
         good = rows[GOOD.replace("s1", f"s{seed}")]
-        assert good["status"] == "finished" and good["exit_code"] == "0"
+        assert (good["status"], good["exit_code"]) == ("finished", "0"), \
+            (out / good["log"]).read_text()[-4000:]
         assert good["steps"] == "64" and good["seed"] == str(seed)
         run_dir = out / good["run"]
         # The files of a single train.py run, its config with the seed and the variant.
