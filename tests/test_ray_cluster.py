@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -34,6 +36,7 @@ from baselines.registry import AgentSpec, register_agent
 pytest.importorskip("ray", reason="the Ray backend needs ray (the test extra)")
 pytest.importorskip("moviepy", reason="recording clips needs moviepy (the video extra)")
 
+ROOT = Path(__file__).resolve().parents[1]
 DOCK = "auv_envs/DockingStation-v2"
 LARS = "auv_envs/LARSCapture-v0"
 #: Set in the cluster's processes only: the file whose absence makes ``test-dies-once``
@@ -141,3 +144,29 @@ def test_a_two_node_cluster_gives_the_local_board_and_clips_despite_a_killed_wor
     again = evaluate_all(**ray_args)
     assert again.stats.cached == 10 and again.stats.ran == 0
     assert [_comparable(r) for r in again.rows] == [_comparable(r) for r in local.rows]
+
+
+def test_a_ray_running_elsewhere_is_not_taken_for_the_named_cluster(one_ray_cluster_at_a_time):
+    # In a process of its own: a process that used Ray keeps its state past ray.shutdown.
+    script = """
+import ray
+from baselines.evaluation.backends import ray_session
+ray.init(num_cpus=1, include_dashboard=False)
+running = ray.get_runtime_context().gcs_address
+try:
+    with ray_session("127.0.0.1:1", None, purpose="evaluate.py --backend ray"):
+        raise SystemExit("the named cluster was taken for the running Ray")
+except ValueError as error:
+    assert "127.0.0.1:1" in str(error) and running in str(error), error
+host, port = running.rsplit(":", 1)
+with ray_session(f"localhost:{port}" if host == "127.0.0.1" else running, None) as same:
+    assert same.get(same.put(3)) == 3
+assert ray.is_initialized()  # the caller's Ray, left running
+with ray_session(None, None) as same:
+    assert same.is_initialized()
+ray.shutdown()
+print("checked")
+"""
+    run = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300, env={**os.environ, "RAY_AUTH_MODE": "disabled"})
+    assert run.returncode == 0 and "checked" in run.stdout, run.stderr[-3000:]

@@ -124,6 +124,18 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
         raise RuntimeError(f"cannot reach the Ray cluster at {address}: {exc}") from exc
 
 
+def _endpoint(address: str | None) -> tuple[str, int] | None:
+    """``(IP, port)`` of a ``host:port`` or ``ray://host:port`` address; None for other
+    forms ("auto", none) and for a host that does not resolve."""
+    host, sep, port = (address or "").removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit():
+        return None
+    try:
+        return socket.gethostbyname(host), int(port)
+    except OSError:
+        return None
+
+
 def _source_root() -> Path | None:
     """The repository root when this code runs from a source checkout, else None."""
     root = Path(__file__).resolve().parents[2]
@@ -223,9 +235,16 @@ def ray_session(address: str | None, cpus: int | None, outputs: Sequence[str | P
     started on this machine with ``cpus`` CPUs (None: all), the working tree shipped to
     its workers (:func:`ray_runtime_env`, ``outputs`` left out), shut down afterwards
     where started here. Where Ray is running already, the caller's Ray and its
-    ``runtime_env`` serve. ``purpose`` names what needs Ray, for a missing extra."""
+    ``runtime_env`` serve, provided it is the cluster at ``address`` (a ``ValueError``
+    where it is another). ``purpose`` names what needs Ray, for a missing extra."""
     ray = require("ray", "ray", purpose)
     started = not ray.is_initialized()
+    if not started and _endpoint(address) is not None:
+        running = ray.get_runtime_context().gcs_address
+        if _endpoint(running) != _endpoint(address):
+            raise ValueError(f"{purpose}: Ray is already connected to {running} in this "
+                             f"process, not to the cluster at {address}; shut it down "
+                             "(ray.shutdown()) or leave the address out to use it")
     if started:
         runtime_env = ray_runtime_env(outputs)
         if address:
