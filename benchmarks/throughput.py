@@ -11,9 +11,13 @@ alternately, with their ratio (target: 84x84 >= 4x as fast as 320x240 and
 (``benchmarks/lars_speed.py``); here it is reported at 320x240 without a target.
 
     python benchmarks/throughput.py [--steps N] [--repeats R] [--envs ID ...] [--modes M ...]
+                                    [--set KEY=VALUE ...]
 
 ``--envs`` takes superseded ids too (``auv_envs.PREVIOUS_VERSIONS``, e.g.
-``auv_envs/DockingStation-v1``), to time a version against the current one.
+``auv_envs/DockingStation-v1``), to time a version against the current one; ``--set``
+passes arguments to every env it times (``--set sensors=compiled``: the docking ids'
+compiled navigation sensors), each value read as YAML (``5.0`` a float, ``numpy`` a
+string).
 
 The targets' check: ``--steps 2000 --envs auv_envs/DockingStation-v2
 auv_envs/LampArrayDocking-v2``.
@@ -26,6 +30,7 @@ import time
 
 import gymnasium as gym
 import numpy as np
+import yaml
 
 import auv_envs
 from baselines.registry import env_obs_modes
@@ -107,7 +112,15 @@ def main(argv=None) -> None:
                         metavar="ID")
     parser.add_argument("--modes", nargs="+", metavar="MODE",
                         help="only these observation modes (default: every mode)")
+    parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="arguments of every env timed")
     args = parser.parse_args(argv)
+    settings = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            parser.error(f"--set takes KEY=VALUE, got {item!r}")
+        settings[key] = yaml.safe_load(value)
 
     reference_env = gym.make("HalfCheetah-v5")
     reference = Stepper(reference_env, args.steps)
@@ -130,7 +143,7 @@ def main(argv=None) -> None:
                                                     min(args.repeats, 3)))
             kwargs = {"image_size": (320, 240)} if image else {}
             n = max(200, args.steps // 10) if image else args.steps
-            env = gym.make(env_id, obs_mode=mode, **kwargs)
+            env = gym.make(env_id, obs_mode=mode, **kwargs, **settings)
             subject = Stepper(env, n)
             cpu_ratio = None
             if image:  # its target is absolute; pairing would only slow the run

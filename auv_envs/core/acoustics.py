@@ -362,6 +362,13 @@ FIXED_DRAWS = "fixed"
 _MINUS_LN10_OVER_20 = -math.log(10.0) / 20.0
 
 
+def _snr_db(ranges, offset, absorption, loss, xp):
+    """The SNR (dB) at ``ranges`` (m): the band's ``offset`` less spherical spreading, the
+    ``absorption`` (dB/m) and the path's boundary ``loss`` (dB)."""
+    spreading = 20.0 * xp.log10(xp.maximum(ranges, 1.0))
+    return offset - spreading - absorption * ranges - loss
+
+
 def _lift(elevation, xp):
     """What the azimuth's deviation divides by at an elevation: ``max(sin(el), 0.05)``."""
     return xp.maximum(xp.sin(elevation), 0.05)
@@ -522,8 +529,7 @@ class HydrophoneArray:
         ``noise_rise`` (Q,) dB, e.g. :meth:`flow_noise_rise`, lowers every SNR
         of its band (broadcast against (..., Q) leading axes as (..., Q, 1, 1)).
         """
-        spreading = 20.0 * xp.log10(xp.maximum(ranges, 1.0))
-        snr = self._snr_offset - spreading - self._absorption * ranges - path_loss
+        snr = _snr_db(ranges, self._snr_offset, self._absorption, path_loss, xp)
         if noise_rise is not None:
             snr = snr - xp.asarray(noise_rise)[..., None, None]
         return snr
@@ -560,14 +566,32 @@ class HydrophoneArray:
         if working is None:
             if c.ideal_detection:
                 return xp.ones(snr_db.shape[:-1], dtype=snr_db.dtype)
-            array_snr = snr_db.mean(axis=-1)
-            return 1.0 / (1.0 + xp.exp(-(array_snr - c.snr50) / c.snr_slope))
+            return self._logistic(snr_db.mean(axis=-1), xp)
         count = xp.sum(xp.broadcast_to(working, snr_db.shape), axis=-1)
         if c.ideal_detection:
             return (count > 0).astype(snr_db.dtype)
         array_snr = xp.sum(xp.where(working, snr_db, 0.0), axis=-1) / xp.maximum(count, 1)
-        pd = 1.0 / (1.0 + xp.exp(-(array_snr - c.snr50) / c.snr_slope))
-        return xp.where(count > 0, pd, 0.0)
+        return xp.where(count > 0, self._logistic(array_snr, xp), 0.0)
+
+    def _logistic(self, array_snr, xp):
+        """The detection probability at an array SNR (dB)."""
+        c = self.config
+        return 1.0 / (1.0 + xp.exp(-(array_snr - c.snr50) / c.snr_slope))
+
+    # ------------------------------------------------------------ one path, in scalars
+    # The noise model above in the scalar arithmetic of an ``ops`` namespace
+    # (:mod:`auv_envs.core.ops`: Python floats, JAX arrays elementwise, CasADi symbols),
+    # for a fix compiled into one call (:meth:`auv_envs.tasks.docking.navigation.USBL.solve`).
+    def path_snr_db(self, range_, path: int, ops, band: int = 0):
+        """:meth:`snr_db` of one node's ``range_`` (m) on ``path`` (0 direct, 1 surface,
+        2 bottom) in ``band``."""
+        return _snr_db(range_, float(self._snr_offset[band, 0, 0]),
+                       float(self._absorption[band, 0, 0]), float(self._path_loss[path, 0]),
+                       ops)
+
+    def path_detection(self, mean_snr_db, ops):
+        """:meth:`detection_probability` of a path whose nodes' mean SNR is ``mean_snr_db``."""
+        return 1.0 if self.config.ideal_detection else self._logistic(mean_snr_db, ops)
 
     def model(self, position, current_speed: float = 0.0) -> dict[str, np.ndarray]:
         """The documented noise model at a source position, per band (for users and tests).

@@ -24,6 +24,7 @@ carry over unchanged; only vectors need converting, which
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -45,17 +46,24 @@ def rotation_from_euler(roll, pitch, yaw, ops):
     :mod:`auv_envs.core.hydrodynamics`: one definition for the environments and
     the CasADi observers.
     """
+    rows = rotation_rows_from_euler(roll, pitch, yaw, ops)
+    if hasattr(ops, "vertcat"):
+        return ops.vertcat(*(ops.horzcat(*row) for row in rows))
+    return ops.array(rows)
+
+
+def rotation_rows_from_euler(roll, pitch, yaw, ops) -> list:
+    """:func:`rotation_from_euler`'s matrix as three rows of three scalars, in the
+    arithmetic of ``ops`` (anything with ``cos`` and ``sin``: a module, or an ``ops``
+    namespace of :mod:`auv_envs.core.ops`)."""
     cr, sr = ops.cos(roll), ops.sin(roll)
     cp, sp = ops.cos(pitch), ops.sin(pitch)
     cy, sy = ops.cos(yaw), ops.sin(yaw)
-    rows = [
+    return [
         [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
         [-sp, cp * sr, cp * cr],
     ]
-    if hasattr(ops, "vertcat"):
-        return ops.vertcat(*(ops.horzcat(*row) for row in rows))
-    return ops.array(rows)
 
 
 def rotation_rows_from_quat(w, x, y, z) -> tuple:
@@ -178,12 +186,14 @@ def quat_from_euler(roll, pitch, yaw, xp):
     )
 
 
-def wrap_angle(angle):
+def wrap_angle(angle, mod=operator.mod):
     """Wrap an angle to ``[-pi, pi)``: plain arithmetic, so a Python float stays a float and
-    a NumPy or JAX array stays one (a list or tuple becomes a NumPy array)."""
+    a NumPy or JAX array stays one (a list or tuple becomes a NumPy array). ``mod``: the
+    remainder with the divisor's sign (Python's ``%``; an ``ops`` namespace's ``mod`` for
+    CasADi symbols, :mod:`auv_envs.core.ops`)."""
     if isinstance(angle, list | tuple):
         angle = np.asarray(angle, dtype=float)
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+    return mod(angle + math.pi, 2.0 * math.pi) - math.pi
 
 
 def ned_to_enu(vector) -> np.ndarray:

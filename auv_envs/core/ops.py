@@ -10,8 +10,9 @@ the same code then evaluates a batch of JAX arrays elementwise, inside
 modules the same way (:mod:`auv_envs.core.hydrodynamics`).
 
 Every namespace has ``sqrt``, ``sin``, ``cos``, ``exp``, ``atan``, ``atan2``, ``asin``, ``acos``,
-``hypot``, ``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``,
-``maximum``, ``logical_not`` and ``barrier(values)`` (a
+``hypot``, ``log10``, ``mod`` (Python's ``%``: the remainder with the divisor's sign),
+``clip(x, low, high)``, ``where(condition, a, b)``, ``minimum``, ``maximum``,
+``logical_not``, ``logical_and``, ``logical_or`` and ``barrier(values)`` (a
 tuple of scalars materialised as one array where XLA would otherwise fuse them into
 what follows, recomputing a deep expression as a tree: JAX's
 ``optimization_barrier``; the identity elsewhere). Comparisons combine with ``&``
@@ -36,12 +37,17 @@ use it say so.
 kinematics, a projection) on CasADi symbols, which
 :class:`auv_envs.core.plant.CompiledFunction` compiles into one call; its
 comparisons are CasADi expressions, which do not combine with ``&``/``|``
-(use ``where``).
+(use ``logical_and``, ``logical_or`` and ``where``); it also has ``round``, ``real``,
+``boolean``, ``vector`` (a column of scalars) and ``unpack``, the same numbers as
+:data:`FLOATS`' to the bit but for the sign of a zero that ``where`` chooses (CasADi's
+``if_else`` adds its branches, each zeroed where not chosen: -0.0 comes out 0.0; so does
+a zero ``mod`` by a negative divisor, which Python gives -0.0).
 """
 
 from __future__ import annotations
 
 import math
+import operator
 import types
 from typing import Any, NamedTuple
 
@@ -97,9 +103,9 @@ def _clip(x, low, high):
 FLOATS = types.SimpleNamespace(
     name="floats",
     sqrt=math.sqrt, sin=math.sin, cos=math.cos, exp=math.exp, atan=math.atan, atan2=math.atan2,
-    asin=math.asin, acos=math.acos, hypot=math.hypot, clip=_clip, where=_where,
-    minimum=min, maximum=max,
-    logical_not=lambda x: not x,
+    asin=math.asin, acos=math.acos, hypot=math.hypot, log10=math.log10, mod=operator.mod,
+    clip=_clip, where=_where, minimum=min, maximum=max,
+    logical_not=lambda x: not x, logical_and=operator.and_, logical_or=operator.or_,
     barrier=lambda values: values,
     xp=np, real=float, integer=int, boolean=bool, vector=tuple,
     unpack=lambda array: tuple(array.tolist()),
@@ -118,9 +124,9 @@ def jax_ops() -> types.SimpleNamespace:
     return types.SimpleNamespace(
         name="jax",
         sqrt=jnp.sqrt, sin=jnp.sin, cos=jnp.cos, exp=jnp.exp, atan=jnp.arctan, atan2=jnp.arctan2,
-        asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, clip=jnp.clip, where=jnp.where,
-        minimum=jnp.minimum,
-        maximum=jnp.maximum, logical_not=jnp.logical_not,
+        asin=jnp.arcsin, acos=jnp.arccos, hypot=jnp.hypot, log10=jnp.log10, mod=jnp.mod,
+        clip=jnp.clip, where=jnp.where, minimum=jnp.minimum, maximum=jnp.maximum,
+        logical_not=jnp.logical_not, logical_and=jnp.logical_and, logical_or=jnp.logical_or,
         barrier=lambda values: tuple(jax.lax.optimization_barrier(jnp.stack(values))),
         xp=jnp, real=lambda value: jnp.asarray(value, jnp.float32),
         integer=lambda value: jnp.asarray(value, jnp.int32),
@@ -152,11 +158,27 @@ def casadi_ops() -> types.SimpleNamespace:
     def maximum(a, b):
         return casadi.if_else(b > a, b, a)
 
+    def mod(x, y):  # Python's %: C's fmod moved to the divisor's side
+        remainder = casadi.fmod(x, y)
+        wrong_side = casadi.logic_and(remainder != 0, (remainder < 0) != (y < 0))
+        return casadi.if_else(wrong_side, remainder + y, remainder)
+
+    def round_half_even(x):  # Python's round (halves to even) and FLOATS' sign of zero
+        low = casadi.floor(x)
+        above = x - low
+        odd = casadi.fmod(low, 2.0) != 0
+        up = casadi.logic_or(above > 0.5, casadi.logic_and(above == 0.5, odd))
+        return casadi.copysign(casadi.if_else(up, low + 1.0, low), x)
+
     return types.SimpleNamespace(
         name="casadi",
         sqrt=casadi.sqrt, sin=casadi.sin, cos=casadi.cos, exp=casadi.exp,
         atan=casadi.atan, atan2=casadi.atan2, asin=casadi.asin, acos=casadi.acos,
-        hypot=lambda x, y: casadi.sqrt(x * x + y * y), clip=clip, where=casadi.if_else,
-        minimum=minimum, maximum=maximum, logical_not=casadi.logic_not,
-        barrier=lambda values: values,
+        hypot=lambda x, y: casadi.sqrt(x * x + y * y), log10=casadi.log10, mod=mod,
+        clip=clip, where=casadi.if_else, minimum=minimum, maximum=maximum,
+        logical_not=casadi.logic_not, logical_and=casadi.logic_and,
+        logical_or=casadi.logic_or, barrier=lambda values: values,
+        round=round_half_even, real=lambda value: value, boolean=lambda value: value,
+        vector=lambda values: casadi.vertcat(*values),
+        unpack=lambda column: tuple(column[k] for k in range(column.numel())),
     )

@@ -41,6 +41,7 @@ from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.navigation import (
     AHRS,
     DVL,
+    SENSOR_CODES,
     USBL,
     USBL_ACOUSTICS,
     DepthSensor,
@@ -308,6 +309,7 @@ class DockingConfig(Config):
     integrator: str = "rk4"
     physics_substeps: int = 1
     plant: str = "compiled"
+    sensors: str = "numpy"
     disturbances: DockingDisturbances | None = None
     optics: WaterOptics | None = None
     navigation: NavigationSensors | None = None
@@ -443,6 +445,7 @@ def params(config: DockingConfig) -> DockingSetup:
     check_choice("scenario", config.scenario, SCENARIOS)
     check_choice("integrator", config.integrator, INTEGRATORS)
     check_choice("plant", config.plant, PLANTS)
+    check_choice("sensors", config.sensors, SENSOR_CODES)
     if config.plant == "compiled" and config.integrator != "rk4":
         raise ValueError(f"the compiled plant integrates with RK4, not {config.integrator!r}: "
                          "pass plant='mujoco' with integrator='euler'")

@@ -10,6 +10,7 @@ Two registered layouts share this file:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import ClassVar
 
@@ -53,7 +54,7 @@ from auv_envs.tasks.docking.config import (  # noqa: F401  (the names' home befo
     nav_space,
     params,
 )
-from auv_envs.tasks.docking.navigation import NavigationSensors
+from auv_envs.tasks.docking.navigation import CompiledNavigation, NavigationSensors
 from auv_envs.tasks.docking.optics import WaterOptics, degrade_image
 from auv_envs.tasks.docking.plant import CompiledPlant, MujocoPlant
 from auv_envs.tasks.docking.rules import FAILURE_REASONS, DockingTolerances, failure_reason
@@ -250,6 +251,11 @@ class DockingTask(CPUTask):
     ``plant``                str                    ``"compiled"``  ``"compiled"`` (the hull
                                                                     compiled away from the scenery)
                                                                     or ``"mujoco"`` (the v1 plant)
+    ``sensors``              str                    ``"numpy"``     the ``nav`` modes' sensors on
+                                                                    the CPU: ``"numpy"`` or
+                                                                    ``"compiled"`` (one compiled
+                                                                    call a step; the USBL fix
+                                                                    differs at round-off)
     ``render_mode``          str | None             ``None``        ``"rgb_array"`` or None
     ``render_camera``        str                    ``"chase"``     ``"chase"`` or ``"onboard"``
     ``render_size``          tuple[int, int]        ``(640, 480)``  (W, H) of ``render()``
@@ -315,6 +321,7 @@ class DockingTask(CPUTask):
         integrator: str = "rk4",
         physics_substeps: int = 1,
         plant: str = "compiled",
+        sensors: str = "numpy",
         render_mode: str | None = None,
         render_camera: str = "chase",
         render_size: tuple[int, int] = (640, 480),
@@ -331,7 +338,8 @@ class DockingTask(CPUTask):
             damping_mismatch=tuple(damping_mismatch), tolerances=tolerances,
             time_limit=time_limit, lights_lost_timeout=lights_lost_timeout,
             min_visible_lights=min_visible_lights, integrator=integrator,
-            physics_substeps=physics_substeps, plant=plant, render_mode=render_mode,
+            physics_substeps=physics_substeps, plant=plant, sensors=sensors,
+            render_mode=render_mode,
             render_camera=render_camera, render_size=render_size, disturbances=disturbances,
             optics=optics, navigation=navigation, difficulty=difficulty,
         )
@@ -398,8 +406,13 @@ class DockingTask(CPUTask):
         self.action_space = setup.action_space
         self.observation_space = setup.observation_space
         #: The task as the transition sees it (:mod:`auv_envs.tasks.docking.transition`),
-        #: which the batched environment runs too.
+        #: which the batched environment runs too (with :class:`Navigation` on JAX where
+        #: the CPU's sensors are compiled).
         self.params = setup.params
+        if config.sensors == "compiled" and setup.params.navigation is not None:
+            nav = setup.params.navigation
+            self.params = dataclasses.replace(setup.params, navigation=CompiledNavigation(
+                nav.sensors, nav.seabed_z, nav.dt))
         #: The navigation sensors (:mod:`auv_envs.tasks.docking.navigation`) of the ``nav`` modes.
         self.navigation = setup.levels["navigation"]
 

@@ -95,8 +95,9 @@ class DVL:
         scalars) at ``altitude`` m; draws 3 normals and 1 uniform."""
         noise = ops.unpack(draws.standard_normal(3))
         lost = draws.random() < self.dropout
-        valid = ((altitude >= self.min_altitude) & (altitude <= self.max_altitude)
-                 & ops.logical_not(lost))
+        valid = ops.logical_and(ops.logical_and(altitude >= self.min_altitude,
+                                                altitude <= self.max_altitude),
+                                ops.logical_not(lost))
         reading = [(1.0 + s) * v + self.noise_std * e
                    for s, v, e in zip(scale, velocity, noise, strict=True)]
         return ops.where(valid, ops.vector(reading), ops.vector((0.0, 0.0, 0.0))), valid
@@ -142,7 +143,7 @@ class AHRS:
         roll, pitch, yaw = (angle + std * e for angle, std, e in zip(
             euler, (self.roll_pitch_std, self.roll_pitch_std, self.heading_std), noise[:3],
             strict=True))
-        attitude = (roll, pitch, frames.wrap_angle(yaw + heading_bias))
+        attitude = (roll, pitch, frames.wrap_angle(yaw + heading_bias, ops.mod))
         rate_std = self.rate_noise_density / math.sqrt(dt)
         walk = self.bias_instability * math.sqrt(dt / self.bias_time)
         reading = [r + b + rate_std * e for r, b, e in zip(rates, bias, noise[3:6], strict=True)]
@@ -271,6 +272,103 @@ class USBL:
         vector = xp.where(outlier, spurious, vector)
         return xp.where(found | outlier, vector, 0.0), found | outlier
 
+    def solve(self, array: HydrophoneArray, transceiver, euler, transponder, sound_speed,
+              draws, ops):
+        """:meth:`fix` in the scalar arithmetic of ``ops`` (:mod:`auv_envs.core.ops`), so
+        that it compiles into one call: ``(vector (3 scalars), valid)``. ``transceiver``
+        is the vehicle's world position and ``euler`` its attitude (3 scalars each),
+        ``transponder`` a constant world position. The same model and the same draws as
+        :meth:`fix`; the least squares of each Gauss-Newton step by a QR factorisation
+        (modified Gram-Schmidt), so the numbers differ from :meth:`fix`'s at round-off."""
+        n = len(self.elements)
+        rows = frames.rotation_rows_from_euler(*euler, ops)
+        # Each path's source (the transponder or its mirror image; constants) in body axes.
+        ranges = []
+        for source in array.image_sources(np.asarray(transponder, dtype=float), np).tolist():
+            offset = [source[k] - transceiver[k] for k in range(3)]
+            body = [sum(rows[k][j] * offset[k] for k in range(3)) for j in range(3)]
+            ranges.append([_norm([body[j] - e[j] for j in range(3)], ops)
+                           for e in self.elements])
+        snr = [[array.path_snr_db(r, path, ops) for r in path_ranges]
+               for path, path_ranges in enumerate(ranges)]
+        pd = [array.path_detection(sum(path_snr) / n, ops) for path_snr in snr]
+        hits = draws.random(3)
+        shadowed = draws.random() < self.shadowing
+        detected = [ops.logical_and(hits[0] < pd[0], ops.logical_not(shadowed)),
+                    hits[1] < pd[1], hits[2] < pd[2]]
+        # The first detected arrival: the detected path of the least mean range (the
+        # first of equals, as argmin; the direct path where none is detected).
+        first, least = ranges[0], ops.where(detected[0], sum(ranges[0]) / n, math.inf)
+        timing = [array.timing_std(v, ops) for v in snr[0]]
+        found = detected[0]
+        for path in (1, 2):
+            centre = sum(ranges[path]) / n
+            nearer = ops.logical_and(detected[path], centre < least)
+            least = ops.where(nearer, centre, least)
+            first = [ops.where(nearer, a, b) for a, b in zip(ranges[path], first, strict=True)]
+            timing = [ops.where(nearer, array.timing_std(v, ops), b)
+                      for v, b in zip(snr[path], timing, strict=True)]
+            found = ops.logical_or(found, detected[path])
+        noise = draws.standard_normal(n)
+        arrival = [r / sound_speed + t * noise[i]
+                   for i, (r, t) in enumerate(zip(first, timing, strict=True))]
+        nominal = self.acoustics.sound_speed
+        mean = sum(arrival) / n
+        # The plane wave, then two Gauss-Newton steps on the spherical wave (as in fix).
+        solver = self._plane_wave.tolist()
+        direction = [-nominal * sum(w * (t - mean) for w, t in zip(row, arrival, strict=True))
+                     for row in solver]
+        length = _norm(direction, ops)
+        vector = [nominal * mean * (d / length) for d in direction]
+        for _ in range(2):
+            offsets = [[vector[j] - e[j] for j in range(3)] for e in self.elements]
+            lengths = [_norm(o, ops) for o in offsets]
+            columns = [[o[j] / r for o, r in zip(offsets, lengths, strict=True)]
+                       for j in range(3)]
+            residual = [nominal * t - r for t, r in zip(arrival, lengths, strict=True)]
+            step = _least_squares(columns, residual, ops)
+            vector = [v + d for v, d in zip(vector, step, strict=True)]
+        outlier = draws.random() < self.outlier_rate
+        u = draws.random(3)
+        z = 2.0 * u[1] - 1.0
+        ring = ops.sqrt(1.0 - z * z)
+        angle = 2.0 * math.pi * u[2]
+        radius = self.max_range * u[0]
+        spurious = (radius * (ring * ops.cos(angle)), radius * (ring * ops.sin(angle)),
+                    radius * z)
+        valid = ops.logical_or(found, outlier)
+        return [ops.where(valid, ops.where(outlier, a, b), 0.0)
+                for a, b in zip(spurious, vector, strict=True)], valid
+
+
+def _norm(vector, ops):
+    """The Euclidean length of a few scalars."""
+    return ops.sqrt(sum(v * v for v in vector))
+
+
+def _least_squares(columns, b, ops) -> list:
+    """The least-squares solution ``x`` of ``A x = b`` for ``A`` of full column rank given
+    as its ``columns`` (each a list of scalars), by modified Gram-Schmidt: ``A = Q R`` and
+    ``R x = Q^T b``, without the normal matrix (whose condition number is the square of
+    ``A``'s)."""
+    q, r, y = [], {}, list(b)
+    for j, column in enumerate(columns):
+        v = list(column)
+        for k, unit in enumerate(q):
+            r[k, j] = sum(a * c for a, c in zip(unit, v, strict=True))
+            v = [c - r[k, j] * a for a, c in zip(unit, v, strict=True)]
+        r[j, j] = _norm(v, ops)
+        q.append([c / r[j, j] for c in v])
+    coefficients = []
+    for unit in q:  # Q^T b, removing each direction from b in turn (as for the columns)
+        coefficients.append(sum(a * c for a, c in zip(unit, y, strict=True)))
+        y = [c - coefficients[-1] * a for a, c in zip(unit, y, strict=True)]
+    x = [0.0] * len(columns)
+    for j in reversed(range(len(columns))):
+        x[j] = (coefficients[j] - sum(r[j, k] * x[k] for k in range(j + 1, len(columns)))
+                ) / r[j, j]
+    return x
+
 
 @dataclasses.dataclass(frozen=True)
 class NavigationSensors:
@@ -336,7 +434,7 @@ class Navigation:
 
     def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
         self.sensors = sensors
-        self.surface_z = float(sensors.station_depth)
+        self.surface_z, self.seabed_z = float(sensors.station_depth), float(seabed_z)
         self.array = sensors.usbl.array(self.surface_z, float(seabed_z))
         self.dt = float(dt)
         self._transponder = np.asarray(sensors.transponder, dtype=float)
@@ -361,23 +459,13 @@ class Navigation:
         on the CPU (its draws too); under JAX every step makes one and keeps it on a
         ping's (``ops.either``), so the batched episodes' draws differ from the CPU's."""
         s = self.sensors
-        velocity = truth["velocity"]
-        dvl, dvl_valid = s.dvl.read(velocity[:3], truth["seabed_clearance"],
-                                    state.dvl_scale, draws, ops)
-        attitude, rates, bias = s.ahrs.read(truth["euler"], velocity[3:], state.gyro_bias,
-                                            self.dt, draws, ops, state.heading_bias)
-        depth = s.depth.read(self.surface_z - truth["position"][2], draws, ops)
+        dvl, dvl_valid, attitude, rates, bias, depth = self.read(state, truth, draws, ops)
         # A fix in flight arrives once due; a new ping goes out on schedule.
         arrived = state.pending_valid & (time >= state.pending_due - 1e-9)
         ping = time >= state.next_ping - 1e-9
 
         def fix():
-            xp = ops.xp
-            position = xp.asarray(truth["position"])
-            rows = frames.rotation_from_euler(*truth["euler"], ops=xp)
-            vector, found = s.usbl.fix(self.array, position, rows, self._transponder,
-                                       state.sound_speed, draws, xp)
-            travel = 2.0 * xp.linalg.norm(position - self._transponder)
+            vector, found, travel = self.fix(state, truth, draws, ops)
             due = time + travel / state.sound_speed + s.usbl.processing_delay
             return ops.vector(ops.unpack(vector)), ops.boolean(found), ops.real(due)
 
@@ -397,19 +485,166 @@ class Navigation:
             dvl=dvl, dvl_valid=dvl_valid, attitude=attitude, rates=rates,
             depth=ops.real(depth))
 
+    def read(self, state: NavState, truth: dict, draws, ops) -> tuple:
+        """This step's readings: ``(dvl, dvl_valid, attitude, rates, gyro_bias, depth)``."""
+        s = self.sensors
+        velocity = truth["velocity"]
+        dvl, dvl_valid = s.dvl.read(velocity[:3], truth["seabed_clearance"],
+                                    state.dvl_scale, draws, ops)
+        attitude, rates, bias = s.ahrs.read(truth["euler"], velocity[3:], state.gyro_bias,
+                                            self.dt, draws, ops, state.heading_bias)
+        depth = s.depth.read(self.surface_z - truth["position"][2], draws, ops)
+        return dvl, dvl_valid, attitude, rates, bias, depth
+
+    def fix(self, state: NavState, truth: dict, draws, ops) -> tuple:
+        """A ping's fix: ``(vector, valid, travel)``, the measured transponder (body axes),
+        whether there is one, and the two-way path length (m)."""
+        xp = ops.xp
+        position = xp.asarray(truth["position"])
+        rows = frames.rotation_from_euler(*truth["euler"], ops=xp)
+        vector, found = self.sensors.usbl.fix(self.array, position, rows, self._transponder,
+                                              state.sound_speed, draws, xp)
+        return vector, found, 2.0 * xp.linalg.norm(position - self._transponder)
+
     @staticmethod
     def observation(state: NavState, time, ops) -> dict:
         """The ``nav`` observation (float32 and int8 arrays)."""
         xp = ops.xp
-        f32, i8 = xp.float32, xp.int8
         age = ops.where(state.fix_valid, time - state.fix_time, 0.0)
+        # One array of each type, handed out in slices.
+        values = xp.asarray((*state.dvl, *state.attitude, *state.rates, state.depth,
+                             *state.fix, age), dtype=xp.float32)
+        flags = xp.asarray((state.dvl_valid, state.fix_valid), dtype=xp.int8)
         return {
-            "dvl_velocity": xp.asarray(state.dvl, dtype=f32),
-            "dvl_valid": xp.array((state.dvl_valid,), dtype=i8),
-            "attitude": xp.asarray(state.attitude, dtype=f32),
-            "rates": xp.asarray(state.rates, dtype=f32),
-            "depth": xp.array((state.depth,), dtype=f32),
-            "usbl": xp.asarray(state.fix, dtype=f32),
-            "usbl_age": xp.array((age,), dtype=f32),
-            "usbl_valid": xp.array((state.fix_valid,), dtype=i8),
+            "dvl_velocity": values[0:3], "dvl_valid": flags[0:1], "attitude": values[3:6],
+            "rates": values[6:9], "depth": values[9:10], "usbl": values[10:13],
+            "usbl_age": values[13:14], "usbl_valid": flags[1:2],
         }
+
+
+#: How the navigation sensors are evaluated on the CPU (the docking tasks' ``sensors``):
+#: ``"numpy"`` (:class:`Navigation`: Python floats, the fix in NumPy) or ``"compiled"``
+#: (:class:`CompiledNavigation`).
+SENSOR_CODES = ("numpy", "compiled")
+
+
+class CompiledNavigation(Navigation):
+    """:class:`Navigation` on the CPU with each step's readings one compiled call and a
+    ping's fix another (:class:`auv_envs.core.plant.CompiledFunction`, built from the same
+    sensor models on CasADi symbols). The same draws in the same order from the episode's
+    generator. The readings are :class:`Navigation`'s to the bit; the fix is
+    :meth:`USBL.solve`, whose least squares differ from :meth:`USBL.fix`'s at round-off
+    (and so do the episodes from a fix on). Python floats only (``ops`` is
+    :data:`~auv_envs.core.ops.FLOATS`); the batched tasks use :class:`Navigation`."""
+
+    def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
+        from auv_envs.core.plant import CompiledFunction
+
+        super().__init__(sensors, seabed_z, dt)
+        (readings, self._read_draws), (fix, self._fix_draws) = _navigation_functions(
+            sensors, float(seabed_z), self.dt)
+        self._read_call, self._fix_call = CompiledFunction(readings), CompiledFunction(fix)
+        self._read_views = self._read_draws.views(self._read_call.inputs[2])
+        self._fix_views = self._fix_draws.views(self._fix_call.inputs[1])
+
+    def read(self, state: NavState, truth: dict, draws, ops) -> tuple:
+        call = self._read_call
+        call.inputs[0][:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
+                             truth["position"][2])
+        call.inputs[1][:] = (*state.dvl_scale, *state.gyro_bias, state.heading_bias)
+        _DrawLayout.draw(self._read_views, draws)
+        v = call()[0].tolist()
+        return (tuple(v[0:3]), v[3] > 0.5, tuple(v[4:7]), tuple(v[7:10]), tuple(v[10:13]),
+                v[13])
+
+    def fix(self, state: NavState, truth: dict, draws, ops) -> tuple:
+        call = self._fix_call
+        call.inputs[0][:] = (*truth["position"], *truth["euler"], state.sound_speed)
+        _DrawLayout.draw(self._fix_views, draws)
+        out = call()[0]
+        return out[:3].copy(), bool(out[3] > 0.5), float(out[4])
+
+
+class _DrawLayout:
+    """A generator's draws (``standard_normal``, ``random``) as CasADi symbols, in the order
+    a model asks for them; :meth:`draw` makes the same calls on a generator, each into its
+    slice of one array (the same numbers as the calls the model makes on the CPU)."""
+
+    def __init__(self, name: str):
+        self.name, self.calls, self._symbols, self._size = name, [], [], 0
+
+    def _take(self, kind: str, size):
+        import casadi
+
+        count = 1 if size is None else int(size)
+        symbol = casadi.SX.sym(f"{self.name}_{len(self.calls)}", count)
+        self.calls.append((kind, slice(self._size, self._size + count)))
+        self._symbols.append(symbol)
+        self._size += count
+        return symbol[0] if size is None else symbol
+
+    def random(self, size=None):
+        return self._take("random", size)
+
+    def standard_normal(self, size=None):
+        return self._take("standard_normal", size)
+
+    def column(self):
+        """All the draws as one symbolic column (the function's input)."""
+        import casadi
+
+        return casadi.vertcat(*self._symbols)
+
+    def views(self, array: np.ndarray) -> tuple:
+        """The calls as method names, each with its slice of ``array`` (the bound input);
+        consecutive calls of one method merged into one (a generator's ``random`` and
+        ``standard_normal`` keep nothing between calls: the same numbers)."""
+        merged = []
+        for kind, part in self.calls:
+            if merged and merged[-1][0] == kind:
+                merged[-1] = (kind, slice(merged[-1][1].start, part.stop))
+            else:
+                merged.append((kind, part))
+        return tuple((kind, array[part]) for kind, part in merged)
+
+    @staticmethod
+    def draw(views: tuple, generator) -> None:
+        """Make the recorded calls on ``generator`` (a NumPy ``Generator``) into ``views``."""
+        for kind, out in views:
+            getattr(generator, kind)(out=out)
+
+
+@functools.lru_cache(maxsize=16)
+def _navigation_functions(sensors: NavigationSensors, seabed_z: float, dt: float):
+    """The CasADi functions of :class:`CompiledNavigation` with their draws' layouts:
+    ``readings(truth[11], state[7], draws) -> [dvl 3, dvl_valid, attitude 3, rates 3,
+    gyro_bias 3, depth]`` (truth: body velocity 6, seabed clearance, Euler angles 3,
+    height; state: DVL scale 3, gyro bias 3, heading deviation) and ``fix(pose[7], draws)
+    -> [vector 3, valid, two-way path length]`` (pose: position 3, Euler angles 3, the
+    water's sound speed); built once per suite (a CasADi function is immutable)."""
+    import casadi
+
+    from auv_envs.core.ops import casadi_ops
+
+    ops = casadi_ops()
+    suite = Navigation(sensors, seabed_z, dt)
+    x, s = casadi.SX.sym("truth", 11), casadi.SX.sym("state", 7)
+    truth = {"velocity": [x[k] for k in range(6)], "seabed_clearance": x[6],
+             "euler": [x[7], x[8], x[9]], "position": (None, None, x[10])}
+    state = NavState(*([None] * len(NavState._fields)))._replace(
+        dvl_scale=[s[0], s[1], s[2]], gyro_bias=[s[3], s[4], s[5]], heading_bias=s[6])
+    draws = _DrawLayout("read")
+    dvl, valid, attitude, rates, bias, depth = Navigation.read(suite, state, truth, draws, ops)
+    readings = casadi.Function("navigation_readings", [x, s, draws.column()], [casadi.vertcat(
+        dvl, ops.where(valid, 1.0, 0.0), attitude, rates, bias, depth)], {"cse": True})
+
+    pose = casadi.SX.sym("pose", 7)
+    position, euler = [pose[k] for k in range(3)], [pose[k] for k in range(3, 6)]
+    fix_draws = _DrawLayout("fix")
+    vector, found = sensors.usbl.solve(suite.array, position, euler, suite._transponder.tolist(),
+                                       pose[6], fix_draws, ops)
+    travel = 2.0 * _norm([p - t for p, t in zip(position, suite._transponder.tolist(),
+                                                strict=True)], ops)
+    fix = casadi.Function("usbl_fix", [pose, fix_draws.column()], [casadi.vertcat(
+        *vector, ops.where(found, 1.0, 0.0), travel)], {"cse": True})
+    return (readings, draws), (fix, fix_draws)

@@ -1,0 +1,155 @@
+"""The compiled navigation sensors (``sensors="compiled"``,
+:class:`~auv_envs.tasks.docking.navigation.CompiledNavigation`): the readings equal to the
+bit and the draws the same as :class:`~auv_envs.tasks.docking.navigation.Navigation`'s,
+the USBL fix (:meth:`USBL.solve`) equal to :meth:`USBL.fix` at round-off, every level's
+sensors, and the scalar operations it compiles against Python's."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import operator
+
+import casadi
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import auv_envs  # noqa: F401  (registers the ids)
+from auv_envs.core import frames
+from auv_envs.core.ops import FLOATS, casadi_ops
+from auv_envs.tasks.docking.config import EASY_NAVIGATION, HARD_NAVIGATION, PAPER_NAVIGATION
+from auv_envs.tasks.docking.navigation import (
+    DVL,
+    USBL,
+    USBL_ACOUSTICS,
+    CompiledNavigation,
+    Navigation,
+    NavigationSensors,
+)
+
+#: Every level's suite, and one with DVL dropouts, a coarse depth and USBL outliers.
+SUITES = {
+    "easy": EASY_NAVIGATION, "paper": PAPER_NAVIGATION, "hard": HARD_NAVIGATION,
+    "rough": dataclasses.replace(
+        HARD_NAVIGATION, dvl=DVL(dropout=0.3, min_altitude=1.0),
+        usbl=dataclasses.replace(HARD_NAVIGATION.usbl, outlier_rate=0.2, shadowing=0.5)),
+}
+SEABED_Z = -5.0
+
+
+def random_truth(rng: np.random.Generator) -> dict:
+    """A vehicle anywhere from the station to a mission's start, at any attitude."""
+    x, y = rng.uniform(-300.0, 300.0, 2)
+    return {"velocity": tuple(rng.normal(0.0, 0.4, 6).tolist()),
+            "seabed_clearance": float(rng.uniform(-0.2, 60.0)),
+            "euler": tuple(rng.uniform(-math.pi, math.pi, 3).tolist()),
+            "position": (float(x), float(y), float(rng.uniform(SEABED_Z, 45.0)))}
+
+
+def same(a, b) -> bool:
+    """Equal to the bit (as float64), element by element."""
+    return np.array_equal(np.asarray(a, dtype=float).view(np.int64),
+                          np.asarray(b, dtype=float).view(np.int64))
+
+
+@pytest.mark.parametrize("level", sorted(SUITES))
+def test_readings_are_the_same_numbers_and_the_fix_the_same_at_round_off(level):
+    suite = SUITES[level]
+    reference = Navigation(suite, SEABED_Z, 0.1)
+    compiled = CompiledNavigation(suite, SEABED_Z, 0.1)
+    rng = np.random.default_rng(20261208)
+    fixes = 0
+    for trial in range(150):
+        truth = random_truth(rng)
+        state = reference.start(truth, np.random.default_rng(trial), FLOATS)
+        seed = int(rng.integers(2**31))
+        drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
+        expected, got = reference.read(state, truth, drawn, FLOATS), \
+            compiled.read(state, truth, replayed, FLOATS)
+        assert expected[1] == got[1]  # the DVL's lock
+        for a, b in zip(expected, got, strict=True):
+            assert same(a, b), (level, trial, expected, got)
+        vector, valid, travel = reference.fix(state, truth, drawn, FLOATS)
+        vector_c, valid_c, travel_c = compiled.fix(state, truth, replayed, FLOATS)
+        assert drawn.random() == replayed.random()  # the same draws, as many
+        assert bool(valid) == valid_c
+        assert travel_c == pytest.approx(travel, rel=1e-14)
+        scale = max(1.0, float(np.linalg.norm(vector)))
+        np.testing.assert_allclose(vector_c, vector, rtol=0, atol=1e-9 * scale)
+        fixes += bool(valid)
+    assert fixes > 50  # most pings fix
+
+
+def test_the_noise_free_fix_is_exact_at_any_range():
+    usbl = USBL(acoustics=dataclasses.replace(USBL_ACOUSTICS, sound_speed_error_std=0.0)
+                .noise_free())
+    array = usbl.array(50.0, SEABED_Z)
+    transponder = (0.5, 0.0, 1.0)
+    rng = np.random.default_rng(5)
+    for distance in (3.0, 40.0, 160.0, 400.0):
+        euler = tuple(rng.uniform(-0.5, 0.5, 3).tolist())
+        position = (transponder[0] - distance, 2.0, 8.0)
+        vector, valid = usbl.solve(array, position, euler, transponder,
+                                   USBL_ACOUSTICS.sound_speed, rng, FLOATS)
+        rows = np.array(frames.rotation_rows_from_euler(*euler, math))
+        truth = (np.array(transponder) - np.array(position)) @ rows
+        assert valid
+        np.testing.assert_allclose(vector, truth, rtol=0, atol=1e-9 * distance)
+
+
+def test_an_episode_with_compiled_sensors_is_the_same_but_for_the_fix_at_round_off():
+    envs = [gym.make("auv_envs/DockingStation-v2", obs_mode="nav_features", sensors=code,
+                     difficulty="hard") for code in ("numpy", "compiled")]
+    assert isinstance(envs[1].unwrapped.params.navigation, CompiledNavigation)
+    assert type(envs[0].unwrapped.params.navigation) is Navigation
+    for env in envs:
+        env.reset(seed=8)
+    actions = np.random.default_rng(8).uniform(-1.0, 1.0, (120, 4)).astype(np.float32)
+    fixed = 0
+    for action in actions:
+        steps = [env.step(action) for env in envs]
+        (a, reward, done, cut, _), (b, reward_c, done_c, cut_c, _) = steps
+        assert (reward, done, cut) == (reward_c, done_c, cut_c)
+        for key in a:
+            if key == "usbl":
+                np.testing.assert_allclose(b[key], a[key], rtol=1e-6, atol=1e-5)
+            else:
+                assert np.array_equal(a[key], b[key]), key
+        fixed += int(a["usbl_valid"][0])
+        if done or cut:
+            break
+    assert fixed > 10
+
+
+def test_an_unknown_sensor_code_is_refused():
+    with pytest.raises(ValueError, match="sensors"):
+        gym.make("auv_envs/DockingStation-v2", obs_mode="nav", sensors="fast")
+
+
+#: Values where Python's ``%`` and ``round`` take care: signs, exact multiples, halves.
+TRICKY = [-7.5, -2.5, -0.5, -0.49999999999999994, -0.0, 0.0, 0.5, 1.5, 2.5, 3.5,
+          2.0 * math.pi, -2.0 * math.pi, -1e-300, 48123.5, 48122.5, 1e16 + 2.0, -3.14159,
+          math.pi, 123456.0005]
+
+
+def test_casadi_mod_and_round_are_pythons_to_the_bit():
+    ops = casadi_ops()
+    x = casadi.SX.sym("x")
+    compiled = casadi.Function("f", [x], [ops.mod(x, 2.0 * math.pi), ops.mod(x, 1.5),
+                                          ops.round(x), ops.mod(x, -1.5)])
+    extra = np.random.default_rng(3).uniform(-1e4, 1e4, 200).tolist()
+    for value in TRICKY + extra:
+        got = [float(v) for v in compiled(value)]
+        expected = [operator.mod(value, 2.0 * math.pi), value % 1.5, FLOATS.round(value),
+                    value % -1.5]
+        for g, e in zip(got[:3], expected[:3], strict=True):
+            assert g == e and math.copysign(1.0, g) == math.copysign(1.0, e), (value, g, e)
+        # A negative divisor: the same number, a zero without its sign (ops' docstring).
+        assert got[3] == expected[3], value
+
+
+def test_a_suite_is_compiled_once():
+    suite = NavigationSensors()
+    first, second = (CompiledNavigation(suite, SEABED_Z, 0.1) for _ in range(2))
+    assert first._read_call.function is second._read_call.function
