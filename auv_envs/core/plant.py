@@ -251,6 +251,62 @@ class CompiledFunction:
             mine[:] = theirs
 
 
+class SymbolicDraws:
+    """A NumPy ``Generator``'s draws (``standard_normal``, ``random``) as CasADi symbols, in
+    the order a model written for the generator asks for them, so that the model compiles
+    with its draws as an input (:meth:`column`); :meth:`draw` then makes the same calls on
+    a generator, each into its slice of that input (the same numbers as the model's own
+    calls would get).
+
+    Args:
+        name: the symbols' prefix.
+    """
+
+    def __init__(self, name: str):
+        self.name, self.calls, self._symbols, self._size = name, [], [], 0
+
+    def _take(self, kind: str, size):
+        import casadi
+
+        count = 1 if size is None else int(size)
+        symbol = casadi.SX.sym(f"{self.name}_{len(self.calls)}", count)
+        self.calls.append((kind, slice(self._size, self._size + count)))
+        self._symbols.append(symbol)
+        self._size += count
+        return symbol[0] if size is None else symbol
+
+    def random(self, size=None):
+        return self._take("random", size)
+
+    def standard_normal(self, size=None):
+        return self._take("standard_normal", size)
+
+    def column(self):
+        """All the draws as one symbolic column (the function's input)."""
+        import casadi
+
+        return casadi.vertcat(*self._symbols)
+
+    def views(self, array: np.ndarray) -> tuple:
+        """The calls as method names, each with its slice of ``array`` (the bound input);
+        consecutive calls of one method merged into one (a generator's ``random`` and
+        ``standard_normal`` keep nothing between calls: the same numbers)."""
+        merged = []
+        for kind, part in self.calls:
+            if merged and merged[-1][0] == kind:
+                merged[-1] = (kind, slice(merged[-1][1].start, part.stop))
+            else:
+                merged.append((kind, part))
+        return tuple((kind, array[part]) for kind, part in merged)
+
+    @staticmethod
+    def draw(views: tuple, generator) -> None:
+        """Make the recorded calls on ``generator`` (a NumPy ``Generator``) into ``views``."""
+        for kind, out in views:
+            getattr(generator, kind)(out=out)
+
+
+
 class FreeBodyPlant:
     """The hull of a :class:`~auv_envs.core.hydrodynamics.HullForceModel` as one compiled
     call: ``substeps`` steps of :func:`free_body_rk4` under

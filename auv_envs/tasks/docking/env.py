@@ -10,7 +10,6 @@ Two registered layouts share this file:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import ClassVar
 
@@ -54,9 +53,9 @@ from auv_envs.tasks.docking.config import (  # noqa: F401  (the names' home befo
     nav_space,
     params,
 )
-from auv_envs.tasks.docking.navigation import CompiledNavigation, NavigationSensors
+from auv_envs.tasks.docking.navigation import NavigationSensors
 from auv_envs.tasks.docking.optics import WaterOptics, degrade_image
-from auv_envs.tasks.docking.plant import CompiledPlant, MujocoPlant
+from auv_envs.tasks.docking.plant import CompiledPlant, MujocoPlant, compiled_sensors
 from auv_envs.tasks.docking.rules import FAILURE_REASONS, DockingTolerances, failure_reason
 from auv_envs.tasks.docking.station import (
     CHASE_CAMERA,
@@ -409,10 +408,8 @@ class DockingTask(CPUTask):
         #: which the batched environment runs too (with :class:`Navigation` on JAX where
         #: the CPU's sensors are compiled).
         self.params = setup.params
-        if config.sensors == "compiled" and setup.params.navigation is not None:
-            nav = setup.params.navigation
-            self.params = dataclasses.replace(setup.params, navigation=CompiledNavigation(
-                nav.sensors, nav.seabed_z, nav.dt))
+        if config.sensors == "compiled":
+            self.params = compiled_sensors(setup.params)
         #: The navigation sensors (:mod:`auv_envs.tasks.docking.navigation`) of the ``nav`` modes.
         self.navigation = setup.levels["navigation"]
 

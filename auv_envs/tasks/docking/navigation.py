@@ -59,6 +59,7 @@ import numpy as np
 
 from auv_envs.core import frames
 from auv_envs.core.acoustics import AcousticConfig, HydrophoneArray
+from auv_envs.core.plant import CompiledFunction, SymbolicDraws
 
 
 def _check(owner: str, **values) -> None:
@@ -538,8 +539,6 @@ class CompiledNavigation(Navigation):
     :data:`~auv_envs.core.ops.FLOATS`); the batched tasks use :class:`Navigation`."""
 
     def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
-        from auv_envs.core.plant import CompiledFunction
-
         super().__init__(sensors, seabed_z, dt)
         (readings, self._read_draws), (fix, self._fix_draws) = _navigation_functions(
             sensors, float(seabed_z), self.dt)
@@ -552,7 +551,7 @@ class CompiledNavigation(Navigation):
         call.inputs[0][:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
                              truth["position"][2])
         call.inputs[1][:] = (*state.dvl_scale, *state.gyro_bias, state.heading_bias)
-        _DrawLayout.draw(self._read_views, draws)
+        SymbolicDraws.draw(self._read_views, draws)
         v = call()[0].tolist()
         return (tuple(v[0:3]), v[3] > 0.5, tuple(v[4:7]), tuple(v[7:10]), tuple(v[10:13]),
                 v[13])
@@ -560,58 +559,9 @@ class CompiledNavigation(Navigation):
     def fix(self, state: NavState, truth: dict, draws, ops) -> tuple:
         call = self._fix_call
         call.inputs[0][:] = (*truth["position"], *truth["euler"], state.sound_speed)
-        _DrawLayout.draw(self._fix_views, draws)
+        SymbolicDraws.draw(self._fix_views, draws)
         out = call()[0]
         return out[:3].copy(), bool(out[3] > 0.5), float(out[4])
-
-
-class _DrawLayout:
-    """A generator's draws (``standard_normal``, ``random``) as CasADi symbols, in the order
-    a model asks for them; :meth:`draw` makes the same calls on a generator, each into its
-    slice of one array (the same numbers as the calls the model makes on the CPU)."""
-
-    def __init__(self, name: str):
-        self.name, self.calls, self._symbols, self._size = name, [], [], 0
-
-    def _take(self, kind: str, size):
-        import casadi
-
-        count = 1 if size is None else int(size)
-        symbol = casadi.SX.sym(f"{self.name}_{len(self.calls)}", count)
-        self.calls.append((kind, slice(self._size, self._size + count)))
-        self._symbols.append(symbol)
-        self._size += count
-        return symbol[0] if size is None else symbol
-
-    def random(self, size=None):
-        return self._take("random", size)
-
-    def standard_normal(self, size=None):
-        return self._take("standard_normal", size)
-
-    def column(self):
-        """All the draws as one symbolic column (the function's input)."""
-        import casadi
-
-        return casadi.vertcat(*self._symbols)
-
-    def views(self, array: np.ndarray) -> tuple:
-        """The calls as method names, each with its slice of ``array`` (the bound input);
-        consecutive calls of one method merged into one (a generator's ``random`` and
-        ``standard_normal`` keep nothing between calls: the same numbers)."""
-        merged = []
-        for kind, part in self.calls:
-            if merged and merged[-1][0] == kind:
-                merged[-1] = (kind, slice(merged[-1][1].start, part.stop))
-            else:
-                merged.append((kind, part))
-        return tuple((kind, array[part]) for kind, part in merged)
-
-    @staticmethod
-    def draw(views: tuple, generator) -> None:
-        """Make the recorded calls on ``generator`` (a NumPy ``Generator``) into ``views``."""
-        for kind, out in views:
-            getattr(generator, kind)(out=out)
 
 
 @functools.lru_cache(maxsize=16)
@@ -633,14 +583,14 @@ def _navigation_functions(sensors: NavigationSensors, seabed_z: float, dt: float
              "euler": [x[7], x[8], x[9]], "position": (None, None, x[10])}
     state = NavState(*([None] * len(NavState._fields)))._replace(
         dvl_scale=[s[0], s[1], s[2]], gyro_bias=[s[3], s[4], s[5]], heading_bias=s[6])
-    draws = _DrawLayout("read")
+    draws = SymbolicDraws("read")
     dvl, valid, attitude, rates, bias, depth = Navigation.read(suite, state, truth, draws, ops)
     readings = casadi.Function("navigation_readings", [x, s, draws.column()], [casadi.vertcat(
         dvl, ops.where(valid, 1.0, 0.0), attitude, rates, bias, depth)], {"cse": True})
 
     pose = casadi.SX.sym("pose", 7)
     position, euler = [pose[k] for k in range(3)], [pose[k] for k in range(3, 6)]
-    fix_draws = _DrawLayout("fix")
+    fix_draws = SymbolicDraws("fix")
     vector, found = sensors.usbl.solve(suite.array, position, euler, suite._transponder.tolist(),
                                        pose[6], fix_draws, ops)
     travel = 2.0 * _norm([p - t for p, t in zip(position, suite._transponder.tolist(),

@@ -32,6 +32,7 @@ References:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import numbers
 
@@ -39,6 +40,8 @@ import cv2
 import numpy as np
 from scipy import optimize
 from scipy.special import ndtri
+
+from auv_envs.core.plant import CompiledFunction, SymbolicDraws
 
 #: Jerlov water types: oceanic I (clearest) to III, coastal 1C to 9C (most turbid).
 JERLOV_TYPES = ("I", "IA", "IB", "II", "III", "1C", "3C", "5C", "7C", "9C")
@@ -240,7 +243,8 @@ class WaterOptics:
         """``τ_s = min(β) d``: the optical depth that scatters into the glow.
 
         ``xp`` (here and in the detection model below): the array module,
-        ``numpy`` or ``jax.numpy``."""
+        ``numpy`` or ``jax.numpy``; None where ``distance`` is one scalar of any arithmetic
+        (a float, a CasADi symbol: :class:`CompiledLampDetection`)."""
         return min(self.attenuation) * _as_float(distance, xp)
 
     def glow_width(self, distance, focal_px: float, xp) -> np.ndarray:
@@ -250,13 +254,31 @@ class WaterOptics:
     def lamp_contrast(self, distance, xp) -> np.ndarray:
         """Received contrast ``C`` of a lamp at range ``distance`` (m), its best channel."""
         d = xp.maximum(_as_float(distance, xp), 1e-3)
-        received = self.lamp_intensity * xp.exp(-(d[..., None] * xp.asarray(self.attenuation)))
         veil = xp.maximum(xp.asarray(self.veiling_light), _GREY_LEVEL)
-        return (received / veil).max(axis=-1) / (d * d)
+        return self._relative(d[..., None], xp.asarray(self.attenuation), veil,
+                              xp).max(axis=-1) / (d * d)
+
+    def _relative(self, d, attenuation, veil, xp):
+        """A lamp's radiance at ``d`` over the veiling light ``veil``, per channel."""
+        return self.lamp_intensity * xp.exp(-(d * attenuation)) / veil
+
+    def scalar_contrast(self, distance, ops):
+        """:meth:`lamp_contrast` of one ``distance`` in the scalar arithmetic of ``ops``
+        (:mod:`auv_envs.core.ops`)."""
+        d = ops.maximum(distance, 1e-3)
+        best = None
+        for attenuation, veil in zip(self.attenuation, self.veiling_light, strict=True):
+            channel = self._relative(d, attenuation, max(veil, _GREY_LEVEL), ops)
+            best = channel if best is None else ops.maximum(best, channel)
+        return best / (d * d)
 
     def detection_probability(self, distance, xp) -> np.ndarray:
         """Probability that a lamp in view at range ``distance`` (m) is detected."""
-        ratio = self.detection_contrast / self.lamp_contrast(distance, xp)
+        return self.detection_of_contrast(self.lamp_contrast(distance, xp))
+
+    def detection_of_contrast(self, contrast):
+        """:meth:`detection_probability` at a received ``contrast`` (any arithmetic)."""
+        ratio = self.detection_contrast / contrast
         return 1.0 / (1.0 + ratio ** self.detection_slope)
 
     def detection_range(self, probability: float = 0.5) -> float:
@@ -277,7 +299,9 @@ class WaterOptics:
 
 
 def _as_float(values, xp):
-    """``values`` as a float array of ``xp`` (NumPy: float64)."""
+    """``values`` as a float array of ``xp`` (NumPy: float64); as they are for None."""
+    if xp is None:
+        return values
     return np.asarray(values, dtype=float) if xp is np else xp.asarray(values)
 
 
@@ -470,3 +494,84 @@ def lamp_detections(pixels, visible, distance, out, optics: WaterOptics, focal_p
     detected = visible & ~out & (u < optics.detection_probability(distance, xp))
     noisy = pixels + noise * optics.centroid_std(distance, focal_px, xp)[:, None]
     return xp.where(detected[:, None], noisy, 0.0), detected
+
+
+class CompiledLampDetection:
+    """The lights of a ``features`` observation through the water as one compiled call on
+    the CPU (the docking tasks' ``sensors="compiled"``): the pixel noise, masked and
+    clipped, then :func:`detect_lamps` at each lamp's range and the clip again, as
+    :func:`auv_envs.tasks.docking.transition.observe` does in NumPy; the same draws from
+    the episode's generator. Built from the same models on CasADi symbols
+    (:meth:`WaterOptics.scalar_contrast`); the numbers equal NumPy's at round-off (NumPy's
+    vectorised ``exp`` is not the C library's).
+
+    Args:
+        light_positions: (n, 3) the lamps in the world, m.
+        optics: the water.
+        pixel_std: the pixel noise's standard deviation (0: none drawn).
+        pixel_bounds: ``(low, high)``, each (n, 2): the observation's pixel bounds.
+        focal_px: the camera's focal length, pixels.
+    """
+
+    def __init__(self, light_positions, optics: WaterOptics, pixel_std: float, pixel_bounds,
+                 focal_px: float):
+        low, high = (tuple(np.asarray(bound, dtype=float).ravel().tolist())
+                     for bound in pixel_bounds)
+        lights = tuple(tuple(p) for p in np.asarray(light_positions, dtype=float).tolist())
+        function, draws = _lamp_function(lights, optics, float(pixel_std), low, high,
+                                         float(focal_px))
+        self._call = CompiledFunction(function)
+        self._views = draws.views(self._call.inputs[2])
+        self._n = len(lights)
+
+    def __call__(self, truth: dict, out, rng) -> tuple[np.ndarray, np.ndarray]:
+        """``(pixels (n, 2) float32, detected (n,) int8)`` of the lamps at ``truth`` (with
+        its ``visible_pixels``, ``visible`` and ``camera_position``), ``out`` (n,) the
+        lamps failed or hidden, drawing from ``rng``."""
+        n, call = self._n, self._call
+        call.inputs[0][:] = truth["visible_pixels"].reshape(-1)
+        flags = call.inputs[1]
+        flags[:n], flags[n:2 * n] = truth["visible"], out
+        flags[2 * n:] = truth["camera_position"]
+        SymbolicDraws.draw(self._views, rng)
+        result = call()[0]
+        return (result[:2 * n].reshape(n, 2).astype(np.float32),
+                (result[2 * n:] > 0.5).astype(np.int8))
+
+
+@functools.lru_cache(maxsize=16)
+def _lamp_function(lights: tuple, optics: WaterOptics, pixel_std: float, low: tuple,
+                   high: tuple, focal_px: float):
+    """:class:`CompiledLampDetection`'s CasADi function ``(pixels[2n], flags[2n + 3],
+    draws) -> [pixels 2n, detected n]`` (flags: in view n, out n, the camera's position 3)
+    and its draws' layout; built once per scene (a CasADi function is immutable)."""
+    import casadi
+
+    from auv_envs.core.ops import casadi_ops
+
+    ops = casadi_ops()
+    n = len(lights)
+    pixels, flags = casadi.SX.sym("pixels", 2 * n), casadi.SX.sym("flags", 2 * n + 3)
+    draws = SymbolicDraws("lamps")
+    noise = draws.standard_normal(2 * n) if pixel_std > 0 else None
+    hits, jitter = draws.random(n), draws.standard_normal(2 * n)
+    camera = [flags[2 * n + k] for k in range(3)]
+    values, detections = [], []
+    for i, light in enumerate(lights):
+        in_view = flags[i] > 0.5
+        coordinates = [pixels[2 * i + k] for k in range(2)]
+        if noise is not None:  # as add_pixel_noise, masked, clipped
+            coordinates = [ops.clip(ops.where(in_view, c + pixel_std * noise[2 * i + k], 0.0),
+                                    low[2 * i + k], high[2 * i + k])
+                           for k, c in enumerate(coordinates)]
+        distance = ops.sqrt(sum((light[k] - camera[k]) ** 2 for k in range(3)))
+        probability = optics.detection_of_contrast(optics.scalar_contrast(distance, ops))
+        detected = ops.logical_and(ops.logical_and(in_view, ops.logical_not(flags[n + i] > 0.5)),
+                                   hits[i] < probability)
+        spread = optics.centroid_std(distance, focal_px, None)
+        values += [ops.clip(ops.where(detected, c + jitter[2 * i + k] * spread, 0.0),
+                            low[2 * i + k], high[2 * i + k]) for k, c in enumerate(coordinates)]
+        detections.append(ops.where(detected, 1.0, 0.0))
+    function = casadi.Function("lamp_detection", [pixels, flags, draws.column()],
+                               [casadi.vertcat(*values, *detections)], {"cse": True})
+    return function, draws

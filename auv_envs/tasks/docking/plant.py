@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 
@@ -22,6 +23,8 @@ from auv_envs.core.camera import project_few
 from auv_envs.core.ops import FLOATS, casadi_ops
 from auv_envs.core.plant import CompiledFunction, FreeBodyPlant
 from auv_envs.tasks.docking import transition
+from auv_envs.tasks.docking.navigation import CompiledNavigation
+from auv_envs.tasks.docking.optics import CompiledLampDetection
 from auv_envs.tasks.docking.rules import DockingRules
 from auv_envs.tasks.docking.station import DockingPhysics
 
@@ -169,3 +172,20 @@ def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | N
     function = casadi.Function("docking_truth", [qpos, qvel],
                                [casadi.vertcat(*flat), casadi.vertcat(*seen)], {"cse": True})
     return function, tuple(layout), pixel_slice
+
+
+def compiled_sensors(params: transition.DockingParams) -> transition.DockingParams:
+    """``params`` with its sensors compiled for the CPU (``sensors="compiled"``): the
+    navigation sensors (:class:`~auv_envs.tasks.docking.navigation.CompiledNavigation`) in
+    the ``nav`` modes, and the lights' detection through the water
+    (:class:`~auv_envs.tasks.docking.optics.CompiledLampDetection`) in the modes with
+    lights, where the water hides lamps (``optics``)."""
+    changes = {}
+    nav = params.navigation
+    if nav is not None:
+        changes["navigation"] = CompiledNavigation(nav.sensors, nav.seabed_z, nav.dt)
+    if params.optics is not None and params.obs_mode in transition.LIGHT_MODES:
+        changes["lamp_detection"] = CompiledLampDetection(
+            params.light_positions, params.optics, params.noise[0], params.pixel_bounds,
+            params.focal_px)
+    return dataclasses.replace(params, **changes)

@@ -125,6 +125,9 @@ class DockingParams:
             (:class:`~auv_envs.tasks.docking.navigation.Navigation`) in the ``nav`` modes,
             else None.
         mission: the whole approach's :class:`MissionSpec` (``DockingMission``), else None.
+        lamp_detection: the lights' observation through the water as one compiled call
+            (:class:`~auv_envs.tasks.docking.optics.CompiledLampDetection`: the CPU's
+            ``sensors="compiled"``), else None (NumPy's, in :func:`observe`).
     """
 
     rules: DockingRules
@@ -143,6 +146,7 @@ class DockingParams:
     max_episode_steps: int
     navigation: Any = None
     mission: MissionSpec | None = None
+    lamp_detection: Any = None
 
     @property
     def dt(self) -> float:
@@ -412,6 +416,9 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
                    "attitude": xp.asarray(attitude, dtype=xp.float32)}
     if params.obs_mode not in LIGHT_MODES:
         return sensors
+    if params.lamp_detection is not None:
+        pixels, visible = params.lamp_detection(truth, state.out, draws)
+        return {"pixels": pixels, "visible": visible, **sensors}
     visible = truth["visible"]
     pixels = truth["visible_pixels"]
     if pixel_std > 0:  # noise on the masked true pixels, masked again, clipped

@@ -1,14 +1,17 @@
-"""The compiled navigation sensors (``sensors="compiled"``,
-:class:`~auv_envs.tasks.docking.navigation.CompiledNavigation`): the readings equal to the
+"""The docking tasks' compiled sensors (``sensors="compiled"``). The navigation sensors
+(:class:`~auv_envs.tasks.docking.navigation.CompiledNavigation`): the readings equal to the
 bit and the draws the same as :class:`~auv_envs.tasks.docking.navigation.Navigation`'s,
 the USBL fix (:meth:`USBL.solve`) equal to :meth:`USBL.fix` at round-off, every level's
-sensors, and the scalar operations it compiles against Python's."""
+sensors. The lights' detection through the water
+(:class:`~auv_envs.tasks.docking.optics.CompiledLampDetection`) against NumPy's, every
+water. Episodes with either, and the scalar operations compiled against Python's."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 import operator
+from types import SimpleNamespace
 
 import casadi
 import gymnasium as gym
@@ -17,7 +20,8 @@ import pytest
 
 import auv_envs  # noqa: F401  (registers the ids)
 from auv_envs.core import frames
-from auv_envs.core.ops import FLOATS, casadi_ops
+from auv_envs.core.ops import FLOATS, Backend, casadi_ops
+from auv_envs.tasks.docking import transition
 from auv_envs.tasks.docking.config import EASY_NAVIGATION, HARD_NAVIGATION, PAPER_NAVIGATION
 from auv_envs.tasks.docking.navigation import (
     DVL,
@@ -27,6 +31,8 @@ from auv_envs.tasks.docking.navigation import (
     Navigation,
     NavigationSensors,
 )
+from auv_envs.tasks.docking.optics import CompiledLampDetection, WaterOptics
+from auv_envs.tasks.docking.plant import compiled_sensors
 
 #: Every level's suite, and one with DVL dropouts, a coarse depth and USBL outliers.
 SUITES = {
@@ -153,3 +159,43 @@ def test_a_suite_is_compiled_once():
     suite = NavigationSensors()
     first, second = (CompiledNavigation(suite, SEABED_Z, 0.1) for _ in range(2))
     assert first._read_call.function is second._read_call.function
+
+
+#: The levels' waters and Jerlov's clearest and most turbid of each kind.
+WATERS = ({"difficulty": "paper"}, {"difficulty": "hard"},
+          {"optics": WaterOptics.jerlov("I")}, {"optics": WaterOptics.jerlov("III")},
+          {"optics": WaterOptics.jerlov("1C")}, {"optics": WaterOptics.jerlov("5C")})
+
+
+@pytest.mark.parametrize("env_id", ["auv_envs/LampArrayDocking-v2", "auv_envs/DockingStation-v2"])
+def test_lamp_detection_is_numpys_through_every_water(env_id):
+    """The lights along random approaches (the episodes' starts, then random thrust: most
+    lamps in view) through several waters, with random failures and occlusions: the same
+    detections and pixels as NumPy's (:func:`~auv_envs.tasks.docking.transition.observe`),
+    the same draws."""
+    rng = np.random.default_rng(11)
+    detected = missed = 0
+    for water in WATERS:
+        shell = gym.make(env_id, obs_mode="features", **water)
+        params = shell.unwrapped.params
+        assert params.optics is not None and params.lamp_detection is None
+        compiled = compiled_sensors(params)
+        assert isinstance(compiled.lamp_detection, CompiledLampDetection)
+        for trial in range(30):
+            shell.reset(seed=trial)
+            for _ in range(int(rng.integers(0, 40))):
+                shell.step(rng.uniform(-0.6, 0.6, 4).astype(np.float32))
+            truth = shell.unwrapped.truth_now()
+            state = SimpleNamespace(out=rng.random(len(params.light_positions)) < 0.2)
+            seed = int(rng.integers(2**31))
+            drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
+            expected = transition.observe(params, state, truth, Backend(FLOATS, drawn, None))
+            got = transition.observe(compiled, state, truth, Backend(FLOATS, replayed, None))
+            assert drawn.random() == replayed.random()
+            assert np.array_equal(expected["visible"], got["visible"]), (water, trial)
+            np.testing.assert_allclose(got["pixels"], expected["pixels"], rtol=0, atol=1e-3)
+            assert got["pixels"].dtype == expected["pixels"].dtype
+            assert got["visible"].dtype == expected["visible"].dtype
+            detected += int(expected["visible"].sum())
+            missed += int(truth["visible"].sum() - expected["visible"].sum())
+    assert detected > 50 and missed > 50  # lamps seen and lamps the water (or an outage) hid
