@@ -86,9 +86,10 @@ def array_of():
 
 @pytest.fixture(scope="module")
 def one_ray_cluster_at_a_time():
-    """Hold this machine's lock for a local Ray cluster while a module uses one: the test
-    processes (``pytest -n``) never run two clusters side by side on the same cores,
-    whose daemons and workers would starve each other."""
+    """Hold this machine's lock for Ray while a test (or a module) uses it, a local
+    cluster or a Ray started in the test's process: the test processes (``pytest -n``)
+    never run two Ray instances side by side on the same cores, whose daemons and
+    workers would starve each other."""
     with open(Path(tempfile.gettempdir()) / "auv-envs-ray-cluster-tests.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         yield

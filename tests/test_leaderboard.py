@@ -524,7 +524,8 @@ def test_clips_show_as_videos_under_their_environment():
     assert "Clips: [b](clips/dock%20b.mp4)" in md and "[a](clips/lars-a.webm)" in md
 
 
-def test_ray_backend_gives_the_same_metrics_as_the_local_backend(tmp_path):
+def test_ray_backend_gives_the_same_metrics_as_the_local_backend(tmp_path,
+                                                               one_ray_cluster_at_a_time):
     pytest.importorskip("ray")
     args = dict(env_ids=[DOCK, LARS], agents=["random", "pd-state"], seeds=[100000, 100001],
                 env_kwargs=[{DOCK: {"time_limit": 20.0}}])

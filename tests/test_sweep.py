@@ -6,6 +6,7 @@ sweep."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import shutil
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip("ray")
+ray = pytest.importorskip("ray")
 
 import train as train_cli  # noqa: E402
 from baselines.evaluation import LocalRayCluster  # noqa: E402
@@ -122,3 +123,53 @@ def test_a_bad_sweep_is_refused_before_anything_runs(tmp_path, capsys):
     runs = sweep.plan([0, 1], sweep.parse_grid(["gamma=0.9,0.99", "n_steps=32,64"]), ["-x"])
     assert len(runs) == 8 and len({run.name for run in runs}) == 8
     assert runs[0].argv == ("-x", "--seed", "0", "--set", "gamma=0.9", "--set", "n_steps=32")
+
+
+class _LosingRay:
+    """Ray's task calls as the sweep makes them, run in this process, the first result of
+    each run lost as Ray loses one (its owner gone): to check that such a run runs again."""
+
+    exceptions = ray.exceptions
+
+    def __init__(self, losses: int):
+        self.losses, self.calls = losses, []
+
+    def remote(self, **options):
+        def wrap(function):
+            outer = self
+
+            class Remote:
+                @staticmethod
+                def remote(*args):
+                    outer.calls.append(args[0])
+                    return (len(outer.calls), function, args)
+            return Remote
+        return wrap
+
+    def wait(self, refs, num_returns):
+        return refs[:num_returns], refs[num_returns:]
+
+    def get(self, ref):
+        number, function, args = ref
+        if self.calls[:number].count(args[0]) <= self.losses:
+            raise self.exceptions.OwnerDiedError("ab" * 14, "", "")
+        return {"exit_code": 0, "log": f"ran {args[0]}\n", "archive": None}
+
+
+@pytest.mark.parametrize("losses, expected", [(1, 2), (sweep.LOST_RUN_RETRIES + 1, 3)])
+def test_a_run_whose_result_ray_loses_runs_again(tmp_path, monkeypatch, losses, expected):
+    fake = _LosingRay(losses)
+    monkeypatch.setattr("baselines.evaluation.backends.ray_session",
+                        lambda *args, **kwargs: contextlib.nullcontext(fake))
+    told = []
+    runs = sweep.plan([3], {}, ["--algo", "ppo"])
+    rows = sweep.sweep(runs, tmp_path, "ppo", echo=told.append)
+    name = runs[0].name
+    assert fake.calls == [name] * expected
+    assert sum("Ray lost it (OwnerDiedError); running it again" in line
+               for line in told) == expected - 1
+    log = (tmp_path / "logs" / f"{name}.log").read_text()
+    if losses <= sweep.LOST_RUN_RETRIES:  # the last try delivered
+        assert rows[0]["exit_code"] == 0 and log == f"ran {name}\n"
+    else:  # every try lost: reported, not silently missing
+        assert rows[0]["exit_code"] == 1 and "Ray could not run it" in log

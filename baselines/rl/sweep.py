@@ -20,6 +20,10 @@ overrides they all share), each run one Ray task that calls ``train.py`` itself:
 * **A failing run is reported, the others finish.** Each run's exit code, steps,
   wall time and last evaluation go into ``DIR/summary.csv`` and the table printed at
   the end; the sweep's exit code is 0 only when every run finished.
+* **A run Ray loses runs again.** A worker that dies is Ray's to retry (once); a run
+  whose result Ray then cannot deliver (a lost object, a node gone) runs again from
+  the start, up to :data:`LOST_RUN_RETRIES` times, and the sweep says so. A run's own
+  failure is its exit code, never retried.
 
 The cluster: ``--ray-address`` (a running cluster; the working tree travels to its
 workers through Ray's ``runtime_env``,
@@ -50,6 +54,8 @@ SUMMARY_FIELDS = ("run", "seed", "variant", "status", "exit_code", "steps", "wal
                   "success_rate", "mean_return", "log")
 #: ``run.json``'s status of a run that reached its budget.
 FINISHED = "finished"
+#: How many times a run whose result Ray lost runs again.
+LOST_RUN_RETRIES = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,14 +213,23 @@ def sweep(runs: Sequence[SweepRun], sweep_dir: str | Path, algo: str,
     if todo:
         with ray_session(ray_address, None, [sweep_dir], "train.py --sweep-dir") as ray:
             remote = ray.remote(num_cpus=cpus_per_run, max_calls=1, max_retries=1)(run_one)
-            pending = {remote.remote(run.name, run.argv, previous): run
+            pending = {remote.remote(run.name, run.argv, previous): (run, previous, 0)
                        for run, previous in todo}
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1)
-                run = pending.pop(done[0])
+                run, previous, retries = pending.pop(done[0])
                 try:
                     result = ray.get(done[0])
-                except Exception as exc:  # noqa: BLE001 - Ray lost the run: reported
+                except ray.exceptions.RayTaskError as exc:  # run_one itself failed
+                    result = {"exit_code": 1, "log": f"the run's task failed: {exc}\n",
+                              "archive": None}
+                except ray.exceptions.RayError as exc:  # Ray lost the run or its result
+                    if retries < LOST_RUN_RETRIES:
+                        echo(f"[sweep] {run.name}: Ray lost it ({type(exc).__name__}); "
+                             "running it again")
+                        again = remote.remote(run.name, run.argv, previous)
+                        pending[again] = (run, previous, retries + 1)
+                        continue
                     result = {"exit_code": 1, "log": f"Ray could not run it: {exc}\n",
                               "archive": None}
                 rows[run.name] = _gather(run, sweep_dir, result)

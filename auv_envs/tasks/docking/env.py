@@ -250,11 +250,15 @@ class DockingTask(CPUTask):
     ``plant``                str                    ``"compiled"``  ``"compiled"`` (the hull
                                                                     compiled away from the scenery)
                                                                     or ``"mujoco"`` (the v1 plant)
-    ``sensors``              str                    ``"numpy"``     the ``nav`` modes' sensors on
-                                                                    the CPU: ``"numpy"`` or
-                                                                    ``"compiled"`` (one compiled
-                                                                    call a step; the USBL fix
-                                                                    differs at round-off)
+    ``sensors``              str                    ``"numpy"``     the sensors' models on the
+                                                                    CPU: ``"numpy"`` or
+                                                                    ``"compiled"`` (the navigation
+                                                                    sensors and the lamps'
+                                                                    detection through the water,
+                                                                    compiled calls; the same
+                                                                    draws, the numbers equal at
+                                                                    round-off). The batched envs
+                                                                    run theirs on JAX either way
     ``render_mode``          str | None             ``None``        ``"rgb_array"`` or None
     ``render_camera``        str                    ``"chase"``     ``"chase"`` or ``"onboard"``
     ``render_size``          tuple[int, int]        ``(640, 480)``  (W, H) of ``render()``
