@@ -8,9 +8,11 @@ water. Episodes with either, and the scalar operations compiled against Python's
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import operator
+import pickle
 from types import SimpleNamespace
 
 import casadi
@@ -126,6 +128,50 @@ def test_an_episode_with_compiled_sensors_is_the_same_but_for_the_fix_at_round_o
         if done or cut:
             break
     assert fixed > 10
+
+
+def test_copied_compiled_sensors_draw_into_their_own_calls():
+    """Pickled or deep-copied, the compiled sensors are built again: their draws go into
+    the copy's own calls' inputs, and the copy reads as the original."""
+    suite = HARD_NAVIGATION
+    navigation = CompiledNavigation(suite, SEABED_Z, 0.1)
+    clear = WaterOptics.jerlov("I")
+    params = gym.make("auv_envs/LampArrayDocking-v2", obs_mode="features", sensors="compiled",
+                      optics=clear).unwrapped.params
+    rng = np.random.default_rng(4)
+    truth = random_truth(rng)
+    state = Navigation(suite, SEABED_Z, 0.1).start(truth, np.random.default_rng(1), FLOATS)
+    for twin in (pickle.loads(pickle.dumps(navigation)), copy.deepcopy(navigation)):
+        assert twin.read(state, truth, np.random.default_rng(5), FLOATS) == \
+            navigation.read(state, truth, np.random.default_rng(5), FLOATS)
+    lamps = params.lamp_detection
+    shell = gym.make("auv_envs/LampArrayDocking-v2", obs_mode="features", optics=clear)
+    shell.reset(seed=3)
+    truth = shell.unwrapped.truth_now()
+    out = np.zeros(len(params.light_positions), bool)
+    expected = lamps(truth, out, np.random.default_rng(6))
+    assert expected[1].sum() > 0
+    for twin in (pickle.loads(pickle.dumps(lamps)), copy.deepcopy(lamps)):
+        got = twin(truth, out, np.random.default_rng(6))
+        assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
+
+
+def test_a_copied_env_steps_as_the_original():
+    """Pickled or deep-copied (vector envs, checkpoints of a rollout), an env with compiled
+    sensors steps as the original."""
+    env = gym.make("auv_envs/LampArrayDocking-v2", obs_mode="nav_features", sensors="compiled",
+                   difficulty="hard")
+    env.reset(seed=2)
+    for _ in range(5):
+        env.step(np.full(4, 0.3, np.float32))
+    copies = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
+    for k in range(40):
+        action = np.full(4, 0.3 if k % 2 else -0.2, np.float32)
+        expected = env.step(action)[0]
+        for twin in copies:
+            got = twin.step(action)[0]
+            for key in expected:
+                assert np.array_equal(got[key], expected[key]), (k, key)
 
 
 def test_an_unknown_sensor_code_is_refused():

@@ -546,6 +546,9 @@ class CompiledNavigation(Navigation):
         self._read_views = self._read_draws.views(self._read_call.inputs[2])
         self._fix_views = self._fix_draws.views(self._fix_call.inputs[1])
 
+    def __reduce__(self):  # built again: the draws' views alias the calls' inputs
+        return type(self), (self.sensors, self.seabed_z, self.dt)
+
     def read(self, state: NavState, truth: dict, draws, ops) -> tuple:
         call = self._read_call
         call.inputs[0][:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],

@@ -523,6 +523,10 @@ class CompiledLampDetection:
         self._call = CompiledFunction(function)
         self._views = draws.views(self._call.inputs[2])
         self._n = len(lights)
+        self._arguments = (light_positions, optics, pixel_std, pixel_bounds, focal_px)
+
+    def __reduce__(self):  # built again: the draws' views alias the call's inputs
+        return type(self), self._arguments
 
     def __call__(self, truth: dict, out, rng) -> tuple[np.ndarray, np.ndarray]:
         """``(pixels (n, 2) float32, detected (n,) int8)`` of the lamps at ``truth`` (with
