@@ -32,6 +32,7 @@ from auv_envs.tasks.docking.navigation import (
     CompiledNavigation,
     Navigation,
     NavigationSensors,
+    NavState,
 )
 from auv_envs.tasks.docking.optics import CompiledLampDetection, WaterOptics
 from auv_envs.tasks.docking.plant import compiled_sensors
@@ -62,31 +63,45 @@ def same(a, b) -> bool:
 
 
 @pytest.mark.parametrize("level", sorted(SUITES))
-def test_readings_are_the_same_numbers_and_the_fix_the_same_at_round_off(level):
+def test_readings_and_schedule_are_the_same_numbers_and_the_fix_the_same_at_round_off(level):
+    """Episodes of random truths (bottom lock lost and found, pings and late fixes): every
+    field of the sensors' state equal to the bit but the fix in flight, its arrival time
+    and the delivered fix, equal at round-off; the same draws, as many; the same
+    observation."""
     suite = SUITES[level]
     reference = Navigation(suite, SEABED_Z, 0.1)
     compiled = CompiledNavigation(suite, SEABED_Z, 0.1)
     rng = np.random.default_rng(20261208)
     fixes = 0
-    for trial in range(150):
+    for episode in range(12):
+        drawn, replayed = (np.random.default_rng(episode) for _ in range(2))
         truth = random_truth(rng)
-        state = reference.start(truth, np.random.default_rng(trial), FLOATS)
-        seed = int(rng.integers(2**31))
-        drawn, replayed = np.random.default_rng(seed), np.random.default_rng(seed)
-        expected, got = reference.read(state, truth, drawn, FLOATS), \
-            compiled.read(state, truth, replayed, FLOATS)
-        assert expected[1] == got[1]  # the DVL's lock
-        for a, b in zip(expected, got, strict=True):
-            assert same(a, b), (level, trial, expected, got)
-        vector, valid, travel = reference.fix(state, truth, drawn, FLOATS)
-        vector_c, valid_c, travel_c = compiled.fix(state, truth, replayed, FLOATS)
-        assert drawn.random() == replayed.random()  # the same draws, as many
-        assert bool(valid) == valid_c
-        assert travel_c == pytest.approx(travel, rel=1e-14)
-        scale = max(1.0, float(np.linalg.norm(vector)))
-        np.testing.assert_allclose(vector_c, vector, rtol=0, atol=1e-9 * scale)
-        fixes += bool(valid)
-    assert fixes > 50  # most pings fix
+        expected, got = reference.start(truth, drawn, FLOATS), compiled.start(truth, replayed,
+                                                                             FLOATS)
+        for step in range(1, 26):
+            time = step * 0.1
+            truth = random_truth(rng)
+            expected = reference.advance(expected, truth, time, drawn, FLOATS)
+            got = compiled.advance(got, truth, time, replayed, FLOATS)
+            named = CompiledNavigation.unpack(got)
+            for field in NavState._fields:
+                a, b = getattr(expected, field), getattr(named, field)
+                if field in ("pending", "fix", "pending_due"):  # the fix, and its travel time
+                    scale = max(1.0, float(np.linalg.norm(a)))
+                    np.testing.assert_allclose(b, a, rtol=0, atol=1e-9 * scale)
+                else:
+                    assert type(a) is type(b) and same(a, b), (level, episode, step, field)
+            assert drawn.random() == replayed.random()  # the same draws, as many
+            seen, read = (reference.observation(expected, time, FLOATS),
+                          compiled.observation(got, time, FLOATS))
+            for key in seen:
+                assert seen[key].dtype == read[key].dtype and seen[key].shape == read[key].shape
+                if key == "usbl":
+                    np.testing.assert_allclose(read[key], seen[key], rtol=1e-6, atol=1e-5)
+                else:
+                    assert np.array_equal(read[key], seen[key]), key
+            fixes += bool(expected.fix_valid)
+    assert fixes > 100  # fixes delivered and observed
 
 
 def test_the_noise_free_fix_is_exact_at_any_range():
@@ -140,10 +155,11 @@ def test_copied_compiled_sensors_draw_into_their_own_calls():
                       optics=clear).unwrapped.params
     rng = np.random.default_rng(4)
     truth = random_truth(rng)
-    state = Navigation(suite, SEABED_Z, 0.1).start(truth, np.random.default_rng(1), FLOATS)
+    state = navigation.start(truth, np.random.default_rng(1), FLOATS)
     for twin in (pickle.loads(pickle.dumps(navigation)), copy.deepcopy(navigation)):
-        assert twin.read(state, truth, np.random.default_rng(5), FLOATS) == \
-            navigation.read(state, truth, np.random.default_rng(5), FLOATS)
+        assert np.array_equal(twin.advance(state, truth, 0.1, np.random.default_rng(5), FLOATS),
+                              navigation.advance(state, truth, 0.1, np.random.default_rng(5),
+                                                 FLOATS))
     lamps = params.lamp_detection
     shell = gym.make("auv_envs/LampArrayDocking-v2", obs_mode="features", optics=clear)
     shell.reset(seed=3)
@@ -204,7 +220,7 @@ def test_casadi_mod_and_round_are_pythons_to_the_bit():
 def test_a_suite_is_compiled_once():
     suite = NavigationSensors()
     first, second = (CompiledNavigation(suite, SEABED_Z, 0.1) for _ in range(2))
-    assert first._read_call.function is second._read_call.function
+    assert first._call.function is second._call.function
 
 
 #: The levels' waters and Jerlov's clearest and most turbid of each kind.

@@ -38,7 +38,8 @@ kinematics, a projection) on CasADi symbols, which
 :class:`auv_envs.core.plant.CompiledFunction` compiles into one call; its
 comparisons are CasADi expressions, which do not combine with ``&``/``|``
 (use ``logical_and``, ``logical_or`` and ``where``); it also has ``round``, ``real``,
-``boolean``, ``vector`` (a column of scalars) and ``unpack``, the same numbers as
+``boolean``, ``vector`` (a column of scalars), ``unpack`` and ``either`` (both branches,
+selected entry by entry, as under JAX), the same numbers as
 :data:`FLOATS`' to the bit but for the sign of a zero that ``where`` chooses (CasADi's
 ``if_else`` adds its branches, each zeroed where not chosen: -0.0 comes out 0.0; so does
 a zero ``mod`` by a negative divisor, which Python gives -0.0).
@@ -170,6 +171,13 @@ def casadi_ops() -> types.SimpleNamespace:
         up = casadi.logic_or(above > 0.5, casadi.logic_and(above == 0.5, odd))
         return casadi.copysign(casadi.if_else(up, low + 1.0, low), x)
 
+    def either(condition, then, otherwise):  # both, selected entry by entry (as JAX's)
+        def select(a, b):
+            if isinstance(a, tuple | list):
+                return type(a)(select(x, y) for x, y in zip(a, b, strict=True))
+            return casadi.if_else(condition, a, b)
+        return select(then(), otherwise())
+
     return types.SimpleNamespace(
         name="casadi",
         sqrt=casadi.sqrt, sin=casadi.sin, cos=casadi.cos, exp=casadi.exp,
@@ -179,6 +187,7 @@ def casadi_ops() -> types.SimpleNamespace:
         logical_not=casadi.logic_not, logical_and=casadi.logic_and,
         logical_or=casadi.logic_or, barrier=lambda values: values,
         round=round_half_even, real=lambda value: value, boolean=lambda value: value,
+        either=either,
         vector=lambda values: casadi.vertcat(*values),
         unpack=lambda column: tuple(column[k] for k in range(column.numel())),
     )

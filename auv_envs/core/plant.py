@@ -264,6 +264,13 @@ class SymbolicDraws:
 
     def __init__(self, name: str):
         self.name, self.calls, self._symbols, self._size = name, [], [], 0
+        #: The number of calls made before each :meth:`mark`.
+        self.marks = []
+
+    def mark(self) -> None:
+        """Mark the calls so far: a model's draws that are made only sometimes (a USBL
+        ping's) begin here; :meth:`views` of a slice of calls serves each group."""
+        self.marks.append(len(self.calls))
 
     def _take(self, kind: str, size):
         import casadi
@@ -287,12 +294,12 @@ class SymbolicDraws:
 
         return casadi.vertcat(*self._symbols)
 
-    def views(self, array: np.ndarray) -> tuple:
-        """The calls as method names, each with its slice of ``array`` (the bound input);
-        consecutive calls of one method merged into one (a generator's ``random`` and
-        ``standard_normal`` keep nothing between calls: the same numbers)."""
+    def views(self, array: np.ndarray, calls: slice = slice(None)) -> tuple:
+        """The ``calls`` (all: every one) as method names, each with its slice of ``array``
+        (the bound input); consecutive calls of one method merged into one (a generator's
+        ``random`` and ``standard_normal`` keep nothing between calls: the same numbers)."""
         merged = []
-        for kind, part in self.calls:
+        for kind, part in self.calls[calls]:
             if merged and merged[-1][0] == kind:
                 merged[-1] = (kind, slice(merged[-1][1].start, part.stop))
             else:

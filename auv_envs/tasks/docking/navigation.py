@@ -443,16 +443,20 @@ class Navigation:
     def start(self, truth: dict, draws, ops) -> NavState:
         """The episode's first sensor state and readings (``truth`` from the task's
         kinematics, with ``seabed_clearance``)."""
+        return self.advance(self._initial(draws, ops), truth, 0.0, draws, ops)
+
+    def _initial(self, draws, ops) -> NavState:
+        """The episode's draws (DVL scale, gyro bias, heading deviation, sound speed) and
+        nothing read yet."""
         s = self.sensors
         zero3, zero, no = ops.vector((0.0, 0.0, 0.0)), ops.real(0.0), ops.boolean(False)
-        state = NavState(
+        return NavState(
             dvl_scale=s.dvl.draw_scale(draws, ops), gyro_bias=s.ahrs.draw_bias(draws, ops),
             heading_bias=s.ahrs.draw_heading_bias(draws, ops),
             sound_speed=ops.real(self.array.draw_sound_speed(draws, ops.xp)), next_ping=zero,
             pending=zero3, pending_valid=no, pending_time=zero, pending_due=zero, fix=zero3,
             fix_valid=no, fix_time=zero, dvl=zero3, dvl_valid=no, attitude=zero3,
             rates=zero3, depth=zero)
-        return self.advance(state, truth, 0.0, draws, ops)
 
     def advance(self, state: NavState, truth: dict, time, draws, ops) -> NavState:
         """The sensors at ``time`` s with the vehicle at ``truth``: this step's readings,
@@ -462,7 +466,7 @@ class Navigation:
         s = self.sensors
         dvl, dvl_valid, attitude, rates, bias, depth = self.read(state, truth, draws, ops)
         # A fix in flight arrives once due; a new ping goes out on schedule.
-        arrived = state.pending_valid & (time >= state.pending_due - 1e-9)
+        arrived = ops.logical_and(state.pending_valid, time >= state.pending_due - 1e-9)
         ping = time >= state.next_ping - 1e-9
 
         def fix():
@@ -471,7 +475,7 @@ class Navigation:
             return ops.vector(ops.unpack(vector)), ops.boolean(found), ops.real(due)
 
         def no_fix():
-            return (state.pending, state.pending_valid & ops.logical_not(arrived),
+            return (state.pending, ops.logical_and(state.pending_valid, ops.logical_not(arrived)),
                     state.pending_due)
 
         pending, pending_valid, pending_due = ops.either(ping, fix, no_fix)
@@ -481,7 +485,7 @@ class Navigation:
             pending=pending, pending_valid=pending_valid,
             pending_time=ops.where(ping, time, state.pending_time), pending_due=pending_due,
             fix=ops.where(arrived, state.pending, state.fix),
-            fix_valid=state.fix_valid | arrived,
+            fix_valid=ops.logical_or(state.fix_valid, arrived),
             fix_time=ops.where(arrived, state.pending_time, state.fix_time),
             dvl=dvl, dvl_valid=dvl_valid, attitude=attitude, rates=rates,
             depth=ops.real(depth))
@@ -530,74 +534,136 @@ SENSOR_CODES = ("numpy", "compiled")
 
 
 class CompiledNavigation(Navigation):
-    """:class:`Navigation` on the CPU with each step's readings one compiled call and a
-    ping's fix another (:class:`auv_envs.core.plant.CompiledFunction`, built from the same
-    sensor models on CasADi symbols). The same draws in the same order from the episode's
-    generator. The readings are :class:`Navigation`'s to the bit; the fix is
-    :meth:`USBL.solve`, whose least squares differ from :meth:`USBL.fix`'s at round-off
-    (and so do the episodes from a fix on). Python floats only (``ops`` is
+    """:class:`Navigation` on the CPU with a step of the sensors, readings, schedule and a
+    ping's fix, one compiled call (:class:`auv_envs.core.plant.CompiledFunction`, built
+    from :meth:`Navigation.advance` itself on CasADi symbols), fed the same draws in the
+    same order from the episode's generator. The readings and the schedule are
+    :class:`Navigation`'s to the bit; the fix is :meth:`USBL.solve`, whose least squares
+    differ from :meth:`USBL.fix`'s at round-off, as does its arrival time (the travel's
+    length a root of a sum of squares, not BLAS's norm).
+    The sensors' state is one float64 vector (:data:`NavState`'s fields in order, a
+    flag 1.0 or 0.0; :meth:`unpack` names them). Python floats only (``ops`` is
     :data:`~auv_envs.core.ops.FLOATS`); the batched tasks use :class:`Navigation`."""
 
     def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
         super().__init__(sensors, seabed_z, dt)
-        (readings, self._read_draws), (fix, self._fix_draws) = _navigation_functions(
-            sensors, float(seabed_z), self.dt)
-        self._read_call, self._fix_call = CompiledFunction(readings), CompiledFunction(fix)
-        self._read_views = self._read_draws.views(self._read_call.inputs[2])
-        self._fix_views = self._fix_draws.views(self._fix_call.inputs[1])
+        function, draws = _navigation_function(sensors, self.seabed_z, self.dt)
+        self._call = CompiledFunction(function)
+        draw_input = self._call.inputs[2]
+        self._every_step = draws.views(draw_input, slice(0, draws.marks[0]))
+        self._on_ping = draws.views(draw_input, slice(draws.marks[0], None))
+        self._size = self._call.inputs[0].size
 
-    def __reduce__(self):  # built again: the draws' views alias the calls' inputs
+    def __reduce__(self):  # built again: the draws' views alias the call's inputs
         return type(self), (self.sensors, self.seabed_z, self.dt)
 
-    def read(self, state: NavState, truth: dict, draws, ops) -> tuple:
-        call = self._read_call
-        call.inputs[0][:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
-                             truth["position"][2])
-        call.inputs[1][:] = (*state.dvl_scale, *state.gyro_bias, state.heading_bias)
-        SymbolicDraws.draw(self._read_views, draws)
-        v = call()[0].tolist()
-        return (tuple(v[0:3]), v[3] > 0.5, tuple(v[4:7]), tuple(v[7:10]), tuple(v[10:13]),
-                v[13])
+    def start(self, truth: dict, draws, ops) -> np.ndarray:
+        initial = self._initial(draws, ops)
+        return self.advance(_flatten(initial, float), truth, 0.0, draws, ops)
+
+    def advance(self, state: np.ndarray, truth: dict, time, draws, ops) -> np.ndarray:
+        call = self._call
+        before, given = call.inputs[0], call.inputs[1]
+        before[:] = state
+        given[:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
+                    *truth["position"], time)
+        SymbolicDraws.draw(self._every_step, draws)
+        if time >= state[_NEXT_PING] - 1e-9:  # a ping: its fix's draws (as the call decides)
+            SymbolicDraws.draw(self._on_ping, draws)
+        return call()[0][:self._size].copy()
+
+    def observation(self, state: np.ndarray, time, ops) -> dict:
+        values = np.empty(14, dtype=np.float32)
+        values[:13] = state[_OBSERVED]
+        values[13] = time - state[_FIX_TIME] if state[_FIX_VALID] > 0.5 else 0.0
+        flags = state[_FLAGS].astype(np.int8)
+        return {
+            "dvl_velocity": values[0:3], "dvl_valid": flags[0:1], "attitude": values[3:6],
+            "rates": values[6:9], "depth": values[9:10], "usbl": values[10:13],
+            "usbl_age": values[13:14], "usbl_valid": flags[1:2],
+        }
+
+    @staticmethod
+    def unpack(state: np.ndarray) -> NavState:
+        """A state vector as a :class:`NavState` of Python floats, bools and tuples."""
+        values, fields = state.tolist(), {}
+        for name, (part, kind) in _LAYOUT.items():
+            value = values[part]
+            fields[name] = tuple(value) if kind is tuple else kind(value[0])
+        return NavState(**fields)
+
+
+#: :class:`CompiledNavigation`'s state vector: each :class:`NavState` field's slice and
+#: type (a vector, a number or a flag).
+_LAYOUT, _offset = {}, 0
+for _name in NavState._fields:
+    _width = 3 if _name in ("dvl_scale", "gyro_bias", "pending", "fix", "dvl", "attitude",
+                            "rates") else 1
+    _kind = tuple if _width == 3 else bool if _name.endswith("valid") else float
+    _LAYOUT[_name] = (slice(_offset, _offset + _width), _kind)
+    _offset += _width
+del _name, _width, _kind, _offset
+_NEXT_PING = _LAYOUT["next_ping"][0].start
+_FIX_TIME, _FIX_VALID = _LAYOUT["fix_time"][0].start, _LAYOUT["fix_valid"][0].start
+#: The state's entries of the observation's float32 values, in its order, and its flags.
+_OBSERVED = np.r_[tuple(np.arange(_LAYOUT[name][0].start, _LAYOUT[name][0].stop)
+                        for name in ("dvl", "attitude", "rates", "depth", "fix"))]
+_FLAGS = np.array([_LAYOUT["dvl_valid"][0].start, _FIX_VALID])
+
+
+def _flatten(state: NavState, scalar) -> list:
+    """A :class:`NavState`'s fields as one list of scalars, in :data:`_LAYOUT`'s order
+    (``scalar`` turns a flag or a number into one: ``float``, or the identity)."""
+    flat = []
+    for name, (_, kind) in _LAYOUT.items():
+        value = getattr(state, name)
+        flat.extend([value[k] for k in range(3)] if kind is tuple else [scalar(value)])
+    return flat
+
+
+class _SymbolicNavigation(Navigation):
+    """:class:`Navigation` whose ping makes :meth:`USBL.solve`'s fix (scalar arithmetic),
+    marking where the ping's draws begin: what :class:`CompiledNavigation` compiles."""
 
     def fix(self, state: NavState, truth: dict, draws, ops) -> tuple:
-        call = self._fix_call
-        call.inputs[0][:] = (*truth["position"], *truth["euler"], state.sound_speed)
-        SymbolicDraws.draw(self._fix_views, draws)
-        out = call()[0]
-        return out[:3].copy(), bool(out[3] > 0.5), float(out[4])
+        draws.mark()
+        transponder = self._transponder.tolist()
+        vector, found = self.sensors.usbl.solve(self.array, truth["position"], truth["euler"],
+                                                transponder, state.sound_speed, draws, ops)
+        travel = 2.0 * _norm([p - t for p, t in zip(truth["position"], transponder,
+                                                     strict=True)], ops)
+        return ops.vector(vector), found, travel
 
 
 @functools.lru_cache(maxsize=16)
-def _navigation_functions(sensors: NavigationSensors, seabed_z: float, dt: float):
-    """The CasADi functions of :class:`CompiledNavigation` with their draws' layouts:
-    ``readings(truth[11], state[7], draws) -> [dvl 3, dvl_valid, attitude 3, rates 3,
-    gyro_bias 3, depth]`` (truth: body velocity 6, seabed clearance, Euler angles 3,
-    height; state: DVL scale 3, gyro bias 3, heading deviation) and ``fix(pose[7], draws)
-    -> [vector 3, valid, two-way path length]`` (pose: position 3, Euler angles 3, the
-    water's sound speed); built once per suite (a CasADi function is immutable)."""
+def _navigation_function(sensors: NavigationSensors, seabed_z: float, dt: float):
+    """:class:`CompiledNavigation`'s CasADi function ``(state[31], given[14], draws) ->
+    [state 31]`` (given: body velocity 6, seabed clearance, Euler angles 3, position 3,
+    time) and its draws' layout (those of every step, then from its first mark those of a
+    ping); built once per suite (a CasADi function is immutable)."""
     import casadi
 
     from auv_envs.core.ops import casadi_ops
 
     ops = casadi_ops()
-    suite = Navigation(sensors, seabed_z, dt)
-    x, s = casadi.SX.sym("truth", 11), casadi.SX.sym("state", 7)
-    truth = {"velocity": [x[k] for k in range(6)], "seabed_clearance": x[6],
-             "euler": [x[7], x[8], x[9]], "position": (None, None, x[10])}
-    state = NavState(*([None] * len(NavState._fields)))._replace(
-        dvl_scale=[s[0], s[1], s[2]], gyro_bias=[s[3], s[4], s[5]], heading_bias=s[6])
-    draws = SymbolicDraws("read")
-    dvl, valid, attitude, rates, bias, depth = Navigation.read(suite, state, truth, draws, ops)
-    readings = casadi.Function("navigation_readings", [x, s, draws.column()], [casadi.vertcat(
-        dvl, ops.where(valid, 1.0, 0.0), attitude, rates, bias, depth)], {"cse": True})
-
-    pose = casadi.SX.sym("pose", 7)
-    position, euler = [pose[k] for k in range(3)], [pose[k] for k in range(3, 6)]
-    fix_draws = SymbolicDraws("fix")
-    vector, found = sensors.usbl.solve(suite.array, position, euler, suite._transponder.tolist(),
-                                       pose[6], fix_draws, ops)
-    travel = 2.0 * _norm([p - t for p, t in zip(position, suite._transponder.tolist(),
-                                                strict=True)], ops)
-    fix = casadi.Function("usbl_fix", [pose, fix_draws.column()], [casadi.vertcat(
-        *vector, ops.where(found, 1.0, 0.0), travel)], {"cse": True})
-    return (readings, draws), (fix, fix_draws)
+    size = _LAYOUT["depth"][0].stop
+    before, given = casadi.SX.sym("state", size), casadi.SX.sym("given", 14)
+    state = NavState(**{name: ([before[k] for k in range(part.start, part.stop)]
+                               if kind is tuple else before[part.start])
+                        for name, (part, kind) in _LAYOUT.items()})
+    # Vectors the step only carries or selects stay columns (``ops.where`` of columns).
+    state = state._replace(**{name: before[_LAYOUT[name][0]]
+                              for name in ("pending", "fix", "dvl", "attitude", "rates")})
+    truth = {"velocity": [given[k] for k in range(6)], "seabed_clearance": given[6],
+             "euler": [given[7], given[8], given[9]], "position": [given[10], given[11],
+                                                                  given[12]]}
+    draws = SymbolicDraws("navigation")
+    after = _SymbolicNavigation(sensors, seabed_z, dt).advance(state, truth, given[13], draws,
+                                                               ops)
+    flat = []
+    for name, (_, kind) in _LAYOUT.items():
+        value = getattr(after, name)
+        flat.extend([value[k] for k in range(3)] if kind is tuple else [value])
+    function = casadi.Function("navigation_step", [before, given, draws.column()],
+                               [casadi.vertcat(*flat)], {"cse": True})
+    return function, draws
