@@ -157,8 +157,7 @@ def project_few(
             world as 3 rows of 3 scalars.
         ops: the backend (:data:`auv_envs.core.ops.FLOATS` on the CPU).
         inside: whether to say which points are in the image (False: ``in_image``
-            is empty; for CasADi's symbols, whose comparisons do not combine with
-            ``&``: a NaN pixel or one outside the image is not in it).
+            is empty).
 
     Returns:
         ``(pixels, in_image)``: a ``(u, v)`` tuple per point (NaN for points
@@ -169,7 +168,7 @@ def project_few(
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cam_rotation_world
     fx, fy, cx, cy = intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy
     width, height = intrinsics.width, intrinsics.height
-    where = ops.where
+    where, both = ops.where, ops.logical_and
     pixels, in_image = [], []
     for x, y, z in points_world:
         dx, dy, dz = x - px, y - py, z - pz
@@ -180,7 +179,8 @@ def project_few(
         v = (dx * r01 + dy * r11 + dz * r21) / depth * fy + cy
         pixels.append((where(front, u, math.nan), where(front, v, math.nan)))
         if inside:
-            in_image.append(front & (0.0 <= u) & (u < width) & (0.0 <= v) & (v < height))
+            in_image.append(both(both(both(both(front, 0.0 <= u), u < width), 0.0 <= v),
+                                 v < height))
     return pixels, in_image
 
 

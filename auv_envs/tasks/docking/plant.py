@@ -150,8 +150,8 @@ def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | N
     rotation = frames.rotation_rows_from_quat(*(qpos[k] for k in range(3, 7)))
     truth = rules.kinematics([qpos[k] for k in range(3)], rotation,
                              [qvel[k] for k in range(6)], ops)
-    pixels, _ = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
-                            truth.pop("camera_rows"), ops, inside=False)
+    pixels, in_image = project_few(rules.intrinsics, rules.lights, truth["camera_position"],
+                                   truth.pop("camera_rows"), ops)
     layout, flat = [], []
     for key, value in truth.items():
         many = isinstance(value, tuple | list)
@@ -161,12 +161,9 @@ def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | N
     pixel_slice = slice(len(flat), len(flat) + 2 * len(rules.lights))
     flat.extend(c for pixel in pixels for c in pixel)
     camera, seen = truth["camera_position"], []
-    width, height = rules.intrinsics.width, rules.intrinsics.height
-    for light, (u, v) in zip(rules.lights, pixels, strict=True):
-        inside = casadi.logic_and(casadi.logic_and(0.0 <= u, u < width),
-                                  casadi.logic_and(0.0 <= v, v < height))
+    for light, inside in zip(rules.lights, in_image, strict=True):
         if scenery is not None:
-            inside = casadi.logic_and(inside, casadi.logic_not(
+            inside = ops.logical_and(inside, ops.logical_not(
                 rays.blocked(scenery, camera, light, ops)))
         seen.append(ops.where(inside, 1.0, 0.0))
     function = casadi.Function("docking_truth", [qpos, qvel],
