@@ -313,7 +313,6 @@ class SymbolicDraws:
             getattr(generator, kind)(out=out)
 
 
-
 class FreeBodyPlant:
     """The hull of a :class:`~auv_envs.core.hydrodynamics.HullForceModel` as one compiled
     call: ``substeps`` steps of :func:`free_body_rk4` under
