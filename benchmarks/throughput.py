@@ -16,8 +16,8 @@ alternately, with their ratio (target: 84x84 >= 4x as fast as 320x240 and
 ``--envs`` takes superseded ids too (``auv_envs.PREVIOUS_VERSIONS``, e.g.
 ``auv_envs/DockingStation-v1``), to time a version against the current one; ``--set``
 passes arguments to every env it times (``--set sensors=compiled``: the docking ids'
-compiled navigation sensors), each value read as YAML (``5.0`` a float, ``numpy`` a
-string).
+compiled sensors), each value read as ``train.py --set`` reads it (a Python literal,
+else a YAML scalar).
 
 The targets' check: ``--steps 2000 --envs auv_envs/DockingStation-v2
 auv_envs/LampArrayDocking-v2``.
@@ -30,10 +30,10 @@ import time
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 import auv_envs
 from baselines.registry import env_obs_modes
+from baselines.rl.config import ConfigError, parse_overrides
 
 IMAGE_MODES = ("image", "stereo")
 #: Steps per second of a non-image mode over HalfCheetah-v5's: the target.
@@ -115,12 +115,10 @@ def main(argv=None) -> None:
     parser.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
                         help="arguments of every env timed")
     args = parser.parse_args(argv)
-    settings = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            parser.error(f"--set takes KEY=VALUE, got {item!r}")
-        settings[key] = yaml.safe_load(value)
+    try:
+        settings = parse_overrides(args.set)
+    except ConfigError as error:
+        parser.error(f"--set: {error}")
 
     reference_env = gym.make("HalfCheetah-v5")
     reference = Stepper(reference_env, args.steps)

@@ -115,23 +115,28 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
 
     Ray itself retries an unreachable address for minutes.
     """
-    host, sep, port = address.removeprefix("ray://").rpartition(":")
-    if not sep or not port.isdigit():
+    parts = _host_port(address)
+    if parts is None:
         return  # "auto" and other forms Ray resolves itself
     try:
-        socket.create_connection((host, int(port)), timeout=timeout).close()
+        socket.create_connection(parts, timeout=timeout).close()
     except OSError as exc:
         raise RuntimeError(f"cannot reach the Ray cluster at {address}: {exc}") from exc
 
 
-def _endpoint(address: str | None) -> tuple[str, int] | None:
-    """``(IP, port)`` of a ``host:port`` or ``ray://host:port`` address; None for other
-    forms ("auto", none) and for a host that does not resolve."""
+def _host_port(address: str | None) -> tuple[str, int] | None:
+    """``(host, port)`` of a ``host:port`` or ``ray://host:port`` address; None for other
+    forms ("auto", none)."""
     host, sep, port = (address or "").removeprefix("ray://").rpartition(":")
-    if not sep or not port.isdigit():
-        return None
+    return (host, int(port)) if sep and port.isdigit() else None
+
+
+def _endpoint(address: str | None) -> tuple[str, int] | None:
+    """:func:`_host_port` with the host resolved to its IP; None also for a host that
+    does not resolve."""
+    parts = _host_port(address)
     try:
-        return socket.gethostbyname(host), int(port)
+        return None if parts is None else (socket.gethostbyname(parts[0]), parts[1])
     except OSError:
         return None
 

@@ -660,10 +660,7 @@ def _navigation_function(sensors: NavigationSensors, seabed_z: float, dt: float)
     draws = SymbolicDraws("navigation")
     after = _SymbolicNavigation(sensors, seabed_z, dt).advance(state, truth, given[13], draws,
                                                                ops)
-    flat = []
-    for name, (_, kind) in _LAYOUT.items():
-        value = getattr(after, name)
-        flat.extend([value[k] for k in range(3)] if kind is tuple else [value])
     function = casadi.Function("navigation_step", [before, given, draws.column()],
-                               [casadi.vertcat(*flat)], {"cse": True})
+                               [casadi.vertcat(*_flatten(after, lambda value: value))],
+                               {"cse": True})
     return function, draws
