@@ -342,6 +342,16 @@ class USBL:
                 for a, b in zip(spurious, vector, strict=True)], valid
 
 
+def _observation(values, flags) -> dict:
+    """The ``nav`` observation from its 14 float32 values (DVL velocity, attitude, rates,
+    depth, USBL fix, its age) and 2 int8 flags (DVL lock, a fix arrived), in slices."""
+    return {
+        "dvl_velocity": values[0:3], "dvl_valid": flags[0:1], "attitude": values[3:6],
+        "rates": values[6:9], "depth": values[9:10], "usbl": values[10:13],
+        "usbl_age": values[13:14], "usbl_valid": flags[1:2],
+    }
+
+
 def _norm(vector, ops):
     """The Euclidean length of a few scalars."""
     return ops.sqrt(sum(v * v for v in vector))
@@ -520,11 +530,7 @@ class Navigation:
         values = xp.asarray((*state.dvl, *state.attitude, *state.rates, state.depth,
                              *state.fix, age), dtype=xp.float32)
         flags = xp.asarray((state.dvl_valid, state.fix_valid), dtype=xp.int8)
-        return {
-            "dvl_velocity": values[0:3], "dvl_valid": flags[0:1], "attitude": values[3:6],
-            "rates": values[6:9], "depth": values[9:10], "usbl": values[10:13],
-            "usbl_age": values[13:14], "usbl_valid": flags[1:2],
-        }
+        return _observation(values, flags)
 
 
 #: How the navigation sensors are evaluated on the CPU (the docking tasks' ``sensors``):
@@ -577,11 +583,7 @@ class CompiledNavigation(Navigation):
         values[:13] = state[_OBSERVED]
         values[13] = time - state[_FIX_TIME] if state[_FIX_VALID] > 0.5 else 0.0
         flags = state[_FLAGS].astype(np.int8)
-        return {
-            "dvl_velocity": values[0:3], "dvl_valid": flags[0:1], "attitude": values[3:6],
-            "rates": values[6:9], "depth": values[9:10], "usbl": values[10:13],
-            "usbl_age": values[13:14], "usbl_valid": flags[1:2],
-        }
+        return _observation(values, flags)
 
     @staticmethod
     def unpack(state: np.ndarray) -> NavState:
