@@ -34,7 +34,7 @@ from auv_envs.tasks.docking.navigation import (
     NavigationSensors,
     NavState,
 )
-from auv_envs.tasks.docking.optics import CompiledLampDetection, WaterOptics
+from auv_envs.tasks.docking.optics import CompiledLampDetection, LampOutages, WaterOptics
 from auv_envs.tasks.docking.plant import compiled_sensors
 
 #: Every level's suite, and one with DVL dropouts, a coarse depth and USBL outliers.
@@ -166,10 +166,31 @@ def test_copied_compiled_sensors_draw_into_their_own_calls():
     truth = shell.unwrapped.truth_now()
     out = np.zeros(len(params.light_positions), bool)
     expected = lamps(truth, out, np.random.default_rng(6))
-    assert expected[1].sum() > 0
+    assert expected["visible"].sum() > 0 and lamps.reads
     for twin in (pickle.loads(pickle.dumps(lamps)), copy.deepcopy(lamps)):
         got = twin(truth, out, np.random.default_rng(6))
-        assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
+        assert got.keys() == expected.keys()
+        assert all(np.array_equal(got[key], expected[key]) for key in expected)
+
+
+def test_the_occlusions_step_as_numpys():
+    """The lamps' occluders (:meth:`CompiledLampDetection.occlusions`) against
+    :meth:`LampOutages.occlusions_drawn` from random occlusions, in waters where lamps are
+    hidden and cleared often: the same occlusions, the same draws."""
+    busy = WaterOptics.jerlov("III", occlusion_rate=2.0, occlusion_duration=0.3)
+    params = compiled_sensors(gym.make("auv_envs/DockingMission-v0", obs_mode="features",
+                                       optics=busy).unwrapped.params)
+    rng = np.random.default_rng(21)
+    changed = 0
+    for trial in range(200):
+        occluded = rng.random(params.n_lights) < 0.5
+        drawn, replayed = np.random.default_rng(trial), np.random.default_rng(trial)
+        expected = LampOutages.occlusions_drawn(occluded, busy, params.dt, drawn, np)
+        got = params.lamp_detection.occlusions(occluded, replayed)
+        assert got.dtype == bool and np.array_equal(got, expected), trial
+        assert drawn.random() == replayed.random()
+        changed += int((got != occluded).sum())
+    assert changed > 100  # lamps hidden and cleared: both branches compared
 
 
 def test_a_copied_env_steps_as_the_original():
@@ -234,7 +255,7 @@ def test_lamp_detection_is_numpys_through_every_water(env_id):
     """The lights along random approaches (the episodes' starts, then random thrust: most
     lamps in view) through several waters, with random failures and occlusions: the same
     detections and pixels as NumPy's (:func:`~auv_envs.tasks.docking.transition.observe`),
-    the same draws."""
+    the same DVL/INS readings to the bit, the same draws."""
     rng = np.random.default_rng(11)
     detected = missed = 0
     for water in WATERS:
@@ -258,6 +279,9 @@ def test_lamp_detection_is_numpys_through_every_water(env_id):
             np.testing.assert_allclose(got["pixels"], expected["pixels"], rtol=0, atol=1e-3)
             assert got["pixels"].dtype == expected["pixels"].dtype
             assert got["visible"].dtype == expected["visible"].dtype
+            assert list(got) == list(expected)  # the readings too, made in the same call
+            for key in ("velocity", "attitude"):
+                assert np.array_equal(got[key], expected[key]) and got[key].dtype == np.float32
             detected += int(expected["visible"].sum())
             missed += int(truth["visible"].sum() - expected["visible"].sum())
     assert detected > 50 and missed > 50  # lamps seen and lamps the water (or an outage) hid

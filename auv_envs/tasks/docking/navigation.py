@@ -547,8 +547,10 @@ class CompiledNavigation(Navigation):
     :class:`Navigation`'s to the bit; the fix is :meth:`USBL.solve`, whose least squares
     differ from :meth:`USBL.fix`'s at round-off, as does its arrival time (the travel's
     length a root of a sum of squares, not BLAS's norm).
-    The sensors' state is one float64 vector (:data:`NavState`'s fields in order, a
-    flag 1.0 or 0.0; :meth:`unpack` names them). Python floats only (``ops`` is
+    The sensors' state is one float64 vector: :data:`NavState`'s fields in order (a
+    flag 1.0 or 0.0; :meth:`unpack` names them), then the observation at the step's time
+    (its 14 values and 2 flags, as :meth:`Navigation.observation` makes them) and that
+    time. Python floats only (``ops`` is
     :data:`~auv_envs.core.ops.FLOATS`); the batched tasks use :class:`Navigation`."""
 
     def __init__(self, sensors: NavigationSensors, seabed_z: float, dt: float):
@@ -570,20 +572,22 @@ class CompiledNavigation(Navigation):
     def advance(self, state: np.ndarray, truth: dict, time, draws, ops) -> np.ndarray:
         call = self._call
         before, given = call.inputs[0], call.inputs[1]
-        before[:] = state
+        before[:] = state[:self._size]
         given[:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
                     *truth["position"], time)
         SymbolicDraws.draw(self._every_step, draws)
         if time >= state[_NEXT_PING] - 1e-9:  # a ping: its fix's draws (as the call decides)
             SymbolicDraws.draw(self._on_ping, draws)
-        return call()[0][:self._size].copy()
+        return call()[0].copy()
 
     def observation(self, state: np.ndarray, time, ops) -> dict:
+        if state[_SEEN_AT] == time:  # the observation the step made, at its time
+            return _observation(state[_SEEN].astype(np.float32),
+                                state[_SEEN_FLAGS].astype(np.int8))
         values = np.empty(14, dtype=np.float32)
         values[:13] = state[_OBSERVED]
         values[13] = time - state[_FIX_TIME] if state[_FIX_VALID] > 0.5 else 0.0
-        flags = state[_FLAGS].astype(np.int8)
-        return _observation(values, flags)
+        return _observation(values, state[_FLAGS].astype(np.int8))
 
     @staticmethod
     def unpack(state: np.ndarray) -> NavState:
@@ -611,6 +615,11 @@ _FIX_TIME, _FIX_VALID = _LAYOUT["fix_time"][0].start, _LAYOUT["fix_valid"][0].st
 _OBSERVED = np.r_[tuple(np.arange(_LAYOUT[name][0].start, _LAYOUT[name][0].stop)
                         for name in ("dvl", "attitude", "rates", "depth", "fix"))]
 _FLAGS = np.array([_LAYOUT["dvl_valid"][0].start, _FIX_VALID])
+#: After the fields: the observation's values and flags, and the time it was made at.
+_STATE_SIZE = _LAYOUT["depth"][0].stop
+_SEEN, _SEEN_FLAGS = slice(_STATE_SIZE, _STATE_SIZE + 14), slice(_STATE_SIZE + 14,
+                                                                 _STATE_SIZE + 16)
+_SEEN_AT = _STATE_SIZE + 16
 
 
 def _flatten(state: NavState, scalar) -> list:
@@ -640,9 +649,9 @@ class _SymbolicNavigation(Navigation):
 @functools.lru_cache(maxsize=16)
 def _navigation_function(sensors: NavigationSensors, seabed_z: float, dt: float):
     """:class:`CompiledNavigation`'s CasADi function ``(state[31], given[14], draws) ->
-    [state 31]`` (given: body velocity 6, seabed clearance, Euler angles 3, position 3,
-    time) and its draws' layout (those of every step, then from its first mark those of a
-    ping); built once per suite (a CasADi function is immutable)."""
+    [state 31, observation 14, flags 2, time]`` (given: body velocity 6, seabed clearance,
+    Euler angles 3, position 3, time) and its draws' layout (those of every step, then
+    from its first mark those of a ping); built once per suite (a CasADi function is immutable)."""
     import casadi
 
     from auv_envs.core.ops import casadi_ops
@@ -660,9 +669,14 @@ def _navigation_function(sensors: NavigationSensors, seabed_z: float, dt: float)
              "euler": [given[7], given[8], given[9]], "position": [given[10], given[11],
                                                                   given[12]]}
     draws = SymbolicDraws("navigation")
-    after = _SymbolicNavigation(sensors, seabed_z, dt).advance(state, truth, given[13], draws,
-                                                               ops)
+    time = given[13]
+    after = _SymbolicNavigation(sensors, seabed_z, dt).advance(state, truth, time, draws, ops)
+    # The observation at ``time`` (Navigation.observation's values, in float64)
+    seen = [vector[k] for vector in (after.dvl, after.attitude, after.rates) for k in range(3)]
+    seen += [after.depth, *(after.fix[k] for k in range(3)),
+             ops.where(after.fix_valid, time - after.fix_time, 0.0)]
     function = casadi.Function("navigation_step", [before, given, draws.column()],
-                               [casadi.vertcat(*_flatten(after, lambda value: value))],
+                               [casadi.vertcat(*_flatten(after, lambda value: value), *seen,
+                                               after.dvl_valid, after.fix_valid, time)],
                                {"cse": True})
     return function, draws

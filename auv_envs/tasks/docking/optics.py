@@ -442,10 +442,16 @@ class LampOutages:
         return cls.occlusions_after(occluded, optics, dt, rng.random(occluded.shape[0]), xp)
 
     @staticmethod
-    def occlusions_after(occluded, optics: WaterOptics, dt: float, u, xp):
+    def transition_probabilities(optics: WaterOptics, dt: float) -> tuple[float, float]:
+        """``(appear, clear)``: the probabilities that a clear lamp is hidden, and a hidden
+        one cleared, within ``dt`` seconds."""
+        return (-math.expm1(-optics.occlusion_rate * dt),
+                -math.expm1(-dt / optics.occlusion_duration))
+
+    @classmethod
+    def occlusions_after(cls, occluded, optics: WaterOptics, dt: float, u, xp):
         """The occlusions ``dt`` seconds after ``occluded`` given one uniform draw per lamp."""
-        appear = -math.expm1(-optics.occlusion_rate * dt)
-        clear = -math.expm1(-dt / optics.occlusion_duration)
+        appear, clear = cls.transition_probabilities(optics, dt)
         return xp.where(occluded, u >= clear, u < appear)
 
     @property
@@ -500,8 +506,10 @@ class CompiledLampDetection:
     """The lights of a ``features`` observation through the water as one compiled call on
     the CPU (the docking tasks' ``sensors="compiled"``): the pixel noise, masked and
     clipped, then :func:`detect_lamps` at each lamp's range and the clip again, as
-    :func:`auv_envs.tasks.docking.transition.observe` does in NumPy; the same draws from
-    the episode's generator. Built from the same models on CasADi symbols
+    :func:`auv_envs.tasks.docking.transition.observe` does in NumPy; where no navigation
+    suite reads the motion, the DVL/INS readings before them
+    (:meth:`~auv_envs.tasks.docking.rules.DockingRules.sensor_readings`); the same draws
+    from the episode's generator. Built from the same models on CasADi symbols
     (:meth:`WaterOptics.scalar_contrast`); the numbers equal NumPy's at round-off (NumPy's
     vectorised ``exp`` is not the C library's).
 
@@ -511,52 +519,92 @@ class CompiledLampDetection:
         pixel_std: the pixel noise's standard deviation (0: none drawn).
         pixel_bounds: ``(low, high)``, each (n, 2): the observation's pixel bounds.
         focal_px: the camera's focal length, pixels.
+        dt: the control period, s (the occlusions' step, :meth:`occlusions`).
+        readings: the readings' noise ``(velocity, yaw rate, attitude)`` standard
+            deviations (none drawn where the velocity's is 0); None: no readings.
     """
 
     def __init__(self, light_positions, optics: WaterOptics, pixel_std: float, pixel_bounds,
-                 focal_px: float):
+                 focal_px: float, dt: float, readings: tuple | None = None):
         low, high = (tuple(np.asarray(bound, dtype=float).ravel().tolist())
                      for bound in pixel_bounds)
         lights = tuple(tuple(p) for p in np.asarray(light_positions, dtype=float).tolist())
+        if readings is not None:
+            readings = tuple(float(std) for std in readings)
         function, draws = _lamp_function(lights, optics, float(pixel_std), low, high,
-                                         float(focal_px))
+                                         float(focal_px), readings)
         self._call = CompiledFunction(function)
         self._views = draws.views(self._call.inputs[2])
         self._n = len(lights)
-        self._arguments = (light_positions, optics, pixel_std, pixel_bounds, focal_px)
+        #: Whether the call makes the DVL/INS readings too (``velocity``, ``attitude``).
+        self.reads = readings is not None
+        self._arguments = (light_positions, optics, pixel_std, pixel_bounds, focal_px, dt,
+                           readings)
+        self._uniforms = np.empty(self._n)
+        self._appear, self._clear = LampOutages.transition_probabilities(optics, dt)
+
+    def occlusions(self, occluded: np.ndarray, rng) -> np.ndarray:
+        """:meth:`LampOutages.occlusions_drawn` (the same draws and comparisons), in
+        Python floats: for a handful of lamps NumPy's per-call cost exceeds the work."""
+        rng.random(out=self._uniforms)
+        appear, clear = self._appear, self._clear
+        return np.array([u >= clear if hidden else u < appear
+                         for hidden, u in zip(occluded.tolist(), self._uniforms.tolist(),
+                                              strict=True)])
 
     def __reduce__(self):  # built again: the draws' views alias the call's inputs
         return type(self), self._arguments
 
-    def __call__(self, truth: dict, out, rng) -> tuple[np.ndarray, np.ndarray]:
-        """``(pixels (n, 2) float32, detected (n,) int8)`` of the lamps at ``truth`` (with
-        its ``visible_pixels``, ``visible`` and ``camera_position``), ``out`` (n,) the
-        lamps failed or hidden, drawing from ``rng``."""
+    def __call__(self, truth: dict, out, rng) -> dict:
+        """The observation's ``pixels`` ((n, 2) float32) and ``visible`` ((n,) int8, the
+        lamps detected), with :attr:`reads` its ``velocity`` (4) and ``attitude`` (3)
+        float32, at ``truth`` (with its ``visible_pixels``, ``visible``,
+        ``camera_position``, ``velocity`` and ``euler``), ``out`` (n,) the lamps failed or
+        hidden, drawing from ``rng``."""
         n, call = self._n, self._call
         call.inputs[0][:] = truth["visible_pixels"].reshape(-1)
         flags = call.inputs[1]
         flags[:n], flags[n:2 * n] = truth["visible"], out
-        flags[2 * n:] = truth["camera_position"]
+        if self.reads:
+            flags[2 * n:] = (*truth["camera_position"], *truth["velocity"], *truth["euler"])
+        else:
+            flags[2 * n:] = truth["camera_position"]
         SymbolicDraws.draw(self._views, rng)
         result = call()[0]
-        return (result[:2 * n].reshape(n, 2).astype(np.float32),
-                (result[2 * n:] > 0.5).astype(np.int8))
+        obs = {"pixels": result[:2 * n].reshape(n, 2).astype(np.float32),
+               "visible": result[2 * n:3 * n].astype(np.int8)}
+        if self.reads:
+            obs["velocity"] = result[3 * n:3 * n + 4].astype(np.float32)
+            obs["attitude"] = result[3 * n + 4:].astype(np.float32)
+        return obs
 
 
 @functools.lru_cache(maxsize=16)
 def _lamp_function(lights: tuple, optics: WaterOptics, pixel_std: float, low: tuple,
-                   high: tuple, focal_px: float):
-    """:class:`CompiledLampDetection`'s CasADi function ``(pixels[2n], flags[2n + 3],
-    draws) -> [pixels 2n, detected n]`` (flags: in view n, out n, the camera's position 3)
-    and its draws' layout; built once per scene (a CasADi function is immutable)."""
+                   high: tuple, focal_px: float, readings: tuple | None):
+    """:class:`CompiledLampDetection`'s CasADi function ``(pixels[2n], flags, draws) ->
+    [pixels 2n, detected n (1.0 or 0.0), with readings their 7]`` (flags: in view n, out n,
+    the camera's position 3, with readings the body velocity 6 and the Euler angles 3) and
+    its draws' layout; built once per scene (a CasADi function is immutable)."""
     import casadi
 
     from auv_envs.core.ops import casadi_ops
+    from auv_envs.tasks.docking.rules import DockingRules
 
     ops = casadi_ops()
     n = len(lights)
-    pixels, flags = casadi.SX.sym("pixels", 2 * n), casadi.SX.sym("flags", 2 * n + 3)
+    pixels = casadi.SX.sym("pixels", 2 * n)
+    flags = casadi.SX.sym("flags", 2 * n + 3 + (9 if readings is not None else 0))
     draws = SymbolicDraws("lamps")
+    sensed = []
+    if readings is not None:  # drawn first, as transition.observe reads before the lamps
+        noise = draws.standard_normal(7) if readings[0] > 0 else None
+        motion = {"velocity": [flags[2 * n + 3 + k] for k in range(6)],
+                  "euler": [flags[2 * n + 9 + k] for k in range(3)]}
+        velocity, attitude = DockingRules.sensor_readings(
+            motion, None if noise is None else [noise[k] for k in range(7)], readings,
+            ops.mod)
+        sensed = [*velocity, *attitude]
     noise = draws.standard_normal(2 * n) if pixel_std > 0 else None
     hits, jitter = draws.random(n), draws.standard_normal(2 * n)
     camera = [flags[2 * n + k] for k in range(3)]
@@ -577,5 +625,5 @@ def _lamp_function(lights: tuple, optics: WaterOptics, pixel_std: float, low: tu
                             low[2 * i + k], high[2 * i + k]) for k, c in enumerate(coordinates)]
         detections.append(ops.where(detected, 1.0, 0.0))
     function = casadi.Function("lamp_detection", [pixels, flags, draws.column()],
-                               [casadi.vertcat(*values, *detections)], {"cse": True})
+                               [casadi.vertcat(*values, *detections, *sensed)], {"cse": True})
     return function, draws

@@ -122,17 +122,22 @@ class CompiledTruth:
         self.physics, self.lights = physics, rules.lights
 
     def __call__(self) -> dict:
-        out, seen = self._call()
+        out, lights = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
-        visible = seen > 0.5  # in the image and, where compiled, in sight
+        n = len(self.lights)
         if not self._sight_compiled:  # lines of sight left to MuJoCo (see __init__)
             visible = np.array(self.physics.unoccluded(truth["camera_position"], self.lights,
-                                                       visible.tolist()))
-        # A copy: the call's output array is written again by the next call.
-        return transition.truth_with_lights(truth, out[self._pixels].reshape(-1, 2).copy(),
-                                            visible, FLOATS)
+                                                       (lights[:n] > 0.5).tolist()))
+            return transition.truth_with_lights(truth, out[self._pixels].reshape(-1, 2).copy(),
+                                                visible, FLOATS)
+        # Copies: the call's outputs are written again by the next call.
+        lights = lights.copy()
+        truth.update(pixels=out[self._pixels].reshape(-1, 2).copy(), visible=lights[:n] > 0.5,
+                     visible_pixels=lights[n:3 * n].reshape(-1, 2),
+                     n_visible=int(lights[3 * n]))
+        return truth
 
 
 @functools.lru_cache(maxsize=32)
@@ -166,8 +171,12 @@ def _truth_function(rules: DockingRules, scenery: tuple[rays.Primitive, ...] | N
             inside = ops.logical_and(inside, ops.logical_not(
                 rays.blocked(scenery, camera, light, ops)))
         seen.append(ops.where(inside, 1.0, 0.0))
+    # truth_with_lights' visible pixels and count, selected and summed in the call
+    shown = [ops.where(flag > 0.5, c, 0.0) for flag, pixel in zip(seen, pixels, strict=True)
+             for c in pixel]
     function = casadi.Function("docking_truth", [qpos, qvel],
-                               [casadi.vertcat(*flat), casadi.vertcat(*seen)], {"cse": True})
+                               [casadi.vertcat(*flat), casadi.vertcat(*seen, *shown, sum(seen))],
+                               {"cse": True})
     return function, tuple(layout), pixel_slice
 
 
@@ -175,8 +184,9 @@ def compiled_sensors(params: transition.DockingParams) -> transition.DockingPara
     """``params`` with its sensors compiled for the CPU (``sensors="compiled"``): the
     navigation sensors (:class:`~auv_envs.tasks.docking.navigation.CompiledNavigation`) in
     the ``nav`` modes, and the lights' detection through the water
-    (:class:`~auv_envs.tasks.docking.optics.CompiledLampDetection`) in the modes with
-    lights, where the water hides lamps (``optics``)."""
+    (:class:`~auv_envs.tasks.docking.optics.CompiledLampDetection`, with the DVL/INS
+    readings where no navigation suite makes them) in the modes with lights, where the
+    water hides lamps (``optics``)."""
     changes = {}
     nav = params.navigation
     if nav is not None:
@@ -184,5 +194,5 @@ def compiled_sensors(params: transition.DockingParams) -> transition.DockingPara
     if params.optics is not None and params.obs_mode in transition.LIGHT_MODES:
         changes["lamp_detection"] = CompiledLampDetection(
             params.light_positions, params.optics, params.noise[0], params.pixel_bounds,
-            params.focal_px)
+            params.focal_px, params.dt, None if nav is not None else params.noise[1:])
     return dataclasses.replace(params, **changes)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import operator
 
 from auv_envs.core import frames
 from auv_envs.core.camera import CameraIntrinsics
@@ -206,7 +207,7 @@ class DockingRules:
                 *truth["velocity"], *current]
 
     @staticmethod
-    def sensor_readings(truth: dict, noise, stds) -> tuple[tuple, tuple]:
+    def sensor_readings(truth: dict, noise, stds, mod=operator.mod) -> tuple[tuple, tuple]:
         """DVL/INS readings: ``(u, v, w, r)`` and ``(roll, pitch, yaw)`` (yaw wrapped).
 
         Args:
@@ -214,6 +215,7 @@ class DockingRules:
             noise: 7 standard normals (velocity 3, yaw rate, attitude 3), or
                 None for exact readings.
             stds: ``(velocity, yaw rate, attitude)`` noise standard deviations.
+            mod: the wrap's remainder (:func:`~auv_envs.core.frames.wrap_angle`).
         """
         u, v, w, _, _, r = truth["velocity"]
         roll, pitch, yaw = truth["euler"]
@@ -222,4 +224,4 @@ class DockingRules:
             s_v, s_r, s_a = stds
             u, v, w, r = u + s_v * n0, v + s_v * n1, w + s_v * n2, r + s_r * n3
             roll, pitch, yaw = roll + s_a * n4, pitch + s_a * n5, yaw + s_a * n6
-        return (u, v, w, r), (roll, pitch, frames.wrap_angle(yaw))
+        return (u, v, w, r), (roll, pitch, frames.wrap_angle(yaw, mod))

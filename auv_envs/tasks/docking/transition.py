@@ -328,7 +328,10 @@ def step(params: DockingParams, body, state: EpisodeState, action,
                            control_effort=state.control_effort
                            + (x * x + y * y + z * z + n * n) * params.dt,
                            thrust=thrust, current_polar=polar, current=current)
-    if params.optics is not None and params.obs_mode in LIGHT_MODES:  # occluders pass
+    lamps = params.lamp_detection
+    if lamps is not None:  # occluders pass (compiled sensors: in Python floats)
+        state = state._replace(occluded=lamps.occlusions(state.occluded, draws))
+    elif params.optics is not None and params.obs_mode in LIGHT_MODES:
         state = state._replace(occluded=LampOutages.occlusions_drawn(
             state.occluded, params.optics, params.dt, draws, ops.xp))
     if params.navigation is not None:
@@ -403,8 +406,11 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
         return xp.asarray(params.rules.state_observation(
             truth, (current[0], current[1], current[2]), ops), dtype=xp.float32)
     pixel_std, velocity_std, yaw_rate_std, attitude_std = params.noise
+    lamps = params.lamp_detection
     if params.navigation is not None:  # read in the step (the sensors keep a state)
         sensors = params.navigation.observation(state.nav, state.steps * params.dt, ops)
+    elif lamps is not None and lamps.reads:  # the readings made in the lamps' compiled call
+        return lamps(truth, state.out, draws)
     else:
         # One draw of 7 standard normals, scaled: the numbers of normal(0, s_v, 3),
         # normal(0, s_r), normal(0, s_a, 3) (Generator.normal is loc + scale *
@@ -416,9 +422,8 @@ def observe(params: DockingParams, state: EpisodeState, truth: dict, backend: Ba
                    "attitude": xp.asarray(attitude, dtype=xp.float32)}
     if params.obs_mode not in LIGHT_MODES:
         return sensors
-    if params.lamp_detection is not None:
-        pixels, visible = params.lamp_detection(truth, state.out, draws)
-        return {"pixels": pixels, "visible": visible, **sensors}
+    if lamps is not None:
+        return {**lamps(truth, state.out, draws), **sensors}
     visible = truth["visible"]
     pixels = truth["visible_pixels"]
     if pixel_std > 0:  # noise on the masked true pixels, masked again, clipped
