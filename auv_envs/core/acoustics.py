@@ -151,6 +151,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from auv_envs.core.pytree import dataclass_pytree
+
 #: Codes of ``Measurements.origin``: where each detection came from.
 ORIGIN_EMPTY, ORIGIN_TARGET, ORIGIN_SURFACE, ORIGIN_BOTTOM, ORIGIN_CLUTTER = -1, 0, 1, 2, 3
 
@@ -279,6 +281,7 @@ class AcousticConfig:
                                    fading_std=0.0, node_dropout_rate=0.0)
 
 
+@dataclass_pytree()
 @dataclasses.dataclass(frozen=True)
 class Measurements:
     """One sample period's detections, padded to ``max_detections`` per band.

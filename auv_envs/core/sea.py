@@ -15,8 +15,10 @@ import math
 import numpy as np
 
 from auv_envs.core.ops import FLOATS
+from auv_envs.core.pytree import dataclass_pytree
 
 
+@dataclass_pytree(meta=("sweep", "overtop", "half_size"))
 @dataclasses.dataclass(frozen=True)
 class WashOver:
     """Periodic crests that sweep along a floating body and hide its top.
@@ -57,6 +59,7 @@ class WashOver:
         return cls(period=p, duration=rng.uniform(*duration), phase=rng.uniform(0.0, p))
 
 
+@dataclass_pytree()
 @dataclasses.dataclass(frozen=True)
 class FloatingAnalog:
     """A look-alike floating object that drifts beside the target.

@@ -37,8 +37,9 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from auv_envs.core.acoustics import FIXED_DRAWS, Measurements
+from auv_envs.core.acoustics import FIXED_DRAWS
 from auv_envs.core.ops import Backend, jax_ops
+from auv_envs.core.pytree import register_declared
 from auv_envs.core.task import Transition
 from auv_envs.tasks.acoustic import transition
 from auv_envs.tasks.acoustic.config import AcousticSetup
@@ -46,9 +47,8 @@ from auv_envs.tasks.acoustic.mjx_plant import RigPlantMJX
 from auv_envs.tasks.acoustic.plant import AcousticPhysics
 from auv_envs.tasks.acoustic.randomization import AcousticRandomization
 
-# The detection sets are a JAX pytree of their arrays (registered when this module loads).
-jax.tree_util.register_dataclass(Measurements, data_fields=["values", "mask", "origin",
-                                                            "dropped"], meta_fields=[])
+# The detection sets (a pytree declared beside their class) registered with JAX
+register_declared()
 
 
 class AcousticJax:

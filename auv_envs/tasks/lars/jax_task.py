@@ -6,7 +6,8 @@ very functions the CPU environment calls) evaluated on JAX arrays for ``jit`` an
 ``vmap``. What this task adds: the arm is the CPU environment's own MuJoCo model on MJX
 (:class:`~auv_envs.tasks.lars.mjx_plant.ArmPlantMJX`), and the episode's draws come from a
 JAX key (:class:`~auv_envs.batched.functional.KeyDraws`). The episode's scene (the AUV's
-motion, the sea, the sun) becomes a JAX pytree when this module loads (JAX is an optional
+motion, the sea, the sun) is a JAX pytree, declared beside its classes
+(:mod:`auv_envs.core.pytree`) and registered when this module loads (JAX is an optional
 extra: the CPU environment never imports it).
 
 Built: ``state`` and ``features``, ``sea_state`` ``"calm"`` and ``"severe"`` (wash-over
@@ -33,48 +34,16 @@ import jax.numpy as jnp
 from mujoco import mjx
 
 from auv_envs.core.ops import jax_ops
-from auv_envs.core.sea import FloatingAnalog, WashOver
+from auv_envs.core.pytree import register_declared
 from auv_envs.core.task import Transition
 from auv_envs.tasks.lars import transition
 from auv_envs.tasks.lars.config import LARSSetup
 from auv_envs.tasks.lars.mjx_plant import ArmPlantMJX
 from auv_envs.tasks.lars.randomization import LARSRandomization
-from auv_envs.tasks.lars.scene import AUVMotion
-from auv_envs.tasks.lars.sea import EpisodeSea, GlintField
-from auv_envs.tasks.lars.waves import HarmonicSeries, WaveRealisation
+from auv_envs.tasks.lars.waves import WaveRealisation
 
-
-def _register(cls, meta=()) -> None:
-    """Make a frozen dataclass of an episode's draws a JAX pytree (once per process)."""
-    fields = [f.name for f in dataclasses.fields(cls)]
-    jax.tree_util.register_dataclass(cls, data_fields=[f for f in fields if f not in meta],
-                                     meta_fields=list(meta))
-
-
-def _register_attributes(cls, children: tuple, aux: tuple = ()) -> None:
-    """Make a class of an episode's sea a JAX pytree of its attributes ``children``
-    (``aux``: static), rebuilt without running its constructor."""
-
-    def flatten(obj):
-        return (tuple(getattr(obj, name) for name in children),
-                tuple(getattr(obj, name) for name in aux))
-
-    def unflatten(static, leaves):
-        obj = object.__new__(cls)
-        for name, value in (*zip(children, leaves, strict=True),
-                            *zip(aux, static, strict=True)):
-            object.__setattr__(obj, name, value)
-        return obj
-
-    jax.tree_util.register_pytree_node(cls, flatten, unflatten)
-
-
-for _cls, _meta in ((AUVMotion, ()), (FloatingAnalog, ()), (GlintField, ()),
-                    (WashOver, ("sweep", "overtop", "half_size"))):
-    _register(_cls, _meta)
-_register_attributes(WaveRealisation, ("omega", "amplitude", "phase", "heading", "wavenumber"))
-_register_attributes(HarmonicSeries, ("omega", "_matrix"), ("n_channels", "_xp", "_buffer"))
-_register_attributes(EpisodeSea, ("_series",), ("_n_analogs",))
+# The episode's scene (declared pytrees beside its classes) registered with JAX
+register_declared()
 
 
 class LARSJax:

@@ -20,6 +20,7 @@ from dm_control import mjcf
 
 from auv_envs.core import frames
 from auv_envs.core.assets import MJCF, asset_path
+from auv_envs.core.pytree import dataclass_pytree
 
 #: Explore-100-like AUV ([LTAT], Table 1).
 AUV_LENGTH = 1.8
@@ -106,6 +107,7 @@ class MarkerGeometry:
         return np.array(verts), np.array(faces)
 
 
+@dataclass_pytree()
 @dataclasses.dataclass(frozen=True)
 class AUVMotion:
     """The AUV's motion in one episode ([LTAT], §2.3: uniform surge along X,

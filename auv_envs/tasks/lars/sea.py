@@ -34,6 +34,7 @@ import numpy as np
 
 from auv_envs.core.frames import GRAVITY
 from auv_envs.core.ops import FLOATS
+from auv_envs.core.pytree import attribute_pytree, dataclass_pytree
 from auv_envs.tasks.lars.scene import AUV_DIAMETER, AUV_FREEBOARD, AUV_LENGTH, uniform_draws
 from auv_envs.tasks.lars.waves import (
     DEFAULT_BAND,
@@ -147,6 +148,7 @@ class SeaSample(NamedTuple):
     ship_pitch_rate: float
 
 
+@attribute_pytree(("_series",), ("_n_analogs",))
 class EpisodeSea:
     """Every sea-driven channel of one episode, as a function of time.
 
@@ -367,6 +369,7 @@ class SunGlint:
                                   ops)
 
 
+@dataclass_pytree()
 @dataclasses.dataclass(frozen=True)
 class GlintField:
     """One episode's glitter (:class:`SunGlint`): how densely specular points lie.

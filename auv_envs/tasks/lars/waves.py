@@ -47,6 +47,7 @@ import numpy as np
 from scipy.integrate import trapezoid
 
 from auv_envs.core.frames import GRAVITY
+from auv_envs.core.pytree import attribute_pytree
 
 SPECTRUM_KINDS = ("jonswap", "pierson-moskowitz")
 
@@ -240,6 +241,7 @@ def _read_only(values) -> np.ndarray:
     return out
 
 
+@attribute_pytree(("omega", "amplitude", "phase", "heading", "wavenumber"))
 @dataclasses.dataclass(frozen=True, eq=False)
 class WaveRealisation:
     """One seeded realisation of a long-crested sea (the module's sum of harmonics).
@@ -507,6 +509,7 @@ class ShipResponse:
         return heave, roll, pitch
 
 
+@attribute_pytree(("omega", "_matrix"), ("n_channels", "_xp", "_buffer"))
 class HarmonicSeries:
     """Channels ``y_j(t) = Re sum_i C_ji exp(i w_i t)`` and their rates, at one ``t``.
 
