@@ -80,8 +80,7 @@ def test_phase_record_on_a_scripted_path():
     for k, (x, y, z, seen) in enumerate(path, start=1):
         truth = {"position": (x, y, z), "n_visible": seen, "distance": math.hypot(x, y, z),
                  "lateral": y, "vertical": z}
-        episode = _State(steps=k, mission=record)
-        record = transition.track_mission(params, episode, truth, FLOATS)
+        record = transition.track_mission(params, record, k, truth, FLOATS)
     points = [(-100.0, 0.0, 0.0), *((x, y, z) for x, y, z, _ in path)]
     assert record.path_length == pytest.approx(
         sum(math.dist(a, b) for a, b in zip(points, points[1:], strict=False)))
@@ -90,12 +89,6 @@ def test_phase_record_on_a_scripted_path():
     assert record.handover_range == pytest.approx(math.hypot(handover - 1.0, 3.0, 4.0))
     assert record.handover_cross_track == pytest.approx(5.0)
 
-
-class _State:
-    """What :func:`transition.track_mission` reads of an episode's state."""
-
-    def __init__(self, steps, mission):
-        self.steps, self.mission = steps, mission
 
 
 def test_surfacing_ends_the_episode():

@@ -324,21 +324,23 @@ def step(params: DockingParams, body, state: EpisodeState, action,
     x, y, z, n = force
     body = plant.advance(body, (x, y, z, 0.0, 0.0, n), current, state.plant)
     truth = plant.truth(body)
-    state, judged = assess(params, state, truth, action, ops, steps=state.steps + 1,
-                           control_effort=state.control_effort
-                           + (x * x + y * y + z * z + n * n) * params.dt,
-                           thrust=thrust, current_polar=polar, current=current)
+    steps = state.steps + 1
+    changes = {}  # the sensors' and the mission's parts, drawn in this order (assess draws none)
     lamps = params.lamp_detection
     if lamps is not None:  # occluders pass (compiled sensors: in Python floats)
-        state = state._replace(occluded=lamps.occlusions(state.occluded, draws))
+        changes["occluded"] = lamps.occlusions(state.occluded, draws)
     elif params.optics is not None and params.obs_mode in LIGHT_MODES:
-        state = state._replace(occluded=LampOutages.occlusions_drawn(
-            state.occluded, params.optics, params.dt, draws, ops.xp))
+        changes["occluded"] = LampOutages.occlusions_drawn(state.occluded, params.optics,
+                                                           params.dt, draws, ops.xp)
     if params.navigation is not None:
-        state = state._replace(nav=params.navigation.advance(
-            state.nav, truth, state.steps * params.dt, draws, ops))
+        changes["nav"] = params.navigation.advance(state.nav, truth, steps * params.dt, draws,
+                                                   ops)
     if params.mission is not None:
-        state = state._replace(mission=track_mission(params, state, truth, ops))
+        changes["mission"] = track_mission(params, state.mission, steps, truth, ops)
+    state, judged = assess(params, state, truth, action, ops, steps=steps,
+                           control_effort=state.control_effort
+                           + (x * x + y * y + z * z + n * n) * params.dt,
+                           thrust=thrust, current_polar=polar, current=current, **changes)
     return Transition(body, state, truth, observe(params, state, truth, backend), judged)
 
 
@@ -366,9 +368,10 @@ def assess(params: DockingParams, state: EpisodeState, truth: dict, action, ops,
     return state, Assessment(terms, docked | failed, fov_violation, flags[0], flags[1])
 
 
-def track_mission(params: DockingParams, state: EpisodeState, truth: dict, ops) -> MissionRecord:
-    """The mission's record after a step (``state`` after it, ``truth`` its truth)."""
-    record = state.mission
+def track_mission(params: DockingParams, record: MissionRecord, steps, truth: dict,
+                  ops) -> MissionRecord:
+    """The mission's ``record`` after a step (``steps`` the step count after it, ``truth``
+    its truth)."""
     x, y, z = truth["position"]
     dx, dy, dz = x - record.x, y - record.y, z - record.z
     path = record.path_length + ops.sqrt(dx * dx + dy * dy + dz * dz)
@@ -378,7 +381,7 @@ def track_mission(params: DockingParams, state: EpisodeState, truth: dict, ops) 
     lateral, vertical = truth["lateral"], truth["vertical"]
     return MissionRecord(
         x=x, y=y, z=z, path_length=path, handed_over=record.handed_over | near,
-        handover_time=ops.where(first, state.steps * params.dt, record.handover_time),
+        handover_time=ops.where(first, steps * params.dt, record.handover_time),
         homing_path_length=ops.where(first, path, record.homing_path_length),
         handover_range=ops.where(first, truth["distance"], record.handover_range),
         handover_cross_track=ops.where(first, ops.sqrt(lateral * lateral + vertical * vertical),
