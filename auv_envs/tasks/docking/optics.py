@@ -550,7 +550,7 @@ class CompiledLampDetection:
         appear, clear = self._appear, self._clear
         return np.array([u >= clear if hidden else u < appear
                          for hidden, u in zip(occluded.tolist(), self._uniforms.tolist(),
-                                              strict=True)])
+                                              strict=True)], dtype=bool)
 
     def __reduce__(self):  # built again: the draws' views alias the call's inputs
         return type(self), self._arguments
