@@ -67,7 +67,7 @@ def test_readings_and_schedule_are_the_same_numbers_and_the_fix_the_same_at_roun
     """Episodes of random truths (bottom lock lost and found, pings and late fixes): every
     field of the sensors' state equal to the bit but the fix in flight, its arrival time
     and the delivered fix, equal at round-off; the same draws, as many; the same
-    observation."""
+    observation, at the step's time and after it."""
     suite = SUITES[level]
     reference = Navigation(suite, SEABED_Z, 0.1)
     compiled = CompiledNavigation(suite, SEABED_Z, 0.1)
@@ -92,14 +92,17 @@ def test_readings_and_schedule_are_the_same_numbers_and_the_fix_the_same_at_roun
                 else:
                     assert type(a) is type(b) and same(a, b), (level, episode, step, field)
             assert drawn.random() == replayed.random()  # the same draws, as many
-            seen, read = (reference.observation(expected, time, FLOATS),
-                          compiled.observation(got, time, FLOATS))
-            for key in seen:
-                assert seen[key].dtype == read[key].dtype and seen[key].shape == read[key].shape
-                if key == "usbl":
-                    np.testing.assert_allclose(read[key], seen[key], rtol=1e-6, atol=1e-5)
-                else:
-                    assert np.array_equal(read[key], seen[key]), key
+            # At the step's time (the call's own observation) and later (made from the state)
+            for when in (time, time + 0.05):
+                seen, read = (reference.observation(expected, when, FLOATS),
+                              compiled.observation(got, when, FLOATS))
+                for key in seen:
+                    assert (seen[key].dtype == read[key].dtype
+                            and seen[key].shape == read[key].shape)
+                    if key == "usbl":
+                        np.testing.assert_allclose(read[key], seen[key], rtol=1e-6, atol=1e-5)
+                    else:
+                        assert np.array_equal(read[key], seen[key]), key
             fixes += bool(expected.fix_valid)
     assert fixes > 100  # fixes delivered and observed
 

@@ -295,22 +295,24 @@ class SymbolicDraws:
         return casadi.vertcat(*self._symbols)
 
     def views(self, array: np.ndarray, calls: slice = slice(None)) -> tuple:
-        """The ``calls`` (all: every one) as method names, each with its slice of ``array``
-        (the bound input); consecutive calls of one method merged into one (a generator's
-        ``random`` and ``standard_normal`` keep nothing between calls: the same numbers)."""
+        """The ``calls`` (all: every one) as ``Generator`` methods, each with its slice of
+        ``array`` (the bound input); consecutive calls of one method merged into one (a
+        generator's ``random`` and ``standard_normal`` keep nothing between calls: the same
+        numbers)."""
         merged = []
         for kind, part in self.calls[calls]:
             if merged and merged[-1][0] == kind:
                 merged[-1] = (kind, slice(merged[-1][1].start, part.stop))
             else:
                 merged.append((kind, part))
-        return tuple((kind, array[part]) for kind, part in merged)
+        return tuple((getattr(np.random.Generator, kind), array[part])
+                     for kind, part in merged)
 
     @staticmethod
     def draw(views: tuple, generator) -> None:
         """Make the recorded calls on ``generator`` (a NumPy ``Generator``) into ``views``."""
-        for kind, out in views:
-            getattr(generator, kind)(out=out)
+        for method, out in views:
+            method(generator, out=out)
 
 
 class FreeBodyPlant:

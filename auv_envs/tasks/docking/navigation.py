@@ -560,7 +560,6 @@ class CompiledNavigation(Navigation):
         draw_input = self._call.inputs[2]
         self._every_step = draws.views(draw_input, slice(0, draws.marks[0]))
         self._on_ping = draws.views(draw_input, slice(draws.marks[0], None))
-        self._size = self._call.inputs[0].size
 
     def __reduce__(self):  # built again: the draws' views alias the call's inputs
         return type(self), (self.sensors, self.seabed_z, self.dt)
@@ -572,7 +571,7 @@ class CompiledNavigation(Navigation):
     def advance(self, state: np.ndarray, truth: dict, time, draws, ops) -> np.ndarray:
         call = self._call
         before, given = call.inputs[0], call.inputs[1]
-        before[:] = state[:self._size]
+        before[:] = state[:_STATE_SIZE]
         given[:] = (*truth["velocity"], truth["seabed_clearance"], *truth["euler"],
                     *truth["position"], time)
         SymbolicDraws.draw(self._every_step, draws)
@@ -657,8 +656,7 @@ def _navigation_function(sensors: NavigationSensors, seabed_z: float, dt: float)
     from auv_envs.core.ops import casadi_ops
 
     ops = casadi_ops()
-    size = _LAYOUT["depth"][0].stop
-    before, given = casadi.SX.sym("state", size), casadi.SX.sym("given", 14)
+    before, given = casadi.SX.sym("state", _STATE_SIZE), casadi.SX.sym("given", 14)
     state = NavState(**{name: ([before[k] for k in range(part.start, part.stop)]
                                if kind is tuple else before[part.start])
                         for name, (part, kind) in _LAYOUT.items()})

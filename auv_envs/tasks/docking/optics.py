@@ -41,6 +41,7 @@ import numpy as np
 from scipy import optimize
 from scipy.special import ndtri
 
+from auv_envs.core.ops import FLOATS
 from auv_envs.core.plant import CompiledFunction, SymbolicDraws
 
 #: Jerlov water types: oceanic I (clearest) to III, coastal 1C to 9C (most turbid).
@@ -451,8 +452,15 @@ class LampOutages:
     @classmethod
     def occlusions_after(cls, occluded, optics: WaterOptics, dt: float, u, xp):
         """The occlusions ``dt`` seconds after ``occluded`` given one uniform draw per lamp."""
-        appear, clear = cls.transition_probabilities(optics, dt)
-        return xp.where(occluded, u >= clear, u < appear)
+        return cls.occlusion_rule(occluded, u, *cls.transition_probabilities(optics, dt),
+                                  xp.where)
+
+    @staticmethod
+    def occlusion_rule(occluded, u, appear, clear, where):
+        """A lamp hidden after a step given its uniform draw ``u``: a hidden one stays so
+        unless cleared (``u < clear``), a clear one is hidden when ``u < appear``; ``where``
+        selects (``xp.where`` for arrays, :data:`~auv_envs.core.ops.FLOATS`' for one lamp)."""
+        return where(occluded, u >= clear, u < appear)
 
     @property
     def out(self) -> np.ndarray:
@@ -547,8 +555,8 @@ class CompiledLampDetection:
         """:meth:`LampOutages.occlusions_drawn` (the same draws and comparisons), in
         Python floats: for a handful of lamps NumPy's per-call cost exceeds the work."""
         rng.random(out=self._uniforms)
-        appear, clear = self._appear, self._clear
-        return np.array([u >= clear if hidden else u < appear
+        rule, appear, clear = LampOutages.occlusion_rule, self._appear, self._clear
+        return np.array([rule(hidden, u, appear, clear, FLOATS.where)
                          for hidden, u in zip(occluded.tolist(), self._uniforms.tolist(),
                                               strict=True)], dtype=bool)
 

@@ -119,25 +119,24 @@ class CompiledTruth:
             function, self._layout, self._pixels = _truth_function(rules, scenery)
             self._call = CompiledFunction(function, (physics.qpos, physics.qvel))
         self._sight_compiled = scenery is not None
-        self.physics, self.lights = physics, rules.lights
+        self.physics, self.lights, self._n = physics, rules.lights, len(rules.lights)
 
     def __call__(self) -> dict:
         out, lights = self._call()
         values = out.tolist()
         truth = {key: tuple(values[part]) if many else values[part.start]
                  for key, part, many in self._layout}
-        n = len(self.lights)
+        n = self._n
+        # Copies: the call's outputs are written again by the next call.
+        pixels = out[self._pixels].reshape(-1, 2).copy()
         if not self._sight_compiled:  # lines of sight left to MuJoCo (see __init__)
             visible = np.array(self.physics.unoccluded(truth["camera_position"], self.lights,
                                                        (lights[:n] > 0.5).tolist()))
-            return transition.truth_with_lights(truth, out[self._pixels].reshape(-1, 2).copy(),
-                                                visible, FLOATS)
-        # Copies: the call's outputs are written again by the next call.
+            return transition.truth_with_lights(truth, pixels, visible, FLOATS)
         lights = lights.copy()
-        truth.update(pixels=out[self._pixels].reshape(-1, 2).copy(), visible=lights[:n] > 0.5,
-                     visible_pixels=lights[n:3 * n].reshape(-1, 2),
-                     n_visible=int(lights[3 * n]))
-        return truth
+        return transition.truth_with_lights(truth, pixels, lights[:n] > 0.5, FLOATS,
+                                            lights[n:3 * n].reshape(-1, 2),
+                                            int(lights[3 * n]))
 
 
 @functools.lru_cache(maxsize=32)

@@ -389,13 +389,15 @@ def track_mission(params: DockingParams, record: MissionRecord, steps, truth: di
 
 
 # ------------------------------------------------------------------ what is seen
-def truth_with_lights(truth: dict, pixels, visible, ops) -> dict:
+def truth_with_lights(truth: dict, pixels, visible, ops, visible_pixels=None,
+                      n_visible=None) -> dict:
     """``truth`` with the lights' ``pixels`` (n, 2; NaN behind the camera) and ``visible``
-    (n,) added, ``visible_pixels`` (zero, not NaN, where not visible) and ``n_visible``."""
-    xp = ops.xp
-    truth.update(pixels=pixels, visible=visible,
-                 visible_pixels=xp.where(visible[:, None], pixels, 0.0),
-                 n_visible=ops.count(visible))
+    (n,) added, ``visible_pixels`` (zero, not NaN, where not visible) and ``n_visible``
+    (each computed here unless given: a compiled truth computes them in its call)."""
+    if visible_pixels is None:
+        visible_pixels = ops.xp.where(visible[:, None], pixels, 0.0)
+    truth.update(pixels=pixels, visible=visible, visible_pixels=visible_pixels,
+                 n_visible=ops.count(visible) if n_visible is None else n_visible)
     return truth
 
 
